@@ -1,0 +1,1 @@
+"""Device plugins: host-side logic and emulated models."""

@@ -1,0 +1,91 @@
+"""The ``hwbridge`` command line.
+
+Exit status: 0 on success, 2 on a usage error (bad option, missing argument), 1 on any other
+error; error messages go to stderr. Each command group lives in its own module and is added in
+:func:`build_app`; heavy imports (Zenoh, serial ports) happen inside the commands that need them.
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from hwbridge._version import __version__
+from hwbridge.cli import msgcmd
+from hwbridge.cli.common import Context, console_err
+from hwbridge.errors import HwBridgeError
+
+__all__ = ["build_app", "main"]
+
+
+def _version(value: bool) -> None:
+    if value:
+        typer.echo(f"hwbridge {__version__}")
+        raise typer.Exit
+
+
+def build_app() -> typer.Typer:
+    """The root Typer application with every command group attached."""
+    app = typer.Typer(
+        name="hwbridge",
+        help="Connect microcontroller boards to a host graph of topics and services.",
+        no_args_is_help=True,
+        pretty_exceptions_enable=False,
+        context_settings={"help_option_names": ["-h", "--help"]},
+        add_completion=False,
+    )
+
+    @app.callback()
+    def root(
+        ctx: typer.Context,
+        msg_path: Annotated[
+            list[Path] | None,
+            typer.Option(
+                "--msg-path",
+                help="Directory of message packages (PKG/msg/*.msg, PKG/srv/*.srv); repeatable. "
+                "Searched before HWBRIDGE_MSG_PATH.",
+                file_okay=False,
+            ),
+        ] = None,
+        verbose: Annotated[
+            int, typer.Option("--verbose", "-v", count=True, help="More log output (-vv: debug).")
+        ] = 0,
+        version: Annotated[
+            bool,
+            typer.Option(
+                "--version", callback=_version, is_eager=True, help="Print the version and exit."
+            ),
+        ] = False,
+    ) -> None:
+        level = logging.WARNING - 10 * min(verbose, 2)
+        logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+        ctx.obj = Context(msg_path=tuple(msg_path or ()))
+
+    app.add_typer(msgcmd.msg_app, name="msg")
+    app.add_typer(msgcmd.srv_app, name="srv")
+    return app
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Console-script entry point; returns the exit status."""
+    app = build_app()
+    try:
+        app(args=argv, prog_name="hwbridge", standalone_mode=True)
+    except SystemExit as exc:
+        code = exc.code
+        return code if isinstance(code, int) else (0 if code is None else 1)
+    except HwBridgeError as exc:
+        console_err.print(f"[bold red]error:[/] {exc}", highlight=False, markup=True)
+        return 1
+    except KeyboardInterrupt:
+        console_err.print("interrupted")
+        return 130
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

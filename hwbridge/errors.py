@@ -1,0 +1,27 @@
+"""Errors raised by hwbridge (re-exported from the bottom layer, ``hwbridge.protocols.errors``)."""
+
+from hwbridge.protocols.errors import (
+    DefinitionError,
+    FramingError,
+    HwBridgeError,
+    HwBridgeTimeoutError,
+    LinkError,
+    MessageTypeError,
+    ProtocolError,
+    ProtocolMismatchError,
+    SerializationError,
+    UnknownTypeError,
+)
+
+__all__ = [
+    "DefinitionError",
+    "FramingError",
+    "HwBridgeError",
+    "HwBridgeTimeoutError",
+    "LinkError",
+    "MessageTypeError",
+    "ProtocolError",
+    "ProtocolMismatchError",
+    "SerializationError",
+    "UnknownTypeError",
+]

@@ -1,0 +1,336 @@
+"""Message types for hwbridge users: ROS 1 names, md5 sums, bytes, dicts and YAML.
+
+A thin layer over ``rosbags`` (through :class:`hwbridge.protocols.msgtypes.TypeRegistry`)::
+
+    from hwbridge import msg
+
+    twist = msg.from_dict("geometry_msgs/Twist", {"linear": {"x": 0.2}})
+    data = msg.encode(twist)                    # ROS 1 bytes
+    again = msg.decode(data, "geometry_msgs/Twist")
+    msg.to_dict(again)["linear"]["x"]           # 0.2
+    msg.md5("geometry_msgs/Twist")              # '9f195f881246fdfa2798d1d3eebca84a'
+
+User packages are found on a search path: directories laid out ``PKG/msg/*.msg`` and
+``PKG/srv/*.srv``, from the ``HWBRIDGE_MSG_PATH`` environment variable (``os.pathsep``-separated)
+or passed explicitly to :func:`registry`.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Iterable, Mapping
+from functools import lru_cache
+from pathlib import Path
+from typing import Any, Final
+
+import numpy as np
+import yaml
+
+from hwbridge.protocols.errors import MessageTypeError, SerializationError
+from hwbridge.protocols.msgtypes import (
+    EMPTY_MARKER,
+    INT_RANGES,
+    MessageType,
+    ServiceType,
+    TypeRegistry,
+    ros1_name,
+)
+
+__all__ = [
+    "ENV_VAR",
+    "MessageType",
+    "ServiceType",
+    "TypeRegistry",
+    "decode",
+    "encode",
+    "from_dict",
+    "from_yaml",
+    "md5",
+    "new",
+    "registry",
+    "show",
+    "to_dict",
+    "to_yaml",
+    "type_of",
+]
+
+ENV_VAR: Final = "HWBRIDGE_MSG_PATH"
+
+_NUMPY_TYPES: Final[dict[str, type[np.generic]]] = {
+    "bool": np.bool_,
+    "byte": np.int8,
+    "char": np.uint8,
+    "int8": np.int8,
+    "uint8": np.uint8,
+    "int16": np.int16,
+    "uint16": np.uint16,
+    "int32": np.int32,
+    "uint32": np.uint32,
+    "int64": np.int64,
+    "uint64": np.uint64,
+    "float32": np.float32,
+    "float64": np.float64,
+}
+_TIME_CLASSES: Final = {"builtin_interfaces/msg/Time", "builtin_interfaces/msg/Duration"}
+# rosbags keeps ROS 1 time in a ROS 2 shaped class (int32 sec, uint32 nanosec), so time stamps
+# after 2038-01-19 and unnormalized nanoseconds cannot be represented; refuse them clearly.
+NSEC_LIMITS: Final = (0, 999_999_999)
+SEC_LIMITS: Final = {
+    "builtin_interfaces/msg/Time": (0, 2**31 - 1),
+    "builtin_interfaces/msg/Duration": (-(2**31), 2**31 - 1),
+}
+
+
+@lru_cache(maxsize=16)
+def _cached_registry(env_value: str, extra: tuple[str, ...]) -> TypeRegistry:
+    path = (*(Path(p) for p in extra), *(Path(p) for p in env_value.split(os.pathsep) if p))
+    return TypeRegistry(p.resolve() for p in path)
+
+
+def registry(extra_path: Iterable[str | Path] = ()) -> TypeRegistry:
+    """The type registry for ``extra_path`` followed by ``HWBRIDGE_MSG_PATH`` (cached)."""
+    return _cached_registry(os.environ.get(ENV_VAR, ""), tuple(str(p) for p in extra_path))
+
+
+def _reg(reg: TypeRegistry | None) -> TypeRegistry:
+    return reg if reg is not None else registry()
+
+
+def type_of(message: object) -> str:
+    """ROS 1 type name of a message object made by this module (or by rosbags)."""
+    store_name = getattr(message, "__msgtype__", None)
+    if not isinstance(store_name, str):
+        raise MessageTypeError(f"{type(message).__name__} is not a message object")
+    return ros1_name(store_name)
+
+
+def md5(type_name: str, reg: TypeRegistry | None = None) -> str:
+    """md5 sum of a message type, or of a service type if no message has that name."""
+    return _reg(reg).md5(type_name)
+
+
+def encode(message: object, type_name: str | None = None, reg: TypeRegistry | None = None) -> bytes:
+    """ROS 1 bytes of ``message``; the type defaults to the message's own."""
+    return _reg(reg).serialize(message, type_name or type_of(message))
+
+
+def decode(
+    data: bytes | bytearray | memoryview, type_name: str, reg: TypeRegistry | None = None
+) -> Any:
+    """Decode ROS 1 bytes as ``type_name``; SerializationError when they do not fit exactly."""
+    return _reg(reg).deserialize(data, type_name)
+
+
+# ---------------------------------------------------------------------- dict conversion
+def to_dict(message: object) -> dict[str, Any]:
+    """Plain dict of a message: nested messages as dicts, arrays as lists, time as secs/nsecs."""
+    result = _plain(message)
+    assert isinstance(result, dict)
+    return result
+
+
+def _plain(value: Any) -> Any:
+    store_name = getattr(value, "__msgtype__", None)
+    if isinstance(store_name, str):
+        if store_name in _TIME_CLASSES:
+            return {"secs": int(value.sec), "nsecs": int(value.nanosec)}
+        return {
+            name: _plain(getattr(value, name))
+            for name in value.__dataclass_fields__
+            if name not in ("__msgtype__", EMPTY_MARKER)
+        }
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, list):
+        return [_plain(v) for v in value]
+    return value
+
+
+def new(type_name: str, reg: TypeRegistry | None = None, /, **fields: Any) -> Any:
+    """A message of ``type_name`` with default (zero) values, overridden by ``fields``."""
+    return from_dict(type_name, fields, reg)
+
+
+def from_dict(
+    type_name: str, data: Mapping[str, Any] | None, reg: TypeRegistry | None = None
+) -> Any:
+    """Build a message from a (possibly partial) dict; missing fields take zero values.
+
+    Values are checked against the field types; errors name the field path, e.g.
+    ``geometry_msgs/Twist: linear.x: expected a number, got 'fast'``.
+    """
+    r = _reg(reg)
+    store_name = r.message(type_name).store_name
+    try:
+        return _build(r, store_name, data if data is not None else {}, "")
+    except _FieldError as exc:
+        raise MessageTypeError(f"{type_name}: {exc.path}: {exc.problem}") from None
+
+
+class _FieldError(Exception):
+    def __init__(self, path: str, problem: str) -> None:
+        super().__init__(f"{path}: {problem}")
+        self.path = path or "(message)"
+        self.problem = problem
+
+
+def _build(r: TypeRegistry, store_name: str, data: Any, path: str) -> Any:
+    cls = r.message_class(store_name)
+    if store_name in _TIME_CLASSES:
+        return _build_time(cls, store_name, data, path)
+    if data is None:
+        data = {}
+    if not isinstance(data, Mapping):
+        raise _FieldError(path, f"expected a mapping for {ros1_name(store_name)}, got {data!r}")
+    fields = r.fields(store_name)
+    names = [n for n, _ in fields]
+    unknown = [k for k in data if k not in names]
+    if unknown:
+        known = ", ".join(names) or "(none)"
+        raise _FieldError(
+            _join(path, str(unknown[0])),
+            f"no such field in {ros1_name(store_name)}; its fields are {known}",
+        )
+    values = {name: _build_field(r, d, data.get(name), _join(path, name)) for name, d in fields}
+    if not fields:
+        values[EMPTY_MARKER] = 0  # rosbags' placeholder member of an empty message
+    return cls(**values)
+
+
+def _build_time(cls: type[Any], store_name: str, data: Any, path: str) -> Any:
+    if data is None:
+        secs, nsecs = 0, 0
+    elif isinstance(data, (int, float)) and not isinstance(data, bool):
+        secs = math.floor(data)
+        nsecs = round((data - secs) * 1e9)
+        if nsecs >= 1_000_000_000:
+            secs, nsecs = secs + 1, nsecs - 1_000_000_000
+    elif isinstance(data, Mapping):
+        secs = data.get("secs", data.get("sec", 0))
+        nsecs = data.get("nsecs", data.get("nanosec", 0))
+    else:
+        raise _FieldError(path, f"expected seconds or {{secs, nsecs}}, got {data!r}")
+    for value, what, (low, high) in (
+        (secs, "secs", SEC_LIMITS[store_name]),
+        (nsecs, "nsecs", NSEC_LIMITS),
+    ):
+        if not isinstance(value, int) or isinstance(value, bool) or not low <= value <= high:
+            raise _FieldError(path, f"{what} must be an integer in [{low}, {high}], got {value!r}")
+    return cls(sec=secs, nanosec=nsecs)
+
+
+def _build_field(r: TypeRegistry, desc: Any, value: Any, path: str) -> Any:
+    kind, arg = desc
+    if kind == 1:  # Nodetype.BASE
+        return _scalar(arg[0], value, path)
+    if kind == 2:  # Nodetype.NAME
+        return _build(r, arg, value, path)
+    (sub_kind, sub_arg), size = arg
+    fixed = size if kind == 3 else None  # Nodetype.ARRAY has a fixed size
+    if value is None:
+        items: list[Any] = [None] * (fixed or 0)
+    elif isinstance(value, (bytes, bytearray, list, tuple, np.ndarray)):
+        items = list(value)
+    else:
+        raise _FieldError(path, f"expected a list, got {value!r}")
+    if fixed is not None and len(items) != fixed:
+        raise _FieldError(path, f"expected exactly {fixed} elements, got {len(items)}")
+    if sub_kind == 1:
+        base = sub_arg[0]
+        scalars = [_scalar(base, v, f"{path}[{i}]") for i, v in enumerate(items)]
+        if base == "string":
+            return scalars
+        return np.array(scalars, dtype=_NUMPY_TYPES[base])
+    return [_build(r, sub_arg, v, f"{path}[{i}]") for i, v in enumerate(items)]
+
+
+def _scalar(base: str, value: Any, path: str) -> Any:
+    if base == "string":
+        if value is None:
+            return ""
+        if not isinstance(value, str):
+            raise _FieldError(path, f"expected a string, got {value!r}")
+        return value
+    if base == "bool":
+        if value is None:
+            return False
+        if isinstance(value, (bool, np.bool_)) or value in (0, 1):
+            return bool(value)
+        raise _FieldError(path, f"expected true or false, got {value!r}")
+    if base in ("float32", "float64"):
+        if value is None:
+            return 0.0
+        if isinstance(value, bool) or not isinstance(value, (int, float, np.number)):
+            raise _FieldError(path, f"expected a number, got {value!r}")
+        return float(value)
+    if value is None:
+        return 0
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise _FieldError(path, f"expected an integer ({base}), got {value!r}")
+    low, high = INT_RANGES[base]
+    if not low <= int(value) <= high:
+        raise _FieldError(path, f"{value} is out of range for {base} [{low}, {high}]")
+    return int(value)
+
+
+def _join(path: str, name: str) -> str:
+    return f"{path}.{name}" if path else name
+
+
+# ---------------------------------------------------------------------- YAML
+def to_yaml(message: object) -> str:
+    """YAML text of a message, in the style of ``rostopic echo``."""
+    text: str = yaml.safe_dump(to_dict(message), sort_keys=False, default_flow_style=None)
+    return text
+
+
+def from_yaml(type_name: str, text: str, reg: TypeRegistry | None = None) -> Any:
+    """Build a message from YAML (a mapping; missing fields are zero)."""
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise SerializationError(f"not valid YAML for {type_name}: {exc}") from exc
+    return from_dict(type_name, data, reg)
+
+
+# ---------------------------------------------------------------------- display
+def show(type_name: str, reg: TypeRegistry | None = None) -> str:
+    """The definition as ``rosmsg show`` prints it: constants, then fields with nested ones."""
+    r = _reg(reg)
+    lines: list[str] = []
+    _show_into(r, r.message(type_name).store_name, "", lines)
+    return "\n".join(lines)
+
+
+def _show_into(r: TypeRegistry, store_name: str, indent: str, lines: list[str]) -> None:
+    for name, typ, value in r.constants(store_name):
+        lines.append(f"{indent}{typ} {name}={value}")
+    for name, desc in r.fields(store_name):
+        label, nested = _describe(desc)
+        lines.append(f"{indent}{label} {name}")
+        if nested is not None and nested not in _TIME_CLASSES:
+            _show_into(r, nested, indent + "  ", lines)
+
+
+def _describe(desc: Any) -> tuple[str, str | None]:
+    kind, arg = desc
+    if kind == 1:
+        return str(arg[0]), None
+    if kind == 2:
+        return _type_label(arg), arg
+    (sub_kind, sub_arg), size = arg
+    suffix = f"[{size}]" if kind == 3 else "[]"
+    if sub_kind == 1:
+        return f"{sub_arg[0]}{suffix}", None
+    return f"{_type_label(sub_arg)}{suffix}", sub_arg
+
+
+def _type_label(store_name: str) -> str:
+    if store_name == "builtin_interfaces/msg/Time":
+        return "time"
+    if store_name == "builtin_interfaces/msg/Duration":
+        return "duration"
+    return ros1_name(store_name)

@@ -1,0 +1,1 @@
+"""The hwbridge native protocol: framing (``framing``) and sessions (``session``)."""

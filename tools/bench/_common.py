@@ -1,0 +1,47 @@
+"""Helpers shared by the benchmarks: timing loops and the JSON line format.
+
+Every benchmark prints one JSON object per line with at least ``bench``, the case (``payload``
+or ``type``) and ``hwbridge_per_s``; where a peer is measured also ``peer``, ``peer_per_s`` and
+``ratio`` (hwbridge / peer).
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from collections.abc import Callable
+from typing import Any
+
+
+def rate(
+    work: Callable[[], object], count: int, *, repeats: int = 5, budget_s: float = 1.0
+) -> float:
+    """Best operations per second of ``work`` (which performs ``count`` operations per call)."""
+    best = 0.0
+    deadline = time.perf_counter() + budget_s
+    for _ in range(repeats):
+        start = time.perf_counter()
+        work()
+        elapsed = time.perf_counter() - start
+        best = max(best, count / elapsed if elapsed > 0 else float("inf"))
+        if time.perf_counter() > deadline:
+            break
+    return best
+
+
+def emit(
+    bench: str,
+    case: dict[str, Any],
+    ours: float,
+    peer: str | None = None,
+    theirs: float | None = None,
+    **extra: Any,
+) -> None:
+    """Print one benchmark line."""
+    line: dict[str, Any] = {"bench": bench, **case, "hwbridge_per_s": round(ours, 1)}
+    if peer is not None and theirs is not None:
+        line.update(peer=peer, peer_per_s=round(theirs, 1), ratio=round(ours / theirs, 3))
+    line.update(extra)
+    sys.stdout.write(json.dumps(line) + "\n")
+    sys.stdout.flush()

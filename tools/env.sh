@@ -1,0 +1,18 @@
+# Sourced by tools/run and tools/test: make a virtual environment with hwbridge installed.
+#   HWBRIDGE_VENV  where the environment lives (default: .venv in the checkout)
+#   PYTHON         interpreter that creates it (default: python3)
+#   HWBRIDGE_EXTRA pip extra to install with it (tools/test sets "test")
+ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+VENV="${HWBRIDGE_VENV:-$ROOT/.venv}"
+
+hwbridge_setup() {
+    local spec="$ROOT"
+    [ -n "${HWBRIDGE_EXTRA:-}" ] && spec="$ROOT[$HWBRIDGE_EXTRA]"
+    if [ ! -x "$VENV/bin/python" ]; then
+        printf '==> creating virtual environment %s\n' "$VENV" >&2
+        "${PYTHON:-python3}" -m venv "$VENV"
+        "$VENV/bin/python" -m pip install -q --disable-pip-version-check --upgrade pip >&2
+    fi
+    printf '==> pip install -e %s\n' "${spec#"$ROOT"}" >&2
+    "$VENV/bin/python" -m pip install -q --disable-pip-version-check -e "$spec" >&2
+}

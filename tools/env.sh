@@ -13,6 +13,6 @@ hwbridge_setup() {
         "${PYTHON:-python3}" -m venv "$VENV"
         "$VENV/bin/python" -m pip install -q --disable-pip-version-check --upgrade pip >&2
     fi
-    printf '==> pip install -e %s\n' "${spec#"$ROOT"}" >&2
+    printf '==> pip install -e .%s\n' "${spec#"$ROOT"}" >&2
     "$VENV/bin/python" -m pip install -q --disable-pip-version-check -e "$spec" >&2
 }

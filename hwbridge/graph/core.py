@@ -1,0 +1,587 @@
+"""The host graph on Eclipse Zenoh: nodes, topics, services and discovery.
+
+A rospy user should feel at home::
+
+    from hwbridge.graph import Graph
+
+    with Graph.attached() as graph:                 # a bridge is running on this machine
+        node = graph.node("listener")
+        node.subscriber("/chatter", "std_msgs/String", lambda m: print(m.data))
+        odom = node.wait_for_message("/odom", "nav_msgs/Odometry", timeout=2.0)
+        reply = node.call("/board/reset", "std_srvs/Trigger", {}, timeout=1.0)
+
+Topics carry ROS 1 serialized bytes with the type's md5 and name in the Zenoh attachment; a
+subscriber that expects another md5 gets an error naming both types and never sees the bytes.
+Raw publishers and subscribers (used by the bridge) move bytes without decoding them.
+"""
+
+from __future__ import annotations
+
+import atexit
+import contextlib
+import logging
+import threading
+import weakref
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Final
+
+from hwbridge import msg as msgmod
+from hwbridge.errors import HwBridgeError, HwBridgeTimeoutError, ProtocolMismatchError
+from hwbridge.graph.config import GraphConfig
+from hwbridge.graph.names import decode_segment, encode_segment, resolve_name
+
+if TYPE_CHECKING:
+    import zenoh
+
+    from hwbridge.graph.params import ParamClient
+
+__all__ = [
+    "ANY_TYPE",
+    "Graph",
+    "GraphEntity",
+    "GraphSnapshot",
+    "Node",
+    "Publisher",
+    "RawMessage",
+    "ServiceError",
+    "ServiceServer",
+    "Subscriber",
+]
+
+log = logging.getLogger("hwbridge.graph")
+
+ANY_TYPE: Final = "*"
+"""Type given to a subscriber that takes whatever type the publishers send."""
+_MD5_LEN: Final = 32
+
+
+class ServiceError(HwBridgeError):
+    """A service server answered with an error, or refused the request."""
+
+
+@dataclass(frozen=True, slots=True)
+class RawMessage:
+    """Bytes received on a topic, with the type the publisher declared."""
+
+    topic: str
+    type: str
+    md5: str
+    data: bytes
+
+
+def _attachment(md5: str, type_name: str) -> bytes:
+    return (md5 + type_name).encode()
+
+
+def _parse_attachment(raw: bytes | None) -> tuple[str, str]:
+    if raw is None or len(raw) < _MD5_LEN:
+        return "", ""
+    text = raw.decode("ascii", "replace")
+    return text[:_MD5_LEN], text[_MD5_LEN:]
+
+
+@dataclass(frozen=True, slots=True)
+class GraphEntity:
+    """Something alive on the graph, as discovery reports it."""
+
+    kind: str  # node, pub, sub, srv, board
+    node: str
+    name: str = ""
+    type: str = ""
+    session: str = ""
+
+
+@dataclass
+class GraphSnapshot:
+    """What discovery saw at one moment."""
+
+    entities: list[GraphEntity] = field(default_factory=list)
+
+    def of_kind(self, kind: str) -> list[GraphEntity]:
+        return sorted((e for e in self.entities if e.kind == kind), key=lambda e: (e.name, e.node))
+
+    @property
+    def nodes(self) -> list[str]:
+        return sorted({e.node for e in self.entities if e.kind == "node"})
+
+    def topics(self) -> dict[str, set[str]]:
+        """Topic name -> types published or subscribed under that name."""
+        out: dict[str, set[str]] = {}
+        for entity in self.entities:
+            if entity.kind in ("pub", "sub"):
+                out.setdefault(entity.name, set()).add(entity.type)
+        return out
+
+    def services(self) -> dict[str, set[str]]:
+        out: dict[str, set[str]] = {}
+        for entity in self.of_kind("srv"):
+            out.setdefault(entity.name, set()).add(entity.type)
+        return out
+
+
+class Graph:
+    """One Zenoh session and everything declared on it. Always close it (or use ``with``)."""
+
+    def __init__(self, config: GraphConfig | None = None) -> None:
+        import zenoh
+
+        self.config = config or GraphConfig.attached()
+        self.prefix = f"hwbridge/{encode_segment(self.config.domain)}"
+        try:
+            self.session: zenoh.Session = zenoh.open(self.config.to_zenoh())
+        except zenoh.ZError as exc:
+            hint = ""
+            if self.config.mode == "client":
+                hint = (
+                    "; is a bridge running? start one with 'hwbridge connect URL' "
+                    "(or set HWBRIDGE_ENDPOINT)"
+                )
+            raise HwBridgeError(
+                f"cannot join the graph ({self.config.describe()}): {exc}{hint}"
+            ) from exc
+        self.zid = str(self.session.zid())
+        self._lock = threading.Lock()
+        self._closeables: list[Any] = []
+        self._closed = False
+        self._params: ParamClient | None = None
+        self.registry = msgmod.registry()
+        _OPEN_GRAPHS.add(self)
+        log.debug("joined the graph as %s: %s", self.zid, self.config.describe())
+
+    @classmethod
+    def embedded(cls, listen: list[str] | None = None, domain: str | None = None) -> Graph:
+        """Own the graph: a router on the loopback endpoint (see GraphConfig.embedded)."""
+        return cls(GraphConfig.embedded(listen, domain))
+
+    @classmethod
+    def attached(cls, connect: list[str] | None = None, domain: str | None = None) -> Graph:
+        """Join a running bridge's graph (see GraphConfig.attached)."""
+        return cls(GraphConfig.attached(connect, domain))
+
+    # ------------------------------------------------------------------ lifecycle
+    def __enter__(self) -> Graph:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    def close(self) -> None:
+        """Undeclare everything and close the session (idempotent)."""
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+            closeables, self._closeables = self._closeables, []
+        for item in reversed(closeables):
+            with contextlib.suppress(Exception):  # the session may already be gone
+                item.undeclare()
+        with contextlib.suppress(Exception):
+            self.session.close()  # type: ignore[no-untyped-call]
+        _OPEN_GRAPHS.discard(self)
+
+    def _keep(self, item: Any) -> Any:
+        with self._lock:
+            if self._closed:
+                with contextlib.suppress(Exception):
+                    item.undeclare()
+                raise HwBridgeError("the graph is closed")
+            self._closeables.append(item)
+        return item
+
+    def _forget(self, item: Any) -> None:
+        with self._lock:
+            if item in self._closeables:
+                self._closeables.remove(item)
+        with contextlib.suppress(Exception):
+            item.undeclare()
+
+    # ------------------------------------------------------------------ keys
+    def topic_key(self, topic: str) -> str:
+        return f"{self.prefix}/t{topic}"
+
+    def service_key(self, service: str) -> str:
+        return f"{self.prefix}/s{service}"
+
+    def announce(self, kind: str, node: str, name: str = "", type_name: str = "") -> Any:
+        """Declare a liveliness token saying this entity is alive; returns it (undeclare it)."""
+        parts = [kind, encode_segment(node)]
+        if name or type_name:
+            parts += [encode_segment(name), encode_segment(type_name)]
+        key = f"{self.prefix}/@/{self.zid}/" + "/".join(parts)
+        return self._keep(self.session.liveliness().declare_token(key))
+
+    # ------------------------------------------------------------------ API
+    def node(self, name: str, namespace: str = "/") -> Node:
+        """A node: the owner of publishers, subscribers and services."""
+        return Node(self, resolve_name(name, namespace), namespace)
+
+    @property
+    def params(self) -> ParamClient:
+        """Client of the parameter server (hosted by the bridge)."""
+        if self._params is None:
+            from hwbridge.graph.params import ParamClient
+
+            self._params = ParamClient(self)
+        return self._params
+
+    def snapshot(self, timeout: float = 1.0) -> GraphSnapshot:
+        """Everything alive on the graph now (a liveliness query)."""
+        snapshot = GraphSnapshot()
+        replies = self.session.liveliness().get(f"{self.prefix}/@/**", timeout=timeout)
+        for reply in replies:
+            if reply.ok is not None:
+                entity = self._parse_entity(str(reply.ok.key_expr))
+                if entity is not None:
+                    snapshot.entities.append(entity)
+        return snapshot
+
+    def watch(self, callback: Callable[[GraphEntity, bool], None]) -> Any:
+        """Call ``callback(entity, alive)`` as entities appear and disappear (history included)."""
+        import zenoh
+
+        def on_sample(sample: zenoh.Sample) -> None:
+            entity = self._parse_entity(str(sample.key_expr))
+            if entity is not None:
+                _guarded(callback, entity, sample.kind == zenoh.SampleKind.PUT)
+
+        return self._keep(
+            self.session.liveliness().declare_subscriber(
+                f"{self.prefix}/@/**", on_sample, history=True
+            )
+        )
+
+    def _parse_entity(self, key: str) -> GraphEntity | None:
+        rest = key[len(self.prefix) + len("/@/") :].split("/")
+        if len(rest) not in (3, 5):
+            return None
+        session, kind, node = rest[0], rest[1], decode_segment(rest[2])
+        name = decode_segment(rest[3]) if len(rest) == 5 else ""
+        type_name = decode_segment(rest[4]) if len(rest) == 5 else ""
+        return GraphEntity(kind, node, name, type_name, session)
+
+
+_OPEN_GRAPHS: weakref.WeakSet[Graph] = weakref.WeakSet()
+
+
+def _close_open_graphs() -> None:
+    """Close every graph still open when the interpreter exits.
+
+    Zenoh runs callbacks on a non-daemon Python thread, which the interpreter joins before it
+    runs ``atexit`` handlers: an open session with callback subscribers would hang exit. So the
+    hook goes into ``threading``'s own exit list, which runs before that join (as
+    ``concurrent.futures`` does), with plain ``atexit`` as a fallback.
+    """
+    for graph in list(_OPEN_GRAPHS):
+        graph.close()
+
+
+_register_exit = getattr(threading, "_register_atexit", None)
+if callable(_register_exit):
+    _register_exit(_close_open_graphs)
+else:  # pragma: no cover - other interpreters
+    atexit.register(_close_open_graphs)
+
+
+def _guarded(callback: Callable[..., Any], *args: Any) -> None:
+    try:
+        callback(*args)
+    except Exception:
+        log.exception("callback %r failed", callback)
+
+
+class Node:
+    """A named participant; topic and service names resolve in its namespace."""
+
+    def __init__(self, graph: Graph, name: str, namespace: str = "/") -> None:
+        self.graph = graph
+        self.name = name
+        self.namespace = namespace
+        self._token = graph.announce("node", name)
+
+    def resolve(self, name: str) -> str:
+        return resolve_name(name, self.namespace, self.name.rsplit("/", 1)[-1])
+
+    def _message_type(self, type_name: str) -> msgmod.MessageType:
+        return self.graph.registry.message(type_name)
+
+    # ------------------------------------------------------------------ topics
+    def publisher(
+        self, topic: str, type_name: str, *, drop_when_congested: bool = False
+    ) -> Publisher:
+        """Publish messages of ``type_name`` on ``topic``."""
+        mtype = self._message_type(type_name)
+        return Publisher(self, self.resolve(topic), mtype, drop_when_congested)
+
+    def raw_publisher(self, topic: str, type_name: str, md5: str) -> Publisher:
+        """Publish bytes that are already serialized (the bridge's path): type and md5 as given."""
+        mtype = msgmod.MessageType(name=type_name, md5=md5, source="raw", store_name="")
+        return Publisher(self, self.resolve(topic), mtype, False)
+
+    def subscriber(
+        self,
+        topic: str,
+        type_name: str,
+        callback: Callable[[Any], None],
+        *,
+        raw: bool = False,
+        on_error: Callable[[HwBridgeError], None] | None = None,
+    ) -> Subscriber:
+        """Call ``callback`` for each message on ``topic``.
+
+        ``type_name`` may be ``ANY_TYPE`` to take whatever is published. With ``raw=True`` the
+        callback gets a :class:`RawMessage` (no decoding); otherwise a message object.
+        """
+        expected = None if type_name == ANY_TYPE else self._message_type(type_name)
+        return Subscriber(self, self.resolve(topic), expected, callback, raw, on_error)
+
+    def wait_for_message(self, topic: str, type_name: str, timeout: float = 5.0) -> Any:
+        """Block until one message arrives on ``topic``; HwBridgeTimeoutError after ``timeout``."""
+        arrived = threading.Event()
+        box: list[Any] = []
+        errors: list[HwBridgeError] = []
+
+        def take(message: Any) -> None:
+            if not arrived.is_set():
+                box.append(message)
+                arrived.set()
+
+        def fail(error: HwBridgeError) -> None:
+            errors.append(error)
+            arrived.set()
+
+        sub = self.subscriber(topic, type_name, take, on_error=fail)
+        try:
+            if not arrived.wait(timeout):
+                raise HwBridgeTimeoutError(
+                    f"no message on {self.resolve(topic)} within {timeout:g} s"
+                )
+        finally:
+            sub.close()
+        if box:
+            return box[0]
+        raise errors[0]
+
+    # ------------------------------------------------------------------ services
+    def service(
+        self,
+        name: str,
+        srv_type: str,
+        handler: Callable[[Any], Any],
+        *,
+        raw: bool = False,
+    ) -> ServiceServer:
+        """Serve ``name``: ``handler(request) -> response`` (bytes in and out with ``raw``)."""
+        return ServiceServer(self, self.resolve(name), srv_type, handler, raw)
+
+    def call(self, name: str, srv_type: str, request: Any, timeout: float = 5.0) -> Any:
+        """Call a service and return the decoded response.
+
+        ``request`` is a message object or a dict; errors: ServiceError (the server refused or
+        failed), HwBridgeTimeoutError (no answer in time, or no server).
+        """
+        service = self.graph.registry.service(srv_type)
+        if isinstance(request, Mapping):
+            request = msgmod.from_dict(service.request.name, request, self.graph.registry)
+        data = msgmod.encode(request, service.request.name, self.graph.registry)
+        reply = self.call_raw(name, srv_type, data, timeout, md5=service.md5)
+        return msgmod.decode(reply, service.response.name, self.graph.registry)
+
+    def call_raw(
+        self, name: str, srv_type: str, data: bytes, timeout: float = 5.0, md5: str | None = None
+    ) -> bytes:
+        """Call a service with serialized request bytes; returns the response bytes."""
+        import zenoh
+
+        resolved = self.resolve(name)
+        md5 = md5 or self.graph.registry.service(srv_type).md5
+        replies = self.graph.session.get(
+            self.graph.service_key(resolved),
+            payload=data,
+            attachment=_attachment(md5, srv_type),
+            timeout=timeout,
+            target=zenoh.QueryTarget.BEST_MATCHING,
+        )
+        for reply in replies:
+            if reply.ok is not None:
+                return bytes(reply.ok.payload.to_bytes())
+            if reply.err is not None:
+                raise ServiceError(f"{resolved}: {reply.err.payload.to_string()}")
+        raise HwBridgeTimeoutError(
+            f"no answer from service {resolved} within {timeout:g} s "
+            "(is its server running? see 'hwbridge service list')"
+        )
+
+
+class Publisher:
+    """Publishes on one topic. ``publish`` takes a message or dict; ``publish_raw`` bytes."""
+
+    def __init__(
+        self, node: Node, topic: str, mtype: msgmod.MessageType, drop_when_congested: bool
+    ) -> None:
+        import zenoh
+
+        self.node = node
+        self.topic = topic
+        self.type = mtype
+        self.sent = 0
+        graph = node.graph
+        congestion = (
+            zenoh.CongestionControl.DROP if drop_when_congested else zenoh.CongestionControl.BLOCK
+        )
+        self._publisher = graph._keep(
+            graph.session.declare_publisher(graph.topic_key(topic), congestion_control=congestion)
+        )
+        self._attachment = _attachment(mtype.md5, mtype.name)
+        self._token = graph.announce("pub", node.name, topic, mtype.name)
+
+    def publish(self, message: Any) -> None:
+        """Serialize and publish a message object (or a dict of its fields)."""
+        registry = self.node.graph.registry
+        if isinstance(message, Mapping):
+            message = msgmod.from_dict(self.type.name, message, registry)
+        self.publish_raw(msgmod.encode(message, self.type.name, registry))
+
+    def publish_raw(self, data: bytes | bytearray | memoryview) -> None:
+        """Publish bytes already in ROS 1 serialization of this publisher's type."""
+        self._publisher.put(bytes(data), attachment=self._attachment)
+        self.sent += 1
+
+    def close(self) -> None:
+        self.node.graph._forget(self._publisher)
+        self.node.graph._forget(self._token)
+
+
+class Subscriber:
+    """Receives one topic; counts what it could not deliver."""
+
+    def __init__(
+        self,
+        node: Node,
+        topic: str,
+        expected: msgmod.MessageType | None,
+        callback: Callable[[Any], None],
+        raw: bool,
+        on_error: Callable[[HwBridgeError], None] | None,
+    ) -> None:
+        self.node = node
+        self.topic = topic
+        self.expected = expected
+        self.received = 0
+        self.type_mismatches = 0
+        self.decode_errors = 0
+        self._callback = callback
+        self._raw = raw
+        self._on_error = on_error
+        self._reported: set[str] = set()
+        graph = node.graph
+        self._subscriber = graph._keep(
+            graph.session.declare_subscriber(graph.topic_key(topic), self._on_sample)
+        )
+        type_label = expected.name if expected else ANY_TYPE
+        self._token = graph.announce("sub", node.name, topic, type_label)
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        md5, type_name = _parse_attachment(
+            sample.attachment.to_bytes() if sample.attachment is not None else None
+        )
+        expected = self.expected
+        if expected is not None and md5 != expected.md5:
+            self.type_mismatches += 1
+            self._fail(
+                md5,
+                ProtocolMismatchError(
+                    f"topic {self.topic}: publisher sends {type_name or '?'} (md5 {md5 or '?'}), "
+                    f"this subscriber expects {expected.name} (md5 {expected.md5})"
+                ),
+            )
+            return
+        data = bytes(sample.payload.to_bytes())
+        self.received += 1
+        if self._raw:
+            _guarded(self._callback, RawMessage(self.topic, type_name, md5, data))
+            return
+        try:
+            message = msgmod.decode(
+                data, expected.name if expected else type_name, self.node.graph.registry
+            )
+        except HwBridgeError as exc:
+            self.decode_errors += 1
+            self._fail(f"decode:{type_name}", exc)
+            return
+        _guarded(self._callback, message)
+
+    def _fail(self, key: str, error: HwBridgeError) -> None:
+        if self._on_error is not None:
+            _guarded(self._on_error, error)
+        elif key not in self._reported:
+            self._reported.add(key)
+            log.error("%s (further errors of this kind are counted, not logged)", error)
+
+    def close(self) -> None:
+        self.node.graph._forget(self._subscriber)
+        self.node.graph._forget(self._token)
+
+
+class ServiceServer:
+    """Answers one service; handler exceptions become error replies, never silence."""
+
+    def __init__(
+        self,
+        node: Node,
+        name: str,
+        srv_type: str,
+        handler: Callable[[Any], Any],
+        raw: bool,
+    ) -> None:
+        self.node = node
+        self.name = name
+        self.service = node.graph.registry.service(srv_type)
+        self.calls = 0
+        self.failures = 0
+        self._handler = handler
+        self._raw = raw
+        graph = node.graph
+        self._queryable = graph._keep(
+            graph.session.declare_queryable(graph.service_key(name), self._on_query)
+        )
+        self._token = graph.announce("srv", node.name, name, srv_type)
+
+    def _on_query(self, query: zenoh.Query) -> None:
+        md5, type_name = _parse_attachment(
+            query.attachment.to_bytes() if query.attachment is not None else None
+        )
+        service = self.service
+        if md5 != service.md5:
+            self.failures += 1
+            query.reply_err(
+                f"type mismatch: caller uses {type_name or '?'} (md5 {md5 or '?'}), "
+                f"server {self.name} serves {service.name} (md5 {service.md5})"
+            )
+            return
+        data = bytes(query.payload.to_bytes()) if query.payload is not None else b""
+        self.calls += 1
+        registry = self.node.graph.registry
+        try:
+            if self._raw:
+                answer = bytes(self._handler(data))
+            else:
+                request = msgmod.decode(data, service.request.name, registry)
+                response = self._handler(request)
+                if isinstance(response, Mapping) or response is None:
+                    response = msgmod.from_dict(service.response.name, response or {}, registry)
+                answer = msgmod.encode(response, service.response.name, registry)
+        except Exception as exc:  # noqa: BLE001 - any handler failure goes back to the caller
+            self.failures += 1
+            log.warning("service %s failed: %s", self.name, exc)
+            query.reply_err(f"{type(exc).__name__}: {exc}")
+            return
+        query.reply(query.key_expr, answer)
+
+    def close(self) -> None:
+        self.node.graph._forget(self._queryable)
+        self.node.graph._forget(self._token)

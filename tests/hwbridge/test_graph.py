@@ -1,0 +1,244 @@
+"""The Zenoh graph with real sessions: a router (embedded) and clients (attached)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import textwrap
+from collections.abc import Iterator
+from typing import Any
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from hwbridge import msg
+from hwbridge.errors import HwBridgeError, HwBridgeTimeoutError, ProtocolMismatchError
+from hwbridge.graph import (
+    ANY_TYPE,
+    Graph,
+    GraphNameError,
+    ParamError,
+    ParamServer,
+    RawMessage,
+    ServiceError,
+    resolve_name,
+)
+from hwbridge.graph.names import decode_segment, encode_segment
+from tests.netutil import free_port, wait_until
+
+
+@pytest.fixture(scope="module")
+def endpoint() -> str:
+    return f"tcp/127.0.0.1:{free_port()}"
+
+
+@pytest.fixture(scope="module")
+def router(endpoint: str) -> Iterator[Graph]:
+    graph = Graph.embedded(listen=[endpoint], domain="test")
+    yield graph
+    graph.close()
+
+
+@pytest.fixture
+def client(router: Graph, endpoint: str) -> Iterator[Graph]:
+    graph = Graph.attached(connect=[endpoint], domain="test")
+    yield graph
+    graph.close()
+
+
+def test_names() -> None:
+    assert resolve_name("odom", "/robot1") == "/robot1/odom"
+    assert resolve_name("/odom", "/robot1") == "/odom"
+    assert resolve_name("~rate", "/robot1", "driver") == "/robot1/driver/rate"
+    for bad in ("", "/a//b", "/a/", "/1abc", "/a-b", "a b"):
+        with pytest.raises(GraphNameError):
+            resolve_name(bad)
+
+
+@settings(max_examples=200, deadline=None, derandomize=True)
+@given(st.text())
+def test_key_segment_round_trip(text: str) -> None:
+    segment = encode_segment(text)
+    assert segment and not set(segment) & set("/*$?#")
+    assert decode_segment(segment) == text
+
+
+def test_typed_publish_subscribe_across_sessions(router: Graph, client: Graph) -> None:
+    got: list[Any] = []
+    client.node("listener").subscriber("/chatter", "std_msgs/String", got.append)
+    pub = router.node("talker").publisher("chatter", "std_msgs/String")
+    assert wait_until(lambda: _published_until(pub, {"data": "hi"}, lambda: bool(got)))
+    assert got[0].data == "hi"
+
+
+def _published_until(pub: Any, message: Any, done: Any) -> bool:
+    """Publish until the subscriber has seen one (declarations propagate asynchronously)."""
+    if not done():
+        pub.publish(message)
+    return bool(done())
+
+
+def test_md5_mismatch_is_a_clear_error_not_garbage(router: Graph, client: Graph) -> None:
+    errors: list[HwBridgeError] = []
+    delivered: list[Any] = []
+    sub = client.node("wrong").subscriber(
+        "/typed", "geometry_msgs/Twist", delivered.append, on_error=errors.append
+    )
+    pub = router.node("right").publisher("/typed", "std_msgs/String")
+    assert wait_until(lambda: _published_until(pub, {"data": "x"}, lambda: bool(errors)))
+    assert not delivered
+    assert isinstance(errors[0], ProtocolMismatchError)
+    text = str(errors[0])
+    assert "std_msgs/String" in text and "geometry_msgs/Twist" in text
+    assert "992ce8a1687cec8c8bd883ec73ca41d1" in text and "9f195f881246fdfa2798d1d3eebca84a" in text
+    assert sub.type_mismatches >= 1
+
+
+def test_raw_bytes_pass_untouched_and_any_type_decodes(router: Graph, client: Graph) -> None:
+    raw: list[RawMessage] = []
+    decoded: list[Any] = []
+    node = client.node("spy")
+    node.subscriber("/raw", ANY_TYPE, raw.append, raw=True)
+    node.subscriber("/raw", ANY_TYPE, decoded.append)
+    md5 = msg.md5("std_msgs/Int32")
+    pub = router.node("bridge").raw_publisher("/raw", "std_msgs/Int32", md5)
+    payload = (123456).to_bytes(4, "little")
+    def step() -> bool:
+        if not (raw and decoded):
+            pub.publish_raw(payload)
+        return bool(raw and decoded)
+
+    assert wait_until(step)
+    assert raw[0] == RawMessage("/raw", "std_msgs/Int32", md5, payload)
+    assert decoded[0].data == 123456
+
+
+def test_wait_for_message_and_timeout(router: Graph, client: Graph) -> None:
+    import threading
+
+    node = client.node("waiter")
+    with pytest.raises(HwBridgeTimeoutError, match="no message on /quiet"):
+        node.wait_for_message("/quiet", "std_msgs/Bool", timeout=0.3)
+    pub = router.node("ticker").publisher("/tick", "std_msgs/UInt32")
+    stop = threading.Event()
+
+    def tick() -> None:
+        count = 0
+        while not stop.is_set():
+            pub.publish({"data": count})
+            count += 1
+            stop.wait(0.01)
+
+    thread = threading.Thread(target=tick)
+    thread.start()
+    try:
+        message = node.wait_for_message("/tick", "std_msgs/UInt32", timeout=10)
+    finally:
+        stop.set()
+        thread.join()
+    assert message.data >= 0
+
+
+def test_services(router: Graph, client: Graph) -> None:
+    def handler(request: Any) -> dict[str, Any]:
+        if request.data:
+            raise RuntimeError("motor driver not ready")
+        return {"success": True, "message": "disabled"}
+
+    router.node("board").service("/enable", "std_srvs/SetBool", handler)
+    node = client.node("caller")
+    response = _call_when_ready(node, "/enable", "std_srvs/SetBool", {"data": False})
+    assert (response.success, response.message) == (True, "disabled")
+    with pytest.raises(ServiceError, match="RuntimeError: motor driver not ready"):
+        node.call("/enable", "std_srvs/SetBool", {"data": True}, timeout=5)
+    with pytest.raises(ServiceError, match="type mismatch: caller uses std_srvs/Trigger"):
+        node.call("/enable", "std_srvs/Trigger", {}, timeout=5)
+    with pytest.raises(HwBridgeTimeoutError, match="no answer from service /nobody"):
+        node.call("/nobody", "std_srvs/Trigger", {}, timeout=0.3)
+
+
+def _call_when_ready(node: Any, name: str, srv: str, request: Any) -> Any:
+    box: list[Any] = []
+
+    def attempt() -> bool:
+        try:
+            box.append(node.call(name, srv, request, timeout=0.5))
+        except HwBridgeTimeoutError:
+            return False
+        return True
+
+    assert wait_until(attempt, timeout=10)
+    return box[0]
+
+
+def test_parameters(router: Graph, client: Graph) -> None:
+    server = ParamServer(router, {"/robot": {"wheel": {"radius": 0.033, "count": 2}}})
+    params = client.params
+    updates: list[tuple[str, Any]] = []
+    params.on_update(lambda name, value: updates.append((name, value)))
+    assert wait_until(lambda: _try(lambda: params.get("/robot/wheel/radius")) == 0.033)
+    assert params.get("/robot") == {"wheel": {"count": 2, "radius": 0.033}}
+    params.set("/robot/name", "diffbot")
+    params.set("/flags", [True, False])
+    assert server.get("/robot/name") == "diffbot"
+    assert params.names() == ["/flags", "/robot/name", "/robot/wheel/count", "/robot/wheel/radius"]
+    with pytest.raises(ParamError, match="no parameter /missing"):
+        params.get("/missing")
+    assert params.get("/missing", None) is None
+    params.delete("/robot/wheel")
+    assert params.names() == ["/flags", "/robot/name"]
+    with pytest.raises(ParamError, match="is not a bool"):
+        params.set("/bad", object())
+    assert wait_until(lambda: ("/robot/wheel/radius", None) in updates)
+    assert ("/robot/name", "diffbot") in updates
+
+
+def _try(action: Any) -> Any:
+    try:
+        return action()
+    except HwBridgeError:
+        return None
+
+
+def test_discovery_sees_entities_come_and_go(router: Graph, client: Graph) -> None:
+    events: list[tuple[str, str, bool]] = []
+    client.watch(lambda e, alive: events.append((e.kind, e.name, alive)))
+    node = router.node("odometry", namespace="/diffbot")
+    pub = node.publisher("odom", "nav_msgs/Odometry")
+    assert wait_until(lambda: ("pub", "/diffbot/odom", True) in events)
+    snapshot = client.snapshot()
+    assert "/diffbot/odometry" in snapshot.nodes
+    assert "nav_msgs/Odometry" in snapshot.topics()["/diffbot/odom"]
+    pub.close()
+    assert wait_until(lambda: ("pub", "/diffbot/odom", False) in events)
+
+
+def test_attaching_without_a_bridge_says_what_to_do() -> None:
+    with pytest.raises(HwBridgeError, match="is a bridge running"):
+        Graph.attached(connect=[f"tcp/127.0.0.1:{free_port()}"])
+
+
+def test_other_process_publishes_and_exits_without_closing(endpoint: str, router: Graph) -> None:
+    """A second process attaches, publishes, subscribes, and exits without close(): no hang."""
+    got: list[Any] = []
+    router.node("sink").subscriber("/from_child", "std_msgs/String", got.append)
+    script = textwrap.dedent(
+        f"""
+        import time
+        from hwbridge.graph import Graph
+        graph = Graph.attached(connect=["{endpoint}"], domain="test")
+        node = graph.node("child")
+        node.subscriber("/anything", "std_msgs/String", print)
+        pub = node.publisher("/from_child", "std_msgs/String")
+        for _ in range(200):
+            pub.publish({{"data": "from another process"}})
+            time.sleep(0.01)
+        """
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, timeout=60, check=False
+    )
+    assert done.returncode == 0, done.stderr
+    assert wait_until(lambda: bool(got))
+    assert got[0].data == "from another process"

@@ -43,6 +43,7 @@ __all__ = [
     "ServiceType",
     "TypeRegistry",
     "decode",
+    "dump_yaml",
     "encode",
     "from_dict",
     "from_yaml",
@@ -281,10 +282,28 @@ def _join(path: str, name: str) -> str:
 
 
 # ---------------------------------------------------------------------- YAML
+class _Dumper(yaml.SafeDumper):
+    """Mappings in block style, sequences inline: the look of ``rostopic echo``."""
+
+
+def _inline_list(dumper: yaml.SafeDumper, data: list[Any]) -> yaml.Node:
+    return dumper.represent_sequence("tag:yaml.org,2002:seq", data, flow_style=True)
+
+
+_Dumper.add_representer(list, _inline_list)
+
+
+def dump_yaml(data: Any) -> str:
+    """YAML text of plain data (dicts, lists, scalars) in rostopic's style."""
+    text: str = yaml.dump(
+        data, Dumper=_Dumper, sort_keys=False, default_flow_style=False, width=100
+    )
+    return text
+
+
 def to_yaml(message: object) -> str:
     """YAML text of a message, in the style of ``rostopic echo``."""
-    text: str = yaml.safe_dump(to_dict(message), sort_keys=False, default_flow_style=None)
-    return text
+    return dump_yaml(to_dict(message))
 
 
 def from_yaml(type_name: str, text: str, reg: TypeRegistry | None = None) -> Any:

@@ -15,7 +15,7 @@ from typing import Annotated
 import typer
 
 from hwbridge._version import __version__
-from hwbridge.cli import msgcmd
+from hwbridge.cli import graphcmd, msgcmd
 from hwbridge.cli.common import Context, console_err
 from hwbridge.errors import HwBridgeError
 
@@ -51,6 +51,18 @@ def build_app() -> typer.Typer:
                 file_okay=False,
             ),
         ] = None,
+        endpoint: Annotated[
+            str | None,
+            typer.Option(
+                "--endpoint",
+                envvar="HWBRIDGE_ENDPOINT",
+                help="Zenoh endpoint of the running bridge [default: tcp/127.0.0.1:7447].",
+            ),
+        ] = None,
+        domain: Annotated[
+            str | None,
+            typer.Option("--domain", envvar="HWBRIDGE_DOMAIN", help="Graph domain [default: 0]."),
+        ] = None,
         verbose: Annotated[
             int, typer.Option("--verbose", "-v", count=True, help="More log output (-vv: debug).")
         ] = 0,
@@ -63,10 +75,14 @@ def build_app() -> typer.Typer:
     ) -> None:
         level = logging.WARNING - 10 * min(verbose, 2)
         logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
-        ctx.obj = Context(msg_path=tuple(msg_path or ()))
+        ctx.obj = Context(msg_path=tuple(msg_path or ()), endpoint=endpoint, domain=domain)
 
     app.add_typer(msgcmd.msg_app, name="msg")
     app.add_typer(msgcmd.srv_app, name="srv")
+    app.add_typer(graphcmd.topic_app, name="topic")
+    app.add_typer(graphcmd.service_app, name="service")
+    app.add_typer(graphcmd.param_app, name="param")
+    app.add_typer(graphcmd.node_app, name="node")
     return app
 
 

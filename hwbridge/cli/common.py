@@ -4,13 +4,17 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import typer
 from rich.console import Console
 
 from hwbridge.msg import TypeRegistry, registry
 
-__all__ = ["Context", "console_err", "get_registry"]
+if TYPE_CHECKING:
+    from hwbridge.graph import Graph
+
+__all__ = ["Context", "console_err", "get_registry", "open_graph"]
 
 console_err = Console(stderr=True, soft_wrap=True)
 
@@ -20,10 +24,26 @@ class Context:
     """Options given before the subcommand (``hwbridge --msg-path DIR msg show ...``)."""
 
     msg_path: tuple[Path, ...] = ()
+    endpoint: str | None = None
+    domain: str | None = None
+
+
+def _options(ctx: typer.Context) -> Context:
+    obj = ctx.find_root().obj
+    return obj if isinstance(obj, Context) else Context()
 
 
 def get_registry(ctx: typer.Context) -> TypeRegistry:
     """The type registry for this invocation's --msg-path and HWBRIDGE_MSG_PATH."""
-    obj = ctx.find_root().obj
-    paths = obj.msg_path if isinstance(obj, Context) else ()
-    return registry(paths)
+    return registry(_options(ctx).msg_path)
+
+
+def open_graph(ctx: typer.Context) -> Graph:
+    """Attach to the running graph (--endpoint, HWBRIDGE_ENDPOINT or the default loopback)."""
+    from hwbridge.graph import Graph, GraphConfig
+
+    options = _options(ctx)
+    connect = [options.endpoint] if options.endpoint else None
+    graph = Graph(GraphConfig.attached(connect, options.domain))
+    graph.registry = get_registry(ctx)
+    return graph

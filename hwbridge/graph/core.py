@@ -21,6 +21,7 @@ import atexit
 import contextlib
 import logging
 import threading
+import time
 import weakref
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
@@ -450,6 +451,20 @@ class Publisher:
         """Publish bytes already in ROS 1 serialization of this publisher's type."""
         self._publisher.put(bytes(data), attachment=self._attachment)
         self.sent += 1
+
+    @property
+    def has_subscribers(self) -> bool:
+        """Whether any subscriber on the graph matches this topic now."""
+        return bool(self._publisher.matching_status.matching)
+
+    def wait_for_subscribers(self, timeout: float) -> bool:
+        """Wait until a subscriber matches (declarations travel asynchronously)."""
+        deadline = time.monotonic() + timeout
+        while not self.has_subscribers:
+            if time.monotonic() >= deadline:
+                return False
+            time.sleep(0.01)
+        return True
 
     def close(self) -> None:
         self.node.graph._forget(self._publisher)

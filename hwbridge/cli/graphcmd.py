@@ -1,0 +1,524 @@
+"""``hwbridge topic|service|param|node``: ROS-style tools attached to a running graph."""
+
+from __future__ import annotations
+
+import itertools
+import json
+import math
+import statistics
+import sys
+import threading
+import time
+from collections import deque
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+import yaml
+
+from hwbridge import msg
+from hwbridge.cli.common import open_graph
+from hwbridge.errors import HwBridgeError, HwBridgeTimeoutError, MessageTypeError
+from hwbridge.graph import ANY_TYPE, Graph, GraphSnapshot, RawMessage
+
+__all__ = ["node_app", "param_app", "service_app", "topic_app"]
+
+topic_app = typer.Typer(help="Topics: list, echo, pub, hz, bw, info, type.", no_args_is_help=True)
+service_app = typer.Typer(help="Services: list, call, type.", no_args_is_help=True)
+param_app = typer.Typer(
+    help="Parameters: list, get, set, delete, load, dump.", no_args_is_help=True
+)
+node_app = typer.Typer(help="Nodes: list.", no_args_is_help=True)
+
+JsonOpt = Annotated[bool, typer.Option("--json", help="Machine-readable JSON output.")]
+TopicArg = Annotated[str, typer.Argument(metavar="TOPIC", help="Topic name, e.g. /odom")]
+WaitOpt = Annotated[
+    float, typer.Option("--wait", help="Seconds to wait for discovery before giving up.")
+]
+
+
+def _emit_json(data: Any) -> None:
+    sys.stdout.write(json.dumps(data, default=_json_default) + "\n")
+    sys.stdout.flush()
+
+
+def _json_default(value: Any) -> Any:
+    if isinstance(value, float) and not math.isfinite(value):
+        return str(value)
+    raise TypeError(f"cannot encode {type(value).__name__}")
+
+
+def _snapshot(graph: Graph, wait: float) -> GraphSnapshot:
+    return graph.snapshot(timeout=max(wait, 0.2))
+
+
+# ---------------------------------------------------------------------- topic
+@topic_app.command("list")
+def topic_list(
+    ctx: typer.Context,
+    verbose: Annotated[bool, typer.Option("-v", "--verbose", help="Show nodes too.")] = False,
+    as_json: JsonOpt = False,
+    wait: WaitOpt = 1.0,
+) -> None:
+    """List topics that have publishers or subscribers."""
+    with open_graph(ctx) as graph:
+        snapshot = _snapshot(graph, wait)
+    rows = []
+    for name in sorted(snapshot.topics()):
+        pubs = [e for e in snapshot.of_kind("pub") if e.name == name]
+        subs = [e for e in snapshot.of_kind("sub") if e.name == name]
+        types = sorted(snapshot.topics()[name] - {ANY_TYPE}) or [ANY_TYPE]
+        rows.append(
+            {
+                "topic": name,
+                "types": types,
+                "publishers": sorted({e.node for e in pubs}),
+                "subscribers": sorted({e.node for e in subs}),
+            }
+        )
+    if as_json:
+        _emit_json(rows)
+        return
+    for row in rows:
+        if verbose:
+            typer.echo(
+                f"{row['topic']} [{', '.join(row['types'])}] "
+                f"{len(row['publishers'])} publisher(s), {len(row['subscribers'])} subscriber(s)"
+            )
+        else:
+            typer.echo(row["topic"])
+
+
+def _topic_types(graph: Graph, topic: str, wait: float) -> list[str]:
+    snapshot = _snapshot(graph, wait)
+    types = snapshot.topics().get(topic, set()) - {ANY_TYPE}
+    return sorted(types)
+
+
+@topic_app.command("type")
+def topic_type(ctx: typer.Context, topic: TopicArg, wait: WaitOpt = 1.0) -> None:
+    """Print the type of a topic."""
+    with open_graph(ctx) as graph:
+        types = _topic_types(graph, topic, wait)
+    if not types:
+        raise HwBridgeError(
+            f"no publisher or typed subscriber on {topic} (see 'hwbridge topic list')"
+        )
+    typer.echo("\n".join(types))
+
+
+@topic_app.command("info")
+def topic_info(
+    ctx: typer.Context, topic: TopicArg, as_json: JsonOpt = False, wait: WaitOpt = 1.0
+) -> None:
+    """Type, md5, publishers and subscribers of a topic."""
+    with open_graph(ctx) as graph:
+        snapshot = _snapshot(graph, wait)
+        registry = graph.registry
+    entities = [e for e in snapshot.entities if e.kind in ("pub", "sub") and e.name == topic]
+    if not entities:
+        raise HwBridgeError(f"nothing publishes or subscribes {topic} (see 'hwbridge topic list')")
+    types = [
+        {"type": t, "md5": _md5_or_unknown(registry, t)}
+        for t in sorted({e.type for e in entities} - {ANY_TYPE})
+    ]
+    publishers = sorted({e.node for e in entities if e.kind == "pub"})
+    subscribers = sorted({e.node for e in entities if e.kind == "sub"})
+    if as_json:
+        _emit_json(
+            {"topic": topic, "types": types, "publishers": publishers, "subscribers": subscribers}
+        )
+        return
+    for entry in types:
+        typer.echo(f"Type: {entry['type']} (md5 {entry['md5']})")
+    typer.echo("\nPublishers:")
+    for name in publishers or ["(none)"]:
+        typer.echo(f" * {name}")
+    typer.echo("\nSubscribers:")
+    for name in subscribers or ["(none)"]:
+        typer.echo(f" * {name}")
+
+
+def _md5_or_unknown(registry: msg.TypeRegistry, type_name: str) -> str:
+    try:
+        return registry.md5(type_name)
+    except HwBridgeError:
+        return "unknown type"
+
+
+@topic_app.command("echo")
+def topic_echo(
+    ctx: typer.Context,
+    topic: TopicArg,
+    count: Annotated[
+        int | None, typer.Option("-n", "--count", min=1, help="Exit after N messages.")
+    ] = None,
+    as_json: JsonOpt = False,
+    raw: Annotated[bool, typer.Option("--hex", help="Print payload bytes in hex.")] = False,
+    timeout: Annotated[
+        float | None, typer.Option("--timeout", help="Fail if no message within SECONDS.")
+    ] = None,
+) -> None:
+    """Print messages on a topic as YAML (``---`` between them), like rostopic echo."""
+    done = threading.Event()
+    lock = threading.Lock()
+    seen = [0]
+
+    def show(message: RawMessage) -> None:
+        with lock:
+            if done.is_set():
+                return
+            text = _render(message, as_json, raw, registry)
+            if text is not None:
+                sys.stdout.write(text)
+                sys.stdout.flush()
+            seen[0] += 1
+            if count is not None and seen[0] >= count:
+                done.set()
+
+    with open_graph(ctx) as graph:
+        registry = graph.registry
+        graph.node(f"hwbridge_echo_{graph.zid[:8]}").subscriber(topic, ANY_TYPE, show, raw=True)
+        started = time.monotonic()
+        while not done.wait(0.1):
+            if timeout is not None and not seen[0] and time.monotonic() - started > timeout:
+                raise HwBridgeTimeoutError(f"no message on {topic} within {timeout:g} s")
+
+
+def _render(
+    message: RawMessage, as_json: bool, raw: bool, registry: msg.TypeRegistry
+) -> str | None:
+    if raw:
+        if as_json:
+            return (
+                json.dumps(
+                    {"topic": message.topic, "type": message.type, "hex": message.data.hex()}
+                )
+                + "\n"
+            )
+        return message.data.hex() + "\n---\n"
+    try:
+        data = msg.to_dict(msg.decode(message.data, message.type, registry))
+    except HwBridgeError as exc:
+        sys.stderr.write(f"cannot decode a {message.type or 'untyped'} message: {exc}\n")
+        return None
+    if as_json:
+        return json.dumps(data, default=_json_default) + "\n"
+    return msg.dump_yaml(data) + "---\n"
+
+
+@topic_app.command("pub")
+def topic_pub(
+    ctx: typer.Context,
+    topic: TopicArg,
+    type_name: Annotated[str, typer.Argument(metavar="TYPE", help="Message type.")],
+    values: Annotated[
+        str | None,
+        typer.Argument(metavar="[YAML]", help="Field values, e.g. '{linear: {x: 0.2}}'."),
+    ] = None,
+    once: Annotated[bool, typer.Option("-1", "--once", help="Publish once and exit.")] = False,
+    rate: Annotated[
+        float | None, typer.Option("-r", "--rate", min=0.001, help="Publish repeatedly at HZ.")
+    ] = None,
+    count: Annotated[
+        int | None, typer.Option("-n", "--count", min=1, help="With -r: stop after N messages.")
+    ] = None,
+    file: Annotated[
+        Path | None, typer.Option("-f", "--file", exists=True, dir_okay=False, help="YAML file.")
+    ] = None,
+    wait: Annotated[
+        float, typer.Option("--wait", help="Seconds to wait for a subscriber before publishing.")
+    ] = 2.0,
+) -> None:
+    """Publish a message (once with -1, repeatedly with -r), like rostopic pub."""
+    if values is not None and file is not None:
+        raise typer.BadParameter("give values or --file, not both")
+    if once and rate is not None:
+        raise typer.BadParameter("-1 and -r exclude each other")
+    text = file.read_text() if file is not None else values or "{}"
+    with open_graph(ctx) as graph:
+        message = msg.from_yaml(type_name, text, graph.registry)
+        pub = graph.node(f"hwbridge_pub_{graph.zid[:8]}").publisher(topic, type_name)
+        if not pub.wait_for_subscribers(wait):
+            sys.stderr.write(
+                f"warning: no subscriber on {topic} after {wait:g} s; publishing anyway\n"
+            )
+        if rate is None:
+            pub.publish(message)
+            time.sleep(0.1)  # let Zenoh flush before the session closes
+            return
+        period = 1.0 / rate
+        next_time = time.monotonic()
+        sent = 0
+        while count is None or sent < count:
+            pub.publish(message)
+            sent += 1
+            next_time += period
+            time.sleep(max(0.0, next_time - time.monotonic()))
+        time.sleep(0.1)
+
+
+class _RateMeter:
+    """Arrival statistics over a sliding window (for hz and bw)."""
+
+    def __init__(self, window: int) -> None:
+        self.stamps: deque[float] = deque(maxlen=window + 1)
+        self.sizes: deque[int] = deque(maxlen=window)
+        self.total = 0
+        self.lock = threading.Lock()
+
+    def add(self, size: int) -> None:
+        with self.lock:
+            self.stamps.append(time.monotonic())
+            self.sizes.append(size)
+            self.total += 1
+
+    def report(self) -> dict[str, Any] | None:
+        with self.lock:
+            stamps = list(self.stamps)
+            sizes = list(self.sizes)
+        if len(stamps) < 2:
+            return None
+        gaps = [b - a for a, b in itertools.pairwise(stamps)]
+        span = stamps[-1] - stamps[0]
+        mean_gap = span / len(gaps)
+        return {
+            "rate_hz": 1.0 / mean_gap if mean_gap > 0 else float("inf"),
+            "min_s": min(gaps),
+            "max_s": max(gaps),
+            "std_dev_s": statistics.pstdev(gaps),
+            "window": len(gaps),
+            "bytes_per_s": sum(sizes[-len(gaps) :]) / span if span > 0 else float("inf"),
+            "mean_bytes": sum(sizes) / len(sizes),
+            "messages": self.total,
+        }
+
+
+def _measure(
+    ctx: typer.Context, topic: str, window: int, duration: float | None, as_json: bool, kind: str
+) -> None:
+    meter = _RateMeter(window)
+    with open_graph(ctx) as graph:
+        graph.node(f"hwbridge_{kind}_{graph.zid[:8]}").subscriber(
+            topic, ANY_TYPE, lambda m: meter.add(len(m.data)), raw=True
+        )
+        started = time.monotonic()
+        while duration is None or time.monotonic() - started < duration:
+            time.sleep(min(1.0, duration or 1.0))
+            stats = meter.report()
+            if stats is None:
+                sys.stderr.write(f"no new messages on {topic}\n")
+                continue
+            if as_json:
+                _emit_json({"topic": topic, **stats})
+            elif kind == "hz":
+                typer.echo(
+                    f"average rate: {stats['rate_hz']:.3f}\n"
+                    f"\tmin: {stats['min_s']:.3f}s max: {stats['max_s']:.3f}s "
+                    f"std dev: {stats['std_dev_s']:.5f}s window: {stats['window']}"
+                )
+            else:
+                typer.echo(
+                    f"average: {_human_bytes(stats['bytes_per_s'])}/s\n"
+                    f"\tmean: {_human_bytes(stats['mean_bytes'])} window: {stats['window']}"
+                )
+
+
+def _human_bytes(value: float) -> str:
+    for unit in ("B", "KB", "MB", "GB"):
+        if abs(value) < 1000 or unit == "GB":
+            return f"{value:.2f}{unit}"
+        value /= 1000
+    return f"{value:.2f}GB"
+
+
+WindowOpt = Annotated[int, typer.Option("-w", "--window", min=1, help="Messages in the window.")]
+DurationOpt = Annotated[
+    float | None, typer.Option("--duration", min=0.1, help="Stop after SECONDS.")
+]
+
+
+@topic_app.command("hz")
+def topic_hz(
+    ctx: typer.Context,
+    topic: TopicArg,
+    window: WindowOpt = 1000,
+    duration: DurationOpt = None,
+    as_json: JsonOpt = False,
+) -> None:
+    """Print the publishing rate of a topic every second."""
+    _measure(ctx, topic, window, duration, as_json, "hz")
+
+
+@topic_app.command("bw")
+def topic_bw(
+    ctx: typer.Context,
+    topic: TopicArg,
+    window: WindowOpt = 100,
+    duration: DurationOpt = None,
+    as_json: JsonOpt = False,
+) -> None:
+    """Print the bandwidth used by a topic every second."""
+    _measure(ctx, topic, window, duration, as_json, "bw")
+
+
+# ---------------------------------------------------------------------- service
+@service_app.command("list")
+def service_list(ctx: typer.Context, as_json: JsonOpt = False, wait: WaitOpt = 1.0) -> None:
+    """List services that have a server."""
+    with open_graph(ctx) as graph:
+        services = _snapshot(graph, wait).services()
+    if as_json:
+        _emit_json([{"service": k, "types": sorted(v)} for k, v in sorted(services.items())])
+        return
+    for name in sorted(services):
+        typer.echo(name)
+
+
+def _service_type(graph: Graph, name: str, wait: float) -> str:
+    types = sorted(_snapshot(graph, wait).services().get(name, set()))
+    if not types:
+        raise HwBridgeError(f"no server for service {name} (see 'hwbridge service list')")
+    return types[0]
+
+
+@service_app.command("type")
+def service_type(
+    ctx: typer.Context,
+    name: Annotated[str, typer.Argument(metavar="SERVICE")],
+    wait: WaitOpt = 1.0,
+) -> None:
+    """Print the type of a service."""
+    with open_graph(ctx) as graph:
+        typer.echo(_service_type(graph, name, wait))
+
+
+@service_app.command("call")
+def service_call(
+    ctx: typer.Context,
+    name: Annotated[str, typer.Argument(metavar="SERVICE")],
+    request: Annotated[
+        str | None, typer.Argument(metavar="[YAML]", help="Request fields, e.g. '{data: true}'.")
+    ] = None,
+    srv_type: Annotated[
+        str | None, typer.Option("--type", help="Service type (default: as discovered).")
+    ] = None,
+    timeout: Annotated[
+        float, typer.Option("--timeout", help="Seconds to wait for the answer.")
+    ] = 5.0,
+    as_json: JsonOpt = False,
+    wait: WaitOpt = 1.0,
+) -> None:
+    """Call a service and print the response, like rosservice call."""
+    with open_graph(ctx) as graph:
+        resolved_type = srv_type or _service_type(graph, name, wait)
+        try:
+            data = yaml.safe_load(request or "{}")
+        except yaml.YAMLError as exc:
+            raise MessageTypeError(f"request is not valid YAML: {exc}") from exc
+        response = graph.node(f"hwbridge_call_{graph.zid[:8]}").call(
+            name, resolved_type, data or {}, timeout=timeout
+        )
+        result = msg.to_dict(response)
+    if as_json:
+        _emit_json(result)
+    else:
+        typer.echo(msg.dump_yaml(result).rstrip("\n") if result else "{}")
+
+
+# ---------------------------------------------------------------------- param
+ParamName = Annotated[str, typer.Argument(metavar="NAME", help="Parameter name, e.g. /robot/rate")]
+
+
+@param_app.command("list")
+def param_list(ctx: typer.Context, as_json: JsonOpt = False) -> None:
+    """List parameter names."""
+    with open_graph(ctx) as graph:
+        names = graph.params.names()
+    if as_json:
+        _emit_json(names)
+    else:
+        for name in names:
+            typer.echo(name)
+
+
+@param_app.command("get")
+def param_get(ctx: typer.Context, name: ParamName, as_json: JsonOpt = False) -> None:
+    """Print a parameter (a namespace prints as a mapping)."""
+    with open_graph(ctx) as graph:
+        value = graph.params.get(name)
+    if as_json:
+        _emit_json(value)
+    else:
+        typer.echo(msg.dump_yaml(value).removesuffix("\n...\n").rstrip("\n"))
+
+
+@param_app.command("set")
+def param_set(
+    ctx: typer.Context,
+    name: ParamName,
+    value: Annotated[
+        str, typer.Argument(metavar="VALUE", help="A YAML value: 3, 0.5, true, [1, 2], text")
+    ],
+) -> None:
+    """Set a parameter; the value is parsed as YAML."""
+    try:
+        parsed = yaml.safe_load(value)
+    except yaml.YAMLError as exc:
+        raise HwBridgeError(f"value is not valid YAML: {exc}") from exc
+    with open_graph(ctx) as graph:
+        graph.params.set(name, parsed)
+
+
+@param_app.command("delete")
+def param_delete(ctx: typer.Context, name: ParamName) -> None:
+    """Delete a parameter or a whole namespace."""
+    with open_graph(ctx) as graph:
+        graph.params.delete(name)
+
+
+@param_app.command("load")
+def param_load(
+    ctx: typer.Context,
+    file: Annotated[Path, typer.Argument(metavar="FILE.yaml", exists=True, dir_okay=False)],
+    namespace: Annotated[str, typer.Argument(metavar="[NAMESPACE]")] = "/",
+) -> None:
+    """Set every parameter in a YAML file (under NAMESPACE), like rosparam load."""
+    try:
+        data = yaml.safe_load(file.read_text())
+    except yaml.YAMLError as exc:
+        raise HwBridgeError(f"{file}: not valid YAML: {exc}") from exc
+    if not isinstance(data, dict):
+        raise HwBridgeError(f"{file}: expected a mapping of names to values at the top")
+    with open_graph(ctx) as graph:
+        for key, value in data.items():
+            graph.params.set(f"{namespace.rstrip('/')}/{str(key).lstrip('/')}", value)
+
+
+@param_app.command("dump")
+def param_dump(
+    ctx: typer.Context,
+    file: Annotated[Path | None, typer.Argument(metavar="[FILE.yaml]", dir_okay=False)] = None,
+    namespace: Annotated[str, typer.Option("--namespace", help="Only this namespace.")] = "/",
+) -> None:
+    """Write every parameter as YAML (to FILE, or stdout), like rosparam dump."""
+    with open_graph(ctx) as graph:
+        value = graph.params.get(namespace, {})
+    text = msg.dump_yaml(value)
+    if file is None:
+        sys.stdout.write(text)
+    else:
+        file.write_text(text)
+
+
+# ---------------------------------------------------------------------- node
+@node_app.command("list")
+def node_list(ctx: typer.Context, as_json: JsonOpt = False, wait: WaitOpt = 1.0) -> None:
+    """List nodes alive on the graph."""
+    with open_graph(ctx) as graph:
+        nodes = _snapshot(graph, wait).nodes
+    if as_json:
+        _emit_json(nodes)
+    else:
+        for name in nodes:
+            typer.echo(name)

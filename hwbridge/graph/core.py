@@ -146,6 +146,9 @@ class Graph:
         self._closeables: list[Any] = []
         self._closed = False
         self._params: ParamClient | None = None
+        self._alive: dict[str, GraphEntity] = {}
+        self._discovery_started = False
+        self._last_discovery_event = 0.0
         self.registry = msgmod.registry()
         _OPEN_GRAPHS.add(self)
         log.debug("joined the graph as %s: %s", self.zid, self.config.describe())
@@ -230,25 +233,61 @@ class Graph:
             self._params = ParamClient(self)
         return self._params
 
-    def snapshot(self, timeout: float = 1.0) -> GraphSnapshot:
-        """Everything alive on the graph now (a liveliness query)."""
-        snapshot = GraphSnapshot()
+    def snapshot(self, timeout: float = 1.0, settle: float = 0.15) -> GraphSnapshot:
+        """Everything alive on the graph now.
+
+        Two sources are merged: a liveliness query, and a liveliness subscriber (with history)
+        that this graph keeps from its first snapshot on. A liveliness query from a client has
+        been seen to return nothing at all now and then, so the subscriber is the reliable part;
+        on first use it waits until its history has been quiet for ``settle`` seconds (at most
+        ``timeout``).
+        """
+        self._start_discovery(timeout, settle)
+        found: dict[str, GraphEntity] = {}
         replies = self.session.liveliness().get(f"{self.prefix}/@/**", timeout=timeout)
         for reply in replies:
             if reply.ok is not None:
-                entity = self._parse_entity(str(reply.ok.key_expr))
+                key = str(reply.ok.key_expr)
+                entity = self._parse_entity(key)
                 if entity is not None:
-                    snapshot.entities.append(entity)
-        return snapshot
+                    found[key] = entity
+        with self._lock:
+            found.update(self._alive)
+        return GraphSnapshot(list(found.values()))
+
+    def _start_discovery(self, timeout: float, settle: float) -> None:
+        with self._lock:
+            if self._discovery_started:
+                return
+            self._discovery_started = True
+
+        def track(key: str, entity: GraphEntity, alive: bool) -> None:
+            with self._lock:
+                self._last_discovery_event = time.monotonic()
+                if alive:
+                    self._alive[key] = entity
+                else:
+                    self._alive.pop(key, None)
+
+        self._watch_keys(track)
+        started = time.monotonic()
+        while time.monotonic() - started < timeout:
+            time.sleep(settle / 3)
+            if time.monotonic() - max(started, self._last_discovery_event) >= settle:
+                break
 
     def watch(self, callback: Callable[[GraphEntity, bool], None]) -> Any:
         """Call ``callback(entity, alive)`` as entities appear and disappear (history included)."""
+        return self._watch_keys(lambda _key, entity, alive: callback(entity, alive))
+
+    def _watch_keys(self, callback: Callable[[str, GraphEntity, bool], None]) -> Any:
         import zenoh
 
         def on_sample(sample: zenoh.Sample) -> None:
-            entity = self._parse_entity(str(sample.key_expr))
+            key = str(sample.key_expr)
+            entity = self._parse_entity(key)
             if entity is not None:
-                _guarded(callback, entity, sample.kind == zenoh.SampleKind.PUT)
+                _guarded(callback, key, entity, sample.kind == zenoh.SampleKind.PUT)
 
         return self._keep(
             self.session.liveliness().declare_subscriber(

@@ -1,0 +1,342 @@
+"""``hwbridge record`` and ``hwbridge play``: MCAP recordings of graph topics.
+
+``app`` holds both commands; the root adds them at top level with ``app.add_typer(recordcmd.app)``.
+SIGINT (Ctrl-C) and SIGTERM end a recording or a playback cleanly (a second one aborts at once).
+Progress goes to stderr: a live table on a terminal, a plain line every few seconds otherwise.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import signal
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator
+from datetime import datetime
+from enum import Enum
+from pathlib import Path
+from types import FrameType
+from typing import TYPE_CHECKING, Annotated, Any
+
+import typer
+
+from hwbridge.cli.common import Context, console_err, get_registry, open_graph
+
+if TYPE_CHECKING:
+    from rich.console import RenderableType
+
+    from hwbridge.graph import Graph
+    from hwbridge.recorder import ChannelStats, PlayerStats, RecorderStats
+
+__all__ = ["CompressionChoice", "app", "play", "record"]
+
+app = typer.Typer(help="Record topics to MCAP files and play them back.")
+
+PLAIN_INTERVAL = 2.0
+"""Seconds between progress lines when stderr is not a terminal."""
+
+
+class CompressionChoice(str, Enum):
+    """Chunk compression of the MCAP file."""
+
+    zstd = "zstd"
+    lz4 = "lz4"
+    none = "none"
+
+
+EndpointOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--endpoint",
+        help="Zenoh endpoint of the running bridge; overrides the global --endpoint and "
+        "HWBRIDGE_ENDPOINT.",
+    ),
+]
+QuietOpt = Annotated[bool, typer.Option("-q", "--quiet", help="No progress and no summary.")]
+
+
+# ---------------------------------------------------------------------- record
+@app.command("record")
+def record(
+    ctx: typer.Context,
+    topics: Annotated[
+        list[str] | None,
+        typer.Argument(metavar="[TOPIC]...", help="Topics to record; none means every topic."),
+    ] = None,
+    output: Annotated[
+        Path | None,
+        typer.Option(
+            "-o",
+            "--output",
+            dir_okay=False,
+            help="MCAP file to write [default: hwbridge_DATE-TIME.mcap].",
+        ),
+    ] = None,
+    all_topics: Annotated[
+        bool,
+        typer.Option("-a", "--all", help="Record every topic, including ones that appear later."),
+    ] = False,
+    duration: Annotated[
+        float | None, typer.Option("--duration", min=0.001, help="Stop after SECONDS.")
+    ] = None,
+    limit: Annotated[
+        int | None, typer.Option("-l", "--limit", min=1, help="Stop after N messages.")
+    ] = None,
+    compression: Annotated[
+        CompressionChoice, typer.Option("--compression", help="Chunk compression.")
+    ] = CompressionChoice.zstd,
+    force: Annotated[
+        bool, typer.Option("-f", "--force", help="Overwrite the output file if it exists.")
+    ] = False,
+    endpoint: EndpointOpt = None,
+    quiet: QuietOpt = False,
+) -> None:
+    """Record topics to an MCAP file (ROS 1 profile) until Ctrl-C, --duration or --limit."""
+    from hwbridge.recorder import Recorder
+
+    if topics and all_topics:
+        raise typer.BadParameter("give topics or --all, not both")
+    path = output or Path(datetime.now().strftime("hwbridge_%Y-%m-%d-%H-%M-%S.mcap"))
+    interrupted = threading.Event()
+    with _stop_on_signals(interrupted.set), _open(ctx, endpoint) as graph:
+        recorder = Recorder(
+            graph,
+            path,
+            topics or None,
+            compression=compression.value,
+            duration=duration,
+            limit=limit,
+            overwrite=force,
+        )
+        recorder.start()
+        try:
+            with _progress(
+                lambda: _record_table(recorder.stats),
+                lambda: _record_line(recorder.stats),
+                quiet,
+            ):
+                while not interrupted.is_set() and not recorder.done:
+                    interrupted.wait(0.1)
+            if interrupted.is_set() and not quiet:
+                console_err.print(f"finishing {path}...", highlight=False)
+        finally:
+            stats = recorder.stop()
+    if not quiet:
+        _print_summary("recorded", "to", stats.path, stats.elapsed, stats.channels)
+        if stats.dropped:
+            typer.echo(
+                f"warning: dropped {stats.dropped} messages (the disk did not keep up)", err=True
+            )
+
+
+def _record_table(stats: RecorderStats) -> RenderableType:
+    from rich.table import Table
+
+    table = Table(
+        title=f"recording {stats.path}",
+        caption=f"{stats.elapsed:.1f} s, {stats.messages} messages, {_size(stats.bytes)}"
+        + (f", {stats.dropped} dropped" if stats.dropped else ""),
+        title_justify="left",
+        caption_justify="left",
+        box=None,
+    )
+    table.add_column("topic")
+    table.add_column("type")
+    table.add_column("messages", justify="right")
+    table.add_column("size", justify="right")
+    for channel in stats.channels:
+        kind = channel.type if channel.has_schema else f"{channel.type or '?'} (no schema)"
+        table.add_row(channel.topic, kind, str(channel.messages), _size(channel.bytes))
+    return table
+
+
+def _record_line(stats: RecorderStats) -> str:
+    topics = ", ".join(f"{c.topic} {c.messages}" for c in stats.channels)
+    dropped = f", {stats.dropped} dropped" if stats.dropped else ""
+    return (
+        f"recording {stats.path}: {stats.elapsed:.1f} s, {stats.messages} messages, "
+        f"{_size(stats.bytes)}{dropped}" + (f" ({topics})" if topics else "")
+    )
+
+
+# ---------------------------------------------------------------------- play
+@app.command("play")
+def play(
+    ctx: typer.Context,
+    file: Annotated[
+        Path,
+        typer.Argument(
+            metavar="FILE", exists=True, dir_okay=False, help="MCAP file (ROS 1 encoded)."
+        ),
+    ],
+    topic_args: Annotated[
+        list[str] | None,
+        typer.Argument(metavar="[TOPIC]...", help="Play only these topics (as --topics)."),
+    ] = None,
+    rate: Annotated[
+        float,
+        typer.Option("-r", "--rate", min=0.0, help="Time scale; 0 plays as fast as possible."),
+    ] = 1.0,
+    loop: Annotated[
+        bool, typer.Option("-l", "--loop", help="Start over at the end, until Ctrl-C.")
+    ] = False,
+    topics: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--topics", help="Play only these topics (repeatable; comma-separated accepted)."
+        ),
+    ] = None,
+    start: Annotated[
+        float, typer.Option("-s", "--start", min=0.0, help="Skip SECONDS from the beginning.")
+    ] = 0.0,
+    wait: Annotated[
+        float,
+        typer.Option(
+            "--wait", min=0.0, help="Seconds to wait for subscribers before the first message."
+        ),
+    ] = 1.0,
+    endpoint: EndpointOpt = None,
+    quiet: QuietOpt = False,
+) -> None:
+    """Publish the messages of an MCAP file with their recorded timing (scaled by --rate)."""
+    from hwbridge.recorder import Player
+
+    selected = [t for item in [*(topics or ()), *(topic_args or ())] for t in _split(item)]
+    with _open(ctx, endpoint) as graph:
+        player = Player(
+            graph,
+            file,
+            rate=rate,
+            loop=loop,
+            topics=selected or None,
+            start=start,
+            wait_for_subscribers=wait,
+        )
+        with (
+            _stop_on_signals(player.stop),
+            _progress(
+                lambda: _play_line(player.stats, rate),
+                lambda: _play_line(player.stats, rate),
+                quiet,
+            ),
+        ):
+            stats = player.run()
+        time.sleep(0.2)  # let Zenoh send what is queued before the session closes
+    if not quiet:
+        _print_summary("played", "from", stats.path, stats.elapsed, stats.channels)
+
+
+def _split(item: str) -> list[str]:
+    return [t for t in item.replace(",", " ").split() if t]
+
+
+def _play_line(stats: PlayerStats, rate: float) -> str:
+    speed = "as fast as possible" if rate == 0 else f"x{rate:g}"
+    loops = f", loop {stats.loops + 1}" if stats.loops else ""
+    return (
+        f"playing {stats.path} ({speed}): {stats.position:.1f} / {stats.duration:.1f} s, "
+        f"{stats.messages} messages, {_size(stats.bytes)}{loops}"
+    )
+
+
+# ---------------------------------------------------------------------- helpers
+def _open(ctx: typer.Context, endpoint: str | None) -> Graph:
+    """Attach to the graph, at ``endpoint`` if given (else as the global options say)."""
+    if endpoint is None:
+        return open_graph(ctx)
+    from hwbridge.graph import Graph, GraphConfig
+
+    options = ctx.find_root().obj
+    domain = options.domain if isinstance(options, Context) else None
+    graph = Graph(GraphConfig.attached([endpoint], domain))
+    graph.registry = get_registry(ctx)
+    return graph
+
+
+@contextlib.contextmanager
+def _stop_on_signals(on_stop: Callable[[], None]) -> Iterator[None]:
+    """Call ``on_stop`` on the first SIGINT or SIGTERM; the next one acts as it did before."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    signals = (signal.SIGINT, signal.SIGTERM)
+    previous: dict[int, Any] = {sig: signal.getsignal(sig) for sig in signals}
+
+    def handler(signum: int, frame: FrameType | None) -> None:
+        on_stop()
+        for sig in signals:  # a second signal aborts
+            signal.signal(sig, _restorable(previous[sig]))
+
+    for sig in signals:
+        signal.signal(sig, handler)
+    try:
+        yield
+    finally:
+        for sig in signals:
+            signal.signal(sig, _restorable(previous[sig]))
+
+
+def _restorable(handler: Any) -> Any:
+    # getsignal() gives None for a handler installed outside Python: fall back to the default.
+    return signal.SIG_DFL if handler is None else handler
+
+
+@contextlib.contextmanager
+def _progress(
+    render: Callable[[], RenderableType | str], line: Callable[[], str], quiet: bool
+) -> Iterator[None]:
+    """Live progress on stderr while the block runs."""
+    if quiet:
+        yield
+        return
+    if console_err.is_terminal:
+        from rich.live import Live
+
+        with Live(
+            get_renderable=render, console=console_err, refresh_per_second=4, transient=True
+        ):
+            yield
+        return
+    done = threading.Event()
+
+    def report() -> None:
+        while not done.wait(PLAIN_INTERVAL):
+            sys.stderr.write(line() + "\n")
+            sys.stderr.flush()
+
+    thread = threading.Thread(target=report, name="hwbridge-progress", daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        done.set()
+        thread.join()
+
+
+def _print_summary(
+    verb: str, preposition: str, path: Path, elapsed: float, channels: tuple[ChannelStats, ...]
+) -> None:
+    messages = sum(c.messages for c in channels)
+    size = sum(c.bytes for c in channels)
+    topics = len({c.topic for c in channels})
+    lines = [
+        f"{verb} {messages} messages ({_size(size)}) on {topics} topic{'s' * (topics != 1)} "
+        f"in {elapsed:.1f} s {preposition} {path}"
+    ]
+    width = max((len(c.topic) for c in channels), default=0)
+    for c in channels:
+        schema = "" if c.has_schema else " (no schema: type unknown to the registry)"
+        lines.append(
+            f"  {c.topic:<{width}}  {c.type or '?'}  {c.messages} messages, {_size(c.bytes)}"
+            + schema
+        )
+    typer.echo("\n".join(lines), err=True)
+
+
+def _size(count: float) -> str:
+    for unit in ("B", "kB", "MB", "GB"):
+        if count < 1000 or unit == "GB":
+            return f"{count:.0f} {unit}" if unit == "B" else f"{count:.1f} {unit}"
+        count /= 1000
+    raise AssertionError("unreachable")

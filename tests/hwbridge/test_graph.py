@@ -104,6 +104,7 @@ def test_raw_bytes_pass_untouched_and_any_type_decodes(router: Graph, client: Gr
     md5 = msg.md5("std_msgs/Int32")
     pub = router.node("bridge").raw_publisher("/raw", "std_msgs/Int32", md5)
     payload = (123456).to_bytes(4, "little")
+
     def step() -> bool:
         if not (raw and decoded):
             pub.publish_raw(payload)

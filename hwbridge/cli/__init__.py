@@ -63,6 +63,16 @@ def build_app() -> typer.Typer:
             str | None,
             typer.Option("--domain", envvar="HWBRIDGE_DOMAIN", help="Graph domain [default: 0]."),
         ] = None,
+        zenoh_config: Annotated[
+            Path | None,
+            typer.Option(
+                "--zenoh-config",
+                envvar="HWBRIDGE_ZENOH_CONFIG",
+                dir_okay=False,
+                exists=True,
+                help="Zenoh JSON5 config (TLS, user/password, access control); see docs/graph.md.",
+            ),
+        ] = None,
         verbose: Annotated[
             int, typer.Option("--verbose", "-v", count=True, help="More log output (-vv: debug).")
         ] = 0,
@@ -75,7 +85,12 @@ def build_app() -> typer.Typer:
     ) -> None:
         level = logging.WARNING - 10 * min(verbose, 2)
         logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
-        ctx.obj = Context(msg_path=tuple(msg_path or ()), endpoint=endpoint, domain=domain)
+        ctx.obj = Context(
+            msg_path=tuple(msg_path or ()),
+            endpoint=endpoint,
+            domain=domain,
+            zenoh_config=zenoh_config,
+        )
 
     app.add_typer(msgcmd.msg_app, name="msg")
     app.add_typer(msgcmd.srv_app, name="srv")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -26,6 +27,7 @@ class Context:
     msg_path: tuple[Path, ...] = ()
     endpoint: str | None = None
     domain: str | None = None
+    zenoh_config: Path | None = None
 
 
 def _options(ctx: typer.Context) -> Context:
@@ -44,6 +46,11 @@ def open_graph(ctx: typer.Context) -> Graph:
 
     options = _options(ctx)
     connect = [options.endpoint] if options.endpoint else None
-    graph = Graph(GraphConfig.attached(connect, options.domain))
+    config = GraphConfig.attached(connect, options.domain)
+    if options.zenoh_config is not None:
+        config = dataclasses.replace(
+            config, config_file=options.zenoh_config, connect=tuple(connect or ())
+        )
+    graph = Graph(config)
     graph.registry = get_registry(ctx)
     return graph

@@ -58,14 +58,20 @@ class GraphConfig:
     """Further Zenoh settings as ``{"path/in/config": "json5 value"}``."""
 
     @classmethod
+    def from_file(cls, path: str | Path, mode: Mode, domain: str | None = None) -> GraphConfig:
+        """Everything from a Zenoh JSON5 file (endpoints, TLS, auth, access control)."""
+        return cls(
+            mode=mode, domain=domain or os.environ.get(ENV_DOMAIN, "0"), config_file=Path(path)
+        )
+
+    @classmethod
     def embedded(
         cls, listen: Sequence[str] | None = None, domain: str | None = None
     ) -> GraphConfig:
         """A router that owns the graph, reachable on the loopback endpoint only."""
-        endpoint = os.environ.get(ENV_ENDPOINT, DEFAULT_ENDPOINT)
         return cls(
             mode="router",
-            listen=tuple(listen) if listen is not None else (endpoint,),
+            listen=_endpoints(listen),
             domain=domain or os.environ.get(ENV_DOMAIN, "0"),
             config_file=_env_file(),
         )
@@ -75,10 +81,9 @@ class GraphConfig:
         cls, connect: Sequence[str] | None = None, domain: str | None = None
     ) -> GraphConfig:
         """A client of a running bridge (or router) at ``connect``."""
-        endpoint = os.environ.get(ENV_ENDPOINT, DEFAULT_ENDPOINT)
         return cls(
             mode="client",
-            connect=tuple(connect) if connect is not None else (endpoint,),
+            connect=_endpoints(connect),
             domain=domain or os.environ.get(ENV_DOMAIN, "0"),
             config_file=_env_file(),
         )
@@ -115,9 +120,21 @@ class GraphConfig:
 
     def describe(self) -> str:
         """One line for logs and errors."""
-        where = ", ".join(self.listen or self.connect) or "no endpoints"
+        where = ", ".join(self.listen or self.connect) or (
+            "endpoints from the file" if self.config_file else "no endpoints"
+        )
         source = f" from {self.config_file}" if self.config_file else ""
         return f"Zenoh {self.mode} ({where}){source}, domain {self.domain}"
+
+
+def _endpoints(given: Sequence[str] | None) -> tuple[str, ...]:
+    """Endpoints given, else HWBRIDGE_ENDPOINT, else the config file's, else the default."""
+    if given is not None:
+        return tuple(given)
+    endpoint = os.environ.get(ENV_ENDPOINT)
+    if endpoint:
+        return (endpoint,)
+    return () if _env_file() is not None else (DEFAULT_ENDPOINT,)
 
 
 def _env_file() -> Path | None:

@@ -1,0 +1,649 @@
+"""RosserialHost against the RosserialDevice emulation over a simulated link and virtual clock.
+
+No mocks: both ends are the real state machines; the "link" hands each side's bytes to the other
+every simulated 10 ms, optionally dropping or corrupting them.
+"""
+
+from __future__ import annotations
+
+import random
+from collections.abc import Callable
+from typing import Any
+
+import pytest
+
+from hwbridge import msg
+from hwbridge.protocols.errors import (
+    HwBridgeError,
+    HwBridgeTimeoutError,
+    MessageTypeError,
+    ProtocolError,
+    ProtocolMismatchError,
+    SerializationError,
+)
+from hwbridge.protocols.rosserial.device import (
+    Configured,
+    DeviceEvent,
+    Endpoint,
+    ParamResult,
+    Received,
+    RosserialDevice,
+    ServiceCalled,
+    ServiceEndpoint,
+    ServiceResult,
+    TimeSynced,
+    Unconfigured,
+)
+from hwbridge.protocols.rosserial.framing import encode_frame
+from hwbridge.protocols.rosserial.host import (
+    OLD_FIRMWARE_MESSAGE,
+    REQUEST_TOPICS,
+    TX_STOP,
+    Connected,
+    DeviceOutput,
+    Error,
+    HostEvent,
+    Log,
+    Message,
+    MessageTooLargeError,
+    ParamRequest,
+    RosserialHost,
+    ServiceFailed,
+    ServiceRequest,
+    ServiceResponse,
+    SyncLost,
+)
+
+REG = msg.registry()
+WALL0 = 1_700_000_000.0
+DT = 0.01
+
+
+def string(text: str) -> bytes:
+    return msg.encode(msg.from_dict("std_msgs/String", {"data": text}))
+
+
+def set_bool_response(success: bool, message: str) -> bytes:
+    value = {"success": success, "message": message}
+    return msg.encode(msg.from_dict("std_srvs/SetBoolResponse", value))
+
+
+def toggle(request: bytes) -> bytes:
+    """A device SetBool handler: answers success=data, message 'on'/'off'."""
+    on = msg.decode(request, "std_srvs/SetBoolRequest").data
+    return set_bool_response(bool(on), "on" if on else "off")
+
+
+def board(**overrides: Any) -> RosserialDevice:
+    """A typical sketch: chatter publisher, led subscriber, a SetBool server, a Trigger client."""
+    options: dict[str, Any] = {
+        "publishers": [Endpoint("chatter", "std_msgs/String")],
+        "subscribers": [Endpoint("led", "std_msgs/Bool")],
+        "service_servers": [ServiceEndpoint("toggle_led", "std_srvs/SetBool", toggle)],
+        "service_clients": [ServiceEndpoint("trigger", "std_srvs/Trigger")],
+    }
+    options.update(overrides)
+    return RosserialDevice(REG, **options)
+
+
+class Sim:
+    """Host and device joined by a link that delivers every DT seconds of virtual time."""
+
+    def __init__(self, device: RosserialDevice | None, **host_options: Any) -> None:
+        self.steps = 0
+        self.device = device
+        self.host = RosserialHost(REG, now=0.0, wall_clock=self.wall, **host_options)
+        self.host_events: list[tuple[float, HostEvent]] = []
+        self.device_events: list[tuple[float, DeviceEvent]] = []
+        self.link_up = True
+        self.mangle: Callable[[bytes], bytes] = lambda data: data
+        self.to_device_log = bytearray()
+
+    @property
+    def t(self) -> float:
+        return self.steps * DT
+
+    def wall(self) -> float:
+        return WALL0 + self.t
+
+    def step(self) -> None:
+        self.steps += 1
+        now = self.t
+        events = self.host.tick(now)
+        out = self.host.data_to_send()
+        self.to_device_log += out
+        if self.device is not None:
+            delivered = self.mangle(out) if self.link_up else b""
+            self.device_events += [(now, e) for e in self.device.receive_data(delivered, now)]
+            back = self.device.data_to_send()
+            events += self.host.receive_data(self.mangle(back) if self.link_up else b"", now)
+        self.host_events += [(now, e) for e in events]
+
+    def run(self, seconds: float) -> None:
+        for _ in range(round(seconds / DT)):
+            self.step()
+
+    def run_until(self, predicate: Callable[[], bool], limit: float = 60.0) -> None:
+        end = self.steps + round(limit / DT)
+        while not predicate():
+            assert self.steps < end, f"condition not met within {limit} s of virtual time"
+            self.step()
+
+    def host_of(self, kind: type[Any]) -> list[Any]:
+        return [e for _, e in self.host_events if isinstance(e, kind)]
+
+    def device_of(self, kind: type[Any]) -> list[Any]:
+        return [e for _, e in self.device_events if isinstance(e, kind)]
+
+    def connect(self) -> Connected:
+        self.run_until(lambda: bool(self.host_of(Connected)), limit=10)
+        return self.host_of(Connected)[-1]  # type: ignore[no-any-return]
+
+    def take(self) -> list[HostEvent]:
+        """Host events so far, forgetting them."""
+        events = [e for _, e in self.host_events]
+        self.host_events.clear()
+        return events
+
+
+def connected_sim(device: RosserialDevice | None = None, **host_options: Any) -> Sim:
+    sim = Sim(device if device is not None else board(), **host_options)
+    sim.connect()
+    sim.take()
+    sim.device_events.clear()
+    return sim
+
+
+# ---------------------------------------------------------------------------------- start-up
+def test_negotiation() -> None:
+    sim = Sim(board())
+    sim.run(1.9)
+    assert sim.to_device_log == b"", "the host must stay silent during the bootloader delay"
+    assert sim.host.state == "waiting"
+    connected = sim.connect()
+    assert sim.to_device_log.startswith(REQUEST_TOPICS)
+    assert sim.device_of(Configured) == [Configured()]
+    table = connected.topics
+    assert set(table.publishers) == {"chatter"}
+    assert table.publishers["chatter"].type == "std_msgs/String"
+    assert table.publishers["chatter"].topic_id == 125
+    assert table.subscribers["led"].topic_id == 100
+    server = table.service_servers["toggle_led"]
+    assert (server.type, server.request_topic_id, server.response_topic_id) == (
+        "std_srvs/SetBool",
+        101,
+        126,
+    )
+    assert server.request_md5 == REG.service("std_srvs/SetBool").request.md5
+    client = table.service_clients["trigger"]
+    assert (client.request_topic_id, client.response_topic_id) == (127, 102)
+    assert client.response_md5 == REG.service("std_srvs/Trigger").response.md5
+    (at,) = [t for t, e in sim.host_events if isinstance(e, Connected)]
+    assert 2.0 <= at <= 2.0 + 0.5 + 0.05  # start delay + settle time
+    assert sim.host.state == "connected" and sim.host.connected
+    assert sim.host.topics == table
+    assert not sim.host_of(Error)
+
+
+def test_connected_at_once_when_the_device_publishes() -> None:
+    sim = Sim(board())
+    sim.run(2.0)
+    sim.device.publish("chatter", string("first"))  # type: ignore[union-attr]
+    sim.step()
+    events = sim.take()
+    assert [type(e) for e in events] == [Connected, Message]
+    assert events[1] == Message("chatter", "std_msgs/String", string("first"))
+
+
+def test_board_without_topics_connects_with_an_empty_table() -> None:
+    sim = Sim(RosserialDevice(REG))
+    connected = sim.connect()
+    assert connected.topics.publishers == {} and connected.topics.service_servers == {}
+
+
+def test_no_answer_is_reported_and_retried() -> None:
+    sim = Sim(None, start_delay=0.5, sync_timeout=15.0)
+    sim.run(16.0)
+    (error,) = sim.host_of(Error)
+    assert isinstance(error.error, HwBridgeTimeoutError)
+    assert "no answer" in str(error.error) and "57600" in str(error.error)
+    assert sim.to_device_log == REQUEST_TOPICS * 2
+    assert sim.host.stats.topic_requests == 2
+
+
+def test_md5_mismatch_refuses_only_that_topic() -> None:
+    wrong = "0123456789abcdef0123456789abcdef"
+    device = board(
+        publishers=[
+            Endpoint("chatter", "std_msgs/String"),
+            Endpoint("bad", "std_msgs/Int32", wrong),
+        ]
+    )
+    sim = Sim(device)
+    table = sim.connect().topics
+    (error,) = sim.host_of(Error)
+    assert isinstance(error.error, ProtocolMismatchError)
+    text = str(error.error)
+    for part in ("'bad'", "std_msgs/Int32", wrong, REG.md5("std_msgs/Int32"), "126"):
+        assert part in text
+    assert set(table.publishers) == {"chatter"}
+    # the other topics keep working; frames on the refused one are dropped and counted
+    device.publish("bad", bytes(4))
+    device.publish("chatter", string("still here"))
+    sim.step()
+    assert sim.host_of(Message) == [Message("chatter", "std_msgs/String", string("still here"))]
+    assert sim.host.stats.refused_topic_frames == 1
+    assert sim.host.stats.topic_requests == 1, "a refused topic must not trigger renegotiation"
+
+
+def test_service_half_md5_mismatch() -> None:
+    wrong = "f" * 32
+    device = board(
+        service_servers=[
+            ServiceEndpoint("toggle_led", "std_srvs/SetBool", toggle, response_md5=wrong)
+        ]
+    )
+    sim = Sim(device)
+    table = sim.connect().topics
+    errors = [e.error for e in sim.host_of(Error)]
+    assert isinstance(errors[0], ProtocolMismatchError)
+    assert "response" in str(errors[0]) and wrong in str(errors[0])
+    assert REG.service("std_srvs/SetBool").response.md5 in str(errors[0])
+    # the half that remains is reported as incomplete; the service is left out
+    assert any("no publisher half" in str(e) for e in errors[1:])
+    assert "toggle_led" not in table.service_servers
+    assert "trigger" in table.service_clients
+
+
+def test_unknown_type_is_a_clear_error() -> None:
+    device = board(
+        subscribers=[Endpoint("led", "std_msgs/Bool"), Endpoint("x", "foo_msgs/Bar", "a" * 32)]
+    )
+    sim = Sim(device)
+    table = sim.connect().topics
+    (error,) = sim.host_of(Error)
+    assert isinstance(error.error, MessageTypeError)
+    assert "foo_msgs/Bar" in str(error.error) and "search path" in str(error.error)
+    assert set(table.subscribers) == {"led"}
+
+
+def test_late_topic_info_reopens_the_negotiation() -> None:
+    host = RosserialHost(REG, now=0.0, wall_clock=lambda: WALL0, start_delay=0.0)
+    host.tick(0.0)
+    device = board()
+    device.receive_data(host.data_to_send(), 0.0)
+    frames = device.data_to_send()
+    cut = frames.index(b"\xff\xfe", 60)  # after the time request and the first TopicInfo
+    host.receive_data(frames[:cut], 0.1)
+    (first,) = host.tick(1.0)
+    assert isinstance(first, Connected) and set(first.topics.publishers) == {"chatter"}
+    assert host.receive_data(frames[cut:], 1.1) == []
+    assert host.state == "negotiating" and host.connected
+    (second,) = host.tick(2.0)
+    assert isinstance(second, Connected)
+    assert set(second.topics.subscribers) == {"led"}
+    assert set(second.topics.publishers) == {"chatter"}
+    assert set(second.topics.service_servers) == {"toggle_led"}
+
+
+def test_unknown_topic_id_triggers_a_new_negotiation() -> None:
+    device = board()
+    sim = connected_sim(device)
+    device.advertise("late", "std_msgs/String")  # advertised after the negotiation
+    device.publish("late", string("x"))
+    sim.run(0.02)
+    assert sim.host.stats.unknown_topic_frames == 1
+    sim.run_until(lambda: bool(sim.host_of(Connected)), limit=5)
+    assert "late" in sim.host_of(Connected)[0].topics.publishers
+    device.publish("late", string("y"))
+    sim.step()
+    assert sim.host_of(Message)[-1] == Message("late", "std_msgs/String", string("y"))
+
+
+# ---------------------------------------------------------------------------------- data
+def test_data_both_ways() -> None:
+    device = board()
+    sim = connected_sim(device)
+    for i in range(5):
+        assert device.publish("chatter", string(f"hello {i}")) > 0
+    sim.host.publish("led", msg.encode(msg.from_dict("std_msgs/Bool", {"data": True})))
+    sim.step()
+    assert sim.host_of(Message) == [
+        Message("chatter", "std_msgs/String", string(f"hello {i}")) for i in range(5)
+    ]
+    assert sim.device_of(Received) == [Received("led", b"\x01")]
+    stats = sim.host.stats.as_dict()
+    assert stats["messages_in"] == 5 and stats["messages_out"] == 1
+    assert stats["rx_checksum_errors"] == 0
+
+
+def test_publish_errors() -> None:
+    host = RosserialHost(REG, now=0.0)
+    with pytest.raises(ProtocolError, match="not connected"):
+        host.publish("led", b"\x01")
+    sim = connected_sim()
+    with pytest.raises(ProtocolError, match="'led'"):
+        sim.host.publish("nope", b"\x01")
+    with pytest.raises(ProtocolError, match="serves no service"):
+        sim.host.call_service("nope", b"", sim.t)
+    with pytest.raises(ProtocolError, match="no service client"):
+        sim.host.respond("nope", b"")
+    assert sim.host.data_to_send() == b""
+
+
+def test_oversize_is_refused_before_sending() -> None:
+    device = board(input_size=280, output_size=280)  # an ATmega328P build
+    sim = connected_sim(device)
+    assert sim.host.topics is not None
+    assert sim.host.topics.subscribers["led"].buffer_size == 280
+    with pytest.raises(MessageTooLargeError, match="280"):
+        sim.host.publish("led", bytes(281))
+    with pytest.raises(MessageTooLargeError):
+        sim.host.call_service("toggle_led", bytes(281), sim.t)
+    assert sim.host.data_to_send() == b"", "nothing may be sent for a refused frame"
+    sim.host.publish("led", bytes(280))
+    sim.step()
+    assert sim.device_of(Received) == [Received("led", bytes(280))]
+    assert device.stats.input_overruns == 0
+    device.request_param("names", sim.t)
+    sim.step()
+    with pytest.raises(MessageTooLargeError):
+        sim.host.answer_param("names", ["x" * 100] * 3)
+    sim.host.answer_param("names", ["x" * 100] * 2)
+    sim.step()
+    assert sim.device_of(ParamResult)[0].strings == ("x" * 100, "x" * 100)
+
+
+def test_debug_output_is_passed_on() -> None:
+    sim = connected_sim()
+    events = sim.host.receive_data(b"free ram: 812\r\n" + encode_frame(125, string("a")), sim.t)
+    assert events == [
+        DeviceOutput(b"free ram: 812\r\n"),
+        Message("chatter", "std_msgs/String", string("a")),
+    ]
+
+
+# ---------------------------------------------------------------------------------- services
+def test_device_service_server_calls_are_queued_one_at_a_time() -> None:
+    device = board()
+    sim = connected_sim(device)
+    on = msg.encode(msg.from_dict("std_srvs/SetBoolRequest", {"data": True}))
+    off = msg.encode(msg.from_dict("std_srvs/SetBoolRequest", {"data": False}))
+    first = sim.host.call_service("toggle_led", on, sim.t)
+    second = sim.host.call_service("toggle_led", off, sim.t)
+    assert first != second
+    third = sim.host.call_service("toggle_led", on, sim.t)
+    sim.step()
+    assert sim.device_of(ServiceCalled) == [ServiceCalled("toggle_led", on)], "one at a time"
+    assert sim.to_device_log.endswith(encode_frame(101, on))
+    sim.run(0.05)
+    assert sim.host_of(ServiceResponse)[:2] == [
+        ServiceResponse(first, set_bool_response(True, "on"), "toggle_led"),
+        ServiceResponse(second, set_bool_response(False, "off"), "toggle_led"),
+    ]
+    assert sim.host_of(ServiceResponse)[2].request_id == third
+    assert [e.request for e in sim.device_of(ServiceCalled)] == [on, off, on]
+
+
+def test_service_timeout_never_hangs() -> None:
+    answers = iter([None, set_bool_response(True, "late but fine")])
+    device = board(
+        service_servers=[ServiceEndpoint("toggle_led", "std_srvs/SetBool", lambda r: next(answers))]
+    )
+    sim = connected_sim(device)
+    lost = sim.host.call_service("toggle_led", b"\x01", sim.t, timeout=1.0)
+    queued = sim.host.call_service("toggle_led", b"\x00", sim.t, timeout=5.0)
+    sim.run(0.9)
+    assert not sim.host_of(ServiceFailed)
+    sim.run(0.2)
+    (failed,) = sim.host_of(ServiceFailed)
+    assert failed.request_id == lost
+    assert isinstance(failed.error, HwBridgeTimeoutError) and isinstance(failed.error, TimeoutError)
+    assert "toggle_led" in str(failed.error)
+    sim.run(0.1)  # the queued call goes out once the first one has failed
+    assert sim.host_of(ServiceResponse) == [
+        ServiceResponse(queued, set_bool_response(True, "late but fine"), "toggle_led")
+    ]
+    assert sim.host.stats.service_timeouts == 1
+
+
+def test_late_response_after_timeout_is_dropped() -> None:
+    sim = connected_sim()
+    host, now = sim.host, sim.t
+    call = host.call_service("toggle_led", b"\x01", now, timeout=0.5)
+    host.data_to_send()
+    (failed,) = host.tick(now + 0.6)
+    assert isinstance(failed, ServiceFailed) and failed.request_id == call
+    assert host.receive_data(encode_frame(126, set_bool_response(True, "on")), now + 0.7) == []
+    assert host.stats.late_service_responses == 1
+
+
+def test_device_service_client() -> None:
+    device = board()
+    sim = connected_sim(device)
+    with pytest.raises(ProtocolError, match="no request waiting"):
+        sim.host.respond("trigger", b"")
+    assert device.call_service("trigger", b"")
+    sim.step()
+    assert sim.host_of(ServiceRequest) == [ServiceRequest("trigger", b"", "std_srvs/Trigger")]
+    answer = msg.encode(
+        msg.from_dict("std_srvs/TriggerResponse", {"success": True, "message": "ok"})
+    )
+    sim.host.respond("trigger", answer)
+    sim.step()
+    assert sim.device_of(ServiceResult) == [ServiceResult("trigger", answer)]
+
+
+# ---------------------------------------------------------------------------------- params
+PARAM_CASES: list[tuple[Any, tuple[Any, Any, Any]]] = [
+    (42, ((42,), (), ())),
+    ([1, -2, 3], ((1, -2, 3), (), ())),
+    (True, ((1,), (), ())),
+    ([True, False], ((1, 0), (), ())),
+    (0.5, ((), (0.5,), ())),
+    ([0.25, -1.5], ((), (0.25, -1.5), ())),
+    ([1, 2.5], ((), (1.0, 2.5), ())),
+    ("base_link", ((), (), ("base_link",))),
+    (["a", "bé"], ((), (), ("a", "bé"))),
+    (None, ((), (), ())),
+    ([], ((), (), ())),
+]
+
+
+@pytest.mark.parametrize(("value", "arrays"), PARAM_CASES, ids=repr)
+def test_param_exchange(value: Any, arrays: tuple[Any, Any, Any]) -> None:
+    device = board()
+    sim = connected_sim(device)
+    device.request_param("p", sim.t)
+    sim.step()
+    assert sim.host_of(ParamRequest) == [ParamRequest("p")]
+    sim.host.answer_param("p", value)
+    sim.step()
+    assert sim.device_of(ParamResult) == [ParamResult("p", True, *arrays)]
+    assert not sim.host_of(Log), "an answered request must not time out on the device"
+
+
+def test_param_errors_and_device_timeout() -> None:
+    device = board()
+    sim = connected_sim(device)
+    with pytest.raises(ProtocolError, match="no request"):
+        sim.host.answer_param("p", 1)
+    device.request_param("p", sim.t)
+    sim.step()
+    cases: list[tuple[Any, str]] = [
+        ({"a": 1}, "dict"),
+        ([1, "a"], "mix"),
+        (2**31, "int32"),
+        (1e39, "float32"),
+    ]
+    for bad, match in cases:
+        with pytest.raises(SerializationError, match=match):
+            sim.host.answer_param("p", bad)
+    assert sim.host.data_to_send() == b""
+    sim.run(1.1)  # unanswered: the library gives up after 1 s and says so
+    assert sim.device_of(ParamResult) == [ParamResult("p", False)]
+    assert Log(2, "Failed to get param: timeout expired") in sim.host_of(Log)
+
+
+# ---------------------------------------------------------------------------------- logs, time
+def test_logs_every_level() -> None:
+    device = board()
+    sim = connected_sim(device)
+    for level in range(5):
+        device.log(level, f"level {level}")
+    sim.step()
+    assert sim.host_of(Log) == [Log(level, f"level {level}") for level in range(5)]
+
+
+def test_time_sync_is_answered() -> None:
+    device = board()
+    sim = connected_sim(device)
+    before = sim.host.stats.time_syncs
+    sim.run(10.0)
+    synced = sim.device_of(TimeSynced)
+    assert len(synced) == 4  # every 2.5 s
+    assert sim.host.stats.time_syncs - before == 4
+    sec, nsec = device.ros_time(sim.t)
+    assert abs(sec + nsec / 1e9 - sim.wall()) < 0.03  # the device adds the whole round trip
+    assert device.configured and not sim.host_of(SyncLost)
+
+
+def test_lost_sync_and_renegotiation() -> None:
+    device = board()
+    sim = connected_sim(device)
+    sim.link_up = False
+    sim.run(11.5)
+    assert sim.device_of(Unconfigured) == [Unconfigured("sync_timeout")]
+    sim.run_until(lambda: bool(sim.host_of(SyncLost)), limit=10)
+    (lost,) = sim.host_of(SyncLost)
+    assert 15.0 <= lost.silence < 17.6
+    assert not sim.host.connected
+    with pytest.raises(ProtocolError, match="not connected"):
+        sim.host.publish("led", b"\x01")
+    sim.link_up = True  # the request sent at "lost sync" was lost; the host asks again
+    sim.run_until(lambda: bool(sim.host_of(Connected)), limit=20)
+    assert any(isinstance(e.error, HwBridgeTimeoutError) for e in sim.host_of(Error))
+    assert device.configured
+    device.publish("chatter", string("back"))
+    sim.step()
+    assert sim.host_of(Message)[-1] == Message("chatter", "std_msgs/String", string("back"))
+
+
+def test_device_gone_during_renegotiation_is_lost_sync() -> None:
+    device = board()
+    sim = connected_sim(device)
+    device.advertise("late", "std_msgs/String")
+    device.publish("late", string("x"))
+    sim.run_until(lambda: sim.host.state == "negotiating", limit=2)
+    sim.link_up = False  # the host asked for topics again, but the board is gone
+    assert sim.host.connected
+    sim.run_until(lambda: bool(sim.host_of(SyncLost)), limit=16)
+    assert not sim.host.connected
+
+
+def test_lost_sync_fails_pending_calls() -> None:
+    device = board(service_servers=[ServiceEndpoint("toggle_led", "std_srvs/SetBool", None)])
+    sim = connected_sim(device)
+    call = sim.host.call_service("toggle_led", b"\x01", sim.t, timeout=60.0)
+    sim.link_up = False
+    sim.run_until(lambda: bool(sim.host_of(ServiceFailed)), limit=20)
+    (failed,) = sim.host_of(ServiceFailed)
+    assert failed.request_id == call and "lost sync" in str(failed.error)
+
+
+def test_device_reset_is_recovered() -> None:
+    device = board()
+    sim = connected_sim(device)
+    device.reset()
+    assert device.publish("chatter", string("x")) == 0  # dropped: not configured
+    sim.run_until(lambda: bool(sim.host_of(Connected)), limit=20)
+    assert sim.host_of(SyncLost)
+    assert device.configured
+
+
+def test_tx_stop_unconfigures_the_device() -> None:
+    device = board(service_servers=[ServiceEndpoint("toggle_led", "std_srvs/SetBool", None)])
+    sim = connected_sim(device)
+    call = sim.host.call_service("toggle_led", b"\x01", sim.t)
+    last = sim.host.close()
+    assert last.endswith(TX_STOP)
+    events = device.receive_data(last, sim.t)
+    assert Unconfigured("tx_stop") in events
+    assert device.publish("chatter", string("x")) == 0
+    assert device.stats.dropped_unconfigured == 1
+    (failed,) = sim.host.tick(sim.t)
+    assert isinstance(failed, ServiceFailed) and failed.request_id == call
+    assert sim.host.tick(sim.t + 100) == []
+    assert sim.host.receive_data(encode_frame(125, string("x")), sim.t) == []
+    assert sim.host.close() == b""
+    assert sim.host.state == "closed"
+    with pytest.raises(ProtocolError, match="closed"):
+        sim.host.publish("led", b"\x01")
+
+
+# ---------------------------------------------------------------------------------- robustness
+def test_old_firmware_is_reported_once() -> None:
+    host = RosserialHost(REG, now=0.0, start_delay=0.0)
+    host.tick(0.0)
+    v1_time_request = b"\xff\xff\x0a\x00\x08\x00" + bytes(8) + b"\xeb"
+    assert not [e for e in host.receive_data(v1_time_request, 0.1) if isinstance(e, Error)]
+    errors = [e for e in host.receive_data(v1_time_request * 3, 0.2) if isinstance(e, Error)]
+    assert len(errors) == 1
+    assert isinstance(errors[0].error, ProtocolMismatchError)
+    assert str(errors[0].error) == OLD_FIRMWARE_MESSAGE
+    assert "old rosserial firmware (protocol v1, pre-hydro): update rosserial_arduino" in str(
+        errors[0].error
+    )
+
+
+def test_single_ff_ff_glitch_is_not_old_firmware() -> None:
+    sim = connected_sim()
+    events = sim.host.receive_data(b"\xff\xff\x12" + encode_frame(125, string("a")), sim.t)
+    assert not [e for e in events if isinstance(e, Error)]
+    events = sim.host.receive_data(b"\xff\xff\x12", sim.t)
+    assert not [e for e in events if isinstance(e, Error)]
+
+
+def test_noisy_link_never_raises_and_recovers() -> None:
+    rng = random.Random(1234)
+
+    def noise(data: bytes) -> bytes:
+        out = bytearray(data)
+        for i in range(len(out)):
+            if rng.random() < 0.002:
+                out[i] = rng.randrange(256)
+        if rng.random() < 0.01:
+            out += bytes(rng.randrange(256) for _ in range(rng.randrange(20)))
+        return bytes(out)
+
+    device = board()
+    sim = connected_sim(device)
+    sim.mangle = noise
+    received = 0
+    for i in range(300):
+        device.publish("chatter", string(f"message number {i}"))
+        sim.run(0.05)
+        received = len(sim.host_of(Message))
+    sim.mangle = lambda data: data
+    sim.run(20.0)  # whatever state the noise left, the session comes back
+    device.publish("chatter", string("clean"))
+    sim.step()
+    assert sim.host_of(Message)[-1] == Message("chatter", "std_msgs/String", string("clean"))
+    stats = sim.host.stats.as_dict()
+    assert stats["rx_checksum_errors"] + stats["rx_length_checksum_errors"] > 0
+    assert 200 < received <= 300
+    for _, event in sim.host_events:
+        if isinstance(event, Error):
+            assert isinstance(event.error, HwBridgeError)
+
+
+def test_next_deadline() -> None:
+    host = RosserialHost(REG, now=10.0, start_delay=2.0)
+    assert host.next_deadline() == 12.0
+    host.tick(12.0)
+    assert host.next_deadline() == 12.0 + 15.0
+    sim = connected_sim()
+    deadline = sim.host.next_deadline()
+    assert deadline is not None and sim.t < deadline <= sim.t + 15.0
+    sim.host.call_service("toggle_led", b"\x01", sim.t, timeout=0.25)
+    assert sim.host.next_deadline() == pytest.approx(sim.t + 0.25)

@@ -1,0 +1,149 @@
+"""Run a sans-I/O protocol session over a link, in a thread.
+
+The protocol code (``hwbridge.protocols``) is pure: bytes and a clock in, events and bytes out.
+:class:`SessionPump` is the edge that does the I/O for one link: a thread reads the link, feeds
+the session, fires its timers, writes what it wants to send, and hands each event to a callback.
+Other threads act on the session through :meth:`SessionPump.call`, which takes the lock, runs the
+action and flushes the bytes it produced, so the session is never used by two threads at once.
+
+The bridge uses it on the host side, the emulator on the device side.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable
+from typing import Any, Protocol, TypeVar
+
+from hwbridge.errors import HwBridgeError, LinkError
+from hwbridge.links import Link, LinkClosedError
+
+__all__ = ["SansIOSession", "SessionPump"]
+
+log = logging.getLogger("hwbridge.pump")
+
+T = TypeVar("T")
+_IDLE_TICK = 0.05  # seconds between ticks of a session that announces no deadline
+
+
+class SansIOSession(Protocol):
+    """What the pump needs from a session (HostSession, DeviceSession, RosserialHost, ...)."""
+
+    def receive_data(self, data: bytes, now: float) -> list[Any]: ...
+
+    def tick(self, now: float) -> list[Any]: ...
+
+    def data_to_send(self) -> bytes: ...
+
+
+class SessionPump:
+    """Drives ``session`` over ``link`` until the link fails or :meth:`stop` is called.
+
+    ``on_event(event)`` runs on the pump thread, without the lock held, so it may call
+    :meth:`call`. ``on_exit(error)`` runs once when the thread ends (``None`` after stop()).
+    """
+
+    def __init__(
+        self,
+        link: Link,
+        session: SansIOSession,
+        on_event: Callable[[Any], None],
+        *,
+        name: str = "pump",
+        clock: Callable[[], float] = time.monotonic,
+        on_exit: Callable[[BaseException | None], None] | None = None,
+        read_size: int = 65536,
+    ) -> None:
+        self.link = link
+        self.session = session
+        self.name = name
+        self._on_event = on_event
+        self._on_exit = on_exit
+        self._clock = clock
+        self._read_size = read_size
+        self._lock = threading.RLock()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self.error: BaseException | None = None
+
+    # ------------------------------------------------------------------ control
+    def start(self) -> SessionPump:
+        """Start the pump thread (the link must be open)."""
+        self._thread = threading.Thread(target=self._run, name=self.name, daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self, timeout: float = 2.0) -> None:
+        """Ask the thread to end and wait for it (the link is left to its owner)."""
+        self._stop.set()
+        thread = self._thread
+        if thread is not None and thread is not threading.current_thread():
+            thread.join(timeout)
+
+    @property
+    def running(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
+    def join(self, timeout: float | None = None) -> None:
+        if self._thread is not None:
+            self._thread.join(timeout)
+
+    def call(self, action: Callable[[Any], T]) -> T:
+        """Run ``action(session)`` under the lock, dispatch its events, flush its bytes."""
+        with self._lock:
+            result = action(self.session)
+            self._flush()
+        if isinstance(result, list):
+            for event in result:
+                self._dispatch(event)
+        return result
+
+    # ------------------------------------------------------------------ thread
+    def _flush(self) -> None:
+        data = self.session.data_to_send()
+        if data:
+            self.link.write(data)
+
+    def _dispatch(self, event: Any) -> None:
+        try:
+            self._on_event(event)
+        except HwBridgeError as exc:
+            log.error("%s: handling %s failed: %s", self.name, type(event).__name__, exc)
+        except Exception:
+            log.exception("%s: handling %s failed", self.name, type(event).__name__)
+
+    def _timeout(self) -> float:
+        deadline_of = getattr(self.session, "next_deadline", None)
+        deadline: float | None = deadline_of() if callable(deadline_of) else None
+        if deadline is None:
+            return _IDLE_TICK
+        return min(max(deadline - self._clock(), 0.0), _IDLE_TICK)
+
+    def _run(self) -> None:
+        error: BaseException | None = None
+        try:
+            while not self._stop.is_set():
+                data = self.link.read(self._read_size, timeout=self._timeout())
+                with self._lock:
+                    now = self._clock()
+                    events = self.session.receive_data(data, now) if data else []
+                    events += self.session.tick(now)
+                    self._flush()
+                for event in events:
+                    self._dispatch(event)
+        except LinkClosedError as exc:
+            if not self._stop.is_set():
+                error = exc
+        except LinkError as exc:
+            error = exc
+        except Exception as exc:
+            log.exception("%s: pump failed", self.name)
+            error = exc
+        self.error = error
+        if self._on_exit is not None:
+            try:
+                self._on_exit(error)
+            except Exception:
+                log.exception("%s: exit handler failed", self.name)

@@ -15,7 +15,7 @@ from typing import Annotated
 import typer
 
 from hwbridge._version import __version__
-from hwbridge.cli import graphcmd, msgcmd
+from hwbridge.cli import bridgecmd, graphcmd, msgcmd
 from hwbridge.cli.common import Context, console_err
 from hwbridge.errors import HwBridgeError
 
@@ -56,12 +56,12 @@ def build_app() -> typer.Typer:
             typer.Option(
                 "--endpoint",
                 envvar="HWBRIDGE_ENDPOINT",
-                help="Zenoh endpoint of the running bridge [default: tcp/127.0.0.1:7447].",
+                help="Zenoh endpoint of the running bridge (default tcp/127.0.0.1:7447).",
             ),
         ] = None,
         domain: Annotated[
             str | None,
-            typer.Option("--domain", envvar="HWBRIDGE_DOMAIN", help="Graph domain [default: 0]."),
+            typer.Option("--domain", envvar="HWBRIDGE_DOMAIN", help="Graph domain (default 0)."),
         ] = None,
         zenoh_config: Annotated[
             Path | None,
@@ -98,6 +98,8 @@ def build_app() -> typer.Typer:
     app.add_typer(graphcmd.service_app, name="service")
     app.add_typer(graphcmd.param_app, name="param")
     app.add_typer(graphcmd.node_app, name="node")
+    app.command("connect")(bridgecmd.connect)
+    app.add_typer(bridgecmd.board_app, name="board")
     return app
 
 

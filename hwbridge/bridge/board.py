@@ -1,0 +1,274 @@
+"""One board: its link, reconnection, protocol detection and state.
+
+A :class:`BoardConnection` thread keeps its board connected for the bridge's lifetime:
+
+1. open the link (a port that does not exist yet is waited for, with backoff);
+2. find the protocol (forced, or detected from what the board sends; a silent board is sent
+   rosserial's "request topics" after the start delay, which native boards ignore);
+3. run the session in a :class:`~hwbridge.pump.SessionPump` until the link fails;
+4. take the board's topics off the graph, close the link and start again.
+
+Every transition is logged, so a user sees an unplugged cable, a reset board or a port that
+came back.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import threading
+import time
+from pathlib import PurePosixPath
+from typing import TYPE_CHECKING, Any, Protocol
+
+from hwbridge.errors import HwBridgeError, LinkError
+from hwbridge.graph import Node, resolve_name
+from hwbridge.graph.names import encode_segment
+from hwbridge.links import Link, create_link
+from hwbridge.protocols.detect import ProtocolDetector
+from hwbridge.protocols.rosserial import REQUEST_TOPICS
+from hwbridge.pump import SansIOSession, SessionPump
+
+if TYPE_CHECKING:
+    import zenoh
+
+    from hwbridge.bridge.core import Bridge
+
+__all__ = ["PROTOCOLS", "BoardConnection", "BoardSpec"]
+
+PROTOCOLS = ("auto", "native", "rosserial")
+
+
+class Adapter(Protocol):
+    """What a protocol adapter offers the board connection."""
+
+    protocol: str
+
+    @property
+    def session(self) -> SansIOSession: ...
+
+    def on_event(self, event: Any) -> None: ...
+
+    def close(self, reason: HwBridgeError) -> bytes: ...
+
+    def topics(self) -> dict[str, Any]: ...
+
+    def stats(self) -> dict[str, Any]: ...
+
+
+class BoardSpec:
+    """How to reach one board: URL, protocol, options, namespace and name."""
+
+    def __init__(
+        self,
+        url: str,
+        *,
+        protocol: str = "auto",
+        baud: int | None = None,
+        namespace: str = "/",
+        name: str | None = None,
+        start_delay: float = 2.0,
+    ) -> None:
+        if protocol not in PROTOCOLS:
+            raise HwBridgeError(f"unknown protocol {protocol!r}; use one of {', '.join(PROTOCOLS)}")
+        self.url = url
+        self.protocol = protocol
+        self.baud = baud
+        self.namespace = resolve_name(namespace) if namespace != "/" else "/"
+        self.name = name or _name_from_url(url)
+        self.start_delay = start_delay
+
+    def link_options(self) -> dict[str, Any]:
+        return {"baud": self.baud} if self.baud is not None else {}
+
+
+def _name_from_url(url: str) -> str:
+    tail = url.split("?", 1)[0].rstrip("/")
+    tail = PurePosixPath(tail.split("://", 1)[-1]).name or "board"
+    cleaned = "".join(c if c.isalnum() or c == "_" else "_" for c in tail)
+    if not cleaned or cleaned[0].isdigit():
+        cleaned = "board_" + cleaned
+    return cleaned
+
+
+class BoardConnection:
+    """Keeps one board connected and mirrored on the graph (a thread)."""
+
+    def __init__(self, bridge: Bridge, spec: BoardSpec) -> None:
+        self.bridge = bridge
+        self.spec = spec
+        self.name = spec.name
+        self.log = logging.getLogger(f"hwbridge.board.{self.name}")
+        self.node: Node = bridge.graph.node(self.name, namespace=spec.namespace)
+        self.state = "starting"
+        self.state_detail: dict[str, Any] = {}
+        self.connects = 0
+        self.link: Link | None = None
+        self.adapter: Adapter | None = None
+        self._pump: SessionPump | None = None
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name=f"board-{self.name}", daemon=True)
+        self._token = bridge.graph.announce("board", self.name, spec.url, spec.protocol)
+        self._info = bridge.graph._keep(
+            bridge.graph.session.declare_queryable(
+                board_key(bridge.graph.prefix, self.name), self._on_info
+            )
+        )
+
+    @property
+    def pump(self) -> SessionPump:
+        if self._pump is None:
+            raise HwBridgeError(f"board {self.name} is not connected")
+        return self._pump
+
+    def resolve(self, name: str) -> str:
+        """A board topic/service/param name in the board's namespace."""
+        return resolve_name(name, self.spec.namespace, self.name)
+
+    def set_state(self, state: str, **detail: Any) -> None:
+        self.state = state
+        self.state_detail = detail
+
+    # ------------------------------------------------------------------ info
+    def info(self) -> dict[str, Any]:
+        adapter = self.adapter
+        return {
+            "name": self.name,
+            "url": self.spec.url,
+            "namespace": self.spec.namespace,
+            "protocol": adapter.protocol if adapter else self.spec.protocol,
+            "state": self.state,
+            "connects": self.connects,
+            "topics": adapter.topics() if adapter else {},
+            "stats": adapter.stats() if adapter else {},
+            "link": self.link.stats.as_dict() if self.link is not None else {},
+            **self.state_detail,
+        }
+
+    def _on_info(self, query: zenoh.Query) -> None:
+        try:
+            query.reply(query.key_expr, json.dumps(self.info(), default=str).encode())
+        except Exception as exc:  # noqa: BLE001 - the asker gets the failure, the bridge goes on
+            query.reply_err(f"{type(exc).__name__}: {exc}")
+
+    # ------------------------------------------------------------------ life
+    def start(self) -> None:
+        self._thread.start()
+
+    def stop(self, timeout: float = 3.0) -> None:
+        self._stop.set()
+        pump, adapter, link = self._pump, self.adapter, self.link
+        if adapter is not None and link is not None:
+            try:
+                goodbye = (
+                    pump.call(lambda _s: adapter.close(HwBridgeError("bridge stopped")))
+                    if pump
+                    else b""
+                )
+                if goodbye:
+                    link.write(goodbye)
+            except HwBridgeError as exc:
+                self.log.debug("%s: goodbye not sent: %s", self.name, exc)
+        if pump is not None:
+            pump.stop(timeout)
+        if link is not None:
+            link.close()
+        self._thread.join(timeout)
+
+    def _run(self) -> None:
+        backoff = 0.2
+        last_problem = ""
+        while not self._stop.is_set():
+            link = create_link(self.spec.url, **self.spec.link_options())
+            try:
+                link.open()
+            except LinkError as exc:
+                problem = str(exc)
+                if problem != last_problem:
+                    self.log.warning("%s: waiting for %s: %s", self.name, self.spec.url, problem)
+                    last_problem = problem
+                self.set_state("waiting", problem=problem)
+                self._stop.wait(backoff)
+                backoff = min(backoff * 2, 2.0)
+                continue
+            backoff, last_problem = 0.2, ""
+            self.link = link
+            try:
+                self._serve(link)
+            finally:
+                link.close()
+                self.link = None
+
+    def _serve(self, link: Link) -> None:
+        self.set_state("detecting")
+        protocol, early = self._detect(link)
+        if protocol is None:
+            return
+        adapter = self.bridge.make_adapter(protocol, self, early_start=bool(early))
+        self.adapter = adapter
+        done = threading.Event()
+        exit_error: list[BaseException | None] = []
+
+        def on_exit(error: BaseException | None) -> None:
+            exit_error.append(error)
+            done.set()
+
+        pump = SessionPump(
+            link, adapter.session, adapter.on_event, name=f"pump-{self.name}", on_exit=on_exit
+        )
+        self._pump = pump
+        self.connects += 1
+        self.set_state("negotiating")
+        if early:
+            pump.call(lambda s: s.receive_data(early, time.monotonic()))
+        pump.start()
+        while not done.wait(0.2):
+            if self._stop.is_set():
+                return
+        error = exit_error[0] if exit_error else None
+        reason = (
+            error if isinstance(error, HwBridgeError) else HwBridgeError(f"link ended: {error}")
+        )
+        adapter.close(reason)
+        self.adapter = None
+        self._pump = None
+        if not self._stop.is_set():
+            self.log.warning("%s: link lost (%s); reconnecting", self.name, error)
+            self.set_state("lost", problem=str(error))
+
+    def _detect(self, link: Link) -> tuple[str | None, bytes]:
+        """The protocol to speak, and bytes already read that belong to the session."""
+        if self.spec.protocol != "auto":
+            return self.spec.protocol, b""
+        detector = ProtocolDetector()
+        seen = bytearray()
+        started = time.monotonic()
+        probe_at = started + self.spec.start_delay
+        probes_sent = 0
+        while not self._stop.is_set():
+            data = link.read(4096, timeout=0.05)
+            if data:
+                seen += data
+                found = detector.feed(data)
+                if found is not None:
+                    self.log.info("%s: speaks %s", self.name, found)
+                    return found, bytes(seen)
+            now = time.monotonic()
+            if now >= probe_at:
+                if probes_sent and probes_sent % 5 == 0:
+                    self.log.warning(
+                        "%s: no answer on %s after %.0f s (neither native nor rosserial); "
+                        "still trying",
+                        self.name,
+                        self.spec.url,
+                        now - started,
+                    )
+                link.write(REQUEST_TOPICS)
+                probes_sent += 1
+                probe_at = now + 1.0
+        return None, b""
+
+
+def board_key(prefix: str, name: str) -> str:
+    """Zenoh key of a board's info queryable."""
+    return f"{prefix}/board/{encode_segment(name)}"

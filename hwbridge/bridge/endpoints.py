@@ -1,0 +1,186 @@
+"""What one connected board puts on the graph, and how it is taken off again.
+
+Protocol adapters (native, rosserial) translate session events into calls on
+:class:`BoardEndpoints`; it owns every publisher, subscriber and service it declares for the
+board, so a lost link removes exactly those from the graph (discovery sees them go).
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from typing import Any
+
+from hwbridge.errors import HwBridgeError, HwBridgeTimeoutError
+from hwbridge.graph import Node, Publisher, RawMessage, ServiceServer, Subscriber
+
+__all__ = ["ROSOUT_LEVELS", "BoardEndpoints", "PendingCalls"]
+
+# rosgraph_msgs/Log levels for DEBUG, INFO, WARN, ERROR, FATAL (0..4 on the board).
+ROSOUT_LEVELS = (1, 2, 4, 8, 16)
+_PYTHON_LEVELS = (logging.DEBUG, logging.INFO, logging.WARNING, logging.ERROR, logging.CRITICAL)
+
+
+@dataclass
+class _Pending:
+    done: threading.Event = field(default_factory=threading.Event)
+    payload: bytes | None = None
+    error: HwBridgeError | None = None
+
+
+class PendingCalls:
+    """Graph-side callers waiting for a board's answer, by request id."""
+
+    def __init__(self) -> None:
+        self._calls: dict[int, _Pending] = {}
+        self._lock = threading.Lock()
+
+    def add(self, request_id: int) -> _Pending:
+        pending = _Pending()
+        with self._lock:
+            self._calls[request_id] = pending
+        return pending
+
+    def resolve(self, request_id: int, payload: bytes | None, error: HwBridgeError | None) -> None:
+        with self._lock:
+            pending = self._calls.pop(request_id, None)
+        if pending is not None:
+            pending.payload, pending.error = payload, error
+            pending.done.set()
+
+    def fail_all(self, error: HwBridgeError) -> None:
+        with self._lock:
+            calls, self._calls = self._calls, {}
+        for pending in calls.values():
+            pending.error = error
+            pending.done.set()
+
+    @staticmethod
+    def wait(pending: _Pending, timeout: float, what: str) -> bytes:
+        if not pending.done.wait(timeout):
+            raise HwBridgeTimeoutError(f"{what}: the board did not answer within {timeout:g} s")
+        if pending.error is not None:
+            raise pending.error
+        assert pending.payload is not None
+        return pending.payload
+
+
+class BoardEndpoints:
+    """Publishers, subscribers and services of one board session on the graph."""
+
+    def __init__(self, node: Node, board_name: str, logger: logging.Logger) -> None:
+        self.node = node
+        self.board_name = board_name
+        self.log = logger
+        self.publishers: dict[str, Publisher] = {}
+        self.subscribers: dict[str, Subscriber] = {}
+        self.servers: dict[str, ServiceServer] = {}
+        self.pending = PendingCalls()
+        self._workers = ThreadPoolExecutor(max_workers=4, thread_name_prefix=f"{board_name}-svc")
+        self._rosout: Publisher | None = None
+        self._closed = False
+
+    # ------------------------------------------------------------------ board -> graph
+    def advertise(self, topic: str, type_name: str, md5: str) -> Publisher:
+        """A topic the board publishes (declared once per name)."""
+        found = self.publishers.get(topic)
+        if found is None or found.type.md5 != md5:
+            if found is not None:
+                found.close()
+            found = self.node.raw_publisher(topic, type_name, md5)
+            self.publishers[topic] = found
+        return found
+
+    def forward(self, topic: str, payload: bytes) -> None:
+        """A board publication: its bytes go to the graph unchanged."""
+        publisher = self.publishers.get(topic)
+        if publisher is not None:
+            publisher.publish_raw(payload)
+
+    def subscribe(self, topic: str, type_name: str, deliver: Callable[[bytes], None]) -> None:
+        """A topic the board subscribes to: graph messages go to ``deliver(payload)``."""
+        if topic in self.subscribers:
+            return
+
+        def on_message(message: RawMessage) -> None:
+            try:
+                deliver(message.data)
+            except HwBridgeError as exc:
+                self.log.error(
+                    "%s: cannot deliver %s to the board: %s", self.board_name, topic, exc
+                )
+
+        self.subscribers[topic] = self.node.subscriber(topic, type_name, on_message, raw=True)
+
+    def serve(self, name: str, srv_type: str, call: Callable[[bytes], bytes]) -> None:
+        """A service the board serves: graph calls run ``call(request) -> response``."""
+        if name not in self.servers:
+            self.servers[name] = self.node.service(name, srv_type, call, raw=True)
+
+    def call_graph_service(
+        self,
+        name: str,
+        srv_type: str,
+        payload: bytes,
+        answer: Callable[[bytes], None],
+        timeout: float,
+    ) -> None:
+        """The board calls a graph service; ``answer(response)`` runs when it returns."""
+
+        def work() -> None:
+            try:
+                answer(self.node.call_raw(name, srv_type, payload, timeout))
+            except HwBridgeError as exc:
+                self.log.error(
+                    "%s: service call %s for the board failed: %s", self.board_name, name, exc
+                )
+
+        self._workers.submit(work)
+
+    def log_line(self, level: int, text: str) -> None:
+        """A board log line: Python logging and /rosout (rosgraph_msgs/Log)."""
+        level = min(max(level, 0), 4)
+        self.log.log(_PYTHON_LEVELS[level], "[%s] %s", self.board_name, text)
+        if self._rosout is None:
+            self._rosout = self.node.publisher("/rosout", "rosgraph_msgs/Log")
+        now = time.time()
+        self._rosout.publish(
+            {
+                "header": {"stamp": now},
+                "level": ROSOUT_LEVELS[level],
+                "name": self.node.name,
+                "msg": text,
+            }
+        )
+
+    # ------------------------------------------------------------------ teardown
+    def close(self, reason: HwBridgeError) -> None:
+        """Take everything off the graph and fail the calls still waiting."""
+        if self._closed:
+            return
+        self._closed = True
+        self.pending.fail_all(reason)
+        items: list[Publisher | Subscriber | ServiceServer] = [
+            *self.publishers.values(),
+            *self.subscribers.values(),
+            *self.servers.values(),
+        ]
+        for item in items:
+            item.close()
+        if self._rosout is not None:
+            self._rosout.close()
+        self.publishers.clear()
+        self.subscribers.clear()
+        self.servers.clear()
+        self._workers.shutdown(wait=False, cancel_futures=True)
+
+    def names(self) -> dict[str, Any]:
+        return {
+            "publishes": sorted(self.publishers),
+            "subscribes": sorted(self.subscribers),
+            "serves": sorted(self.servers),
+        }

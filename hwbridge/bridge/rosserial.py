@@ -1,0 +1,139 @@
+"""Bridge adapter for boards running the rosserial client library (protocol v2)."""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
+
+from hwbridge.bridge.endpoints import BoardEndpoints
+from hwbridge.errors import HwBridgeError, LinkError, ProtocolError
+from hwbridge.graph import ParamError
+from hwbridge.protocols.rosserial import RosserialHost
+from hwbridge.protocols.rosserial import host as rs
+
+if TYPE_CHECKING:
+    from hwbridge.bridge.board import BoardConnection
+
+__all__ = ["RosserialAdapter"]
+
+
+class RosserialAdapter:
+    """Maps :class:`RosserialHost` events onto the graph for one board connection."""
+
+    protocol = "rosserial"
+
+    def __init__(self, board: BoardConnection, *, start_delay: float) -> None:
+        self.board = board
+        self.log = logging.getLogger(f"hwbridge.board.{board.name}")
+        self.session = RosserialHost(
+            board.bridge.registry, now=time.monotonic(), start_delay=start_delay
+        )
+        self.endpoints = BoardEndpoints(board.node, board.name, self.log)
+        self.connected = False
+
+    def topics(self) -> dict[str, Any]:
+        return self.endpoints.names()
+
+    def stats(self) -> dict[str, Any]:
+        return dict(self.session.stats.as_dict())
+
+    def on_event(self, event: Any) -> None:
+        handler = getattr(self, f"_on_{type(event).__name__}", None)
+        if handler is not None:
+            handler(event)
+
+    def _on_Connected(self, event: rs.Connected) -> None:
+        table = event.topics
+        for topic in table.publishers.values():
+            self.endpoints.advertise(self.board.resolve(topic.name), topic.type, topic.md5)
+        for topic in table.subscribers.values():
+            self.endpoints.subscribe(
+                self.board.resolve(topic.name), topic.type, self._deliver(topic.name)
+            )
+        for service in table.service_servers.values():
+            self.endpoints.serve(
+                self.board.resolve(service.name), service.type, self._server_call(service.name)
+            )
+        first = not self.connected
+        self.connected = True
+        self.board.set_state("connected", table_size=len(table.publishers) + len(table.subscribers))
+        if first:
+            self.log.info(
+                "%s: rosserial board connected: %s", self.board.name, self.endpoints.names()
+            )
+
+    def _deliver(self, name: str) -> Callable[[bytes], None]:
+        def deliver(data: bytes) -> None:
+            self.board.pump.call(lambda s: s.publish(name, data))
+
+        return deliver
+
+    def _server_call(self, name: str) -> Callable[[bytes], bytes]:
+        def call(request: bytes) -> bytes:
+            pending_id = self.board.pump.call(
+                lambda s: s.call_service(name, request, time.monotonic(), timeout=5.0)
+            )
+            pending = self.endpoints.pending.add(pending_id)
+            return self.endpoints.pending.wait(pending, 6.0, f"service {name}")
+
+        return call
+
+    def _on_Message(self, event: rs.Message) -> None:
+        self.endpoints.forward(self.board.resolve(event.topic), event.payload)
+
+    def _on_ServiceResponse(self, event: rs.ServiceResponse) -> None:
+        self.endpoints.pending.resolve(event.request_id, bytes(event.payload), None)
+
+    def _on_ServiceFailed(self, event: rs.ServiceFailed) -> None:
+        self.endpoints.pending.resolve(event.request_id, None, event.error)
+
+    def _on_ServiceRequest(self, event: rs.ServiceRequest) -> None:
+        name = event.name
+        self.endpoints.call_graph_service(
+            self.board.resolve(name),
+            event.type,
+            bytes(event.payload),
+            lambda response: self.board.pump.call(lambda s: s.respond(name, response)),
+            timeout=5.0,
+        )
+
+    def _on_ParamRequest(self, event: rs.ParamRequest) -> None:
+        name = self.board.resolve(event.name)
+        try:
+            value = self.board.bridge.get_param(name)
+        except ParamError:
+            self.log.warning("%s: board asked for missing parameter %s", self.board.name, name)
+            value = None
+        try:
+            self.board.pump.call(lambda s: s.answer_param(event.name, value))
+        except HwBridgeError as exc:
+            self.log.error("%s: cannot answer parameter %s: %s", self.board.name, name, exc)
+
+    def _on_Log(self, event: rs.Log) -> None:
+        self.endpoints.log_line(event.level, event.text)
+
+    def _on_DeviceOutput(self, event: rs.DeviceOutput) -> None:
+        self.log.info("%s: board printed %r", self.board.name, bytes(event.data))
+
+    def _on_Error(self, event: rs.Error) -> None:
+        self.log.error("%s: %s", self.board.name, event.error)
+
+    def _on_SyncLost(self, event: rs.SyncLost) -> None:
+        self.log.warning(
+            "%s: no time request for %.1f s: board lost or reset, negotiating again",
+            self.board.name,
+            event.silence,
+        )
+        self.endpoints.close(ProtocolError("the board lost sync"))
+        self.endpoints = BoardEndpoints(self.board.node, self.board.name, self.log)
+        self.connected = False
+        self.board.set_state("negotiating")
+
+    def close(self, reason: HwBridgeError) -> bytes:
+        """Take the board's endpoints off the graph; returns TX_STOP to send if the link lives."""
+        self.endpoints.close(reason)
+        if isinstance(reason, LinkError):
+            return b""
+        return self.session.close()

@@ -1,0 +1,196 @@
+"""``hwbridge connect`` (run the bridge) and ``hwbridge board`` (ask it about its boards)."""
+
+from __future__ import annotations
+
+import json
+import logging
+import signal
+import sys
+import threading
+from pathlib import Path
+from types import FrameType
+from typing import Annotated, Any
+
+import typer
+import yaml
+
+from hwbridge.cli.common import Context, get_registry, open_graph
+from hwbridge.errors import HwBridgeError, HwBridgeTimeoutError
+
+__all__ = ["board_app", "connect"]
+
+board_app = typer.Typer(
+    help="Boards of the running bridge: list, info, stats.", no_args_is_help=True
+)
+log = logging.getLogger("hwbridge.cli")
+
+
+def connect(
+    ctx: typer.Context,
+    urls: Annotated[
+        list[str],
+        typer.Argument(
+            metavar="URL...",
+            help="Board links: /dev/ttyACM0, serial:///dev/ttyUSB0?baud=57600, "
+            "socket://host:port, tcp-listen://:11411, spy+URL ...",
+        ),
+    ],
+    protocol: Annotated[
+        str, typer.Option("--protocol", "-p", help="auto, native or rosserial.")
+    ] = "auto",
+    baud: Annotated[
+        int | None, typer.Option("--baud", "-b", min=50, help="Serial baud rate (default 115200).")
+    ] = None,
+    namespace: Annotated[
+        str, typer.Option("--namespace", "-n", help="Graph namespace for the boards' topics.")
+    ] = "/",
+    name: Annotated[
+        list[str] | None, typer.Option("--name", help="Board name (once per URL, in order).")
+    ] = None,
+    start_delay: Annotated[
+        float,
+        typer.Option("--start-delay", min=0, help="Seconds to let a board boot before talking."),
+    ] = 2.0,
+    params: Annotated[
+        Path | None,
+        typer.Option("--params", exists=True, dir_okay=False, help="YAML file of parameters."),
+    ] = None,
+    listen: Annotated[
+        str | None,
+        typer.Option(
+            "--listen",
+            help="Zenoh endpoint for CLI tools and nodes (default tcp/127.0.0.1:7447).",
+        ),
+    ] = None,
+) -> None:
+    """Connect boards to the graph and keep them connected until Ctrl-C."""
+    from hwbridge.bridge import PROTOCOLS, BoardSpec, Bridge
+    from hwbridge.graph import Graph, GraphConfig
+
+    if protocol not in PROTOCOLS:
+        raise typer.BadParameter(f"use one of {', '.join(PROTOCOLS)}", param_hint="--protocol")
+    names = name or []
+    if len(names) > len(urls):
+        raise typer.BadParameter("more --name options than URLs", param_hint="--name")
+    initial: dict[str, Any] = {}
+    if params is not None:
+        loaded = yaml.safe_load(params.read_text()) or {}
+        if not isinstance(loaded, dict):
+            raise HwBridgeError(f"{params}: expected a mapping of parameter names to values")
+        initial = {("/" + str(k).lstrip("/")): v for k, v in loaded.items()}
+    options = ctx.find_root().obj
+    endpoint = listen or (options.endpoint if isinstance(options, Context) else None)
+    config = GraphConfig.embedded([endpoint] if endpoint else None, _domain(ctx))
+    if isinstance(options, Context) and options.zenoh_config is not None:
+        config = GraphConfig(
+            mode="router",
+            listen=(endpoint,) if endpoint else (),
+            domain=config.domain,
+            config_file=options.zenoh_config,
+        )
+    graph = Graph(config)
+    graph.registry = get_registry(ctx)
+    bridge = Bridge(graph, params=initial)
+    stop = threading.Event()
+
+    def on_signal(signum: int, _frame: FrameType | None) -> None:
+        log.info("signal %d: stopping", signum)
+        stop.set()
+
+    signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGINT, on_signal)
+    try:
+        for index, url in enumerate(urls):
+            spec = BoardSpec(
+                url,
+                protocol=protocol,
+                baud=baud,
+                namespace=namespace,
+                name=names[index] if index < len(names) else None,
+                start_delay=start_delay,
+            )
+            bridge.add_board(spec)
+        sys.stderr.write(
+            f"hwbridge: bridging {', '.join(urls)} on {config.describe()}; Ctrl-C stops\n"
+        )
+        sys.stderr.flush()
+        while not stop.wait(0.5):
+            pass
+    finally:
+        bridge.stop()
+        graph.close()
+
+
+def _domain(ctx: typer.Context) -> str | None:
+    options = ctx.find_root().obj
+    return options.domain if isinstance(options, Context) else None
+
+
+def _board_names(ctx: typer.Context, wait: float) -> list[tuple[str, str, str]]:
+    with open_graph(ctx) as graph:
+        boards = graph.snapshot(timeout=max(wait, 0.2)).of_kind("board")
+    return sorted((e.node, e.name, e.type) for e in boards)
+
+
+def _board_info(ctx: typer.Context, board: str, timeout: float) -> dict[str, Any]:
+    from hwbridge.bridge.board import board_key
+
+    with open_graph(ctx) as graph:
+        replies = graph.session.get(board_key(graph.prefix, board), timeout=timeout)
+        for reply in replies:
+            if reply.ok is not None:
+                info: dict[str, Any] = json.loads(bytes(reply.ok.payload.to_bytes()))
+                return info
+            if reply.err is not None:
+                raise HwBridgeError(f"board {board}: {reply.err.payload.to_string()}")
+    raise HwBridgeTimeoutError(f"no board named {board!r} answered (see 'hwbridge board list')")
+
+
+JsonOpt = Annotated[bool, typer.Option("--json", help="Machine-readable JSON output.")]
+BoardArg = Annotated[str, typer.Argument(metavar="BOARD", help="Board name (hwbridge board list).")]
+
+
+@board_app.command("list")
+def board_list(ctx: typer.Context, as_json: JsonOpt = False) -> None:
+    """List boards the bridge keeps connected (whether connected right now or not)."""
+    rows = _board_names(ctx, 1.0)
+    if as_json:
+        sys.stdout.write(
+            json.dumps([{"board": n, "url": u, "protocol": p} for n, u, p in rows]) + "\n"
+        )
+        return
+    for board, url, proto in rows:
+        typer.echo(f"{board}\t{url}\t{proto}")
+
+
+@board_app.command("info")
+def board_info(ctx: typer.Context, board: BoardArg, as_json: JsonOpt = False) -> None:
+    """State, protocol and topics of a board."""
+    info = _board_info(ctx, board, 2.0)
+    info.pop("stats", None)
+    info.pop("link", None)
+    _print(info, as_json)
+
+
+@board_app.command("stats")
+def board_stats(ctx: typer.Context, board: BoardArg, as_json: JsonOpt = False) -> None:
+    """Link statistics of a board: frames, bytes, checksum errors, gaps, retransmits, RTT."""
+    info = _board_info(ctx, board, 2.0)
+    _print(
+        {
+            "board": board,
+            "protocol": info.get("protocol"),
+            "stats": info.get("stats"),
+            "link": info.get("link"),
+        },
+        as_json,
+    )
+
+
+def _print(data: dict[str, Any], as_json: bool) -> None:
+    if as_json:
+        sys.stdout.write(json.dumps(data) + "\n")
+    else:
+        from hwbridge.msg import dump_yaml
+
+        sys.stdout.write(dump_yaml(data))

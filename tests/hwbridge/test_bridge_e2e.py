@@ -1,0 +1,190 @@
+"""End to end through real processes and a pty: board <-> ``hwbridge connect`` <-> CLI tools.
+
+The test process plays the board (a device-side protocol session on the master end of a pty);
+``hwbridge connect`` runs in a subprocess and opens the pty's slave like a serial port; CLI
+commands run in further subprocesses.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+import yaml
+
+from hwbridge.links import open_link
+from hwbridge.protocols.rosserial import REQUEST_TOPICS
+from tests.boards import PtyBoard, chatter, rosserial_sketch, wait_for
+from tests.netutil import free_port
+
+VECTORS = json.loads(
+    (Path(__file__).resolve().parents[2] / "protocols" / "vectors" / "rosserial.json").read_text()
+)
+FRAMES = {f["name"]: bytes.fromhex(f["hex"]) for f in VECTORS["frames"]}
+
+
+class BridgeProcess:
+    def __init__(self, path: Path, tmp: Path, *extra: str) -> None:
+        self.endpoint = f"tcp/127.0.0.1:{free_port()}"
+        self.env = {**os.environ, "HWBRIDGE_ENDPOINT": self.endpoint, "HWBRIDGE_DOMAIN": "e2e"}
+        self.log = tmp / "bridge.log"
+        self._log_file = self.log.open("w")
+        self.process = subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "hwbridge",
+                "-v",
+                "connect",
+                str(path),
+                "--start-delay",
+                "0.2",
+                *extra,
+            ],
+            env=self.env,
+            stdout=self._log_file,
+            stderr=subprocess.STDOUT,
+        )
+
+    def wait_ready(self) -> None:
+        """Wait for the line the bridge prints once its graph endpoint listens."""
+        assert wait_for(lambda: "hwbridge: bridging" in self.output(), 60), self.output()
+
+    def cli(self, *argv: str, timeout: float = 60) -> subprocess.CompletedProcess[str]:
+        return subprocess.run(
+            [sys.executable, "-m", "hwbridge", *argv],
+            env=self.env,
+            capture_output=True,
+            text=True,
+            timeout=timeout,
+            check=False,
+        )
+
+    def output(self) -> str:
+        return self.log.read_text()
+
+    def stop(self) -> int:
+        self.process.send_signal(signal.SIGINT)
+        try:
+            return self.process.wait(15)
+        finally:
+            if self.process.poll() is None:
+                self.process.kill()
+            self._log_file.close()
+
+
+@pytest.fixture
+def board_path(tmp_path: Path) -> Path:
+    return tmp_path / "ttyBOARD"
+
+
+@pytest.fixture
+def bridge(board_path: Path, tmp_path: Path) -> Iterator[BridgeProcess]:
+    process = BridgeProcess(board_path, tmp_path, "--namespace", "/rs", "--name", "uno")
+    process.wait_ready()
+    yield process
+    code = process.stop()
+    assert code == 0, process.output()
+
+
+def test_rosserial_board_through_bridge_and_cli(board_path: Path, bridge: BridgeProcess) -> None:
+    device = rosserial_sketch()
+    board = PtyBoard(board_path, device).start()
+    count = [0]
+    board.every(0.05, chatter(count))
+    try:
+        echo = bridge.cli("topic", "echo", "/rs/chatter", "-n", "1", "--timeout", "30")
+        assert echo.returncode == 0, echo.stderr + bridge.output()
+        assert yaml.safe_load(echo.stdout.split("---")[0])["data"].startswith("hello ")
+
+        pub = bridge.cli("topic", "pub", "/rs/led", "std_msgs/Bool", "{data: true}")
+        assert pub.returncode == 0, pub.stderr
+        assert wait_for(lambda: any(e.payload == b"\x01" for e in board.of_type("Received")))
+
+        call = bridge.cli("service", "call", "/rs/reset")
+        assert call.returncode == 0, call.stderr
+        assert yaml.safe_load(call.stdout) == {"success": True, "message": "done"}
+
+        assert bridge.cli("param", "set", "/rs/speed", "[3, 10]").returncode == 0
+        board.pump.call(lambda d: d.request_param("speed", board_now()))
+        assert wait_for(lambda: bool(board.of_type("ParamResult")))
+        assert board.of_type("ParamResult")[0].ints == (3, 10)
+
+        listing = bridge.cli("board", "list")
+        assert listing.returncode == 0
+        assert listing.stdout.split("\t")[0] == "uno"
+        stats = bridge.cli("board", "stats", "uno", "--json")
+        assert stats.returncode == 0, stats.stderr
+        data = json.loads(stats.stdout)
+        assert data["protocol"] == "rosserial"
+        assert data["link"]["bytes_in"] > 0
+    finally:
+        board.stop()
+
+
+def board_now() -> float:
+    import time
+
+    return time.monotonic()
+
+
+def test_bridge_recovers_when_the_board_goes_and_comes_back(
+    board_path: Path, bridge: BridgeProcess
+) -> None:
+    count = [0]
+    first = PtyBoard(board_path, rosserial_sketch()).start()
+    first.every(0.05, chatter(count))
+    assert bridge.cli("topic", "echo", "/rs/chatter", "-n", "1", "--timeout", "30").returncode == 0
+    first.stop()  # unplugged: the pty and its path disappear
+    assert wait_for(lambda: "link lost" in bridge.output(), 15), bridge.output()
+    gone = bridge.cli("topic", "list")
+    assert "/rs/chatter" not in gone.stdout.split()
+
+    second = PtyBoard(board_path, rosserial_sketch()).start()  # plugged in again, same path
+    second.every(0.05, chatter(count))
+    try:
+        again = bridge.cli("topic", "echo", "/rs/chatter", "-n", "1", "--timeout", "30")
+        assert again.returncode == 0, again.stderr + bridge.output()
+        assert "board connected" in bridge.output()
+        stats = json.loads(bridge.cli("board", "info", "uno", "--json").stdout)
+        assert stats["connects"] >= 2
+    finally:
+        second.stop()
+
+
+def test_golden_vector_frames_reach_the_graph(board_path: Path, bridge: BridgeProcess) -> None:
+    """A raw 'board' that answers with the exact frames of protocols/vectors/rosserial.json."""
+    link = open_link(f"pty://?symlink={board_path}")
+    stop = threading.Event()
+
+    def play() -> None:
+        buffered = b""
+        while not stop.is_set():
+            buffered += link.read(4096, timeout=0.05)
+            if REQUEST_TOPICS in buffered:
+                buffered = b""
+                link.write(FRAMES["time_request"] + FRAMES["topic_info_publisher_chatter"])
+            if len(buffered) > 4096:
+                buffered = buffered[-64:]
+            try:
+                link.write(FRAMES["message_chatter"])
+            except Exception:  # noqa: BLE001 - nobody attached yet
+                continue
+
+    thread = threading.Thread(target=play, daemon=True)
+    thread.start()
+    try:
+        echo = bridge.cli("topic", "echo", "/rs/chatter", "-n", "1", "--timeout", "30")
+        assert echo.returncode == 0, echo.stderr + bridge.output()
+        assert yaml.safe_load(echo.stdout.split("---")[0]) == {"data": "hello world!"}
+    finally:
+        stop.set()
+        thread.join(5)
+        link.close()

@@ -15,7 +15,7 @@ from typing import Annotated
 import typer
 
 from hwbridge._version import __version__
-from hwbridge.cli import bridgecmd, graphcmd, msgcmd
+from hwbridge.cli import bridgecmd, graphcmd, msgcmd, recordcmd
 from hwbridge.cli.common import Context, console_err
 from hwbridge.errors import HwBridgeError
 
@@ -100,6 +100,8 @@ def build_app() -> typer.Typer:
     app.add_typer(graphcmd.node_app, name="node")
     app.command("connect")(bridgecmd.connect)
     app.add_typer(bridgecmd.board_app, name="board")
+    app.command("record")(recordcmd.record)
+    app.command("play")(recordcmd.play)
     return app
 
 

@@ -62,7 +62,7 @@ def record(
     ctx: typer.Context,
     topics: Annotated[
         list[str] | None,
-        typer.Argument(metavar="[TOPIC]...", help="Topics to record; none means every topic."),
+        typer.Argument(metavar="TOPIC", help="Topics to record; none means every topic."),
     ] = None,
     output: Annotated[
         Path | None,
@@ -70,7 +70,7 @@ def record(
             "-o",
             "--output",
             dir_okay=False,
-            help="MCAP file to write [default: hwbridge_DATE-TIME.mcap].",
+            help="MCAP file to write (default hwbridge_DATE-TIME.mcap).",
         ),
     ] = None,
     all_topics: Annotated[
@@ -172,7 +172,7 @@ def play(
     ],
     topic_args: Annotated[
         list[str] | None,
-        typer.Argument(metavar="[TOPIC]...", help="Play only these topics (as --topics)."),
+        typer.Argument(metavar="TOPIC", help="Play only these topics (as --topics)."),
     ] = None,
     rate: Annotated[
         float,
@@ -216,8 +216,8 @@ def play(
         with (
             _stop_on_signals(player.stop),
             _progress(
-                lambda: _play_line(player.stats, rate),
-                lambda: _play_line(player.stats, rate),
+                lambda: _play_line(player.stats, rate, loop),
+                lambda: _play_line(player.stats, rate, loop),
                 quiet,
             ),
         ):
@@ -231,9 +231,9 @@ def _split(item: str) -> list[str]:
     return [t for t in item.replace(",", " ").split() if t]
 
 
-def _play_line(stats: PlayerStats, rate: float) -> str:
+def _play_line(stats: PlayerStats, rate: float, loop: bool) -> str:
     speed = "as fast as possible" if rate == 0 else f"x{rate:g}"
-    loops = f", loop {stats.loops + 1}" if stats.loops else ""
+    loops = f", pass {stats.loops + 1}" if loop else ""
     return (
         f"playing {stats.path} ({speed}): {stats.position:.1f} / {stats.duration:.1f} s, "
         f"{stats.messages} messages, {_size(stats.bytes)}{loops}"
@@ -264,7 +264,8 @@ def _stop_on_signals(on_stop: Callable[[], None]) -> Iterator[None]:
     previous: dict[int, Any] = {sig: signal.getsignal(sig) for sig in signals}
 
     def handler(signum: int, frame: FrameType | None) -> None:
-        on_stop()
+        # From another thread: the main thread may hold the lock of the Event it is waiting on.
+        threading.Thread(target=on_stop, name="hwbridge-stop", daemon=True).start()
         for sig in signals:  # a second signal aborts
             signal.signal(sig, _restorable(previous[sig]))
 
@@ -293,9 +294,7 @@ def _progress(
     if console_err.is_terminal:
         from rich.live import Live
 
-        with Live(
-            get_renderable=render, console=console_err, refresh_per_second=4, transient=True
-        ):
+        with Live(get_renderable=render, console=console_err, refresh_per_second=4, transient=True):
             yield
         return
     done = threading.Event()
@@ -325,18 +324,21 @@ def _print_summary(
         f"in {elapsed:.1f} s {preposition} {path}"
     ]
     width = max((len(c.topic) for c in channels), default=0)
+    type_width = max((len(c.type or "?") for c in channels), default=0)
     for c in channels:
         schema = "" if c.has_schema else " (no schema: type unknown to the registry)"
         lines.append(
-            f"  {c.topic:<{width}}  {c.type or '?'}  {c.messages} messages, {_size(c.bytes)}"
-            + schema
+            f"  {c.topic:<{width}}  {c.type or '?':<{type_width}}  {c.messages} messages, "
+            f"{_size(c.bytes)}{schema}"
         )
     typer.echo("\n".join(lines), err=True)
 
 
 def _size(count: float) -> str:
-    for unit in ("B", "kB", "MB", "GB"):
-        if count < 1000 or unit == "GB":
-            return f"{count:.0f} {unit}" if unit == "B" else f"{count:.1f} {unit}"
+    if count < 1000:
+        return f"{count:.0f} B"
+    for unit in ("kB", "MB"):
         count /= 1000
-    raise AssertionError("unreachable")
+        if count < 1000:
+            return f"{count:.1f} {unit}"
+    return f"{count / 1000:.1f} GB"

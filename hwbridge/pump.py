@@ -67,6 +67,8 @@ class SessionPump:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self.error: BaseException | None = None
+        self.dropped_bytes = 0
+        """Bytes written while a listening link had no peer (lost, as on an open wire)."""
 
     # ------------------------------------------------------------------ control
     def start(self) -> SessionPump:
@@ -103,8 +105,16 @@ class SessionPump:
     # ------------------------------------------------------------------ thread
     def _flush(self) -> None:
         data = self.session.data_to_send()
-        if data:
+        if not data:
+            return
+        try:
             self.link.write(data)
+        except LinkClosedError:
+            if not self.link.is_open:
+                raise
+            # A listening link (pty master, tcp-listen) with nobody attached: the bytes are
+            # lost as on a wire with no board; the protocol's timers deal with it.
+            self.dropped_bytes += len(data)
 
     def _dispatch(self, event: Any) -> None:
         try:
@@ -125,7 +135,13 @@ class SessionPump:
         error: BaseException | None = None
         try:
             while not self._stop.is_set():
-                data = self.link.read(self._read_size, timeout=self._timeout())
+                try:
+                    data = self.link.read(self._read_size, timeout=self._timeout())
+                except LinkClosedError:
+                    if not self.link.is_open or self._stop.is_set():
+                        raise
+                    log.info("%s: the peer went away; waiting for the next one", self.name)
+                    continue
                 with self._lock:
                     now = self._clock()
                     events = self.session.receive_data(data, now) if data else []

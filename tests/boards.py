@@ -23,14 +23,26 @@ from hwbridge.pump import SansIOSession, SessionPump
 class PtyBoard:
     """A device session on a pty at ``path``; ``events`` collects what the session reports."""
 
-    def __init__(self, path: Path, session: SansIOSession, name: str = "board") -> None:
+    def __init__(
+        self,
+        path: Path,
+        session: SansIOSession,
+        name: str = "board",
+        on_event: Callable[[PtyBoard, Any], None] | None = None,
+    ) -> None:
         self.path = path
         self.session = session
         self.events: list[Any] = []
+        self._on_event = on_event
         self.link = open_link(f"pty://?symlink={path}")
-        self.pump = SessionPump(self.link, session, self.events.append, name=f"device-{name}")
+        self.pump = SessionPump(self.link, session, self._record, name=f"device-{name}")
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
+
+    def _record(self, event: Any) -> None:
+        self.events.append(event)
+        if self._on_event is not None:
+            self._on_event(self, event)
 
     def start(self) -> PtyBoard:
         self.pump.start()
@@ -95,3 +107,44 @@ def wait_for(condition: Callable[[], bool], timeout: float = 15.0) -> bool:
             return True
         time.sleep(0.02)
     return condition()
+
+
+def native_sketch(name: str = "uno") -> Any:
+    """A native-protocol board: chatter publisher, led subscriber, a reset service server."""
+    from hwbridge.protocols.native import session as ns
+    from hwbridge.protocols.native.control import EntryKind
+
+    registry = msg.registry()
+    topics = [
+        ns.TopicEntry(
+            1, EntryKind.PUBLISHER, "chatter", "std_msgs/String", registry.md5("std_msgs/String")
+        ),
+        ns.TopicEntry(
+            2, EntryKind.SUBSCRIBER, "led", "std_msgs/Bool", registry.md5("std_msgs/Bool")
+        ),
+        ns.TopicEntry(
+            3,
+            EntryKind.SERVICE_SERVER,
+            "reset",
+            "std_srvs/Trigger",
+            registry.service("std_srvs/Trigger").md5,
+        ),
+    ]
+    return ns.DeviceSession(ns.BoardInfo(name, b"\x00\x01", "0.1.0"), topics)
+
+
+def answer_services(board: PtyBoard, event: Any) -> None:
+    """An ``on_event`` for native boards: answer std_srvs/Trigger calls with success."""
+    from hwbridge.protocols.native import session as ns
+
+    if isinstance(event, ns.ServiceRequest):
+        reply = msg.encode(msg.new("std_srvs/TriggerResponse", success=True, message="done"))
+        board.pump.call(lambda s: s.respond_service(event.channel, event.request_id, reply))
+
+
+def native_chatter(count: list[int]) -> Callable[[Any], object]:
+    def publish(device: Any) -> object:
+        count[0] += 1
+        return device.publish(1, msg.encode(msg.new("std_msgs/String", data=f"hello {count[0]}")))
+
+    return publish

@@ -195,6 +195,10 @@ class BoardConnection:
             self.link = link
             try:
                 self._serve(link)
+            except LinkError as exc:
+                if not self._stop.is_set():
+                    self.log.warning("%s: link lost (%s); reconnecting", self.name, exc)
+                    self.set_state("lost", problem=str(exc))
             finally:
                 link.close()
                 self.link = None

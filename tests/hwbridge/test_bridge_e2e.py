@@ -21,7 +21,15 @@ import yaml
 
 from hwbridge.links import open_link
 from hwbridge.protocols.rosserial import REQUEST_TOPICS
-from tests.boards import PtyBoard, chatter, rosserial_sketch, wait_for
+from tests.boards import (
+    PtyBoard,
+    answer_services,
+    chatter,
+    native_chatter,
+    native_sketch,
+    rosserial_sketch,
+    wait_for,
+)
 from tests.netutil import free_port
 
 VECTORS = json.loads(
@@ -188,3 +196,37 @@ def test_golden_vector_frames_reach_the_graph(board_path: Path, bridge: BridgePr
         stop.set()
         thread.join(5)
         link.close()
+
+
+def test_native_board_through_bridge_and_cli_with_reset(
+    board_path: Path, bridge: BridgeProcess
+) -> None:
+    count = [0]
+    board = PtyBoard(board_path, native_sketch(), on_event=answer_services).start()
+    board.every(0.05, native_chatter(count))
+    try:
+        echo = bridge.cli("topic", "echo", "/rs/chatter", "-n", "1", "--timeout", "30")
+        assert echo.returncode == 0, echo.stderr + bridge.output()
+        assert "speaks native" in bridge.output()
+        pub = bridge.cli("topic", "pub", "/rs/led", "std_msgs/Bool", "{data: true}")
+        assert pub.returncode == 0, pub.stderr
+        assert wait_for(lambda: any(e.payload == b"\x01" for e in board.of_type("Message")))
+        call = bridge.cli("service", "call", "/rs/reset")
+        assert call.returncode == 0, call.stderr
+        assert yaml.safe_load(call.stdout) == {"success": True, "message": "done"}
+        stats = json.loads(bridge.cli("board", "stats", "uno", "--json").stdout)
+        assert stats["protocol"] == "native"
+        assert stats["stats"]["crc_errors"] == 0
+        assert stats["stats"]["be_messages_received"] > 0
+    finally:
+        board.stop()
+    # The board resets: a new device session (new session id) on the same port.
+    again = PtyBoard(board_path, native_sketch())
+    again.start()
+    again.every(0.05, native_chatter(count))
+    try:
+        echo = bridge.cli("topic", "echo", "/rs/chatter", "-n", "1", "--timeout", "30")
+        assert echo.returncode == 0, echo.stderr + bridge.output()
+        assert bridge.output().count("connected (native)") >= 2
+    finally:
+        again.stop()

@@ -19,6 +19,10 @@ if TYPE_CHECKING:
 __all__ = ["NativeAdapter"]
 
 
+def _ignore(_event: Any) -> None:
+    """Events an adapter has no use for."""
+
+
 class NativeAdapter:
     """Maps :class:`HostSession` events onto the graph for one board connection."""
 
@@ -30,6 +34,7 @@ class NativeAdapter:
         config = ns.HostConfig(epoch_offset=time.time() - time.monotonic())
         self.session = ns.HostSession(config, type_check=self._expected_type)
         self.endpoints = BoardEndpoints(board.node, board.name, self.log)
+        self._handlers: dict[type, Callable[[Any], None]] = {}
         self.channels: dict[int, str] = {}  # board channel -> graph name
         self.param_names: dict[str, str] = {}  # graph parameter name -> the board's name
         board.bridge.params.on_update(self._on_param_changed)
@@ -70,9 +75,11 @@ class NativeAdapter:
 
     # ------------------------------------------------------------------ events
     def on_event(self, event: Any) -> None:
-        handler = getattr(self, f"_on_{type(event).__name__}", None)
-        if handler is not None:
-            handler(event)
+        kind = type(event)
+        handler = self._handlers.get(kind)
+        if handler is None:
+            handler = self._handlers[kind] = getattr(self, f"_on_{kind.__name__}", _ignore)
+        handler(event)
 
     def _on_Connected(self, event: ns.Connected) -> None:
         for entry in event.topics:

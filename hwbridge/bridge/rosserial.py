@@ -19,6 +19,10 @@ if TYPE_CHECKING:
 __all__ = ["RosserialAdapter"]
 
 
+def _ignore(_event: Any) -> None:
+    """Events an adapter has no use for."""
+
+
 class RosserialAdapter:
     """Maps :class:`RosserialHost` events onto the graph for one board connection."""
 
@@ -31,6 +35,7 @@ class RosserialAdapter:
             board.bridge.registry, now=time.monotonic(), start_delay=start_delay
         )
         self.endpoints = BoardEndpoints(board.node, board.name, self.log)
+        self._handlers: dict[type, Callable[[Any], None]] = {}
         self.connected = False
 
     def topics(self) -> dict[str, Any]:
@@ -40,9 +45,11 @@ class RosserialAdapter:
         return dict(self.session.stats.as_dict())
 
     def on_event(self, event: Any) -> None:
-        handler = getattr(self, f"_on_{type(event).__name__}", None)
-        if handler is not None:
-            handler(event)
+        kind = type(event)
+        handler = self._handlers.get(kind)
+        if handler is None:
+            handler = self._handlers[kind] = getattr(self, f"_on_{kind.__name__}", _ignore)
+        handler(event)
 
     def _on_Connected(self, event: rs.Connected) -> None:
         table = event.topics

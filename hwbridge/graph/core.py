@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import atexit
 import contextlib
+import functools
 import logging
 import threading
 import time
@@ -75,7 +76,9 @@ def _attachment(md5: str, type_name: str) -> bytes:
     return (md5 + type_name).encode()
 
 
+@functools.lru_cache(maxsize=256)
 def _parse_attachment(raw: bytes | None) -> tuple[str, str]:
+    """(md5, type) from an attachment; cached, since a topic repeats the same few."""
     if raw is None or len(raw) < _MD5_LEN:
         return "", ""
     text = raw.decode("ascii", "replace")
@@ -488,7 +491,9 @@ class Publisher:
 
     def publish_raw(self, data: bytes | bytearray | memoryview) -> None:
         """Publish bytes already in ROS 1 serialization of this publisher's type."""
-        self._publisher.put(bytes(data), attachment=self._attachment)
+        self._publisher.put(
+            data if type(data) is bytes else bytes(data), attachment=self._attachment
+        )
         self.sent += 1
 
     @property
@@ -554,7 +559,7 @@ class Subscriber:
                 ),
             )
             return
-        data = bytes(sample.payload.to_bytes())
+        data = sample.payload.to_bytes()
         self.received += 1
         if self._raw:
             _guarded(self._callback, RawMessage(self.topic, type_name, md5, data))

@@ -1,0 +1,381 @@
+#!/usr/bin/env python3
+"""Bridge benchmarks: throughput board -> graph subscriber, and service round-trip latency.
+
+Three processes, as in real use: a *board* (a device-side protocol session on the master end of a
+pty, in its own process), the *bridge* (this process: ``Bridge`` reading the pty's slave), and a
+*client* (a graph subscriber, or a service caller, in its own process).
+
+Throughput (``bench`` contains ``throughput``): the board writes N frames of 16-byte payloads as
+fast as the pty takes them; the subscriber process counts what arrives in its callback. The peer
+is ``zenoh_raw``: this process publishing the same payloads straight to Zenoh, no link, framing
+or session (the graph's own ceiling on this machine). CPU use of the bridge process is reported.
+
+Latency (``bench`` contains ``latency``): the client calls a std_srvs/Trigger service served by
+the board through the bridge. ``host_added`` is the round trip minus what the host does not
+cause: the board's own processing (measured in the board process) and the pty round trip (a raw
+echo over a pty, measured in the same run, which is also the ``peer``).
+
+Runs with no arguments in about a minute; prints one JSON object per line.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from _common import emit
+
+N_MESSAGES = 200_000
+N_CALLS = 2000
+DOMAIN = "bench"
+
+
+# ---------------------------------------------------------------------------------- the board
+def board_main(protocol: str, symlink: str) -> None:
+    """Board process: negotiate, then on stdin commands blast frames or serve calls."""
+    from hwbridge import msg
+    from hwbridge.links import open_link
+    from hwbridge.pump import SessionPump
+
+    registry = msg.registry()
+    payload = msg.encode(msg.new("std_msgs/String", data="0123456789ab"))  # 16 bytes
+    reply = msg.encode(msg.new("std_srvs/TriggerResponse", success=True, message="ok"))
+    link = open_link(f"pty://?symlink={symlink}")
+    handling: list[float] = []
+    pump: SessionPump
+
+    if protocol == "native":
+        from hwbridge.protocols.native import session as ns
+        from hwbridge.protocols.native.control import EntryKind
+
+        session: Any = ns.DeviceSession(
+            ns.BoardInfo("bench", b"\x01", "1"),
+            [
+                ns.TopicEntry(
+                    1,
+                    EntryKind.PUBLISHER,
+                    "data",
+                    "std_msgs/String",
+                    registry.md5("std_msgs/String"),
+                ),
+                ns.TopicEntry(
+                    2,
+                    EntryKind.SERVICE_SERVER,
+                    "trigger",
+                    "std_srvs/Trigger",
+                    registry.service("std_srvs/Trigger").md5,
+                ),
+            ],
+            ns.DeviceConfig(mtu=255, max_message=1024, window=8, tx_queue_limit=1 << 20),
+        )
+
+        def on_event(event: Any) -> None:
+            if isinstance(event, ns.ServiceRequest):
+                started = time.perf_counter()
+                pump.call(lambda s: s.respond_service(event.channel, event.request_id, reply))
+                handling.append(time.perf_counter() - started)
+
+        def blast(count: int) -> bytes:
+            def make(s: Any) -> bytes:
+                for _ in range(count):
+                    s.publish(1, payload)
+                return bytes(s.data_to_send())
+
+            return pump.call(make)
+    else:
+        from hwbridge.protocols.rosserial import RosserialDevice, encode_frame
+
+        device = RosserialDevice(registry)
+        device.advertise("data", "std_msgs/String")
+
+        def serve(_request: bytes) -> bytes:
+            return reply
+
+        device.advertise_service("trigger", "std_srvs/Trigger", serve)
+        session = device
+
+        def on_event(event: Any) -> None:
+            return None
+
+        def blast(count: int) -> bytes:
+            return encode_frame(device.topic_id("data"), payload) * count
+
+    pump = SessionPump(link, session, on_event, name="bench-board")
+    pump.start()
+    print("ready", flush=True)
+    prepared = b""
+    for line in sys.stdin:
+        command, _, arg = line.strip().partition(" ")
+        if command == "prepare":
+            prepared = blast(int(arg))
+            print("prepared", flush=True)
+        elif command == "go":
+            view = memoryview(prepared)
+            for start in range(0, len(view), 65536):
+                link.write(view[start : start + 65536])
+            print("sent", flush=True)
+        elif command == "handling":
+            print(json.dumps(handling), flush=True)
+        elif command == "quit":
+            break
+    pump.stop()
+    link.close()
+
+
+def echo_main(symlink: str) -> None:
+    """A raw echo on a pty: the round trip a link costs without any protocol."""
+    from hwbridge.links import LinkClosedError, open_link
+
+    link = open_link(f"pty://?symlink={symlink}")
+    print("ready", flush=True)
+    while True:
+        try:
+            data = link.read(4096, timeout=1.0)
+        except LinkClosedError:
+            break
+        if data:
+            link.write(data)
+
+
+# ---------------------------------------------------------------------------------- the client
+def subscriber_main(endpoint: str, topic: str, expected: int) -> None:
+    from hwbridge.graph import ANY_TYPE, Graph
+
+    count = 0
+    first = last = 0.0
+    done = threading.Event()
+
+    def on_message(_message: Any) -> None:
+        nonlocal count, first, last
+        now = time.perf_counter()
+        if count == 0:
+            first = now
+        count += 1
+        last = now
+        if count >= expected:
+            done.set()
+
+    with Graph.attached(connect=[endpoint], domain=DOMAIN) as graph:
+        graph.node("bench_sub").subscriber(topic, ANY_TYPE, on_message, raw=True)
+        print("ready", flush=True)
+        while not done.wait(0.5):
+            if count and time.perf_counter() - last > 3.0:
+                break
+        print(json.dumps({"count": count, "seconds": last - first}), flush=True)
+
+
+def caller_main(endpoint: str, service: str, calls: int) -> None:
+    from hwbridge.graph import Graph
+
+    with Graph.attached(connect=[endpoint], domain=DOMAIN) as graph:
+        node = graph.node("bench_caller")
+        for _ in range(50):  # warm up (and wait until the service is there)
+            try:
+                node.call_raw(service, "std_srvs/Trigger", b"", timeout=2.0)
+            except Exception:  # noqa: BLE001 - not there yet
+                time.sleep(0.1)
+        times = []
+        for _ in range(calls):
+            started = time.perf_counter()
+            node.call_raw(service, "std_srvs/Trigger", b"", timeout=2.0)
+            times.append(time.perf_counter() - started)
+        print(json.dumps(times), flush=True)
+
+
+def echo_client_main(path: str, rounds: int) -> None:
+    from hwbridge.links import open_link
+
+    link = open_link(f"serial://{path}")
+    times = []
+    for _ in range(rounds):
+        started = time.perf_counter()
+        link.write(b"\x00" * 16)
+        got = b""
+        while len(got) < 16:
+            got += link.read(64, timeout=1.0)
+        times.append(time.perf_counter() - started)
+    link.close()
+    print(json.dumps(times), flush=True)
+
+
+# ---------------------------------------------------------------------------------- orchestration
+def _spawn(*args: str) -> subprocess.Popen[str]:
+    process = subprocess.Popen(
+        [sys.executable, __file__, *args],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    assert process.stdout is not None
+    line = process.stdout.readline().strip()
+    if line != "ready":
+        process.kill()
+        raise RuntimeError(f"{args[0]} did not start: {line!r}")
+    return process
+
+
+def _ask(process: subprocess.Popen[str], command: str) -> str:
+    assert process.stdin is not None and process.stdout is not None
+    process.stdin.write(command + "\n")
+    process.stdin.flush()
+    return process.stdout.readline().strip()
+
+
+def _percentile(values: list[float], fraction: float) -> float:
+    ordered = sorted(values)
+    return ordered[min(len(ordered) - 1, int(fraction * len(ordered)))]
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+def run_protocol(protocol: str, tmp: Path, messages: int, calls: int, echo_rtt: float) -> None:
+    from hwbridge.bridge import BoardSpec, Bridge
+    from hwbridge.graph import Graph
+
+    endpoint = f"tcp/127.0.0.1:{_free_port()}"
+    path = tmp / f"tty-{protocol}"
+    board = _spawn("--board", protocol, str(path))
+    graph = Graph.embedded(listen=[endpoint], domain=DOMAIN)
+    bridge = Bridge(graph)
+    bridge.add_board(BoardSpec(str(path), protocol=protocol, namespace="/bench", start_delay=0.1))
+    try:
+        deadline = time.monotonic() + 30
+        while bridge.boards[path.name.replace("-", "_")].state != "connected":
+            if time.monotonic() > deadline:
+                raise RuntimeError(f"{protocol} board did not connect")
+            time.sleep(0.05)
+        sub = _spawn("--subscriber", endpoint, "/bench/data", str(messages))
+        time.sleep(1.0)  # let the subscription reach the bridge
+        _ask(board, f"prepare {messages}")
+        cpu0, wall0 = time.process_time(), time.perf_counter()
+        _ask(board, "go")
+        assert sub.stdout is not None
+        result = json.loads(sub.stdout.readline())
+        cpu = (time.process_time() - cpu0) / max(time.perf_counter() - wall0, 1e-9)
+        sub.wait(10)
+        rate = result["count"] / result["seconds"] if result["seconds"] > 0 else 0.0
+        raw = zenoh_raw_rate(graph, endpoint, messages)
+        emit(
+            f"bridge_throughput_{protocol}",
+            {"payload": 16},
+            rate,
+            "zenoh_raw",
+            raw,
+            received=result["count"],
+            sent=messages,
+            bridge_cpu_fraction=round(cpu, 3),
+        )
+
+        caller = subprocess.run(
+            [sys.executable, __file__, "--caller", endpoint, "/bench/trigger", str(calls)],
+            capture_output=True,
+            text=True,
+            timeout=300,
+            check=True,
+        )
+        times = json.loads(caller.stdout.splitlines()[-1])
+        handling = json.loads(_ask(board, "handling") or "[]")
+        board_time = statistics.median(handling) if handling else 0.0
+        host = [t - echo_rtt - board_time for t in times]
+        emit(
+            f"bridge_latency_{protocol}",
+            {"payload": 0},
+            1.0 / statistics.mean(times),
+            "pty_echo",
+            1.0 / echo_rtt,
+            p50_us=round(_percentile(host, 0.5) * 1e6, 1),
+            p99_us=round(_percentile(host, 0.99) * 1e6, 1),
+            rtt_p50_us=round(_percentile(times, 0.5) * 1e6, 1),
+            rtt_p99_us=round(_percentile(times, 0.99) * 1e6, 1),
+            board_us=round(board_time * 1e6, 1),
+            pty_echo_us=round(echo_rtt * 1e6, 1),
+            calls=len(times),
+        )
+    finally:
+        _ask(board, "quit")
+        board.wait(10)
+        bridge.stop()
+        graph.close()
+
+
+def zenoh_raw_rate(graph: Any, endpoint: str, messages: int) -> float:
+    """The peer: the same payloads published straight to Zenoh from this process."""
+    sub = _spawn("--subscriber", endpoint, "/bench/raw", str(messages))
+    time.sleep(1.0)
+    publisher = graph.node("bench_raw").raw_publisher("/bench/raw", "std_msgs/String", "0" * 32)
+    payload = b"\x0c\x00\x00\x000123456789ab"
+    for _ in range(messages):
+        publisher.publish_raw(payload)
+    assert sub.stdout is not None
+    result = json.loads(sub.stdout.readline())
+    sub.wait(10)
+    publisher.close()
+    return float(result["count"] / result["seconds"]) if result["seconds"] > 0 else 0.0
+
+
+def pty_echo_rtt(tmp: Path, rounds: int) -> float:
+    path = tmp / "tty-echo"
+    echo = _spawn("--echo", str(path))
+    try:
+        done = subprocess.run(
+            [sys.executable, __file__, "--echo-client", str(path), str(rounds)],
+            capture_output=True,
+            text=True,
+            timeout=120,
+            check=True,
+        )
+        return float(statistics.median(json.loads(done.stdout.splitlines()[-1])))
+    finally:
+        echo.kill()
+        echo.wait(5)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--board", nargs=2, metavar=("PROTOCOL", "PATH"))
+    parser.add_argument("--echo", metavar="PATH")
+    parser.add_argument("--echo-client", nargs=2, metavar=("PATH", "ROUNDS"))
+    parser.add_argument("--subscriber", nargs=3, metavar=("ENDPOINT", "TOPIC", "N"))
+    parser.add_argument("--caller", nargs=3, metavar=("ENDPOINT", "SERVICE", "N"))
+    parser.add_argument("--messages", type=int, default=N_MESSAGES)
+    parser.add_argument("--calls", type=int, default=N_CALLS)
+    parser.add_argument("--protocol", choices=["native", "rosserial", "both"], default="both")
+    args = parser.parse_args()
+    if args.board:
+        board_main(*args.board)
+    elif args.echo:
+        echo_main(args.echo)
+    elif args.echo_client:
+        echo_client_main(args.echo_client[0], int(args.echo_client[1]))
+    elif args.subscriber:
+        subscriber_main(args.subscriber[0], args.subscriber[1], int(args.subscriber[2]))
+    elif args.caller:
+        caller_main(args.caller[0], args.caller[1], int(args.caller[2]))
+    else:
+        os.environ.setdefault("HWBRIDGE_DOMAIN", DOMAIN)
+        with tempfile.TemporaryDirectory() as tmp:
+            echo = pty_echo_rtt(Path(tmp), 500)
+            protocols = ["native", "rosserial"] if args.protocol == "both" else [args.protocol]
+            for protocol in protocols:
+                run_protocol(protocol, Path(tmp), args.messages, args.calls, echo)
+
+
+if __name__ == "__main__":
+    main()

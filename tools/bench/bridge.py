@@ -37,12 +37,24 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import emit
 
 N_MESSAGES = 200_000
+_DROP_COUNTERS = {
+    "crc_errors",
+    "bad_frames",
+    "be_frames_lost",
+    "be_messages_incomplete",
+    "dropped_messages",
+    "non_frame_bytes",
+    "checksum_errors",
+    "rx_length_checksum_errors",
+    "rx_checksum_errors",
+    "errors",
+}
 N_CALLS = 2000
 DOMAIN = "bench"
 
 
 # ---------------------------------------------------------------------------------- the board
-def board_main(protocol: str, symlink: str) -> None:
+def board_main(protocol: str, url: str) -> None:
     """Board process: negotiate, then on stdin commands blast frames or serve calls."""
     from hwbridge import msg
     from hwbridge.links import open_link
@@ -51,7 +63,7 @@ def board_main(protocol: str, symlink: str) -> None:
     registry = msg.registry()
     payload = msg.encode(msg.new("std_msgs/String", data="0123456789ab"))  # 16 bytes
     reply = msg.encode(msg.new("std_srvs/TriggerResponse", success=True, message="ok"))
-    link = open_link(f"pty://?symlink={symlink}")
+    link = open_link(url)
     handling: list[float] = []
     pump: SessionPump
 
@@ -86,6 +98,8 @@ def board_main(protocol: str, symlink: str) -> None:
                 pump.call(lambda s: s.respond_service(event.channel, event.request_id, reply))
                 handling.append(time.perf_counter() - started)
 
+        boundary = b"\x00"  # every native frame ends with the COBS delimiter
+
         def blast(count: int) -> bytes:
             def make(s: Any) -> bytes:
                 for _ in range(count):
@@ -108,8 +122,11 @@ def board_main(protocol: str, symlink: str) -> None:
         def on_event(event: Any) -> None:
             return None
 
+        frame = encode_frame(device.topic_id("data"), payload)
+        boundary = frame
+
         def blast(count: int) -> bytes:
-            return encode_frame(device.topic_id("data"), payload) * count
+            return frame * count
 
     pump = SessionPump(link, session, on_event, name="bench-board")
     pump.start()
@@ -121,9 +138,16 @@ def board_main(protocol: str, symlink: str) -> None:
             prepared = blast(int(arg))
             print("prepared", flush=True)
         elif command == "go":
+            # Whole frames per write, so the session's own frames (acks, heartbeats) written
+            # from the pump thread in between never land inside one of these.
             view = memoryview(prepared)
-            for start in range(0, len(view), 65536):
-                link.write(view[start : start + 65536])
+            start = 0
+            while start < len(view):
+                end = min(start + 65536, len(view))
+                if end < len(view):
+                    end = prepared.rfind(boundary, start, end) + len(boundary)
+                link.write(view[start:end])
+                start = end
             print("sent", flush=True)
         elif command == "handling":
             print(json.dumps(handling), flush=True)
@@ -245,19 +269,30 @@ def _free_port() -> int:
         return int(sock.getsockname()[1])
 
 
-def run_protocol(protocol: str, tmp: Path, messages: int, calls: int, echo_rtt: float) -> None:
+def run_protocol(
+    protocol: str, transport: str, tmp: Path, messages: int, calls: int, echo_rtt: float
+) -> None:
     from hwbridge.bridge import BoardSpec, Bridge
     from hwbridge.graph import Graph
 
     endpoint = f"tcp/127.0.0.1:{_free_port()}"
-    path = tmp / f"tty-{protocol}"
-    board = _spawn("--board", protocol, str(path))
+    if transport == "pty":
+        path = tmp / f"tty-{protocol}"
+        board = _spawn("--board", protocol, f"pty://?symlink={path}")
+        board_url = str(path)
+    else:
+        port = _free_port()
+        board = _spawn("--board", protocol, f"tcp-listen://127.0.0.1:{port}")
+        board_url = f"socket://127.0.0.1:{port}"
+    name = "board"
     graph = Graph.embedded(listen=[endpoint], domain=DOMAIN)
     bridge = Bridge(graph)
-    bridge.add_board(BoardSpec(str(path), protocol=protocol, namespace="/bench", start_delay=0.1))
+    bridge.add_board(
+        BoardSpec(board_url, protocol=protocol, namespace="/bench", start_delay=0.1, name=name)
+    )
     try:
         deadline = time.monotonic() + 30
-        while bridge.boards[path.name.replace("-", "_")].state != "connected":
+        while bridge.boards[name].state != "connected":
             if time.monotonic() > deadline:
                 raise RuntimeError(f"{protocol} board did not connect")
             time.sleep(0.05)
@@ -271,9 +306,15 @@ def run_protocol(protocol: str, tmp: Path, messages: int, calls: int, echo_rtt: 
         cpu = (time.process_time() - cpu0) / max(time.perf_counter() - wall0, 1e-9)
         sub.wait(10)
         rate = result["count"] / result["seconds"] if result["seconds"] > 0 else 0.0
+        stats = bridge.boards[name].info()
+        counted = {
+            key: value
+            for key, value in {**stats["stats"], **stats["link"]}.items()
+            if key in _DROP_COUNTERS and value
+        }
         raw = zenoh_raw_rate(graph, endpoint, messages)
         emit(
-            f"bridge_throughput_{protocol}",
+            f"bridge_throughput_{protocol}_{transport}",
             {"payload": 16},
             rate,
             "zenoh_raw",
@@ -281,6 +322,7 @@ def run_protocol(protocol: str, tmp: Path, messages: int, calls: int, echo_rtt: 
             received=result["count"],
             sent=messages,
             bridge_cpu_fraction=round(cpu, 3),
+            bridge_drop_counters=counted,
         )
 
         caller = subprocess.run(
@@ -295,7 +337,7 @@ def run_protocol(protocol: str, tmp: Path, messages: int, calls: int, echo_rtt: 
         board_time = statistics.median(handling) if handling else 0.0
         host = [t - echo_rtt - board_time for t in times]
         emit(
-            f"bridge_latency_{protocol}",
+            f"bridge_latency_{protocol}_{transport}",
             {"payload": 0},
             1.0 / statistics.mean(times),
             "pty_echo",
@@ -357,6 +399,13 @@ def main() -> None:
     parser.add_argument("--messages", type=int, default=N_MESSAGES)
     parser.add_argument("--calls", type=int, default=N_CALLS)
     parser.add_argument("--protocol", choices=["native", "rosserial", "both"], default="both")
+    parser.add_argument(
+        "--transport",
+        nargs="+",
+        choices=["pty", "tcp"],
+        default=["pty", "tcp"],
+        help="pty: the board on a pseudo-terminal (a serial port); tcp: a WiFi-style socket",
+    )
     args = parser.parse_args()
     if args.board:
         board_main(*args.board)
@@ -374,7 +423,8 @@ def main() -> None:
             echo = pty_echo_rtt(Path(tmp), 500)
             protocols = ["native", "rosserial"] if args.protocol == "both" else [args.protocol]
             for protocol in protocols:
-                run_protocol(protocol, Path(tmp), args.messages, args.calls, echo)
+                for transport in args.transport:
+                    run_protocol(protocol, transport, Path(tmp), args.messages, args.calls, echo)
 
 
 if __name__ == "__main__":

@@ -15,7 +15,7 @@ from typing import Annotated
 import typer
 
 from hwbridge._version import __version__
-from hwbridge.cli import bridgecmd, graphcmd, msgcmd, recordcmd
+from hwbridge.cli import bridgecmd, emucmd, graphcmd, msgcmd, recordcmd
 from hwbridge.cli.common import Context, console_err
 from hwbridge.errors import HwBridgeError
 
@@ -102,6 +102,8 @@ def build_app() -> typer.Typer:
     app.add_typer(bridgecmd.board_app, name="board")
     app.command("record")(recordcmd.record)
     app.command("play")(recordcmd.play)
+    app.command("emulate")(emucmd.emulate)
+    app.command("demo")(emucmd.demo)
     return app
 
 

@@ -1,0 +1,132 @@
+"""Host-side device nodes: a board's raw readings in, standard ROS messages out.
+
+Each node attaches to the graph next to a board (same namespace) and does the host's share of a
+device plugin:
+
+- :class:`DiffDriveNode`: ``wheel_ticks`` (hwbridge_msgs/WheelTicks) -> ``odom``
+  (nav_msgs/Odometry) and ``/tf``; ``cmd_vel`` (geometry_msgs/Twist) -> ``wheel_targets``,
+  with the 0.5 s command timeout;
+- :class:`SonarNode`: ``sonar_echo`` (hwbridge_msgs/SonarEcho) -> ``range`` (sensor_msgs/Range);
+- :class:`ImuNode`: ``imu_raw`` (hwbridge_msgs/ImuRaw) -> ``imu`` (sensor_msgs/Imu).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import threading
+import time
+from typing import Any
+
+from hwbridge.devices.encoders import CommandWatchdog, DiffDriveOdometry, DiffDriveParams
+from hwbridge.devices.imu.plugin import MpuImu, RawSample
+from hwbridge.devices.ultrasonic import UltrasonicRanger
+from hwbridge.graph import Node
+
+__all__ = ["DiffDriveNode", "ImuNode", "SonarNode"]
+
+_ACCEL_RANGES = (2, 4, 8, 16)
+_GYRO_RANGES = (250, 500, 1000, 2000)
+
+
+class DiffDriveNode:
+    """Wheel ticks -> odometry and tf; cmd_vel -> wheel targets (stops after 0.5 s silence)."""
+
+    def __init__(self, node: Node, params: DiffDriveParams) -> None:
+        self.node = node
+        self.params = params
+        self.odometry = DiffDriveOdometry.from_params(params)
+        self.watchdog = CommandWatchdog(params.cmd_vel_timeout)
+        self.latest: Any = None
+        """The last nav_msgs/Odometry published."""
+        self._odom = node.publisher("odom", "nav_msgs/Odometry")
+        self._tf = node.publisher("/tf", "tf2_msgs/TFMessage")
+        self._targets = node.publisher("wheel_targets", "hwbridge_msgs/WheelTargets")
+        node.subscriber("wheel_ticks", "hwbridge_msgs/WheelTicks", self._on_ticks)
+        node.subscriber("cmd_vel", "geometry_msgs/Twist", self._on_cmd_vel)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._drive, name="diffdrive", daemon=True)
+        self._thread.start()
+
+    def _on_ticks(self, ticks: Any) -> None:
+        stamp = ticks.header.stamp.sec + ticks.header.stamp.nanosec * 1e-9
+        state = self.odometry.update(int(ticks.left), int(ticks.right), stamp)
+        self.latest = self.odometry.to_odometry_msg(state)
+        self._odom.publish(self.latest)
+        self._tf.publish(self.odometry.to_tf_msg(state))
+
+    def _on_cmd_vel(self, twist: Any) -> None:
+        targets = self.odometry.wheel_targets(float(twist.linear.x), float(twist.angular.z))
+        self.watchdog.command(targets, time.monotonic())
+        self._send(targets)
+
+    def _send(self, targets: tuple[float, float]) -> None:
+        self._targets.publish({"left": targets[0], "right": targets[1]})
+
+    def _drive(self) -> None:
+        """Repeat the targets at 10 Hz; zero them once cmd_vel went quiet for the timeout."""
+        while not self._stop.wait(0.1):
+            if self.watchdog.expired(time.monotonic()):
+                continue  # the board's own 0.5 s timeout has stopped the motors
+            self._send(self.watchdog.targets(time.monotonic()))
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(1)
+
+
+class SonarNode:
+    """HC-SR04 echo widths -> sensor_msgs/Range (REP-117 values for no echo, too close, error)."""
+
+    def __init__(self, node: Node, frame_id: str = "sonar_link") -> None:
+        self.ranger = UltrasonicRanger(frame_id=frame_id)
+        self.latest: Any = None
+        self._range = node.publisher("range", "sensor_msgs/Range")
+        node.subscriber("sonar_echo", "hwbridge_msgs/SonarEcho", self._on_echo)
+
+    def _on_echo(self, echo: Any) -> None:
+        temperature = float(echo.temperature)
+        if temperature != self.ranger.temperature_c:
+            self.ranger = dataclasses.replace(self.ranger, temperature_c=temperature)
+        stamp = echo.header.stamp.sec + echo.header.stamp.nanosec * 1e-9
+        self.latest = self.ranger.to_range_msg(float(echo.echo_us), stamp)
+        self._range.publish(self.latest)
+
+
+class ImuNode:
+    """Raw MPU-6050/9250 registers -> sensor_msgs/Imu in SI units (REP-145)."""
+
+    def __init__(self, node: Node) -> None:
+        self.latest: Any = None
+        self._converters: dict[tuple[int, int], MpuImu] = {}
+        self._imu = node.publisher("imu", "sensor_msgs/Imu")
+        node.subscriber("imu_raw", "hwbridge_msgs/ImuRaw", self._on_raw)
+
+    def _converter(self, accel_config: int, gyro_config: int) -> MpuImu:
+        key = ((accel_config >> 3) & 3, (gyro_config >> 3) & 3)
+        found = self._converters.get(key)
+        if found is None:
+            found = MpuImu(
+                _NoPort(), accel_range_g=_ACCEL_RANGES[key[0]], gyro_range_dps=_GYRO_RANGES[key[1]]
+            )
+            self._converters[key] = found
+        return found
+
+    def _on_raw(self, raw: Any) -> None:
+        words = [int(v) for v in raw.burst]
+        converter = self._converter(int(raw.accel_config), int(raw.gyro_config))
+        accel, gyro, _ = converter.convert(
+            RawSample((words[0], words[1], words[2]), words[3], (words[4], words[5], words[6]))
+        )
+        stamp = raw.header.stamp.sec + raw.header.stamp.nanosec * 1e-9
+        self.latest = converter.imu_msg(accel, gyro, stamp)
+        self._imu.publish(self.latest)
+
+
+class _NoPort:
+    """The board reads the chip; the host only converts, so there is no I2C port here."""
+
+    def write(self, address: int, reg: int, data: bytes) -> None:
+        raise NotImplementedError("the board owns the I2C bus")
+
+    def read(self, address: int, reg: int, n: int) -> bytes:
+        raise NotImplementedError("the board owns the I2C bus")

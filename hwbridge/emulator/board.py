@@ -1,0 +1,278 @@
+"""Virtual boards: the native protocol's device side plus emulated devices in a world.
+
+A :class:`VirtualBoard` behaves like firmware on a real board: it speaks the native protocol
+(:class:`~hwbridge.protocols.native.session.DeviceSession`) on a link, reads its emulated
+devices (encoder counters, an HC-SR04, an MPU-6050 on I2C) and publishes their raw readings
+(``hwbridge_msgs/*``), and drives its motors from ``hwbridge_msgs/WheelTargets``, stopping them
+when no target arrived for 0.5 s. Host-side plugins (:mod:`hwbridge.emulator.plugins`) turn the
+raw readings into odometry, Range and Imu, as they would for a real board.
+
+A board is described by a small mapping (YAML), see ``boards/diffbot.yaml``.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from hwbridge import msg
+from hwbridge.devices.imu.mpu import Mpu6050, Mpu9250, MpuChip
+from hwbridge.devices.ultrasonic import HcSr04Model
+from hwbridge.emulator.world import World, WorldConfig
+from hwbridge.errors import HwBridgeError
+from hwbridge.links import Link
+from hwbridge.protocols.native import session as ns
+from hwbridge.protocols.native.control import EntryKind
+from hwbridge.pump import SessionPump
+
+__all__ = ["BOARDS_DIR", "BoardConfig", "VirtualBoard", "load_board"]
+
+log = logging.getLogger("hwbridge.emulator")
+
+BOARDS_DIR = Path(__file__).with_name("boards")
+PHYSICS_HZ = 200.0
+TARGET_TIMEOUT = 0.5
+
+
+@dataclass(frozen=True)
+class BoardConfig:
+    """What a virtual board carries: its name, world and devices."""
+
+    name: str
+    world: WorldConfig
+    devices: tuple[dict[str, Any], ...]
+    host: dict[str, Any]
+    """Parameters for the host-side device nodes (e.g. ``diffdrive``)."""
+    source: str = ""
+
+
+def load_board(name_or_path: str) -> BoardConfig:
+    """A ready board by name (``diffbot``) or a YAML file describing one."""
+    path = Path(name_or_path)
+    if not path.suffix:
+        path = BOARDS_DIR / f"{name_or_path}.yaml"
+    if not path.exists():
+        ready = sorted(p.stem for p in BOARDS_DIR.glob("*.yaml"))
+        raise HwBridgeError(f"no board {name_or_path!r}: ready boards are {', '.join(ready)}")
+    data = yaml.safe_load(path.read_text()) or {}
+    try:
+        return BoardConfig(
+            name=str(data["name"]),
+            world=WorldConfig.from_dict(data.get("world", {})),
+            devices=tuple(data.get("devices", ())),
+            host=dict(data.get("host", {})),
+            source=str(path),
+        )
+    except (KeyError, TypeError) as exc:
+        raise HwBridgeError(f"{path}: not a board description ({exc})") from exc
+
+
+class VirtualBoard:
+    """A board with a world, run on a link. ``speed`` > 1 runs faster than real time."""
+
+    def __init__(self, config: BoardConfig, *, seed: int = 0, speed: float = 1.0) -> None:
+        self.config = config
+        self.seed = seed
+        self.speed = speed
+        self.world = World(config.world, seed)
+        self.registry = msg.registry()
+        self._topics: list[ns.TopicEntry] = []
+        self._readers: list[tuple[float, Callable[[], tuple[int, bytes] | None]]] = []
+        self._targets = (0.0, 0.0)
+        self._last_target = -1e9
+        self._channel_names: dict[int, str] = {}
+        for device in config.devices:
+            self._add_device(device)
+        self.session = ns.DeviceSession(
+            ns.BoardInfo(config.name, seed.to_bytes(4, "little"), "hwbridge-emulator"),
+            self._topics,
+        )
+        self.pump: SessionPump | None = None
+        self.link: Link | None = None
+        self.published = 0
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._lock = threading.Lock()
+
+    # ------------------------------------------------------------------ devices
+    def _entry(self, kind: EntryKind, name: str, type_name: str) -> int:
+        channel = len(self._topics) + 1
+        self._topics.append(
+            ns.TopicEntry(channel, kind, name, type_name, self.registry.md5(type_name))
+        )
+        self._channel_names[channel] = name
+        return channel
+
+    def _add_device(self, device: dict[str, Any]) -> None:
+        kind = device.get("type")
+        rate = float(device.get("rate", 50.0))
+        if kind == "diffdrive":
+            channel = self._entry(
+                EntryKind.PUBLISHER,
+                device.get("ticks_topic", "wheel_ticks"),
+                "hwbridge_msgs/WheelTicks",
+            )
+            self._targets_channel = self._entry(
+                EntryKind.SUBSCRIBER,
+                device.get("targets_topic", "wheel_targets"),
+                "hwbridge_msgs/WheelTargets",
+            )
+            self._readers.append((rate, lambda: (channel, self._read_ticks())))
+        elif kind == "hcsr04":
+            sonar = HcSr04Model(
+                temperature_c=float(device.get("temperature", 20.0)),
+                noise_std=float(device.get("noise_std", 0.002)),
+                seed=self.seed + 2,
+            )
+            channel = self._entry(
+                EntryKind.PUBLISHER, device.get("topic", "sonar_echo"), "hwbridge_msgs/SonarEcho"
+            )
+            self._readers.append((rate, lambda: (channel, self._read_sonar(sonar))))
+        elif kind in ("mpu6050", "mpu9250"):
+            chip: MpuChip = (Mpu6050 if kind == "mpu6050" else Mpu9250)(seed=self.seed + 3)
+            accel_fs = {2: 0, 4: 1, 8: 2, 16: 3}[int(device.get("accel_range_g", 2))]
+            gyro_fs = {250: 0, 500: 1, 1000: 2, 2000: 3}[int(device.get("gyro_range_dps", 250))]
+            chip.write(0x6B, bytes([0x00]))  # wake (the 6050 starts asleep)
+            chip.write(0x1B, bytes([gyro_fs << 3]))
+            chip.write(0x1C, bytes([accel_fs << 3]))
+            channel = self._entry(
+                EntryKind.PUBLISHER, device.get("topic", "imu_raw"), "hwbridge_msgs/ImuRaw"
+            )
+            self._readers.append((rate, lambda: (channel, self._read_imu(chip, kind))))
+        else:
+            raise HwBridgeError(f"{self.config.source}: unknown device type {kind!r}")
+
+    def _stamp(self) -> dict[str, Any]:
+        board_time = self.world.time
+        offset = self.session.time_offset
+        return {"stamp": board_time + offset if offset is not None else board_time}
+
+    def _read_ticks(self) -> bytes:
+        left, right = self.world.base.counts()
+        return msg.encode(
+            msg.from_dict(
+                "hwbridge_msgs/WheelTicks",
+                {
+                    "header": {**self._stamp(), "frame_id": "base_link"},
+                    "left": _as_int32(left),
+                    "right": _as_int32(right),
+                    "counter_bits": self.config.world.counter_bits,
+                },
+            )
+        )
+
+    def _read_sonar(self, sonar: HcSr04Model) -> bytes:
+        echo = sonar.measure(self.world.sonar_distance())
+        return msg.encode(
+            msg.from_dict(
+                "hwbridge_msgs/SonarEcho",
+                {
+                    "header": {**self._stamp(), "frame_id": "sonar_link"},
+                    "echo_us": int(echo),
+                    "temperature": sonar.temperature_c,
+                },
+            )
+        )
+
+    def _read_imu(self, chip: MpuChip, kind: str) -> bytes:
+        chip.set_truth(self.world.imu_truth())
+        chip.sample()
+        burst = chip.read(0x3B, 14)
+        words = [int.from_bytes(burst[i : i + 2], "big", signed=True) for i in range(0, 14, 2)]
+        mag = [0, 0, 0]
+        return msg.encode(
+            msg.from_dict(
+                "hwbridge_msgs/ImuRaw",
+                {
+                    "header": {**self._stamp(), "frame_id": "imu_link"},
+                    "chip": 0 if kind == "mpu6050" else 1,
+                    "accel_config": chip.read(0x1C, 1)[0],
+                    "gyro_config": chip.read(0x1B, 1)[0],
+                    "burst": words,
+                    "mag": mag,
+                    "mag_valid": False,
+                },
+            )
+        )
+
+    # ------------------------------------------------------------------ running
+    def _on_event(self, event: Any) -> None:
+        if isinstance(event, ns.Message) and event.channel == getattr(
+            self, "_targets_channel", None
+        ):
+            targets = msg.decode(event.payload, "hwbridge_msgs/WheelTargets", self.registry)
+            with self._lock:
+                self._targets = (float(targets.left), float(targets.right))
+                self._last_target = self.world.time
+        elif isinstance(event, ns.Connected):
+            log.info("%s: connected to the host", self.config.name)
+        elif isinstance(event, ns.Disconnected):
+            log.info("%s: host session ended (%s)", self.config.name, event.reason)
+
+    def start(self, link: Link) -> VirtualBoard:
+        """Run on ``link`` (opened): the protocol pump and the physics thread."""
+        self.link = link
+        self.pump = SessionPump(
+            link, self.session, self._on_event, name=f"board-{self.config.name}"
+        )
+        self.pump.start()
+        self._thread = threading.Thread(target=self._simulate, name="physics", daemon=True)
+        self._thread.start()
+        return self
+
+    def _simulate(self) -> None:
+        dt = 1.0 / PHYSICS_HZ
+        next_read = [0.0 for _ in self._readers]
+        started = time.monotonic()
+        steps = 0
+        while not self._stop.is_set():
+            with self._lock:
+                if self.world.time - self._last_target > TARGET_TIMEOUT:
+                    self._targets = (0.0, 0.0)
+                self.world.base.set_wheel_targets(*self._targets)
+                self.world.step(dt)
+            steps += 1
+            for index, (rate, read) in enumerate(self._readers):
+                if self.world.time + 1e-9 >= next_read[index]:
+                    next_read[index] = self.world.time + 1.0 / rate
+                    self._publish(read)
+            wake = started + steps * dt / self.speed
+            delay = wake - time.monotonic()
+            if delay > 0:
+                self._stop.wait(delay)
+
+    def _publish(self, read: Callable[[], tuple[int, bytes] | None]) -> None:
+        pump = self.pump
+        if pump is None or not self.session.connected:
+            return
+        result = read()
+        if result is None:
+            return
+        channel, payload = result
+        try:
+            if pump.call(lambda s: s.publish(channel, payload)):
+                self.published += 1
+        except HwBridgeError as exc:
+            log.debug(
+                "%s: publish on %s failed: %s", self.config.name, self._channel_names[channel], exc
+            )
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(2)
+        if self.pump is not None:
+            self.pump.stop()
+
+
+def _as_int32(value: int) -> int:
+    """A counter register value as the int32 field carries it (two's complement)."""
+    value &= 0xFFFFFFFF
+    return value - (1 << 32) if value >= 1 << 31 else value

@@ -1,0 +1,158 @@
+"""The emulator: world geometry, a virtual board through the real bridge, emulate and demo."""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import yaml
+
+from hwbridge.bridge import BoardSpec, Bridge
+from hwbridge.devices.encoders import DiffDriveParams
+from hwbridge.devices.nodes import DiffDriveNode, ImuNode, SonarNode
+from hwbridge.emulator import VirtualBoard, World, WorldConfig, load_board
+from hwbridge.errors import HwBridgeError
+from hwbridge.graph import Graph
+from hwbridge.links import open_link
+from tests.netutil import free_port, wait_until
+
+
+def test_world_sonar_and_imu_ground_truth() -> None:
+    world = World(WorldConfig(room=(6.0, 4.0), sonar_offset=0.1))
+    # Facing +x from the centre: the wall is 3 m away, the sonar sits 0.1 m ahead.
+    assert world.sonar_distance(rays=1) == pytest.approx(2.9)
+    truth = world.imu_truth()
+    assert truth.specific_force == (0.0, 0.0, pytest.approx(9.80665))
+    world.base.set_wheel_targets(10.0, 10.0)
+    for _ in range(400):
+        world.step(0.005)
+    assert world.pose.x > 0.5
+    assert world.sonar_distance(rays=1) == pytest.approx(2.9 - world.pose.x, abs=1e-6)
+
+
+def test_unknown_board_lists_the_ready_ones() -> None:
+    with pytest.raises(HwBridgeError, match=r"ready boards are .*diffbot"):
+        load_board("nosuchbot")
+
+
+def test_virtual_board_through_bridge_and_device_nodes(tmp_path: Path) -> None:
+    """Drive the board through the bridge; odometry tracks ground truth, sensors look right."""
+    config = load_board("diffbot")
+    board = VirtualBoard(config, seed=3, speed=2.0)
+    link = open_link(f"pty://?symlink={tmp_path / 'diffbot'}")
+    board.start(link)
+    graph = Graph.embedded(listen=[f"tcp/127.0.0.1:{free_port()}"], domain="emu")
+    bridge = Bridge(graph)
+    try:
+        bridge.add_board(
+            BoardSpec(str(tmp_path / "diffbot"), protocol="auto", namespace="/bot", start_delay=0.1)
+        )
+        node = graph.node("devices", namespace="/bot")
+        drive = DiffDriveNode(node, DiffDriveParams.from_dict(config.host["diffdrive"]))
+        sonar, imu = SonarNode(node), ImuNode(node)
+        cmd = graph.node("driver", namespace="/bot").publisher("cmd_vel", "geometry_msgs/Twist")
+        assert wait_until(lambda: None not in (drive.latest, imu.latest, sonar.latest), 30)
+        assert imu.latest.linear_acceleration.z == pytest.approx(9.81, abs=1.2)
+        truth_range = board.world.sonar_distance()
+        assert truth_range is not None
+        assert float(sonar.latest.range) == pytest.approx(truth_range, abs=0.05)
+        deadline = time.monotonic() + 4.0
+        while time.monotonic() < deadline:
+            cmd.publish({"linear": {"x": 0.2}, "angular": {"z": 0.3}})
+            time.sleep(0.1)
+        cmd.publish({})
+        truth_moved = board.world.base.distance
+        assert truth_moved > 0.5
+        time.sleep(1.0)  # the board stops (0.5 s timeout) and the last ticks arrive
+        assert wait_until(lambda: abs(float(drive.latest.twist.twist.linear.x)) < 1e-3, 5)
+        odom = drive.latest.pose.pose.position
+        truth = board.world.pose
+        error = math.hypot(float(odom.x) - truth.x, float(odom.y) - truth.y)
+        assert error / board.world.base.distance < 0.005
+        drive.close()
+    finally:
+        bridge.stop()
+        graph.close()
+        board.stop()
+        link.close()
+
+
+def _env(endpoint: str) -> dict[str, str]:
+    return {**os.environ, "HWBRIDGE_ENDPOINT": endpoint, "HWBRIDGE_DOMAIN": "emudemo"}
+
+
+def test_demo_ends_with_the_odometry_error_line() -> None:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    done = subprocess.run(
+        [sys.executable, "-m", "hwbridge", "demo", "--duration", "6"],
+        env=_env(endpoint),
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
+    assert done.returncode == 0, done.stderr + done.stdout
+    last = done.stdout.strip().splitlines()[-1]
+    match = re.fullmatch(r"odometry error: ([0-9.]+)% of ([0-9.]+) m", last)
+    assert match, last
+    assert float(match[2]) > 0.5  # it drove
+    assert float(match[1]) < 0.5
+
+
+def test_emulate_prints_the_url_first_and_a_bridge_connects(tmp_path: Path) -> None:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    env = _env(endpoint)
+    emulator = subprocess.Popen(
+        [sys.executable, "-m", "hwbridge", "emulate", "diffbot", "--tcp", "0"],
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+    )
+    bridge = None
+    try:
+        assert emulator.stdout is not None
+        url = emulator.stdout.readline().strip()
+        assert re.fullmatch(r"socket://127\.0\.0\.1:\d+", url), url
+        log = (tmp_path / "bridge.log").open("w")
+        bridge = subprocess.Popen(
+            [sys.executable, "-m", "hwbridge", "connect", url, "--start-delay", "0.1"],
+            env=env,
+            stdout=log,
+            stderr=subprocess.STDOUT,
+        )
+        assert wait_until(lambda: "bridging" in (tmp_path / "bridge.log").read_text(), 60)
+        echo = subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "hwbridge",
+                "topic",
+                "echo",
+                "/sonar_echo",
+                "-n",
+                "1",
+                "--timeout",
+                "30",
+            ],
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=60,
+            check=False,
+        )
+        assert echo.returncode == 0, echo.stderr + (tmp_path / "bridge.log").read_text()
+        reading = yaml.safe_load(echo.stdout.split("---")[0])
+        assert reading["header"]["frame_id"] == "sonar_link"
+        assert reading["echo_us"] > 0
+    finally:
+        for process in (bridge, emulator):
+            if process is not None:
+                process.terminate()
+                process.wait(15)

@@ -13,16 +13,25 @@ device plugin:
 from __future__ import annotations
 
 import dataclasses
+import logging
+import math
 import threading
 import time
 from typing import Any
 
-from hwbridge.devices.encoders import CommandWatchdog, DiffDriveOdometry, DiffDriveParams
+from hwbridge.devices.encoders import (
+    CommandWatchdog,
+    DiffDriveOdometry,
+    DiffDriveParams,
+    wrap_delta,
+)
 from hwbridge.devices.imu.plugin import MpuImu, RawSample
 from hwbridge.devices.ultrasonic import UltrasonicRanger
 from hwbridge.graph import Node
 
 __all__ = ["DiffDriveNode", "ImuNode", "SonarNode"]
+
+log = logging.getLogger("hwbridge.devices")
 
 _ACCEL_RANGES = (2, 4, 8, 16)
 _GYRO_RANGES = (250, 500, 1000, 2000)
@@ -31,10 +40,16 @@ _GYRO_RANGES = (250, 500, 1000, 2000)
 class DiffDriveNode:
     """Wheel ticks -> odometry and tf; cmd_vel -> wheel targets (stops after 0.5 s silence)."""
 
-    def __init__(self, node: Node, params: DiffDriveParams) -> None:
+    def __init__(
+        self, node: Node, params: DiffDriveParams, *, max_wheel_speed: float = 50.0
+    ) -> None:
         self.node = node
         self.params = params
         self.odometry = DiffDriveOdometry.from_params(params)
+        self.max_counts_per_s = max_wheel_speed / (2 * math.pi) * params.counts_per_rev
+        """Faster counting than this means the counters restarted (a board reset)."""
+        self.rereferences = 0
+        self._last: tuple[int, int, float] | None = None
         self.watchdog = CommandWatchdog(params.cmd_vel_timeout)
         self.latest: Any = None
         """The last nav_msgs/Odometry published."""
@@ -49,10 +64,33 @@ class DiffDriveNode:
 
     def _on_ticks(self, ticks: Any) -> None:
         stamp = ticks.header.stamp.sec + ticks.header.stamp.nanosec * 1e-9
-        state = self.odometry.update(int(ticks.left), int(ticks.right), stamp)
+        left, right = int(ticks.left), int(ticks.right)
+        if self._implausible(left, right, stamp):
+            # The board restarted (its counters began again): keep the pose, take this reading
+            # as the new reference, so odometry never jumps (REP-105: odom is continuous).
+            self.rereferences += 1
+            log.warning(
+                "%s: wheel counters jumped (board reset?); odometry re-referenced", self.node.name
+            )
+            self.odometry.reset(self.odometry.state.pose)
+        self._last = (left, right, stamp)
+        state = self.odometry.update(left, right, stamp)
         self.latest = self.odometry.to_odometry_msg(state)
         self._odom.publish(self.latest)
         self._tf.publish(self.odometry.to_tf_msg(state))
+
+    def _implausible(self, left: int, right: int, stamp: float) -> bool:
+        if self._last is None:
+            return False
+        last_left, last_right, last_stamp = self._last
+        bits = self.params.counter_bits
+        moved = max(
+            abs(wrap_delta(left, last_left, bits)), abs(wrap_delta(right, last_right, bits))
+        )
+        gap = stamp - last_stamp
+        if not 0.0 <= gap <= 5.0:
+            return True  # the board's clock restarted or jumped: its counters may have too
+        return moved > self.max_counts_per_s * (gap + 0.1) + 2
 
     def _on_cmd_vel(self, twist: Any) -> None:
         targets = self.odometry.wheel_targets(float(twist.linear.x), float(twist.angular.z))

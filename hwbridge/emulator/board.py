@@ -25,9 +25,10 @@ import yaml
 from hwbridge import msg
 from hwbridge.devices.imu.mpu import Mpu6050, Mpu9250, MpuChip
 from hwbridge.devices.ultrasonic import HcSr04Model
+from hwbridge.emulator.faults import FaultySession, LinkFaults
 from hwbridge.emulator.world import World, WorldConfig
 from hwbridge.errors import HwBridgeError
-from hwbridge.links import Link
+from hwbridge.links import Link, open_link
 from hwbridge.protocols.native import session as ns
 from hwbridge.protocols.native.control import EntryKind
 from hwbridge.pump import SessionPump
@@ -90,16 +91,43 @@ class VirtualBoard:
         self._channel_names: dict[int, str] = {}
         for device in config.devices:
             self._add_device(device)
-        self.session = ns.DeviceSession(
-            ns.BoardInfo(config.name, seed.to_bytes(4, "little"), "hwbridge-emulator"),
-            self._topics,
-        )
+        self.session = FaultySession(self._new_session(), seed)
+        self.resets = 0
+        self._count_offset = (0, 0)
         self.pump: SessionPump | None = None
         self.link: Link | None = None
         self.published = 0
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._lock = threading.Lock()
+
+    def _new_session(self) -> ns.DeviceSession:
+        return ns.DeviceSession(
+            ns.BoardInfo(self.config.name, self.seed.to_bytes(4, "little"), "hwbridge-emulator"),
+            self._topics,
+        )
+
+    # ------------------------------------------------------------------ faults
+    def inject(self, faults: LinkFaults) -> None:
+        """Lose and corrupt bytes on the board's link from now on (LinkFaults() stops it)."""
+        self.session.faults = faults
+
+    def stall(self, seconds: float) -> None:
+        """The board's output stops for ``seconds`` (what it sends meanwhile comes later)."""
+        self.session.stall(time.monotonic() + seconds)
+
+    def reset(self) -> None:
+        """Reboot the board: a new protocol session, counters back to zero, motors stopped."""
+        with self._lock:
+            left, right = self.world.base.counts()
+            self._count_offset = (left, right)
+            self._targets = (0.0, 0.0)
+            self._last_target = -1e9
+            self.resets += 1
+        pump = self.pump
+        if pump is not None:
+            pump.call(lambda _s: setattr(self.session, "inner", self._new_session()))
+        log.info("%s: reset", self.config.name)
 
     # ------------------------------------------------------------------ devices
     def _entry(self, kind: EntryKind, name: str, type_name: str) -> int:
@@ -150,12 +178,15 @@ class VirtualBoard:
             raise HwBridgeError(f"{self.config.source}: unknown device type {kind!r}")
 
     def _stamp(self) -> dict[str, Any]:
-        board_time = self.world.time
-        offset = self.session.time_offset
-        return {"stamp": board_time + offset if offset is not None else board_time}
+        # The session's clock is the pump's (monotonic) clock: stamp readings with the host
+        # time of the moment they are taken, as firmware with time sync does.
+        return {"stamp": self.session.to_host_time(time.monotonic())}
 
     def _read_ticks(self) -> bytes:
         left, right = self.world.base.counts()
+        bits = self.config.world.counter_bits
+        left = (left - self._count_offset[0]) % (1 << bits)
+        right = (right - self._count_offset[1]) % (1 << bits)
         return msg.encode(
             msg.from_dict(
                 "hwbridge_msgs/WheelTicks",
@@ -218,14 +249,32 @@ class VirtualBoard:
 
     def start(self, link: Link) -> VirtualBoard:
         """Run on ``link`` (opened): the protocol pump and the physics thread."""
+        self._attach(link)
+        self._thread = threading.Thread(target=self._simulate, name="physics", daemon=True)
+        self._thread.start()
+        return self
+
+    def _attach(self, link: Link) -> None:
         self.link = link
         self.pump = SessionPump(
             link, self.session, self._on_event, name=f"board-{self.config.name}"
         )
         self.pump.start()
-        self._thread = threading.Thread(target=self._simulate, name="physics", daemon=True)
-        self._thread.start()
-        return self
+
+    def unplug(self, seconds: float) -> None:
+        """Pull the cable for ``seconds``: the link goes away (a pty's path disappears) and
+        comes back at the same URL. The board itself keeps running."""
+        link, pump = self.link, self.pump
+        if link is None or pump is None:
+            raise HwBridgeError("the board is not running on a link")
+        url = link.url
+        self.pump = None
+        pump.stop()
+        link.close()
+        log.info("%s: unplugged for %.1f s", self.config.name, seconds)
+        self._stop.wait(seconds)
+        if not self._stop.is_set():
+            self._attach(open_link(url))
 
     def _simulate(self) -> None:
         dt = 1.0 / PHYSICS_HZ
@@ -250,8 +299,8 @@ class VirtualBoard:
 
     def _publish(self, read: Callable[[], tuple[int, bytes] | None]) -> None:
         pump = self.pump
-        if pump is None or not self.session.connected:
-            return
+        if pump is None or not self.session.connected or self.session.time_offset is None:
+            return  # like firmware that waits for time sync, so stamps are in host time
         result = read()
         if result is None:
             return
@@ -270,6 +319,8 @@ class VirtualBoard:
             self._thread.join(2)
         if self.pump is not None:
             self.pump.stop()
+        if self.link is not None:
+            self.link.close()
 
 
 def _as_int32(value: int) -> int:

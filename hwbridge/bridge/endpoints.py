@@ -25,6 +25,27 @@ ROSOUT_LEVELS = (1, 2, 4, 8, 16)
 _PYTHON_LEVELS = (logging.DEBUG, logging.INFO, logging.WARNING, logging.ERROR, logging.CRITICAL)
 
 
+class EventDispatch:
+    """Calls ``self._on_<EventClassName>(event)`` for each session event (others are ignored).
+
+    The handler of each event class is looked up once, then kept: this runs per message.
+    """
+
+    _handlers: dict[type, Callable[[Any], None]]
+
+    def on_event(self, event: Any) -> None:
+        kind = type(event)
+        handlers = self.__dict__.setdefault("_handlers", {})
+        handler = handlers.get(kind)
+        if handler is None:
+            handler = handlers[kind] = getattr(self, f"_on_{kind.__name__}", _ignore)
+        handler(event)
+
+
+def _ignore(_event: Any) -> None:
+    """Events an adapter has no use for."""
+
+
 @dataclass
 class _Pending:
     done: threading.Event = field(default_factory=threading.Event)

@@ -7,7 +7,7 @@ import time
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
-from hwbridge.bridge.endpoints import BoardEndpoints
+from hwbridge.bridge.endpoints import BoardEndpoints, EventDispatch
 from hwbridge.errors import HwBridgeError, LinkError
 from hwbridge.graph import ParamError
 from hwbridge.protocols.native import session as ns
@@ -19,11 +19,7 @@ if TYPE_CHECKING:
 __all__ = ["NativeAdapter"]
 
 
-def _ignore(_event: Any) -> None:
-    """Events an adapter has no use for."""
-
-
-class NativeAdapter:
+class NativeAdapter(EventDispatch):
     """Maps :class:`HostSession` events onto the graph for one board connection."""
 
     protocol = "native"
@@ -34,7 +30,6 @@ class NativeAdapter:
         config = ns.HostConfig(epoch_offset=time.time() - time.monotonic())
         self.session = ns.HostSession(config, type_check=self._expected_type)
         self.endpoints = BoardEndpoints(board.node, board.name, self.log)
-        self._handlers: dict[type, Callable[[Any], None]] = {}
         self.channels: dict[int, str] = {}  # board channel -> graph name
         self.param_names: dict[str, str] = {}  # graph parameter name -> the board's name
         board.bridge.params.on_update(self._on_param_changed)
@@ -74,13 +69,6 @@ class NativeAdapter:
         return ns.ExpectedType(entry.type_name, md5)
 
     # ------------------------------------------------------------------ events
-    def on_event(self, event: Any) -> None:
-        kind = type(event)
-        handler = self._handlers.get(kind)
-        if handler is None:
-            handler = self._handlers[kind] = getattr(self, f"_on_{kind.__name__}", _ignore)
-        handler(event)
-
     def _on_Connected(self, event: ns.Connected) -> None:
         for entry in event.topics:
             self._declare(entry)

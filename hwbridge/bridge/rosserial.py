@@ -7,7 +7,7 @@ import time
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
-from hwbridge.bridge.endpoints import BoardEndpoints
+from hwbridge.bridge.endpoints import BoardEndpoints, EventDispatch
 from hwbridge.errors import HwBridgeError, LinkError, ProtocolError
 from hwbridge.graph import ParamError
 from hwbridge.protocols.rosserial import RosserialHost
@@ -19,11 +19,7 @@ if TYPE_CHECKING:
 __all__ = ["RosserialAdapter"]
 
 
-def _ignore(_event: Any) -> None:
-    """Events an adapter has no use for."""
-
-
-class RosserialAdapter:
+class RosserialAdapter(EventDispatch):
     """Maps :class:`RosserialHost` events onto the graph for one board connection."""
 
     protocol = "rosserial"
@@ -35,7 +31,6 @@ class RosserialAdapter:
             board.bridge.registry, now=time.monotonic(), start_delay=start_delay
         )
         self.endpoints = BoardEndpoints(board.node, board.name, self.log)
-        self._handlers: dict[type, Callable[[Any], None]] = {}
         self.connected = False
 
     def topics(self) -> dict[str, Any]:
@@ -43,13 +38,6 @@ class RosserialAdapter:
 
     def stats(self) -> dict[str, Any]:
         return dict(self.session.stats.as_dict())
-
-    def on_event(self, event: Any) -> None:
-        kind = type(event)
-        handler = self._handlers.get(kind)
-        if handler is None:
-            handler = self._handlers[kind] = getattr(self, f"_on_{kind.__name__}", _ignore)
-        handler(event)
 
     def _on_Connected(self, event: rs.Connected) -> None:
         table = event.topics

@@ -8,10 +8,6 @@ commands run in further subprocesses.
 from __future__ import annotations
 
 import json
-import os
-import signal
-import subprocess
-import sys
 import threading
 from collections.abc import Iterator
 from pathlib import Path
@@ -30,62 +26,12 @@ from tests.boards import (
     rosserial_sketch,
     wait_for,
 )
-from tests.netutil import free_port
+from tests.bridgeproc import BridgeProcess
 
 VECTORS = json.loads(
     (Path(__file__).resolve().parents[2] / "protocols" / "vectors" / "rosserial.json").read_text()
 )
 FRAMES = {f["name"]: bytes.fromhex(f["hex"]) for f in VECTORS["frames"]}
-
-
-class BridgeProcess:
-    def __init__(self, path: Path, tmp: Path, *extra: str) -> None:
-        self.endpoint = f"tcp/127.0.0.1:{free_port()}"
-        self.env = {**os.environ, "HWBRIDGE_ENDPOINT": self.endpoint, "HWBRIDGE_DOMAIN": "e2e"}
-        self.log = tmp / "bridge.log"
-        self._log_file = self.log.open("w")
-        self.process = subprocess.Popen(
-            [
-                sys.executable,
-                "-m",
-                "hwbridge",
-                "-v",
-                "connect",
-                str(path),
-                "--start-delay",
-                "0.2",
-                *extra,
-            ],
-            env=self.env,
-            stdout=self._log_file,
-            stderr=subprocess.STDOUT,
-        )
-
-    def wait_ready(self) -> None:
-        """Wait for the line the bridge prints once its graph endpoint listens."""
-        assert wait_for(lambda: "hwbridge: bridging" in self.output(), 60), self.output()
-
-    def cli(self, *argv: str, timeout: float = 60) -> subprocess.CompletedProcess[str]:
-        return subprocess.run(
-            [sys.executable, "-m", "hwbridge", *argv],
-            env=self.env,
-            capture_output=True,
-            text=True,
-            timeout=timeout,
-            check=False,
-        )
-
-    def output(self) -> str:
-        return self.log.read_text()
-
-    def stop(self) -> int:
-        self.process.send_signal(signal.SIGINT)
-        try:
-            return self.process.wait(15)
-        finally:
-            if self.process.poll() is None:
-                self.process.kill()
-            self._log_file.close()
 
 
 @pytest.fixture
@@ -95,7 +41,7 @@ def board_path(tmp_path: Path) -> Path:
 
 @pytest.fixture
 def bridge(board_path: Path, tmp_path: Path) -> Iterator[BridgeProcess]:
-    process = BridgeProcess(board_path, tmp_path, "--namespace", "/rs", "--name", "uno")
+    process = BridgeProcess(board_path, tmp_path, "e2e", "--namespace", "/rs", "--name", "uno")
     process.wait_ready()
     yield process
     code = process.stop()

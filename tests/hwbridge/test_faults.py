@@ -10,9 +10,6 @@ from __future__ import annotations
 import itertools
 import json
 import math
-import os
-import subprocess
-import sys
 import threading
 import time
 from pathlib import Path
@@ -24,41 +21,21 @@ from hwbridge.emulator import VirtualBoard, load_board
 from hwbridge.emulator.faults import LinkFaults
 from hwbridge.graph import Graph
 from hwbridge.links import open_link
-from tests.netutil import free_port, wait_until
+from tests.bridgeproc import BridgeProcess
+from tests.netutil import wait_until
 
 
 def test_bridge_recovers_and_odometry_stays_continuous(tmp_path: Path) -> None:
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    env = {**os.environ, "HWBRIDGE_ENDPOINT": endpoint, "HWBRIDGE_DOMAIN": "faults"}
     path = tmp_path / "ttyDIFFBOT"
     config = load_board("diffbot")
     board = VirtualBoard(config, seed=7).start(open_link(f"pty://?symlink={path}"))
-    log_path = tmp_path / "bridge.log"
-    log = log_path.open("w")
-    bridge = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "hwbridge",
-            "-v",
-            "connect",
-            str(path),
-            "--namespace",
-            "/bot",
-            "--name",
-            "diffbot",
-            "--start-delay",
-            "0.1",
-        ],
-        env=env,
-        stdout=log,
-        stderr=subprocess.STDOUT,
-    )
+    bridge = BridgeProcess(path, tmp_path, "faults", "--namespace", "/bot", "--name", "diffbot")
+    endpoint, log_path = bridge.endpoint, bridge.log
     graph = None
     drive = None
     stop = threading.Event()
     try:
-        assert wait_until(lambda: "bridging" in log_path.read_text(), 60), log_path.read_text()
+        bridge.wait_ready()
         graph = Graph.attached(connect=[endpoint], domain="faults")
         node = graph.node("devices", namespace="/bot")
         drive = DiffDriveNode(node, DiffDriveParams.from_dict(config.host["diffdrive"]))
@@ -113,14 +90,7 @@ def test_bridge_recovers_and_odometry_stays_continuous(tmp_path: Path) -> None:
         assert error / board.world.base.distance < 0.05
         assert drive.rereferences >= 1
 
-        stats = subprocess.run(
-            [sys.executable, "-m", "hwbridge", "board", "stats", "diffbot", "--json"],
-            env=env,
-            capture_output=True,
-            text=True,
-            timeout=60,
-            check=True,
-        )
+        stats = bridge.cli("board", "stats", "diffbot", "--json")
         info = json.loads(stats.stdout)
         assert info["protocol"] == "native"
         text = log_path.read_text()
@@ -132,7 +102,5 @@ def test_bridge_recovers_and_odometry_stays_continuous(tmp_path: Path) -> None:
             drive.close()
         if graph is not None:
             graph.close()
-        bridge.terminate()
-        bridge.wait(15)
-        log.close()
+        bridge.stop()
         board.stop()

@@ -15,7 +15,7 @@ from typing import Annotated
 import typer
 
 from hwbridge._version import __version__
-from hwbridge.cli import bridgecmd, emucmd, graphcmd, msgcmd, recordcmd
+from hwbridge.cli import bridgecmd, dxlcmd, emucmd, graphcmd, msgcmd, recordcmd
 from hwbridge.cli.common import Context, console_err
 from hwbridge.errors import HwBridgeError
 
@@ -104,6 +104,7 @@ def build_app() -> typer.Typer:
     app.command("play")(recordcmd.play)
     app.command("emulate")(emucmd.emulate)
     app.command("demo")(emucmd.demo)
+    app.add_typer(dxlcmd.dxl_app, name="dxl")
     return app
 
 

@@ -1,0 +1,245 @@
+"""A graph node for a Dynamixel bus: what ROS users expect from one (DEVICES.md).
+
+* ``joint_states`` (sensor_msgs/JointState): positions in rad, velocities in rad/s, at
+  ``rate_hz``; read with one SYNC_READ of Present Velocity + Present Position (Protocol 2.0)
+  or a READ per servo (1.0, whose servos have no SYNC_READ).
+* ``<joint>/goal_position`` (std_msgs/Float64, rad) and ``<joint>/goal_velocity``
+  (std_msgs/Float64, rad/s): the latest command per joint goes out with the next cycle, in one
+  SYNC_WRITE per register. A goal velocity is the Goal Velocity of an X servo in velocity mode
+  (Operating Mode 1), otherwise the speed of its moves (Profile Velocity on X, Moving Speed on
+  AX-12A, which in wheel mode is the signed wheel speed).
+* ``torque_enable`` (std_srvs/SetBool): torque on or off for every joint, each write
+  acknowledged.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from collections.abc import Callable, Mapping
+from typing import Any
+
+from hwbridge.devices.dynamixel.bus import DynamixelBus
+from hwbridge.devices.dynamixel.tables import ServoModel
+from hwbridge.errors import HwBridgeError
+from hwbridge.graph import Graph, Publisher, ServiceServer, Subscriber
+
+__all__ = ["DynamixelNode"]
+
+log = logging.getLogger("hwbridge.devices.dynamixel")
+
+
+class DynamixelNode:
+    """Publishes joint states and takes joint commands for the servos ``joints`` names.
+
+    ``joints`` maps joint names to servo IDs. The node runs a thread from construction until
+    :meth:`close`; the bus stays open (it belongs to the caller). ``stamp`` gives the
+    JointState header time (default: wall clock).
+    """
+
+    def __init__(
+        self,
+        graph: Graph,
+        bus: DynamixelBus,
+        joints: Mapping[str, int],
+        *,
+        rate_hz: float = 100.0,
+        name: str = "dynamixel",
+        namespace: str = "/",
+        frame_id: str = "",
+        stamp: Callable[[], float] = time.time,
+    ) -> None:
+        if not joints:
+            raise ValueError("give at least one joint: joints={'name': servo_id}")
+        if rate_hz <= 0:
+            raise ValueError(f"rate_hz must be positive, not {rate_hz}")
+        self.bus = bus
+        self.joints = dict(joints)
+        self.rate_hz = rate_hz
+        self.frame_id = frame_id
+        self._stamp = stamp
+        self._names = list(self.joints)
+        self._ids = [self.joints[n] for n in self._names]
+        self.models: dict[str, ServoModel] = {n: bus.model(i) for n, i in self.joints.items()}
+        if bus.protocol == 2 and any(m.series != "X" for m in self.models.values()):
+            raise HwBridgeError("on Protocol 2.0 the node drives X series servos only")
+        self._velocity_mode = {
+            n: m.series == "X" and bus.read_register(self.joints[n], "Operating Mode") == 1
+            for n, m in self.models.items()
+        }
+        self._wheel_mode = {
+            n: m.series == "AX"
+            and bus.read_register(self.joints[n], "CW Angle Limit") == 0
+            and bus.read_register(self.joints[n], "CCW Angle Limit") == 0
+            for n, m in self.models.items()
+        }
+        self.published = 0
+        self.read_errors = 0
+        self.write_errors = 0
+        self.last_error: HwBridgeError | None = None
+        self._goals: dict[tuple[str, str], int] = {}
+        self._goals_lock = threading.Lock()
+        self._stop = threading.Event()
+        self.node = graph.node(name, namespace)
+        self._publisher: Publisher = self.node.publisher("joint_states", "sensor_msgs/JointState")
+        self._subscribers: list[Subscriber] = []
+        for joint in self._names:
+            self._subscribers.append(
+                self.node.subscriber(
+                    f"{joint}/goal_position", "std_msgs/Float64", self._on_position(joint)
+                )
+            )
+            self._subscribers.append(
+                self.node.subscriber(
+                    f"{joint}/goal_velocity", "std_msgs/Float64", self._on_velocity(joint)
+                )
+            )
+        self._service: ServiceServer = self.node.service(
+            "torque_enable", "std_srvs/SetBool", self._torque_service
+        )
+        self._thread = threading.Thread(target=self._run, name=f"dxl-node-{name}", daemon=True)
+        self._thread.start()
+
+    # ------------------------------------------------------------------ commands
+    def _on_position(self, joint: str) -> Callable[[Any], None]:
+        model = self.models[joint]
+
+        def take(message: Any) -> None:
+            value = float(message.data)
+            if math.isfinite(value):
+                self._set_goal(joint, "Goal Position", model.radians_to_ticks(value))
+
+        return take
+
+    def _on_velocity(self, joint: str) -> Callable[[Any], None]:
+        model = self.models[joint]
+        if model.series == "AX":
+            register = "Moving Speed"
+        elif self._velocity_mode[joint]:
+            register = "Goal Velocity"
+        else:
+            register = "Profile Velocity"
+
+        def take(message: Any) -> None:
+            value = float(message.data)
+            if not math.isfinite(value):
+                return
+            wheel = model.series == "AX"
+            raw = model.rad_s_to_velocity(value if register != "Profile Velocity" else abs(value))
+            if wheel and not self._wheel_mode[joint]:
+                raw &= 0x3FF  # joint mode: a speed, no direction
+            self._set_goal(joint, register, raw)
+
+        return take
+
+    def _set_goal(self, joint: str, register: str, value: int) -> None:
+        with self._goals_lock:
+            self._goals[(joint, register)] = value
+
+    def _torque_service(self, request: Any) -> dict[str, Any]:
+        enable = bool(request.data)
+        failed = []
+        for joint, id_ in self.joints.items():
+            try:
+                self.bus.set_torque(id_, enable)
+            except HwBridgeError as exc:
+                failed.append(f"{joint}: {exc}")
+        state = "on" if enable else "off"
+        if failed:
+            return {"success": False, "message": f"torque {state} failed for " + "; ".join(failed)}
+        return {"success": True, "message": f"torque {state} for {len(self.joints)} joints"}
+
+    # ------------------------------------------------------------------ loop
+    def _run(self) -> None:
+        period = 1.0 / self.rate_hz
+        next_time = time.monotonic()
+        while not self._stop.is_set():
+            self._write_goals()
+            self._publish_state()
+            next_time += period
+            delay = next_time - time.monotonic()
+            if delay < -period:  # fell behind (slow bus): do not try to catch up
+                next_time = time.monotonic()
+                delay = 0.0
+            self._stop.wait(max(delay, 0.0))
+
+    def _write_goals(self) -> None:
+        with self._goals_lock:
+            goals, self._goals = self._goals, {}
+        by_register: dict[str, dict[int, int]] = {}
+        for (joint, register), value in goals.items():
+            by_register.setdefault(register, {})[self.joints[joint]] = value
+        for register, values in by_register.items():
+            try:
+                self.bus.sync_write_register(register, values)
+            except (HwBridgeError, ValueError) as exc:
+                self._failed("write", exc)
+
+    def _publish_state(self) -> None:
+        try:
+            positions, velocities = self._read_state()
+        except HwBridgeError as exc:
+            self._failed("read", exc)
+            return
+        self._publisher.publish(
+            {
+                "header": {"stamp": self._stamp(), "frame_id": self.frame_id},
+                "name": self._names,
+                "position": positions,
+                "velocity": velocities,
+                "effort": [],
+            }
+        )
+        self.published += 1
+
+    def _read_state(self) -> tuple[list[float], list[float]]:
+        positions: list[float] = []
+        velocities: list[float] = []
+        if self.bus.protocol == 2:
+            raw = self.bus.sync_read(128, 8, self._ids)  # Present Velocity 128, Position 132
+            for name, id_ in zip(self._names, self._ids, strict=True):
+                model = self.models[name]
+                data = raw[id_]
+                velocities.append(
+                    model.velocity_to_rad_s(int.from_bytes(data[:4], "little", signed=True))
+                )
+                positions.append(
+                    model.ticks_to_radians(int.from_bytes(data[4:], "little", signed=True))
+                )
+            return positions, velocities
+        for name, id_ in zip(self._names, self._ids, strict=True):
+            model = self.models[name]
+            data = self.bus.read(id_, 36, 4)  # AX-12A Present Position 36, Present Speed 38
+            positions.append(model.ticks_to_radians(int.from_bytes(data[:2], "little")))
+            velocities.append(model.velocity_to_rad_s(int.from_bytes(data[2:], "little")))
+        return positions, velocities
+
+    def _failed(self, what: str, exc: Exception) -> None:
+        first = (self.read_errors if what == "read" else self.write_errors) == 0
+        if what == "read":
+            self.read_errors += 1
+        else:
+            self.write_errors += 1
+        if isinstance(exc, HwBridgeError):
+            self.last_error = exc
+        log_at = log.warning if first else log.debug
+        log_at("dynamixel node: %s failed: %s", what, exc)
+
+    # ------------------------------------------------------------------ lifecycle
+    def close(self) -> None:
+        """Stop the thread and leave the graph (the bus stays open)."""
+        self._stop.set()
+        if self._thread is not threading.current_thread():
+            self._thread.join(2.0)
+        for sub in self._subscribers:
+            sub.close()
+        self._service.close()
+        self._publisher.close()
+
+    def __enter__(self) -> DynamixelNode:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

@@ -17,7 +17,11 @@ __all__ = ["demo", "emulate"]
 
 def emulate(
     board: Annotated[
-        str, typer.Argument(metavar="BOARD", help="A ready board (diffbot) or a YAML file.")
+        str,
+        typer.Argument(
+            metavar="BOARD",
+            help="A ready board (diffbot), a Dynamixel bus (dxl-bus, dxl-bus-p1) or a YAML file.",
+        ),
     ],
     tcp: Annotated[
         int | None,
@@ -28,21 +32,15 @@ def emulate(
         float, typer.Option("--speed", min=0.01, help="Simulated seconds per real second.")
     ] = 1.0,
 ) -> None:
-    """Start a virtual board; the first line printed is the URL to connect to. Ctrl-C stops."""
-    from hwbridge.emulator import VirtualBoard, load_board
-    from hwbridge.links import open_link
+    """Start a virtual board; the first line printed is the URL to connect to. Ctrl-C stops.
 
-    config = load_board(board)
-    virtual = VirtualBoard(config, seed=seed, speed=speed)
-    if tcp is None:
-        link = open_link("pty://")
-        url = str(link.slave_path)  # type: ignore[attr-defined]
-    else:
-        link = open_link(f"tcp-listen://127.0.0.1:{tcp}")
-        host, port = link.bound_address  # type: ignore[attr-defined]
-        url = f"socket://{host}:{port}"
-    sys.stdout.write(url + "\n")
-    sys.stdout.flush()
+    Dynamixel buses answer raw Dynamixel packets, as servos behind a USB adapter do
+    (try ``hwbridge dxl scan URL``); other boards speak the native protocol
+    (``hwbridge connect URL``).
+    """
+    from hwbridge.devices.dynamixel import EmulatedBusRunner, bus_configs, emulated_bus
+
+    listen = "pty://" if tcp is None else f"tcp-listen://127.0.0.1:{tcp}"
     stop = threading.Event()
 
     def on_signal(_signum: int, _frame: FrameType | None) -> None:
@@ -50,16 +48,46 @@ def emulate(
 
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)
+    if board in bus_configs():
+        runner = EmulatedBusRunner(emulated_bus(board), listen).start()
+        url = _url_of(runner.link)
+        _announce(url, f"emulated Dynamixel bus {board}; try: hwbridge dxl scan {url}")
+        try:
+            while not stop.wait(0.5):
+                pass
+        finally:
+            runner.close()
+        return
+
+    from hwbridge.emulator import VirtualBoard, load_board
+    from hwbridge.links import open_link
+
+    config = load_board(board)
+    virtual = VirtualBoard(config, seed=seed, speed=speed)
+    link = open_link(listen)
+    url = _url_of(link)
+    _announce(url, f"virtual {config.name} (native protocol); connect with: hwbridge connect {url}")
     virtual.start(link)
-    sys.stderr.write(
-        f"virtual {config.name} on {url} (native protocol); connect with: hwbridge connect {url}\n"
-    )
     try:
         while not stop.wait(0.5):
             pass
     finally:
         virtual.stop()
-        link.close()
+
+
+def _url_of(link: object) -> str:
+    """What a client opens to reach a link we serve: the pty's path or a socket URL."""
+    slave = getattr(link, "slave_path", None)
+    if slave is not None:
+        return str(slave)
+    host, port = link.bound_address  # type: ignore[attr-defined]
+    return f"socket://{host}:{port}"
+
+
+def _announce(url: str, what: str) -> None:
+    sys.stdout.write(url + "\n")
+    sys.stdout.flush()
+    sys.stderr.write(what + "\n")
 
 
 def demo(

@@ -156,3 +156,44 @@ def test_emulate_prints_the_url_first_and_a_bridge_connects(tmp_path: Path) -> N
             if process is not None:
                 process.terminate()
                 process.wait(15)
+
+
+@pytest.mark.parametrize(
+    ("bus", "protocol", "model"), [("dxl-bus", "2", "XL430-W250"), ("dxl-bus-p1", "1", "AX-12A")]
+)
+def test_emulate_dynamixel_bus_answers_a_scan(bus: str, protocol: str, model: str) -> None:
+    emulator = subprocess.Popen(
+        [sys.executable, "-m", "hwbridge", "emulate", bus],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+    )
+    try:
+        assert emulator.stdout is not None
+        path = emulator.stdout.readline().strip()
+        assert path.startswith("/dev/pts/"), path
+        scan = subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "hwbridge",
+                "dxl",
+                "scan",
+                path,
+                "--protocol",
+                protocol,
+                "--ids",
+                "0-5",
+                "--json",
+            ],
+            capture_output=True,
+            text=True,
+            timeout=60,
+            check=False,
+        )
+        assert scan.returncode == 0, scan.stderr
+        found = scan.stdout
+        assert found.count(model) == 2, found
+    finally:
+        emulator.terminate()
+        emulator.wait(15)

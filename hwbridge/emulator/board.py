@@ -89,6 +89,8 @@ class VirtualBoard:
         self._targets = (0.0, 0.0)
         self._last_target = -1e9
         self._channel_names: dict[int, str] = {}
+        self._inputs: dict[int, Callable[[bytes], None]] = {}
+        self.dynamixel_bus: Any = None
         for device in config.devices:
             self._add_device(device)
         self.session = FaultySession(self._new_session(), seed)
@@ -147,11 +149,12 @@ class VirtualBoard:
                 device.get("ticks_topic", "wheel_ticks"),
                 "hwbridge_msgs/WheelTicks",
             )
-            self._targets_channel = self._entry(
+            targets_channel = self._entry(
                 EntryKind.SUBSCRIBER,
                 device.get("targets_topic", "wheel_targets"),
                 "hwbridge_msgs/WheelTargets",
             )
+            self._inputs[targets_channel] = self._on_targets
             self._readers.append((rate, lambda: (channel, self._read_ticks())))
         elif kind == "hcsr04":
             sonar = HcSr04Model(
@@ -174,8 +177,72 @@ class VirtualBoard:
                 EntryKind.PUBLISHER, device.get("topic", "imu_raw"), "hwbridge_msgs/ImuRaw"
             )
             self._readers.append((rate, lambda: (channel, self._read_imu(chip, kind))))
+        elif kind == "dynamixel":
+            self._add_dynamixel(device, rate)
         else:
             raise HwBridgeError(f"{self.config.source}: unknown device type {kind!r}")
+
+    def _add_dynamixel(self, device: dict[str, Any], rate: float) -> None:
+        """A servo on the board's own Dynamixel bus (its second UART), driven by the board."""
+        from hwbridge.devices.dynamixel import EmulatedDynamixelBus, find_model, packets
+
+        bus = EmulatedDynamixelBus.from_config(device["bus"])
+        servo_id = int(device.get("id", 1))
+        joint = str(device.get("joint", "pan"))
+        protocol = int(device["bus"].get("protocol", 2))
+        model = find_model(bus.servo(servo_id).model.name)
+        table = model.table
+        self.dynamixel_bus = bus
+        bus_time = [0.0]
+
+        def transact(packet: Any) -> Any:
+            now = max(bus_time[0], self.world.time)
+            reply = bus.feed(packets.encode(packet), now) + bus.advance(now + 0.005)
+            bus_time[0] = now + 0.005
+            return packets.decode(reply, protocol, "status") if reply else None
+
+        def register(name: str) -> tuple[int, int]:
+            found = table[name]
+            return found.address, found.size
+
+        address, _ = register("Torque Enable")
+        transact(packets.write_packet(protocol, servo_id, address, bytes([1])))
+
+        def read_state() -> bytes:
+            with self._lock:
+                addr, length = register("Present Position")
+                status = transact(packets.read_packet(protocol, servo_id, addr, length))
+            ticks = int.from_bytes(status.params, "little", signed=True) if status else 0
+            return msg.encode(
+                msg.from_dict(
+                    "sensor_msgs/JointState",
+                    {
+                        "header": self._stamp(),
+                        "name": [joint],
+                        "position": [model.ticks_to_radians(ticks)],
+                    },
+                )
+            )
+
+        def on_goal(payload: bytes) -> None:
+            goal = msg.decode(payload, "std_msgs/Float64", self.registry)
+            addr, length = register("Goal Position")
+            ticks = model.radians_to_ticks(float(goal.data))
+            with self._lock:
+                transact(
+                    packets.write_packet(
+                        protocol, servo_id, addr, ticks.to_bytes(length, "little", signed=True)
+                    )
+                )
+
+        channel = self._entry(
+            EntryKind.PUBLISHER, device.get("state_topic", "joint_states"), "sensor_msgs/JointState"
+        )
+        goal_channel = self._entry(
+            EntryKind.SUBSCRIBER, f"{joint}/goal_position", "std_msgs/Float64"
+        )
+        self._inputs[goal_channel] = on_goal
+        self._readers.append((rate, lambda: (channel, read_state())))
 
     def _stamp(self) -> dict[str, Any]:
         # The session's clock is the pump's (monotonic) clock: stamp readings with the host
@@ -235,17 +302,20 @@ class VirtualBoard:
 
     # ------------------------------------------------------------------ running
     def _on_event(self, event: Any) -> None:
-        if isinstance(event, ns.Message) and event.channel == getattr(
-            self, "_targets_channel", None
-        ):
-            targets = msg.decode(event.payload, "hwbridge_msgs/WheelTargets", self.registry)
-            with self._lock:
-                self._targets = (float(targets.left), float(targets.right))
-                self._last_target = self.world.time
+        if isinstance(event, ns.Message):
+            handler = self._inputs.get(event.channel)
+            if handler is not None:
+                handler(event.payload)
         elif isinstance(event, ns.Connected):
             log.info("%s: connected to the host", self.config.name)
         elif isinstance(event, ns.Disconnected):
             log.info("%s: host session ended (%s)", self.config.name, event.reason)
+
+    def _on_targets(self, payload: bytes) -> None:
+        targets = msg.decode(payload, "hwbridge_msgs/WheelTargets", self.registry)
+        with self._lock:
+            self._targets = (float(targets.left), float(targets.right))
+            self._last_target = self.world.time
 
     def start(self, link: Link) -> VirtualBoard:
         """Run on ``link`` (opened): the protocol pump and the physics thread."""

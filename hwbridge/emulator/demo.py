@@ -86,8 +86,12 @@ def run_demo(
         drive = DiffDriveNode(node, DiffDriveParams.from_dict(config.host.get("diffdrive", {})))
         sonar, imu = SonarNode(node), ImuNode(node)
         nodes.append(drive)
-        cmd_vel = graph.node("demo_driver", namespace=NAMESPACE).publisher(
-            "cmd_vel", "geometry_msgs/Twist"
+        driver_node = graph.node("demo_driver", namespace=NAMESPACE)
+        cmd_vel = driver_node.publisher("cmd_vel", "geometry_msgs/Twist")
+        pan_goal = driver_node.publisher("pan/goal_position", "std_msgs/Float64")
+        joints: list[Any] = [None]
+        driver_node.subscriber(
+            "joint_states", "sensor_msgs/JointState", lambda m: joints.__setitem__(0, m)
         )
         out.print(
             f"[bold]hwbridge demo[/]: virtual diffbot on {path}, graph on "
@@ -98,7 +102,7 @@ def run_demo(
         started = time.monotonic()
         try:
             with Live(
-                _table(board, drive, sonar, imu, 0.0), console=out, refresh_per_second=4
+                _table(board, drive, sonar, imu, 0.0, None), console=out, refresh_per_second=4
             ) as live:
                 while True:
                     elapsed = time.monotonic() - started
@@ -106,7 +110,8 @@ def run_demo(
                         break
                     v, w = driver.command(elapsed, sonar.latest)
                     cmd_vel.publish({"linear": {"x": v}, "angular": {"z": w}})
-                    live.update(_table(board, drive, sonar, imu, elapsed))
+                    pan_goal.publish({"data": 0.8 * math.sin(elapsed * 0.5)})
+                    live.update(_table(board, drive, sonar, imu, elapsed, joints[0]))
                     time.sleep(0.1)
             out.print()
             cmd_vel.publish({})
@@ -166,7 +171,12 @@ def _link_summary(bridge: Bridge) -> str:
 
 
 def _table(
-    board: VirtualBoard, drive: DiffDriveNode, sonar: SonarNode, imu: ImuNode, t: float
+    board: VirtualBoard,
+    drive: DiffDriveNode,
+    sonar: SonarNode,
+    imu: ImuNode,
+    t: float,
+    joints: Any,
 ) -> Table:
     table = Table(title=f"diffbot, {t:5.1f} s", show_header=True, header_style="bold")
     table.add_column("what")
@@ -197,6 +207,14 @@ def _table(
             "/diffbot/imu accel z, gyro z",
             f"{float(a.z):.2f} m/s², {float(g.z):+.2f} rad/s",
             "",
+        )
+    if joints is not None and len(joints.position):
+        servo = board.dynamixel_bus.servo(1) if board.dynamixel_bus is not None else None
+        truth_pan = servo.model.ticks_to_radians(servo.get("Present Position")) if servo else None
+        table.add_row(
+            "/diffbot/joint_states pan",
+            f"{float(joints.position[0]):+.3f} rad",
+            f"{truth_pan:+.3f} rad" if truth_pan is not None else "",
         )
     table.add_row("distance driven", "", f"{board.world.base.distance:.2f} m")
     return table

@@ -9,6 +9,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import pytest
 import yaml
@@ -75,6 +76,21 @@ def test_virtual_board_through_bridge_and_device_nodes(tmp_path: Path) -> None:
         truth = board.world.pose
         error = math.hypot(float(odom.x) - truth.x, float(odom.y) - truth.y)
         assert error / board.world.base.distance < 0.005
+
+        # The pan servo on the board's Dynamixel bus follows its goal.
+        joints: list[Any] = []
+        node.subscriber("joint_states", "sensor_msgs/JointState", joints.append)
+        pan = graph.node("pan_driver", namespace="/bot").publisher(
+            "pan/goal_position", "std_msgs/Float64"
+        )
+        assert pan.wait_for_subscribers(10)
+
+        def pan_reached() -> bool:
+            pan.publish({"data": 0.5})
+            return bool(joints) and abs(float(joints[-1].position[0]) - 0.5) < 0.01
+
+        assert wait_until(pan_reached, 20)
+        assert joints[-1].name == ["pan"]
         drive.close()
     finally:
         bridge.stop()

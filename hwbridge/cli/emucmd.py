@@ -23,6 +23,9 @@ def emulate(
             help="A ready board (diffbot), a Dynamixel bus (dxl-bus, dxl-bus-p1) or a YAML file.",
         ),
     ],
+    pty: Annotated[
+        bool, typer.Option("--pty", help="Serve on a new pseudo-terminal (the default).")
+    ] = False,
     tcp: Annotated[
         int | None,
         typer.Option("--tcp", min=0, max=65535, help="Serve on this TCP port instead of a pty."),
@@ -40,6 +43,8 @@ def emulate(
     """
     from hwbridge.devices.dynamixel import EmulatedBusRunner, bus_configs, emulated_bus
 
+    if pty and tcp is not None:
+        raise typer.BadParameter("--pty and --tcp exclude each other")
     listen = "pty://" if tcp is None else f"tcp-listen://127.0.0.1:{tcp}"
     stop = threading.Event()
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import socket
 import time
 from collections.abc import Callable
+from typing import Any
 
 
 def free_port() -> int:
@@ -22,3 +23,20 @@ def wait_until(condition: Callable[[], bool], timeout: float = 10.0, step: float
             return True
         time.sleep(step)
     return condition()
+
+
+def call_when_ready(node: Any, name: str, srv: str, request: Any, timeout: float = 10.0) -> Any:
+    """Call a service, retrying while its server's declaration has not reached us yet."""
+    from hwbridge.errors import HwBridgeTimeoutError
+
+    box: list[Any] = []
+
+    def attempt() -> bool:
+        try:
+            box.append(node.call(name, srv, request, timeout=0.5))
+        except HwBridgeTimeoutError:
+            return False
+        return True
+
+    assert wait_until(attempt, timeout=timeout)
+    return box[0]

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
 from typing import Any
 
 import pytest
@@ -12,40 +11,7 @@ from hwbridge.devices.dynamixel import DynamixelNode
 from hwbridge.errors import HwBridgeTimeoutError
 from hwbridge.graph import Graph
 from tests.devices.dxl_helpers import bench
-from tests.netutil import free_port, wait_until
-
-
-@pytest.fixture(scope="module")
-def endpoint() -> str:
-    return f"tcp/127.0.0.1:{free_port()}"
-
-
-@pytest.fixture(scope="module")
-def router(endpoint: str) -> Iterator[Graph]:
-    graph = Graph.embedded(listen=[endpoint], domain="dxltest")
-    yield graph
-    graph.close()
-
-
-@pytest.fixture
-def client(router: Graph, endpoint: str) -> Iterator[Graph]:
-    graph = Graph.attached(connect=[endpoint], domain="dxltest")
-    yield graph
-    graph.close()
-
-
-def _call_when_ready(node: Any, name: str, srv: str, request: Any) -> Any:
-    box: list[Any] = []
-
-    def attempt() -> bool:
-        try:
-            box.append(node.call(name, srv, request, timeout=0.5))
-        except HwBridgeTimeoutError:
-            return False
-        return True
-
-    assert wait_until(attempt, timeout=10)
-    return box[0]
+from tests.netutil import call_when_ready, wait_until
 
 
 @pytest.mark.parametrize("bus_name", ["dxl-bus", "dxl-bus-p1"])
@@ -66,7 +32,7 @@ def test_goal_moves_the_servo_and_joint_states_follow(
             assert first.header.frame_id == "base" and first.header.stamp.sec > 0
 
             caller = client.node("caller")
-            reply = _call_when_ready(caller, "/torque_enable", "std_srvs/SetBool", {"data": True})
+            reply = call_when_ready(caller, "/torque_enable", "std_srvs/SetBool", {"data": True})
             assert reply.success, reply.message
             assert reply.message == "torque on for 2 joints"
             assert b.runner.call(lambda e: [s.torque for s in e.servos]) == [True, True]
@@ -116,7 +82,7 @@ def test_torque_service_reports_failures_and_reads_keep_going(router: Graph, cli
         try:
             b.runner.call(lambda e: e.servo(1).inject_hardware_error(0x20))
             caller = client.node("caller2")
-            reply = _call_when_ready(caller, "/torque_enable", "std_srvs/SetBool", {"data": True})
+            reply = call_when_ready(caller, "/torque_enable", "std_srvs/SetBool", {"data": True})
             assert not reply.success
             assert "arm: servo 1: Result Fail" in reply.message
             b.runner.call(lambda e: e.servo(1).set("Baud Rate", 3))  # servo gone from the bus

@@ -19,11 +19,6 @@ from tests.netutil import free_port, wait_until
 
 
 @pytest.fixture(scope="module")
-def endpoint() -> str:
-    return f"tcp/127.0.0.1:{free_port()}"
-
-
-@pytest.fixture(scope="module")
 def board(endpoint: str) -> Iterator[dict[str, Any]]:
     """A fake board graph: publishes /diffbot/chatter and /diffbot/odom, serves, holds params."""
     graph = Graph.embedded(listen=[endpoint], domain="clitest")

@@ -5,7 +5,6 @@ from __future__ import annotations
 import subprocess
 import sys
 import textwrap
-from collections.abc import Iterator
 from typing import Any
 
 import pytest
@@ -25,26 +24,7 @@ from hwbridge.graph import (
     resolve_name,
 )
 from hwbridge.graph.names import decode_segment, encode_segment
-from tests.netutil import free_port, wait_until
-
-
-@pytest.fixture(scope="module")
-def endpoint() -> str:
-    return f"tcp/127.0.0.1:{free_port()}"
-
-
-@pytest.fixture(scope="module")
-def router(endpoint: str) -> Iterator[Graph]:
-    graph = Graph.embedded(listen=[endpoint], domain="test")
-    yield graph
-    graph.close()
-
-
-@pytest.fixture
-def client(router: Graph, endpoint: str) -> Iterator[Graph]:
-    graph = Graph.attached(connect=[endpoint], domain="test")
-    yield graph
-    graph.close()
+from tests.netutil import call_when_ready, free_port, wait_until
 
 
 def test_names() -> None:
@@ -149,7 +129,7 @@ def test_services(router: Graph, client: Graph) -> None:
 
     router.node("board").service("/enable", "std_srvs/SetBool", handler)
     node = client.node("caller")
-    response = _call_when_ready(node, "/enable", "std_srvs/SetBool", {"data": False})
+    response = call_when_ready(node, "/enable", "std_srvs/SetBool", {"data": False})
     assert (response.success, response.message) == (True, "disabled")
     with pytest.raises(ServiceError, match="RuntimeError: motor driver not ready"):
         node.call("/enable", "std_srvs/SetBool", {"data": True}, timeout=5)
@@ -157,20 +137,6 @@ def test_services(router: Graph, client: Graph) -> None:
         node.call("/enable", "std_srvs/Trigger", {}, timeout=5)
     with pytest.raises(HwBridgeTimeoutError, match="no answer from service /nobody"):
         node.call("/nobody", "std_srvs/Trigger", {}, timeout=0.3)
-
-
-def _call_when_ready(node: Any, name: str, srv: str, request: Any) -> Any:
-    box: list[Any] = []
-
-    def attempt() -> bool:
-        try:
-            box.append(node.call(name, srv, request, timeout=0.5))
-        except HwBridgeTimeoutError:
-            return False
-        return True
-
-    assert wait_until(attempt, timeout=10)
-    return box[0]
 
 
 def test_parameters(router: Graph, client: Graph) -> None:
@@ -220,7 +186,9 @@ def test_attaching_without_a_bridge_says_what_to_do() -> None:
         Graph.attached(connect=[f"tcp/127.0.0.1:{free_port()}"])
 
 
-def test_other_process_publishes_and_exits_without_closing(endpoint: str, router: Graph) -> None:
+def test_other_process_publishes_and_exits_without_closing(
+    endpoint: str, graph_domain: str, router: Graph
+) -> None:
     """A second process attaches, publishes, subscribes, and exits without close(): no hang."""
     got: list[Any] = []
     router.node("sink").subscriber("/from_child", "std_msgs/String", got.append)
@@ -228,7 +196,7 @@ def test_other_process_publishes_and_exits_without_closing(endpoint: str, router
         f"""
         import time
         from hwbridge.graph import Graph
-        graph = Graph.attached(connect=["{endpoint}"], domain="test")
+        graph = Graph.attached(connect=["{endpoint}"], domain="{graph_domain}")
         node = graph.node("child")
         node.subscriber("/anything", "std_msgs/String", print)
         pub = node.publisher("/from_child", "std_msgs/String")

@@ -29,6 +29,7 @@ import sys
 import tempfile
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -98,15 +99,20 @@ def board_main(protocol: str, url: str) -> None:
                 pump.call(lambda s: s.respond_service(event.channel, event.request_id, reply))
                 handling.append(time.perf_counter() - started)
 
-        boundary = b"\x00"  # every native frame ends with the COBS delimiter
+        def send_all(count: int) -> None:
+            """Publish through the session, as firmware does: frames keep their order and
+            sequence numbers, interleaved with the session's own (acks, heartbeats)."""
 
-        def blast(count: int) -> bytes:
-            def make(s: Any) -> bytes:
-                for _ in range(count):
-                    s.publish(1, payload)
-                return bytes(s.data_to_send())
+            def batch(size: int) -> Callable[[Any], None]:
+                def publish(s: Any) -> None:
+                    for _ in range(size):
+                        s.publish(1, payload)
 
-            return pump.call(make)
+                return publish
+
+            for start in range(0, count, 256):
+                pump.call(batch(min(256, count - start)))
+
     else:
         from hwbridge.protocols.rosserial import RosserialDevice, encode_frame
 
@@ -123,31 +129,24 @@ def board_main(protocol: str, url: str) -> None:
             return None
 
         frame = encode_frame(device.topic_id("data"), payload)
-        boundary = frame
+        per_write = 4096 // len(frame)
 
-        def blast(count: int) -> bytes:
-            return frame * count
+        def send_all(count: int) -> None:
+            """Whole frames per write (rosserial frames carry no sequence numbers)."""
+            for start in range(0, count, per_write):
+                link.write(frame * min(per_write, count - start))
 
     pump = SessionPump(link, session, on_event, name="bench-board")
     pump.start()
     print("ready", flush=True)
-    prepared = b""
+    to_send = 0
     for line in sys.stdin:
         command, _, arg = line.strip().partition(" ")
         if command == "prepare":
-            prepared = blast(int(arg))
+            to_send = int(arg)
             print("prepared", flush=True)
         elif command == "go":
-            # Whole frames per write, so the session's own frames (acks, heartbeats) written
-            # from the pump thread in between never land inside one of these.
-            view = memoryview(prepared)
-            start = 0
-            while start < len(view):
-                end = min(start + 65536, len(view))
-                if end < len(view):
-                    end = prepared.rfind(boundary, start, end) + len(boundary)
-                link.write(view[start:end])
-                start = end
+            send_all(to_send)
             print("sent", flush=True)
         elif command == "handling":
             print(json.dumps(handling), flush=True)

@@ -12,11 +12,10 @@ import threading
 import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
 from typing import Any
 
-from hwbridge.errors import HwBridgeError, HwBridgeTimeoutError
-from hwbridge.graph import Node, Publisher, RawMessage, ServiceServer, Subscriber
+from hwbridge.errors import HwBridgeError
+from hwbridge.graph import DeferredReply, Node, Publisher, RawMessage, ServiceServer, Subscriber
 
 __all__ = ["ROSOUT_LEVELS", "BoardEndpoints", "PendingCalls"]
 
@@ -46,48 +45,33 @@ def _ignore(_event: Any) -> None:
     """Events an adapter has no use for."""
 
 
-@dataclass
-class _Pending:
-    done: threading.Event = field(default_factory=threading.Event)
-    payload: bytes | None = None
-    error: HwBridgeError | None = None
-
-
 class PendingCalls:
-    """Graph-side callers waiting for a board's answer, by request id."""
+    """Graph callers waiting for a board's answer, by the session's request id."""
 
     def __init__(self) -> None:
-        self._calls: dict[int, _Pending] = {}
+        self._calls: dict[int, DeferredReply] = {}
         self._lock = threading.Lock()
 
-    def add(self, request_id: int) -> _Pending:
-        pending = _Pending()
+    def add(self, request_id: int, reply: DeferredReply) -> None:
+        """Register before the board can answer (call under the pump's lock)."""
         with self._lock:
-            self._calls[request_id] = pending
-        return pending
+            self._calls[request_id] = reply
 
     def resolve(self, request_id: int, payload: bytes | None, error: HwBridgeError | None) -> None:
         with self._lock:
-            pending = self._calls.pop(request_id, None)
-        if pending is not None:
-            pending.payload, pending.error = payload, error
-            pending.done.set()
+            reply = self._calls.pop(request_id, None)
+        if reply is None:
+            return
+        if error is not None or payload is None:
+            reply.error(str(error) if error is not None else "no answer from the board")
+        else:
+            reply.ok(payload)
 
     def fail_all(self, error: HwBridgeError) -> None:
         with self._lock:
             calls, self._calls = self._calls, {}
-        for pending in calls.values():
-            pending.error = error
-            pending.done.set()
-
-    @staticmethod
-    def wait(pending: _Pending, timeout: float, what: str) -> bytes:
-        if not pending.done.wait(timeout):
-            raise HwBridgeTimeoutError(f"{what}: the board did not answer within {timeout:g} s")
-        if pending.error is not None:
-            raise pending.error
-        assert pending.payload is not None
-        return pending.payload
+        for reply in calls.values():
+            reply.error(str(error))
 
 
 class BoardEndpoints:
@@ -137,10 +121,13 @@ class BoardEndpoints:
 
         self.subscribers[topic] = self.node.subscriber(topic, type_name, on_message, raw=True)
 
-    def serve(self, name: str, srv_type: str, call: Callable[[bytes], bytes]) -> None:
-        """A service the board serves: graph calls run ``call(request) -> response``."""
+    def serve(
+        self, name: str, srv_type: str, start: Callable[[bytes, DeferredReply], None]
+    ) -> None:
+        """A service the board serves: ``start(request, reply)`` sends the request to the board
+        and registers ``reply``, answered from the pump thread when the board responds."""
         if name not in self.servers:
-            self.servers[name] = self.node.service(name, srv_type, call, raw=True)
+            self.servers[name] = self.node.deferred_service(name, srv_type, start)
 
     def call_graph_service(
         self,

@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Any
 
 from hwbridge.bridge.endpoints import BoardEndpoints, EventDispatch
 from hwbridge.errors import HwBridgeError, LinkError
-from hwbridge.graph import ParamError
+from hwbridge.graph import DeferredReply, ParamError
 from hwbridge.protocols.native import session as ns
 from hwbridge.protocols.native.control import EntryKind
 
@@ -99,7 +99,7 @@ class NativeAdapter(EventDispatch):
         elif entry.kind == EntryKind.SUBSCRIBER:
             self.endpoints.subscribe(name, entry.type_name, self._deliver(entry.channel))
         elif entry.kind == EntryKind.SERVICE_SERVER:
-            self.endpoints.serve(name, entry.type_name, self._server_call(entry.channel, name))
+            self.endpoints.serve(name, entry.type_name, self._server_call(entry.channel))
         # SERVICE_CLIENT entries need nothing until the board calls (ServiceRequest).
 
     def _deliver(self, channel: int) -> Callable[[bytes], None]:
@@ -110,17 +110,15 @@ class NativeAdapter(EventDispatch):
 
         return deliver
 
-    def _server_call(self, channel: int, name: str) -> Callable[[bytes], bytes]:
-        timeout = self.session.config.service_timeout
+    def _server_call(self, channel: int) -> Callable[[bytes, DeferredReply], None]:
+        def start(request: bytes, reply: DeferredReply) -> None:
+            def send(session: ns.HostSession) -> None:
+                request_id = session.call_service(channel, request, now=time.monotonic())
+                self.endpoints.pending.add(request_id, reply)
 
-        def call(request: bytes) -> bytes:
-            pending_id = self.board.pump.call(
-                lambda s: s.call_service(channel, request, now=time.monotonic())
-            )
-            pending = self.endpoints.pending.add(pending_id)
-            return self.endpoints.pending.wait(pending, timeout + 1.0, f"service {name}")
+            self.board.pump.call(send)
 
-        return call
+        return start
 
     def _on_Message(self, event: ns.Message) -> None:
         name = self.channels.get(event.channel)

@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Any
 
 from hwbridge.bridge.endpoints import BoardEndpoints, EventDispatch
 from hwbridge.errors import HwBridgeError, LinkError, ProtocolError
-from hwbridge.graph import ParamError
+from hwbridge.graph import DeferredReply, ParamError
 from hwbridge.protocols.rosserial import RosserialHost
 from hwbridge.protocols.rosserial import host as rs
 
@@ -65,15 +65,15 @@ class RosserialAdapter(EventDispatch):
 
         return deliver
 
-    def _server_call(self, name: str) -> Callable[[bytes], bytes]:
-        def call(request: bytes) -> bytes:
-            pending_id = self.board.pump.call(
-                lambda s: s.call_service(name, request, time.monotonic(), timeout=5.0)
-            )
-            pending = self.endpoints.pending.add(pending_id)
-            return self.endpoints.pending.wait(pending, 6.0, f"service {name}")
+    def _server_call(self, name: str) -> Callable[[bytes, DeferredReply], None]:
+        def start(request: bytes, reply: DeferredReply) -> None:
+            def send(session: RosserialHost) -> None:
+                request_id = session.call_service(name, request, time.monotonic(), timeout=5.0)
+                self.endpoints.pending.add(request_id, reply)
 
-        return call
+            self.board.pump.call(send)
+
+        return start
 
     def _on_Message(self, event: rs.Message) -> None:
         self.endpoints.forward(self.board.resolve(event.topic), event.payload)

@@ -3,6 +3,7 @@
 from hwbridge.graph.config import DEFAULT_ENDPOINT, GraphConfig
 from hwbridge.graph.core import (
     ANY_TYPE,
+    DeferredReply,
     Graph,
     GraphEntity,
     GraphSnapshot,
@@ -19,6 +20,7 @@ from hwbridge.graph.params import ParamClient, ParamError, ParamServer
 __all__ = [
     "ANY_TYPE",
     "DEFAULT_ENDPOINT",
+    "DeferredReply",
     "Graph",
     "GraphConfig",
     "GraphEntity",

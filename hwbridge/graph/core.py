@@ -40,6 +40,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "ANY_TYPE",
+    "DeferredReply",
     "Graph",
     "GraphEntity",
     "GraphSnapshot",
@@ -421,6 +422,14 @@ class Node:
         """Serve ``name``: ``handler(request) -> response`` (bytes in and out with ``raw``)."""
         return ServiceServer(self, self.resolve(name), srv_type, handler, raw)
 
+    def deferred_service(
+        self, name: str, srv_type: str, handler: Callable[[bytes, DeferredReply], None]
+    ) -> ServiceServer:
+        """Serve ``name`` with raw bytes, answering later: ``handler(request, reply)`` returns
+        at once and ``reply.ok(bytes)`` or ``reply.error(text)`` is called from any thread.
+        (The bridge uses this so a board's answer goes out from the thread that reads it.)"""
+        return ServiceServer(self, self.resolve(name), srv_type, handler, True, deferred=True)
+
     def call(self, name: str, srv_type: str, request: Any, timeout: float = 5.0) -> Any:
         """Call a service and return the decoded response.
 
@@ -594,8 +603,9 @@ class ServiceServer:
         node: Node,
         name: str,
         srv_type: str,
-        handler: Callable[[Any], Any],
+        handler: Callable[..., Any],
         raw: bool,
+        deferred: bool = False,
     ) -> None:
         self.node = node
         self.name = name
@@ -604,6 +614,7 @@ class ServiceServer:
         self.failures = 0
         self._handler = handler
         self._raw = raw
+        self._deferred = deferred
         graph = node.graph
         self._queryable = graph._keep(
             graph.session.declare_queryable(graph.service_key(name), self._on_query)
@@ -624,6 +635,13 @@ class ServiceServer:
             return
         data = bytes(query.payload.to_bytes()) if query.payload is not None else b""
         self.calls += 1
+        if self._deferred:
+            reply = DeferredReply(query, self)
+            try:
+                self._handler(data, reply)
+            except Exception as exc:  # noqa: BLE001 - any handler failure goes back to the caller
+                reply.error(f"{type(exc).__name__}: {exc}")
+            return
         registry = self.node.graph.registry
         try:
             if self._raw:
@@ -644,3 +662,33 @@ class ServiceServer:
     def close(self) -> None:
         self.node.graph._forget(self._queryable)
         self.node.graph._forget(self._token)
+
+
+class DeferredReply:
+    """The answer to one call of a deferred service, given later from any thread (once)."""
+
+    def __init__(self, query: zenoh.Query, server: ServiceServer) -> None:
+        self._query: zenoh.Query | None = query
+        self._server = server
+        self._lock = threading.Lock()
+
+    def _finish(self) -> zenoh.Query | None:
+        with self._lock:
+            query, self._query = self._query, None
+        return query
+
+    def ok(self, payload: bytes) -> None:
+        """Send the response bytes (ignored if an answer was already given)."""
+        query = self._finish()
+        if query is not None:
+            query.reply(query.key_expr, payload)
+            query.drop()  # type: ignore[no-untyped-call]
+
+    def error(self, text: str) -> None:
+        """Fail the call with ``text`` (ignored if an answer was already given)."""
+        query = self._finish()
+        if query is not None:
+            self._server.failures += 1
+            log.warning("service %s failed: %s", self._server.name, text)
+            query.reply_err(text)
+            query.drop()  # type: ignore[no-untyped-call]

@@ -15,6 +15,7 @@ from hwbridge import msg
 from hwbridge.errors import HwBridgeError, HwBridgeTimeoutError, ProtocolMismatchError
 from hwbridge.graph import (
     ANY_TYPE,
+    DeferredReply,
     Graph,
     GraphNameError,
     ParamError,
@@ -211,3 +212,24 @@ def test_other_process_publishes_and_exits_without_closing(
     assert done.returncode == 0, done.stderr
     assert wait_until(lambda: bool(got))
     assert got[0].data == "from another process"
+
+
+def test_deferred_service_answers_from_another_thread(router: Graph, client: Graph) -> None:
+    import threading
+
+    def handler(request: bytes, reply: DeferredReply) -> None:
+        def later() -> None:
+            if request == b"\x01":
+                reply.error("board says no")
+            else:
+                reply.ok(b"\x01\x02\x00\x00\x00ok")
+            reply.ok(b"ignored: a call is answered once")
+
+        threading.Thread(target=later).start()
+
+    router.node("board").deferred_service("/later", "std_srvs/Trigger", handler)
+    node = client.node("caller")
+    response = call_when_ready(node, "/later", "std_srvs/Trigger", {})
+    assert (response.success, response.message) == (True, "ok")
+    with pytest.raises(ServiceError, match="board says no"):
+        node.call_raw("/later", "std_srvs/Trigger", b"\x01", timeout=5)

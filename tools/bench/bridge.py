@@ -95,9 +95,8 @@ def board_main(protocol: str, url: str) -> None:
 
         def on_event(event: Any) -> None:
             if isinstance(event, ns.ServiceRequest):
-                started = time.perf_counter()
+                timer.answered = True
                 pump.call(lambda s: s.respond_service(event.channel, event.request_id, reply))
-                handling.append(time.perf_counter() - started)
 
         def send_all(count: int) -> None:
             """Publish through the session, as firmware does: frames keep their order and
@@ -120,6 +119,7 @@ def board_main(protocol: str, url: str) -> None:
         device.advertise("data", "std_msgs/String")
 
         def serve(_request: bytes) -> bytes:
+            timer.answered = True
             return reply
 
         device.advertise_service("trigger", "std_srvs/Trigger", serve)
@@ -136,7 +136,8 @@ def board_main(protocol: str, url: str) -> None:
             for start in range(0, count, per_write):
                 link.write(frame * min(per_write, count - start))
 
-    pump = SessionPump(link, session, on_event, name="bench-board")
+    timer = _BoardTimer(session, handling)
+    pump = SessionPump(link, timer, on_event, name="bench-board")
     pump.start()
     print("ready", flush=True)
     to_send = 0
@@ -154,6 +155,37 @@ def board_main(protocol: str, url: str) -> None:
             break
     pump.stop()
     link.close()
+
+
+class _BoardTimer:
+    """Wraps the board's session to time each service call on the board: from the moment the
+    request's bytes are handed to the session to the moment the answer's bytes leave it."""
+
+    def __init__(self, inner: Any, samples: list[float]) -> None:
+        self.inner = inner
+        self.samples = samples
+        self.answered = False
+        self._received_at: float | None = None
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.inner, name)
+
+    def receive_data(self, data: bytes, now: float) -> list[Any]:
+        self._received_at = time.perf_counter()
+        result: list[Any] = self.inner.receive_data(data, now)
+        return result
+
+    def tick(self, now: float) -> list[Any]:
+        result: list[Any] = self.inner.tick(now)
+        return result
+
+    def data_to_send(self) -> bytes:
+        data: bytes = self.inner.data_to_send()
+        if data and self.answered and self._received_at is not None:
+            self.samples.append(time.perf_counter() - self._received_at)
+            self.answered = False
+            self._received_at = None
+        return data
 
 
 def echo_main(symlink: str) -> None:

@@ -39,6 +39,8 @@ from hwbridge.links.base import (
     split_query,
 )
 
+_POSIX = os.name == "posix"
+
 if TYPE_CHECKING:
     import serial
 
@@ -184,7 +186,13 @@ class SerialLink(Link):
         port = self._require()
         try:
             if timeout != self._timeout:
-                port.timeout = timeout
+                if _POSIX:
+                    # pyserial's setter re-applies every termios setting (tcsetattr) on each
+                    # change, and a reader loop changes the timeout on almost every call; on
+                    # POSIX the timeout only feeds select(), so set it without reconfiguring.
+                    port._timeout = timeout  # type: ignore[attr-defined]
+                else:
+                    port.timeout = timeout
                 self._timeout = timeout
             data = port.read(1)
             if data and max_bytes > 1:

@@ -63,7 +63,7 @@ class DiffDriveNode:
         self._thread.start()
 
     def _on_ticks(self, ticks: Any) -> None:
-        stamp = ticks.header.stamp.sec + ticks.header.stamp.nanosec * 1e-9
+        stamp = _seconds(ticks.header.stamp)
         left, right = int(ticks.left), int(ticks.right)
         if self._implausible(left, right, stamp):
             # The board restarted (its counters began again): keep the pose, take this reading
@@ -125,7 +125,7 @@ class SonarNode:
         temperature = float(echo.temperature)
         if temperature != self.ranger.temperature_c:
             self.ranger = dataclasses.replace(self.ranger, temperature_c=temperature)
-        stamp = echo.header.stamp.sec + echo.header.stamp.nanosec * 1e-9
+        stamp = _seconds(echo.header.stamp)
         self.latest = self.ranger.to_range_msg(float(echo.echo_us), stamp)
         self._range.publish(self.latest)
 
@@ -155,9 +155,14 @@ class ImuNode:
         accel, gyro, _ = converter.convert(
             RawSample((words[0], words[1], words[2]), words[3], (words[4], words[5], words[6]))
         )
-        stamp = raw.header.stamp.sec + raw.header.stamp.nanosec * 1e-9
+        stamp = _seconds(raw.header.stamp)
         self.latest = converter.imu_msg(accel, gyro, stamp)
         self._imu.publish(self.latest)
+
+
+def _seconds(stamp: Any) -> float:
+    """A message's time stamp (builtin_interfaces Time) in seconds."""
+    return float(stamp.sec + stamp.nanosec * 1e-9)
 
 
 class _NoPort:

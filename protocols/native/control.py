@@ -412,32 +412,31 @@ class HelloMsg(_Control):
         )
 
 
+class _Bare(_Control):
+    """A control message that is its opcode alone."""
+
+    __slots__ = ()
+
+    def encode(self) -> bytes:
+        return bytes([self.OPCODE])
+
+    @classmethod
+    def decode(cls: type[_M], payload: bytes) -> _M:
+        return cls()
+
+
 @dataclass(frozen=True, slots=True)
-class HeartbeatMsg(_Control):
+class HeartbeatMsg(_Bare):
     """HEARTBEAT (0x02, best effort): "still here"; no fields."""
 
     OPCODE: ClassVar[Opcode] = Opcode.HEARTBEAT
 
-    def encode(self) -> bytes:
-        return bytes([self.OPCODE])
-
-    @classmethod
-    def decode(cls, payload: bytes) -> HeartbeatMsg:
-        return cls()
-
 
 @dataclass(frozen=True, slots=True)
-class GoodbyeMsg(_Control):
+class GoodbyeMsg(_Bare):
     """GOODBYE (0x05, best effort): the sender closes the session; no fields."""
 
     OPCODE: ClassVar[Opcode] = Opcode.GOODBYE
-
-    def encode(self) -> bytes:
-        return bytes([self.OPCODE])
-
-    @classmethod
-    def decode(cls, payload: bytes) -> GoodbyeMsg:
-        return cls()
 
 
 @dataclass(frozen=True, slots=True)

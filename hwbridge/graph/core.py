@@ -681,7 +681,7 @@ class DeferredReply:
         """Send the response bytes (ignored if an answer was already given)."""
         query = self._finish()
         if query is not None:
-            query.reply(query.key_expr, payload)
+            query.reply(query.key_expr, payload, express=True)
             query.drop()  # type: ignore[no-untyped-call]
 
     def error(self, text: str) -> None:

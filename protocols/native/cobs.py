@@ -30,14 +30,20 @@ def max_encoded_size(size: int) -> int:
     return size + size // MAX_GROUP + 1
 
 
+_CODE: Final = tuple(bytes((code,)) for code in range(256))
+"""Code byte ``i`` as a one-byte ``bytes``."""
+
+
 def encode(data: bytes | bytearray | memoryview) -> bytes:
     """Encode ``data``; the result never contains 0x00 and has no trailing delimiter."""
     raw = bytes(data)
     size = len(raw)
     if size < MAX_GROUP and _ZERO not in raw:  # the common case: one group
         return bytes((size + 1,)) + raw
-    out = bytearray()
     groups = raw.split(_ZERO)
+    if size < MAX_GROUP:  # no group can reach 254 bytes: each is its code byte and its data
+        return b"".join([_CODE[len(group) + 1] + group for group in groups])
+    out = bytearray()
     last = len(groups) - 1
     for index, group in enumerate(groups):
         length = len(group)

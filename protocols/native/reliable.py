@@ -22,7 +22,14 @@ from dataclasses import dataclass, fields
 
 from hwbridge.protocols.errors import HwBridgeTimeoutError
 from hwbridge.protocols.native.control import MAX_WINDOW
-from hwbridge.protocols.native.framing import Frag, Frame, FrameType, Reassembler, fragment
+from hwbridge.protocols.native.framing import (
+    Frag,
+    Frame,
+    FrameType,
+    Reassembler,
+    fragment,
+    make_frame,
+)
 
 __all__ = [
     "ACK_CHANNEL",
@@ -211,7 +218,7 @@ class BestEffortReceiver:
             # never gets here: accept() refuses a seq it has already passed.)
             self._first_seq = frame.seq
             self.stats.be_messages_received += 1
-            return Delivery(frame.channel, frame.payload, frame.seq)
+            return Delivery(frame.channel, self._reassembler.whole(frame), frame.seq)
         ra = self._reassembler.stats
         partial, orphans, oversize, malformed = (
             ra.dropped_partial,
@@ -297,6 +304,11 @@ class ReliableSender:
     def idle(self) -> bool:
         """Nothing queued and nothing waiting for an acknowledgement."""
         return not self._pending and not self._in_flight
+
+    @property
+    def has_pending(self) -> bool:
+        """Messages are queued that :meth:`transmit` has not released yet."""
+        return bool(self._pending)
 
     @property
     def in_flight(self) -> int:
@@ -480,6 +492,11 @@ class ReliableReceiver:
         return out
 
     def _deliver(self, frame: Frame) -> Delivery | None:
+        if frame.frag is Frag.WHOLE and not self._reassembler.in_progress:
+            # The common case, kept short (as in BestEffortReceiver.receive).
+            self._first_seq = frame.seq
+            self.stats.rel_messages_received += 1
+            return Delivery(frame.channel, self._reassembler.whole(frame), frame.seq)
         ra = self._reassembler.stats
         oversize, malformed, orphans = ra.oversize, ra.malformed, ra.orphans
         if frame.frag in (Frag.WHOLE, Frag.FIRST):
@@ -500,6 +517,8 @@ class ReliableReceiver:
         """
         self.ack_needed = False
         self.stats.acks_sent += 1
+        if not self._buffer:
+            return make_frame(FrameType.ACK, ACK_CHANNEL, (self.expected - 1) & 0xFF, b"")
         bitmap = bytearray(math.ceil((self.window - 1) / 8))
         for seq in self._buffer:
             i = seq_diff(seq, self.expected) - 1

@@ -808,7 +808,8 @@ class _Session:
         entry = self._entry(channel)
         if entry is None or entry.kind != self._PUBLISH_KIND:
             raise SessionError(self._wrong_channel(channel, entry, "publish on"))
-        self._check_size(len(payload), f"message for {entry.name} (channel {channel})")
+        if len(payload) > self._peer_max_message():
+            self._check_size(len(payload), f"message for {entry.name} (channel {channel})")
         if entry.reliable:
             return self._send_reliable(channel, payload)
         self._send_best_effort(channel, payload)
@@ -851,7 +852,8 @@ class _Session:
         if entry is None or entry.kind != self._CALL_KIND:
             raise SessionError(self._wrong_channel(channel, entry, "call a service on"))
         msg = ServiceRequestMsg(channel, request_id, payload).encode()
-        self._check_size(len(msg), f"request for {entry.name} (channel {channel})")
+        if len(msg) > self._peer_max_message():
+            self._check_size(len(msg), f"request for {entry.name} (channel {channel})")
         if not self._send_reliable(CONTROL_CHANNEL, msg):
             self._events.append(
                 ServiceResponse(
@@ -891,7 +893,8 @@ class _Session:
             ).encode()
         else:
             msg = ServiceResponseMsg(channel, request_id, ServiceStatus.OK, payload).encode()
-            self._check_size(len(msg), f"response on channel {channel}")
+            if len(msg) > self._peer_max_message():
+                self._check_size(len(msg), f"response on channel {channel}")
         return self._send_reliable(CONTROL_CHANNEL, msg, force=True)
 
     def log(self, level: LogLevel, text: str) -> bool:
@@ -988,12 +991,13 @@ class _Session:
 
     def _send_frame(self, frame: Frame, *, lead: bool = False) -> None:
         # PROTOCOL.md 1.3: a 0x00 before a frame that follows an idle line flushes the receiver.
-        idle = self._clock() - self._last_tx >= _IDLE_LEAD
-        wire = encode_frame(frame, lead=lead or idle)
+        now = self._clock()
+        wire = encode_frame(frame, lead=lead or now - self._last_tx >= _IDLE_LEAD)
         self._out += wire
-        self._c.frames_sent += 1
-        self._c.bytes_sent += len(wire)
-        self._last_tx = self._clock()
+        counters = self._c
+        counters.frames_sent += 1
+        counters.bytes_sent += len(wire)
+        self._last_tx = now
 
     def _send_best_effort(self, channel: int, payload: bytes, *, lead: bool = False) -> None:
         mtu = self._link.mtu if self._link is not None else MIN_MTU
@@ -1017,8 +1021,9 @@ class _Session:
         self._send_reliable(CONTROL_CHANNEL, msg.encode(), force=True)
 
     def _pump(self) -> None:
-        if self._rel_tx is not None:
-            for frame in self._rel_tx.transmit(self._clock()):
+        sender = self._rel_tx
+        if sender is not None and sender.has_pending:
+            for frame in sender.transmit(self._clock()):
                 self._send_frame(frame)
 
     def _flush(self) -> None:

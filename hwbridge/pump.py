@@ -124,28 +124,35 @@ class SessionPump:
         except Exception:
             log.exception("%s: handling %s failed", self.name, type(event).__name__)
 
-    def _timeout(self) -> float:
-        deadline_of = getattr(self.session, "next_deadline", None)
-        deadline: float | None = deadline_of() if callable(deadline_of) else None
-        if deadline is None:
-            return _IDLE_TICK
-        return min(max(deadline - self._clock(), 0.0), _IDLE_TICK)
-
     def _run(self) -> None:
         error: BaseException | None = None
+        session, link, lock, clock = self.session, self.link, self._lock, self._clock
+        deadline_of = getattr(session, "next_deadline", None)
+        if not callable(deadline_of):
+            deadline_of = None
         try:
             while not self._stop.is_set():
+                # A session that announces its next deadline is ticked only when one is due;
+                # others are ticked after every read and at least every _IDLE_TICK.
+                with lock:
+                    deadline: float | None = deadline_of() if deadline_of is not None else None
+                timeout = (
+                    _IDLE_TICK
+                    if deadline is None
+                    else min(max(deadline - clock(), 0.0), _IDLE_TICK)
+                )
                 try:
-                    data = self.link.read(self._read_size, timeout=self._timeout())
+                    data = link.read(self._read_size, timeout=timeout)
                 except LinkClosedError:
-                    if not self.link.is_open or self._stop.is_set():
+                    if not link.is_open or self._stop.is_set():
                         raise
                     log.info("%s: the peer went away; waiting for the next one", self.name)
                     continue
-                with self._lock:
-                    now = self._clock()
-                    events = self.session.receive_data(data, now) if data else []
-                    events += self.session.tick(now)
+                with lock:
+                    now = clock()
+                    events = session.receive_data(data, now) if data else []
+                    if deadline is None or now >= deadline:
+                        events += session.tick(now)
                     self._flush()
                 for event in events:
                     self._dispatch(event)

@@ -31,6 +31,8 @@ class NativeAdapter(EventDispatch):
         self.session = ns.HostSession(config, type_check=self._expected_type)
         self.endpoints = BoardEndpoints(board.node, board.name, self.log)
         self.channels: dict[int, str] = {}  # board channel -> graph name
+        self._forward: dict[int, Callable[[bytes], None]] = {}
+        """Board publisher channel -> its graph publisher's ``publish_raw`` (per message)."""
         self.param_names: dict[str, str] = {}  # graph parameter name -> the board's name
         board.bridge.params.on_update(self._on_param_changed)
 
@@ -95,7 +97,10 @@ class NativeAdapter(EventDispatch):
         name = self.board.resolve(entry.name)
         self.channels[entry.channel] = name
         if entry.kind == EntryKind.PUBLISHER:
-            self.endpoints.advertise(name, entry.type_name, entry.md5)
+            publisher = self.endpoints.advertise(name, entry.type_name, entry.md5)
+            for channel, topic in self.channels.items():  # a re-declared type replaces it
+                if topic == name and (channel in self._forward or channel == entry.channel):
+                    self._forward[channel] = publisher.publish_raw
         elif entry.kind == EntryKind.SUBSCRIBER:
             self.endpoints.subscribe(name, entry.type_name, self._deliver(entry.channel))
         elif entry.kind == EntryKind.SERVICE_SERVER:
@@ -121,9 +126,9 @@ class NativeAdapter(EventDispatch):
         return start
 
     def _on_Message(self, event: ns.Message) -> None:
-        name = self.channels.get(event.channel)
-        if name is not None:
-            self.endpoints.forward(name, event.payload)
+        forward = self._forward.get(event.channel)
+        if forward is not None:
+            forward(event.payload)
 
     def _on_ServiceResponse(self, event: ns.ServiceResponse) -> None:
         self.endpoints.pending.resolve(
@@ -182,6 +187,7 @@ class NativeAdapter(EventDispatch):
         self.endpoints.close(event.error)
         self.endpoints = BoardEndpoints(self.board.node, self.board.name, self.log)
         self.channels.clear()
+        self._forward.clear()
         self.board.set_state("negotiating")
 
     def close(self, reason: HwBridgeError) -> bytes:

@@ -346,6 +346,8 @@ class Node:
         self.name = name
         self.namespace = namespace
         self._token = graph.announce("node", name)
+        self._call_targets: dict[tuple[str, str, str | None], tuple[str, str, bytes]] = {}
+        """(name, type, md5) -> (resolved name, Zenoh key, attachment): computed once."""
 
     def resolve(self, name: str) -> str:
         return resolve_name(name, self.namespace, self.name.rsplit("/", 1)[-1])
@@ -449,14 +451,20 @@ class Node:
         """Call a service with serialized request bytes; returns the response bytes."""
         import zenoh
 
-        resolved = self.resolve(name)
-        md5 = md5 or self.graph.registry.service(srv_type).md5
+        target = self._call_targets.get((name, srv_type, md5))
+        if target is None:
+            resolved = self.resolve(name)
+            digest = md5 or self.graph.registry.service(srv_type).md5
+            target = (resolved, self.graph.service_key(resolved), _attachment(digest, srv_type))
+            self._call_targets[name, srv_type, md5] = target
+        resolved, key, attachment = target
         replies = self.graph.session.get(
-            self.graph.service_key(resolved),
+            key,
             payload=data,
-            attachment=_attachment(md5, srv_type),
+            attachment=attachment,
             timeout=timeout,
             target=zenoh.QueryTarget.BEST_MATCHING,
+            express=True,
         )
         for reply in replies:
             if reply.ok is not None:

@@ -43,7 +43,12 @@ def write_all(
     Returns early only by raising: :class:`LinkClosedError` (``local``) when ``waker`` fires,
     :class:`LinkError` when ``timeout`` expires; ``OSError`` from ``send`` is left to the caller.
     """
-    sent = 0
+    try:
+        sent = send(data)
+    except (BlockingIOError, InterruptedError):
+        sent = 0
+    if sent == len(data):  # the common case: the buffer had room
+        return
     deadline = Deadline(timeout)
     selector: selectors.BaseSelector | None = None
     try:

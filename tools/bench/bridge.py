@@ -29,7 +29,6 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -99,18 +98,17 @@ def board_main(protocol: str, url: str) -> None:
                 pump.call(lambda s: s.respond_service(event.channel, event.request_id, reply))
 
         def send_all(count: int) -> None:
-            """Publish through the session, as firmware does: frames keep their order and
-            sequence numbers, interleaved with the session's own (acks, heartbeats)."""
+            """Publish through the session (frames carry the session's sequence numbers), all
+            encoded first and then written back to back under the pump's lock, so nothing of
+            the session's own (a heartbeat) comes in between. The measurement starts at the
+            first message received: it covers the bytes arriving at the bridge, not how fast
+            this Python process encodes them (firmware does that in C, one frame at a time)."""
 
-            def batch(size: int) -> Callable[[Any], None]:
-                def publish(s: Any) -> None:
-                    for _ in range(size):
-                        s.publish(1, payload)
+            def publish_all(s: Any) -> None:
+                for _ in range(count):
+                    s.publish(1, payload)
 
-                return publish
-
-            for start in range(0, count, 256):
-                pump.call(batch(min(256, count - start)))
+            pump.call(publish_all)
 
     else:
         from hwbridge.protocols.rosserial import RosserialDevice, encode_frame

@@ -12,7 +12,14 @@ from typing import Final
 
 from hwbridge.protocols.errors import FramingError
 
-__all__ = ["MAX_GROUP", "decode", "decode_or_none", "encode", "max_encoded_size"]
+__all__ = [
+    "MAX_GROUP",
+    "decode",
+    "decode_or_none",
+    "encode",
+    "encode_short",
+    "max_encoded_size",
+]
 
 MAX_GROUP: Final = 254
 """Most data bytes one code byte can cover (code 0xFF: 254 bytes, no implied zero)."""
@@ -37,12 +44,9 @@ _CODE: Final = tuple(bytes((code,)) for code in range(256))
 def encode(data: bytes | bytearray | memoryview) -> bytes:
     """Encode ``data``; the result never contains 0x00 and has no trailing delimiter."""
     raw = bytes(data)
-    size = len(raw)
-    if size < MAX_GROUP and _ZERO not in raw:  # the common case: one group
-        return bytes((size + 1,)) + raw
+    if len(raw) < MAX_GROUP:
+        return encode_short(raw)
     groups = raw.split(_ZERO)
-    if size < MAX_GROUP:  # no group can reach 254 bytes: each is its code byte and its data
-        return b"".join([_CODE[len(group) + 1] + group for group in groups])
     out = bytearray()
     last = len(groups) - 1
     for index, group in enumerate(groups):
@@ -59,6 +63,16 @@ def encode(data: bytes | bytearray | memoryview) -> bytes:
             out.append(rest + 1)
             out += group[start:]
     return bytes(out)
+
+
+def encode_short(raw: bytes) -> bytes:
+    """:func:`encode` of fewer than 254 bytes (the frame encoder's hot path).
+
+    No group can reach 254 bytes, so each is just its code byte and its data.
+    """
+    if _ZERO not in raw:  # the common case: one group
+        return _CODE[len(raw) + 1] + raw
+    return b"".join([_CODE[len(group) + 1] + group for group in raw.split(_ZERO)])
 
 
 def decode_or_none(run: bytes) -> bytes | None:

@@ -11,6 +11,7 @@ Pure data: nothing here keeps state or knows about time.
 
 from __future__ import annotations
 
+import functools
 import math
 import struct
 from collections.abc import Callable
@@ -19,6 +20,7 @@ from enum import IntEnum, IntFlag
 from typing import ClassVar, Final, TypeAlias, TypeVar, cast
 
 from hwbridge.protocols.errors import ProtocolError, ProtocolMismatchError
+from hwbridge.protocols.native.framing import slot_setter
 
 __all__ = [
     "CONTROL_CHANNEL",
@@ -61,6 +63,8 @@ __all__ = [
     "TopicStatus",
     "coerce_param",
     "decode_control",
+    "encode_service_request",
+    "encode_service_response",
     "is_best_effort_opcode",
 ]
 
@@ -246,6 +250,12 @@ ParamInput: TypeAlias = ParamValue | list[bool] | list[int] | list[float] | list
 """What callers may pass as a parameter value."""
 
 
+@functools.cache
+def _struct(fmt: str) -> struct.Struct:
+    """The little-endian ``struct.Struct`` of ``fmt``, compiled once."""
+    return struct.Struct("<" + fmt)
+
+
 class _Reader:
     """Bounds-checked reads from one control payload, with errors that name the message."""
 
@@ -266,7 +276,7 @@ class _Reader:
         return chunk
 
     def unpack(self, fmt: str, field: str) -> tuple[int, ...]:
-        st = struct.Struct("<" + fmt)
+        st = _struct(fmt)
         values: tuple[int, ...] = st.unpack(self.take(st.size, field))
         return values
 
@@ -667,6 +677,32 @@ class ReadyMsg(_Control):
         return cls(_Reader(payload, "READY").u8("accepted"))
 
 
+_SERVICE_REQUEST_HEAD: Final = struct.Struct("<BBH")
+"""SERVICE_REQUEST up to its body: opcode, channel, request id."""
+_SERVICE_RESPONSE_HEAD: Final = struct.Struct("<BBHB")
+"""SERVICE_RESPONSE up to its body: opcode, channel, request id, status."""
+_SERVICE_STATUS: Final = {int(status): status for status in ServiceStatus}
+
+
+def encode_service_request(channel: int, request_id: int, body: bytes) -> bytes:
+    """``ServiceRequestMsg(channel, request_id, body).encode()`` without building the message.
+
+    For callers that know both numbers are in range (channel 0..255, request id 0..65535): they
+    are not checked here, and ``struct.error`` is raised if they are not.
+    """
+    return _SERVICE_REQUEST_HEAD.pack(ServiceRequestMsg.OPCODE, channel, request_id) + body
+
+
+def encode_service_response(
+    channel: int, request_id: int, status: ServiceStatus, body: bytes
+) -> bytes:
+    """``ServiceResponseMsg(channel, request_id, status, body).encode()`` without building the
+    message, for callers that know the numbers are in range (as :func:`encode_service_request`).
+    """
+    head = _SERVICE_RESPONSE_HEAD.pack(ServiceResponseMsg.OPCODE, channel, request_id, status)
+    return head + body
+
+
 @dataclass(frozen=True, slots=True)
 class ServiceRequestMsg(_Control):
     """SERVICE_REQUEST (0x20, either way, reliable): call the service on ``channel``."""
@@ -680,10 +716,18 @@ class ServiceRequestMsg(_Control):
     def encode(self) -> bytes:
         _check_u(self.channel, 8, "channel")
         _check_u(self.request_id, 16, "request id")
-        return struct.pack("<BBH", self.OPCODE, self.channel, self.request_id) + self.body
+        return encode_service_request(self.channel, self.request_id, self.body)
 
     @classmethod
     def decode(cls, payload: bytes) -> ServiceRequestMsg:
+        if len(payload) >= _SERVICE_REQUEST_HEAD.size:
+            # Hot path: one precompiled unpack; the reader below is for its error message.
+            _, channel, request_id = _SERVICE_REQUEST_HEAD.unpack_from(payload)
+            msg = object.__new__(cls)
+            _set_request_channel(msg, channel)
+            _set_request_id(msg, request_id)
+            _set_request_body(msg, payload[_SERVICE_REQUEST_HEAD.size :])
+            return msg
         r = _Reader(payload, "SERVICE_REQUEST")
         channel, request_id = r.unpack("BH", "channel, request id")
         return cls(channel, request_id, r.rest())
@@ -703,16 +747,36 @@ class ServiceResponseMsg(_Control):
     def encode(self) -> bytes:
         _check_u(self.channel, 8, "channel")
         _check_u(self.request_id, 16, "request id")
-        head = struct.pack("<BBHB", self.OPCODE, self.channel, self.request_id, self.status)
-        return head + self.body
+        return encode_service_response(self.channel, self.request_id, self.status, self.body)
 
     @classmethod
     def decode(cls, payload: bytes) -> ServiceResponseMsg:
+        if len(payload) >= _SERVICE_RESPONSE_HEAD.size:
+            # Hot path: one precompiled unpack; anything odd goes to the reader for its error.
+            _, channel, request_id, status = _SERVICE_RESPONSE_HEAD.unpack_from(payload)
+            known = _SERVICE_STATUS.get(status)
+            if known is not None:
+                msg = object.__new__(cls)
+                _set_response_channel(msg, channel)
+                _set_response_id(msg, request_id)
+                _set_response_status(msg, known)
+                _set_response_body(msg, payload[_SERVICE_RESPONSE_HEAD.size :])
+                return msg
         r = _Reader(payload, "SERVICE_RESPONSE")
         channel, request_id, status = r.unpack("BHB", "channel, request id, status")
         if status > ServiceStatus.NO_SERVICE:
             raise ProtocolError(f"SERVICE_RESPONSE request {request_id}: unknown status {status}")
         return cls(channel, request_id, ServiceStatus(status), r.rest())
+
+
+# The service messages' decoders build them the fast way (see framing.slot_setter).
+_set_request_channel: Final = slot_setter(ServiceRequestMsg, "channel")
+_set_request_id: Final = slot_setter(ServiceRequestMsg, "request_id")
+_set_request_body: Final = slot_setter(ServiceRequestMsg, "body")
+_set_response_channel: Final = slot_setter(ServiceResponseMsg, "channel")
+_set_response_id: Final = slot_setter(ServiceResponseMsg, "request_id")
+_set_response_status: Final = slot_setter(ServiceResponseMsg, "status")
+_set_response_body: Final = slot_setter(ServiceResponseMsg, "body")
 
 
 @dataclass(frozen=True, slots=True)

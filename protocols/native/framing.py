@@ -13,18 +13,21 @@ classifies it (bad frame, or text printed by the board) and never raises.
 
 from __future__ import annotations
 
+import functools
 import re
+import struct
 from binascii import crc_hqx
 from collections.abc import Callable
 from dataclasses import dataclass, fields
 from enum import Enum, IntEnum
-from typing import Any, Final, TypeAlias
+from typing import Any, Final, TypeAlias, TypeVar
 
 from hwbridge.protocols.errors import FramingError
 from hwbridge.protocols.native import cobs
 from hwbridge.protocols.native.cobs import decode as cobs_decode
 from hwbridge.protocols.native.cobs import decode_or_none as _cobs_decode_run
 from hwbridge.protocols.native.cobs import encode as cobs_encode
+from hwbridge.protocols.native.cobs import encode_short as cobs_encode_short
 
 __all__ = [
     "CRC_INIT",
@@ -55,6 +58,7 @@ __all__ = [
     "frame_overhead",
     "make_frame",
     "max_run_size",
+    "slot_setter",
     "wire_size",
 ]
 
@@ -76,6 +80,11 @@ DEFAULT_MAX_PAYLOAD: Final = 1024
 _ENVELOPE: Final = HEADER_SIZE + CRC_SIZE
 _VERSION_BITS: Final = VERSION << 6
 _ZERO: Final = b"\x00"
+_MAX_GROUP: Final = cobs.MAX_GROUP
+_HEAD: Final = struct.Struct("BBB")
+"""The header: version, type and frag in one byte, then the channel and the seq."""
+_CRC: Final = struct.Struct("<H")
+"""The CRC-16 as it ends a frame body (little-endian)."""
 
 
 class FrameType(IntEnum):
@@ -146,21 +155,31 @@ class BadFrame:
 
 FrameEvent: TypeAlias = Frame | NonFrameBytes | BadFrame
 
-# The decoder builds frames by filling the slots directly: a frozen dataclass's __init__ goes
-# through object.__setattr__ once per field, which costs about a third of the decode time.
+# Enum members for the per-frame paths: one looked up on its class costs ~0.1 us on Python 3.11.
+_ACK: Final = FrameType.ACK
+_WHOLE: Final = Frag.WHOLE
+
+_T = TypeVar("_T")
 
 
-def _slot_setter(name: str) -> Callable[[Frame, Any], None]:
-    setter: Callable[[Frame, Any], None] = vars(Frame)[name].__set__
+def slot_setter(cls: type[_T], name: str) -> Callable[[_T, Any], None]:
+    """The setter of the slot ``name`` of a slotted dataclass ``cls``, frozen or not.
+
+    Hot paths build frozen dataclasses with ``object.__new__(cls)`` and one such setter per
+    field (as :func:`make_frame` does): the generated ``__init__`` goes through
+    ``object.__setattr__`` once per field, which costs about twice as much. The decoder builds
+    frames that way too: ``Frame(...)`` would cost about a third of the decode time.
+    """
+    setter: Callable[[_T, Any], None] = vars(cls)[name].__set__
     return setter
 
 
 _new_object: Final[Callable[[type[Frame]], Frame]] = object.__new__
-_set_type: Final = _slot_setter("type")
-_set_channel: Final = _slot_setter("channel")
-_set_seq: Final = _slot_setter("seq")
-_set_payload: Final = _slot_setter("payload")
-_set_frag: Final = _slot_setter("frag")
+_set_type: Final = slot_setter(Frame, "type")
+_set_channel: Final = slot_setter(Frame, "channel")
+_set_seq: Final = slot_setter(Frame, "seq")
+_set_payload: Final = slot_setter(Frame, "payload")
+_set_frag: Final = slot_setter(Frame, "frag")
 
 
 def make_frame(
@@ -240,21 +259,45 @@ def encode_frame(frame: Frame, *, lead: bool = False) -> bytes:
         raise FramingError(
             f"cannot encode frame type {ftype!r} frag {frag!r}: type must be 0..2, frag 0..3"
         )
+    byte0 = _VERSION_BITS | ftype << 4 | frag << 2
     try:
-        body = bytes((_VERSION_BITS | ftype << 4 | frag << 2, frame.channel, frame.seq))
+        body = _HEAD.pack(byte0, frame.channel, frame.seq)
+    except struct.error:  # channel or seq is not a byte
+        body = _checked_header(byte0, frame.channel, frame.seq)
+    payload = frame.payload
+    if ftype is _ACK and payload == b"":
+        return _encode_bare_ack(body, lead)
+    return _encode_body(body + payload, lead)
+
+
+def _encode_body(body: bytes, lead: bool) -> bytes:
+    """The wire bytes of a frame whose header and payload are ``body`` (led by 0x00 if ``lead``)."""
+    body += _CRC.pack(crc_hqx(body, CRC_INIT))
+    wire = (cobs_encode_short(body) if len(body) < _MAX_GROUP else cobs_encode(body)) + _ZERO
+    return _ZERO + wire if lead else wire
+
+
+@functools.lru_cache(maxsize=1024)
+def _encode_bare_ack(header: bytes, lead: bool) -> bytes:
+    """:func:`_encode_body` of an ACK without a bitmap, computed once per header and lead.
+
+    An in-order receiver acknowledges every reliable frame with one: the most frequent frame,
+    of which a session sends at most 512 different encodings (seq and lead).
+    """
+    return _encode_body(header, lead)
+
+
+def _checked_header(byte0: int, channel: int, seq: int) -> bytes:
+    """The header built by ``bytes()``, for its errors when ``struct`` refused a field.
+
+    A number out of 0..255 is a FramingError; anything else raises bytes()'s TypeError.
+    """
+    try:
+        return bytes((byte0, channel, seq))
     except ValueError:
         raise FramingError(
-            f"cannot encode frame with channel {frame.channel} seq {frame.seq}: both are 0..255"
+            f"cannot encode frame with channel {channel} seq {seq}: both are 0..255"
         ) from None
-    body += frame.payload
-    crc = crc_hqx(body, CRC_INIT)
-    body += bytes((crc & 0xFF, crc >> 8))
-    size = len(body)
-    if size < cobs.MAX_GROUP + 1 and _ZERO not in body:
-        wire = bytes((size + 1,)) + body + _ZERO
-    else:
-        wire = cobs_encode(body) + _ZERO
-    return _ZERO + wire if lead else wire
 
 
 def _header_table() -> tuple[tuple[FrameType, Frag] | None, ...]:
@@ -270,6 +313,14 @@ def _header_table() -> tuple[tuple[FrameType, Frag] | None, ...]:
 
 _HEADER: Final = _header_table()
 """Header byte 0 -> (type, frag), or None for another version or the reserved type."""
+
+_BARE_RUN: Final = _ENVELOPE + 1
+"""Length of every run that encodes a frame without payload (and of no other valid frame)."""
+_DECODED_ACKS: Final[dict[bytes, Frame]] = {}
+"""ACK frames without a bitmap by their run, decoded once: an in-order receiver sends one per
+reliable frame, the most frequent frame. Frames are immutable, and one without payload passes
+every limit of any decoder, so all decoders share them."""
+_DECODED_ACKS_LIMIT: Final = 1024
 
 
 def _parse_run(run: bytes, max_payload: int) -> Frame | BadFrameReason:
@@ -459,11 +510,18 @@ class FrameDecoder:
             _set_payload,
             _set_frag,
         )
+        bare_acks = _DECODED_ACKS
         count = 0
         for run in runs:
             if not run:
                 continue
             size = len(run)
+            if size == _BARE_RUN:  # maybe an ACK without a bitmap seen before
+                frame = bare_acks.get(run)
+                if frame is not None:
+                    append(frame)
+                    count += 1
+                    continue
             if size <= max_frame:
                 # ``body`` is the decoded body starting at offset ``o``: a run that is one COBS
                 # group is its own body after the code byte, so it needs no copy.
@@ -488,6 +546,12 @@ class FrameDecoder:
                         set_frag(frame, kind[1])
                         append(frame)
                         count += 1
+                        if (
+                            size == _BARE_RUN
+                            and kind[0] is _ACK
+                            and len(bare_acks) < _DECODED_ACKS_LIMIT
+                        ):
+                            bare_acks[run] = frame
                         continue
             self._slow(run, events)
         self.stats.frames += count
@@ -614,7 +678,7 @@ def fragment(
         FramingError: ACK type, ``max_payload`` below :data:`MIN_FRAGMENT_PAYLOAD` for a message
             that needs fragments, or a message of 2**32 bytes or more.
     """
-    if type is FrameType.ACK:
+    if type is _ACK:
         raise FramingError("ACK frames are never fragmented: send the acknowledgement whole")
     data = payload if isinstance(payload, bytes) else bytes(payload)
     size = len(data)
@@ -753,7 +817,7 @@ class Reassembler:
     def whole(self, frame: Frame) -> bytes:
         """:meth:`feed` for a WHOLE frame while no message is in progress, without the
         duplicate check (for receivers that already drop repeated sequence numbers)."""
-        self._last = (frame.seq, frame.channel, Frag.WHOLE, frame.payload)
+        self._last = (frame.seq, frame.channel, _WHOLE, frame.payload)
         self.stats.messages += 1
         return frame.payload
 

@@ -71,6 +71,8 @@ from hwbridge.protocols.native.control import (
     TopicStatus,
     coerce_param,
     decode_control,
+    encode_service_request,
+    encode_service_response,
     is_best_effort_opcode,
 )
 from hwbridge.protocols.native.framing import (
@@ -81,6 +83,7 @@ from hwbridge.protocols.native.framing import (
     FrameType,
     NonFrameBytes,
     encode_frame,
+    slot_setter,
 )
 from hwbridge.protocols.native.reliable import (
     BestEffortReceiver,
@@ -553,6 +556,61 @@ Event: TypeAlias = (
 )
 
 
+# Enum members for the per-message paths: looking one up on its class costs about 0.1 us on
+# Python 3.11 (the enum metaclass defines __getattr__), a module global a fifth of that.
+_CONFIGURING: Final = SessionState.CONFIGURING
+_CONNECTED: Final = SessionState.CONNECTED
+_CLOSED: Final = SessionState.CLOSED
+_ACK: Final = FrameType.ACK
+_BEST_EFFORT: Final = FrameType.BEST_EFFORT
+_SERVICE_OK: Final = ServiceStatus.OK
+
+
+# The events of every message, built the fast way (as framing.make_frame builds frames): a
+# frozen dataclass's __init__ costs about twice as much as filling its slots directly.
+
+_set_message: Final = tuple(slot_setter(Message, name) for name in ("channel", "payload", "seq"))
+_set_request: Final = tuple(
+    slot_setter(ServiceRequest, name) for name in ("channel", "request_id", "payload")
+)
+_set_response: Final = tuple(
+    slot_setter(ServiceResponse, name) for name in ("channel", "request_id", "payload", "error")
+)
+
+
+def _message(channel: int, payload: bytes, seq: int) -> Message:
+    """``Message(channel, payload, seq)``."""
+    event = object.__new__(Message)
+    set_channel, set_payload, set_seq = _set_message
+    set_channel(event, channel)
+    set_payload(event, payload)
+    set_seq(event, seq)
+    return event
+
+
+def _service_request(channel: int, request_id: int, payload: bytes) -> ServiceRequest:
+    """``ServiceRequest(channel, request_id, payload)``."""
+    event = object.__new__(ServiceRequest)
+    set_channel, set_request_id, set_payload = _set_request
+    set_channel(event, channel)
+    set_request_id(event, request_id)
+    set_payload(event, payload)
+    return event
+
+
+def _service_response(
+    channel: int, request_id: int, payload: bytes, error: HwBridgeError | None
+) -> ServiceResponse:
+    """``ServiceResponse(channel, request_id, payload, error)``."""
+    event = object.__new__(ServiceResponse)
+    set_channel, set_request_id, set_payload, set_error = _set_response
+    set_channel(event, channel)
+    set_request_id(event, request_id)
+    set_payload(event, payload)
+    set_error(event, error)
+    return event
+
+
 # --------------------------------------------------------------------------------------------
 # Shared machinery
 
@@ -634,9 +692,13 @@ class _Session:
             raise ValueError(f"session id must be 1..2**32-1, not {session_id}")
         self._id = session_id if session_id is not None else self._random_session_id()
         self._decoder = FrameDecoder(config.mtu)
-        self._out = bytearray()
+        self._out: list[bytes] = []
+        """Encoded frames not yet taken by data_to_send (joined once, not copied per frame)."""
         self._events: list[Event] = []
-        self._now: float | None = None
+        self._now = 0.0
+        """The latest time seen (0.0 before the first); the clock of every action."""
+        self._started = False
+        """True once a time was seen: the timers start from that time."""
         self._c = _Counters()
         self._seq = SequenceStats()
         self._rtt = RttEstimator(config.rto_initial, config.rto_min, config.rto_max)
@@ -652,6 +714,10 @@ class _Session:
         self._last_peer_id = NO_SESSION
         self._isn = self._rng.getrandbits(8)
         self._link: LinkParams | None = None
+        self._peer_max = MIN_MTU
+        """The largest message the peer accepts (its max_message; MIN_MTU without a session)."""
+        self._time_sync = False
+        """Time requests run in this session (both ends have TIME_SYNC, the interval is > 0)."""
         self._last_rx = 0.0
         self._last_tx = 0.0
         self._next_hello = 0.0
@@ -743,39 +809,44 @@ class _Session:
     def receive_data(self, data: bytes, now: float) -> list[Event]:
         """Feed bytes read from the link; returns the events they (and due timers) cause."""
         self._advance(now)
-        if self._state is SessionState.CLOSED:
-            return self._take_events()
-        for item in self._decoder.feed(data):
-            if isinstance(item, Frame):
-                self._on_frame(item)
-            elif isinstance(item, NonFrameBytes):
-                self._events.append(DebugOutput(item.data))
-            else:
-                self._on_bad_frame(item)
-        self._flush()
-        return self._take_events()
+        if self._state is not _CLOSED:
+            on_frame = self._on_frame
+            for item in self._decoder.feed(data):
+                if isinstance(item, Frame):
+                    on_frame(item)
+                elif isinstance(item, NonFrameBytes):
+                    self._events.append(DebugOutput(item.data))
+                else:
+                    self._on_bad_frame(item)
+            self._flush()
+        events = self._events  # _take_events(), inline: a per-read path
+        self._events = []
+        return events
 
     def tick(self, now: float) -> list[Event]:
         """Run the timers due at ``now``; returns the events they cause."""
         self._advance(now)
-        if self._state is not SessionState.CLOSED:
+        if self._state is not _CLOSED:
             self._run_timers()
             self._flush()
-        return self._take_events()
+        events = self._events  # _take_events(), inline
+        self._events = []
+        return events
 
     def data_to_send(self) -> bytes:
         """Bytes to write to the link (all of them; the buffer is emptied)."""
-        out = bytes(self._out)
+        out = b"".join(self._out)
         self._out.clear()
         return out
 
     def next_deadline(self) -> float | None:
         """The time at which ``tick`` has work next, or None (closed)."""
-        if self._state is SessionState.CLOSED:
+        state = self._state
+        if state is _CLOSED:
             return None
         cfg = self._cfg
         times: list[float] = []
-        if not self._wait_reported and self._state is not SessionState.CONNECTED:
+        if not self._wait_reported and state is not _CONNECTED:
             times.append(self._waiting_since + cfg.handshake_timeout)
         if not self._established:
             times.append(self._next_hello)
@@ -786,12 +857,13 @@ class _Session:
                 rel = self._rel_tx.next_deadline()
                 if rel is not None:
                     times.append(rel)
-            if self._state is SessionState.CONFIGURING:
+            if state is _CONFIGURING:
                 times.append(self._configuring_since + cfg.handshake_timeout)
             else:
-                times.extend(p.deadline for p in self._calls.values())
+                for call in self._calls.values():
+                    times.append(call.deadline)
                 times.extend(self._other_deadlines())
-                if self._time_sync_enabled():
+                if self._time_sync:
                     times.append(self._time_next)
         return min(times)
 
@@ -802,13 +874,13 @@ class _Session:
             SessionError: the channel is not a topic this end publishes, or the message is
                 larger than the peer accepts.
         """
-        if not self.connected:
+        if self._state is not _CONNECTED:
             self._c.tx_refused += 1
             return False
         entry = self._entry(channel)
         if entry is None or entry.kind != self._PUBLISH_KIND:
             raise SessionError(self._wrong_channel(channel, entry, "publish on"))
-        if len(payload) > self._peer_max_message():
+        if len(payload) > self._peer_max:
             self._check_size(len(payload), f"message for {entry.name} (channel {channel})")
         if entry.reliable:
             return self._send_reliable(channel, payload)
@@ -834,10 +906,11 @@ class _Session:
             SessionError: connected, but the channel is not a service this end calls, or the
                 request is larger than the peer accepts.
         """
-        self._advance_opt(now)
+        if now is not None:
+            self._advance(now)
         request_id = self._new_request_id()
-        deadline = self._clock() + (self._cfg.service_timeout if timeout is None else timeout)
-        if not self.connected:
+        deadline = self._now + (self._cfg.service_timeout if timeout is None else timeout)
+        if self._state is not _CONNECTED:
             self._c.tx_refused += 1
             self._events.append(
                 ServiceResponse(
@@ -851,8 +924,9 @@ class _Session:
         entry = self._entry(channel)
         if entry is None or entry.kind != self._CALL_KIND:
             raise SessionError(self._wrong_channel(channel, entry, "call a service on"))
-        msg = ServiceRequestMsg(channel, request_id, payload).encode()
-        if len(msg) > self._peer_max_message():
+        # An accepted entry's channel and a request id of ours: both are in range.
+        msg = encode_service_request(channel, request_id, payload)
+        if len(msg) > self._peer_max:
             self._check_size(len(msg), f"request for {entry.name} (channel {channel})")
         if not self._send_reliable(CONTROL_CHANNEL, msg):
             self._events.append(
@@ -886,14 +960,14 @@ class _Session:
         if key not in self._incoming_calls or not self._established:
             return False
         self._incoming_calls.discard(key)
+        # The key came from a decoded request, so channel and request id are in range.
         if error is not None:
-            limit = self._peer_max_message() - 5
-            msg = ServiceResponseMsg(
-                channel, request_id, ServiceStatus.ERROR, _truncate(error, limit)
-            ).encode()
+            limit = self._peer_max - 5
+            body = _truncate(error, limit)
+            msg = encode_service_response(channel, request_id, ServiceStatus.ERROR, body)
         else:
-            msg = ServiceResponseMsg(channel, request_id, ServiceStatus.OK, payload).encode()
-            if len(msg) > self._peer_max_message():
+            msg = encode_service_response(channel, request_id, ServiceStatus.OK, payload)
+            if len(msg) > self._peer_max:
                 self._check_size(len(msg), f"response on channel {channel}")
         return self._send_reliable(CONTROL_CHANNEL, msg, force=True)
 
@@ -902,7 +976,7 @@ class _Session:
         if not self.connected or not self._may_log():
             self._c.tx_refused += 1
             return False
-        raw = _truncate(text, self._peer_max_message() - 2)
+        raw = _truncate(text, self._peer_max - 2)
         return self._send_reliable(CONTROL_CHANNEL, LogMsg(level, raw.decode("utf-8")).encode())
 
     def request_time_sync(self, now: float | None = None) -> bool:
@@ -911,7 +985,7 @@ class _Session:
         if not self.connected or not self._link or not self._link.features & Features.TIME_SYNC:
             return False
         self._send_time_request()
-        self._time_next = self._clock() + self._cfg.time_sync_retry
+        self._time_next = self._now + self._cfg.time_sync_retry
         return True
 
     def close(self, now: float | None = None) -> list[Event]:
@@ -967,7 +1041,8 @@ class _Session:
     # ---- clock -----------------------------------------------------------------------------
 
     def _advance(self, now: float) -> None:
-        if self._now is None:
+        if not self._started:
+            self._started = True
             self._now = now
             self._next_hello = now
             self._waiting_since = now
@@ -979,9 +1054,6 @@ class _Session:
         if now is not None:
             self._advance(now)
 
-    def _clock(self) -> float:
-        return 0.0 if self._now is None else self._now
-
     # ---- output -----------------------------------------------------------------------------
 
     def _take_events(self) -> list[Event]:
@@ -991,9 +1063,9 @@ class _Session:
 
     def _send_frame(self, frame: Frame, *, lead: bool = False) -> None:
         # PROTOCOL.md 1.3: a 0x00 before a frame that follows an idle line flushes the receiver.
-        now = self._clock()
+        now = self._now
         wire = encode_frame(frame, lead=lead or now - self._last_tx >= _IDLE_LEAD)
-        self._out += wire
+        self._out.append(wire)
         counters = self._c
         counters.frames_sent += 1
         counters.bytes_sent += len(wire)
@@ -1023,23 +1095,18 @@ class _Session:
     def _pump(self) -> None:
         sender = self._rel_tx
         if sender is not None and sender.has_pending:
-            for frame in sender.transmit(self._clock()):
+            for frame in sender.transmit(self._now):
                 self._send_frame(frame)
 
     def _flush(self) -> None:
         """Send a pending ACK and release reliable frames the window allows."""
-        if self._rel_rx is not None and self._rel_rx.ack_needed:
-            self._send_frame(self._rel_rx.ack_frame())
+        receiver = self._rel_rx
+        if receiver is not None and receiver.ack_needed:
+            self._send_frame(receiver.ack_frame())
         self._pump()
 
-    def _peer_max_message(self) -> int:
-        link = self._link
-        if link is None:
-            return MIN_MTU
-        return link.device_max_message if self._ROLE == Role.HOST else link.host_max_message
-
     def _check_size(self, size: int, what: str) -> None:
-        limit = self._peer_max_message()
+        limit = self._peer_max
         if size > limit:
             peer = "board" if self._ROLE == Role.HOST else "host"
             raise SessionError(
@@ -1089,22 +1156,25 @@ class _Session:
             )
 
     def _on_frame(self, frame: Frame) -> None:
-        if frame.type is FrameType.ACK:
-            if self._rel_tx is None:
+        # A per-frame path: _alive() is written out (``self._last_rx = self._now``).
+        ftype = frame.type
+        if ftype is _ACK:
+            sender = self._rel_tx
+            if sender is None:
                 self._c.ignored_frames += 1
                 return
-            self._alive()
-            for again in self._rel_tx.on_ack(frame, self._clock()):
+            self._last_rx = self._now
+            for again in sender.on_ack(frame, self._now):
                 self._send_frame(again)
             return
-        if frame.type is FrameType.BEST_EFFORT:
+        if ftype is _BEST_EFFORT:
             self._on_best_effort(frame)
             return
-        if self._rel_rx is None:
+        receiver = self._rel_rx
+        if receiver is None:
             self._c.ignored_frames += 1
             return
-        self._alive()
-        receiver = self._rel_rx
+        self._last_rx = self._now
         for delivery in receiver.receive(frame):
             if delivery.channel == CONTROL_CHANNEL:
                 self._on_control(delivery.payload, reliable=True)
@@ -1134,25 +1204,26 @@ class _Session:
         if delivery.channel == CONTROL_CHANNEL:
             self._on_control(delivery.payload, reliable=False)
         elif self._established:
-            self._alive()
+            self._last_rx = self._now  # _alive(), on a per-message path
             self._on_data(delivery)
         else:
             self._c.ignored_frames += 1
 
     def _alive(self) -> None:
-        self._last_rx = self._clock()
+        self._last_rx = self._now
 
     def _on_data(self, delivery: Delivery) -> None:
-        entry = self._entry(delivery.channel) if self.connected else None
+        connected = self._state is _CONNECTED
+        entry = self._entry(delivery.channel) if connected else None
         if entry is None or entry.kind != self._RECEIVE_KIND:
             self._c.dropped_messages += 1
-            if self.connected:
+            if connected:
                 self._protocol_error(
                     self._wrong_channel(delivery.channel, entry, "receive a message on"),
                     key=f"data-{delivery.channel}",
                 )
             return
-        self._events.append(Message(delivery.channel, delivery.payload, delivery.seq))
+        self._events.append(_message(delivery.channel, delivery.payload, delivery.seq))
 
     def _on_control(self, payload: bytes, *, reliable: bool) -> None:
         try:
@@ -1177,21 +1248,21 @@ class _Session:
         if not self._established:
             self._c.ignored_frames += 1
             return
-        self._alive()
-        if isinstance(msg, HeartbeatMsg):
+        self._last_rx = self._now  # _alive(), on a per-message path
+        # The message classes are disjoint: the common ones are tested first.
+        if isinstance(msg, ServiceRequestMsg):
+            self._on_service_request(msg)
+        elif isinstance(msg, ServiceResponseMsg):
+            self._on_service_response(msg)
+        elif isinstance(msg, HeartbeatMsg):
             return
-        if isinstance(msg, GoodbyeMsg):
+        elif isinstance(msg, GoodbyeMsg):
             self._c.peer_resets += 1
             peer = _role_name(Role(1 - self._ROLE))
             self._teardown(
                 f"the {peer} closed the session",
                 SessionResetError(f"the {peer} closed the session"),
             )
-            return
-        if isinstance(msg, ServiceRequestMsg):
-            self._on_service_request(msg)
-        elif isinstance(msg, ServiceResponseMsg):
-            self._on_service_response(msg)
         elif isinstance(msg, LogMsg):
             self._events.append(Log(msg.level, msg.text))
         elif not self._on_role_control(msg):
@@ -1278,7 +1349,10 @@ class _Session:
             host_max, device_max = cfg.max_message, peer.max_message
         else:
             host_max, device_max = peer.max_message, cfg.max_message
-        self._link = LinkParams(mtu, window, host_max, device_max, own_features & peer.features)
+        link = LinkParams(mtu, window, host_max, device_max, own_features & peer.features)
+        self._link = link
+        self._peer_max = device_max if self._ROLE == Role.HOST else host_max
+        self._time_sync = cfg.time_sync_interval > 0 and bool(link.features & Features.TIME_SYNC)
         self._established = True
         self._reported.clear()
         self._c.sessions += 1
@@ -1296,7 +1370,7 @@ class _Session:
         )
         self._decoder.max_payload = mtu
         self._state = SessionState.CONFIGURING
-        self._configuring_since = self._clock()
+        self._configuring_since = self._now
         self._alive()
         self._on_established()
 
@@ -1325,14 +1399,16 @@ class _Session:
         self._established = False
         self._peer_id = NO_SESSION
         self._link = None
+        self._peer_max = MIN_MTU
+        self._time_sync = False
         self._isn = self._rng.getrandbits(8)
         self._decoder.max_payload = self._cfg.mtu
         self._time_samples.clear()
         if self._state is not SessionState.CONFIGURING:
-            self._waiting_since = self._clock()
+            self._waiting_since = self._now
             self._wait_reported = False
         self._state = SessionState.HANDSHAKE
-        self._next_hello = self._clock()
+        self._next_hello = self._now
         if was_connected:
             self._events.append(Disconnected(reason, error))
 
@@ -1344,16 +1420,16 @@ class _Session:
         host_id, device_id = (
             (self._id, self._peer_id) if self._ROLE == Role.HOST else (self._peer_id, self._id)
         )
-        self._time_next = self._clock()
+        self._time_next = self._now
         self._events.append(Connected(board, topics, self._link, host_id, device_id, resumed))
 
     # ---- timers -----------------------------------------------------------------------------
 
     def _run_timers(self) -> None:
-        now = self._clock()
+        now = self._now
         cfg = self._cfg
         if (
-            self._state is not SessionState.CONNECTED
+            self._state is not _CONNECTED
             and not self._wait_reported
             and now >= self._waiting_since + cfg.handshake_timeout
         ):
@@ -1371,27 +1447,27 @@ class _Session:
             self._teardown(reason, HwBridgeTimeoutError(reason))
             self._run_timers()
             return
-        if self._state is SessionState.CONFIGURING and (
-            now >= self._configuring_since + cfg.handshake_timeout
-        ):
+        if self._state is _CONFIGURING and (now >= self._configuring_since + cfg.handshake_timeout):
             reason = f"the topic table exchange did not complete in {cfg.handshake_timeout:.1f} s"
             self._error(HwBridgeTimeoutError(reason))
             self._teardown(reason, HwBridgeTimeoutError(reason))
             self._run_timers()
             return
-        assert self._rel_tx is not None
+        sender = self._rel_tx
+        assert sender is not None
         try:
-            for frame in self._rel_tx.poll(now):
+            for frame in sender.poll(now):
                 self._send_frame(frame)
         except HwBridgeTimeoutError as exc:
             self._c.link_losses += 1
             self._teardown(f"link lost: {exc}", exc)
             self._run_timers()
             return
-        if self._state is SessionState.CONNECTED:
-            self._expire_calls(now)
+        if self._state is _CONNECTED:
+            if self._calls:
+                self._expire_calls(now)
             self._run_role_timers(now)
-            if self._time_sync_enabled() and now >= self._time_next:
+            if self._time_sync and now >= self._time_next:
                 self._send_time_request()
                 self._time_next = now + cfg.time_sync_retry
         if now >= self._last_tx + cfg.heartbeat_interval:
@@ -1410,16 +1486,8 @@ class _Session:
             self._hello_context()
         )
 
-    def _time_sync_enabled(self) -> bool:
-        link = self._link
-        return (
-            self._cfg.time_sync_interval > 0
-            and link is not None
-            and bool(link.features & Features.TIME_SYNC)
-        )
-
     def _time_answered(self) -> None:
-        self._time_next = self._clock() + self._cfg.time_sync_interval
+        self._time_next = self._now + self._cfg.time_sync_interval
 
     def _expire_calls(self, now: float) -> None:
         for request_id, call in list(self._calls.items()):
@@ -1440,13 +1508,13 @@ class _Session:
     # ---- services ---------------------------------------------------------------------------
 
     def _on_service_request(self, msg: ServiceRequestMsg) -> None:
-        entry = self._entry(msg.channel) if self.connected else None
+        entry = self._entry(msg.channel) if self._state is _CONNECTED else None
         if entry is None or entry.kind != self._SERVE_KIND:
             reply = ServiceResponseMsg(msg.channel, msg.request_id, ServiceStatus.NO_SERVICE, b"")
             self._send_control(reply)
             return
         self._incoming_calls.add((msg.channel, msg.request_id))
-        self._events.append(ServiceRequest(msg.channel, msg.request_id, msg.body))
+        self._events.append(_service_request(msg.channel, msg.request_id, msg.body))
 
     def _on_service_response(self, msg: ServiceResponseMsg) -> None:
         call = self._calls.get(msg.request_id)
@@ -1454,15 +1522,16 @@ class _Session:
             return  # answered after its timeout: the caller already got an error
         del self._calls[msg.request_id]
         error: HwBridgeError | None = None
-        if msg.status == ServiceStatus.ERROR:
-            text = msg.body.decode("utf-8", errors="replace")
-            error = SessionError(f"service {call.name} (channel {msg.channel}) failed: {text}")
-        elif msg.status == ServiceStatus.NO_SERVICE:
-            error = SessionError(
-                f"service {call.name} (channel {msg.channel}): the peer does not serve it"
-            )
+        if msg.status is not _SERVICE_OK:
+            if msg.status == ServiceStatus.ERROR:
+                text = msg.body.decode("utf-8", errors="replace")
+                error = SessionError(f"service {call.name} (channel {msg.channel}) failed: {text}")
+            elif msg.status == ServiceStatus.NO_SERVICE:
+                error = SessionError(
+                    f"service {call.name} (channel {msg.channel}): the peer does not serve it"
+                )
         payload = msg.body if error is None else b""
-        self._events.append(ServiceResponse(msg.channel, msg.request_id, payload, error))
+        self._events.append(_service_response(msg.channel, msg.request_id, payload, error))
 
 
 # --------------------------------------------------------------------------------------------
@@ -1589,7 +1658,7 @@ class HostSession(_Session):
 
     def _host_time_ns(self) -> int:
         # whole microseconds: a float of ~1.7e9 s carries nothing finer
-        return max(0, round((self._clock() + self._host_cfg.epoch_offset) * 1e6) * 1000)
+        return max(0, round((self._now + self._host_cfg.epoch_offset) * 1e6) * 1000)
 
     def _param_value(
         self, request_id: int, name: str, want: ParamType, max_count: int, value: ParamInput | None
@@ -1600,7 +1669,7 @@ class HostSession(_Session):
         if status != ParamStatus.OK:
             return ParamValueMsg(request_id, status, name)
         msg = ParamValueMsg(request_id, status, name, ptype, typed)
-        if len(msg.encode()) > self._peer_max_message():
+        if len(msg.encode()) > self._peer_max:
             return ParamValueMsg(request_id, ParamStatus.TOO_LARGE, name)
         return msg
 
@@ -1646,7 +1715,7 @@ class HostSession(_Session):
         return True
 
     def _on_time_response(self, msg: HostTimeResponseMsg) -> None:
-        now = self._clock()
+        now = self._now
         t1 = msg.t1_ns / 1e9 - self._host_cfg.epoch_offset
         if not 0 <= now - t1 <= _MAX_TIME_AGE:
             return
@@ -1675,7 +1744,7 @@ class HostSession(_Session):
             problem = f"channel {entry.channel} announced twice ({other.name} and {entry.name})"
         if entry is None or problem:
             self._protocol_error(f"the board announced an invalid entry: {problem}")
-            detail = _truncate(problem, self._peer_max_message() - 19).decode("utf-8")
+            detail = _truncate(problem, self._peer_max - 19).decode("utf-8")
             self._send_control(TopicAckMsg(msg.channel, TopicStatus.INVALID, "", detail))
             return
         self._announced[entry.channel] = entry
@@ -1694,7 +1763,7 @@ class HostSession(_Session):
                     expected.md5,
                 )
             )
-            detail = _truncate(expected.type_name, self._peer_max_message() - 19).decode("utf-8")
+            detail = _truncate(expected.type_name, self._peer_max - 19).decode("utf-8")
             md5 = expected.md5.lower() if len(expected.md5) == 32 else ""
             self._send_control(TopicAckMsg(entry.channel, TopicStatus.MISMATCH, md5, detail))
             return
@@ -1825,7 +1894,7 @@ class DeviceSession(_Session):
                 ParamResponse(request_id, name, None, None, SessionError("transmit queue full"))
             )
             return request_id
-        self._params[request_id] = _Pending(CONTROL_CHANNEL, name, self._clock() + timeout)
+        self._params[request_id] = _Pending(CONTROL_CHANNEL, name, self._now + timeout)
         return request_id
 
     def to_host_time(self, device_time: float) -> float:
@@ -1914,7 +1983,7 @@ class DeviceSession(_Session):
         self._send_control_be(TimeRequestMsg(self._device_us()))
 
     def _device_us(self) -> int:
-        return round(self._clock() * 1e6) % _U32
+        return round(self._now * 1e6) % _U32
 
     def _on_role_control(self, msg: ControlMessage) -> bool:
         if isinstance(msg, HostTimeRequestMsg):
@@ -1934,7 +2003,7 @@ class DeviceSession(_Session):
         return True
 
     def _on_time_response(self, msg: TimeResponseMsg) -> None:
-        now = self._clock()
+        now = self._now
         elapsed = ((self._device_us() - msg.t1_us) % _U32) / 1e6
         if elapsed > _MAX_TIME_AGE:
             return

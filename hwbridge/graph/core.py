@@ -623,15 +623,19 @@ class ServiceServer:
         self._handler = handler
         self._raw = raw
         self._deferred = deferred
+        import zenoh
+
         graph = node.graph
-        self._queryable = graph._keep(
-            graph.session.declare_queryable(graph.service_key(name), self._on_query)
-        )
+        self.key = zenoh.KeyExpr(graph.service_key(name))
+        """The service's key, built once: replies carry it (a queryable of one concrete key is
+        asked on that key only)."""
+        self._queryable = graph._keep(graph.session.declare_queryable(self.key, self._on_query))
         self._token = graph.announce("srv", node.name, name, srv_type)
 
     def _on_query(self, query: zenoh.Query) -> None:
+        attachment = query.attachment  # each access builds a new object: read once
         md5, type_name = _parse_attachment(
-            query.attachment.to_bytes() if query.attachment is not None else None
+            attachment.to_bytes() if attachment is not None else None
         )
         service = self.service
         if md5 != service.md5:
@@ -641,7 +645,8 @@ class ServiceServer:
                 f"server {self.name} serves {service.name} (md5 {service.md5})"
             )
             return
-        data = bytes(query.payload.to_bytes()) if query.payload is not None else b""
+        payload = query.payload
+        data = payload.to_bytes() if payload is not None else b""
         self.calls += 1
         if self._deferred:
             reply = DeferredReply(query, self)
@@ -665,7 +670,7 @@ class ServiceServer:
             log.warning("service %s failed: %s", self.name, exc)
             query.reply_err(f"{type(exc).__name__}: {exc}")
             return
-        query.reply(query.key_expr, answer)
+        query.reply(self.key, answer)
 
     def close(self) -> None:
         self.node.graph._forget(self._queryable)
@@ -689,7 +694,7 @@ class DeferredReply:
         """Send the response bytes (ignored if an answer was already given)."""
         query = self._finish()
         if query is not None:
-            query.reply(query.key_expr, payload, express=True)
+            query.reply(self._server.key, payload, express=True)
             query.drop()  # type: ignore[no-untyped-call]
 
     def error(self, text: str) -> None:

@@ -20,7 +20,7 @@ from __future__ import annotations
 import errno
 import logging
 import os
-import selectors
+import select
 import sys
 import time
 from pathlib import Path
@@ -153,7 +153,7 @@ class SerialLink(Link):
         # pyserial's read()/write() (a select and an ioctl each) on the bridge's hot path.
         self._fd: int | None = None
         self._waker: Waker | None = None
-        self._selector: selectors.BaseSelector | None = None
+        self._poll: select.poll | None = None
 
     # ---------------------------------------------------------------------------------- hooks
 
@@ -188,9 +188,9 @@ class SerialLink(Link):
         if isinstance(fd, int):
             self._fd = fd
             self._waker = Waker()
-            self._selector = selectors.DefaultSelector()
-            self._selector.register(fd, selectors.EVENT_READ)
-            self._selector.register(self._waker, selectors.EVENT_READ)
+            self._poll = select.poll()
+            self._poll.register(fd, select.POLLIN)
+            self._poll.register(self._waker.fileno(), select.POLLIN)
         if self.low_latency:
             self._set_low_latency(port)
         if self.reset:
@@ -227,8 +227,8 @@ class SerialLink(Link):
         pyserial sets VMIN = VTIME = 0, so a read with nothing to read returns no bytes; no
         bytes right after select() reported the port readable means the device hung up.
         """
-        waker, selector = self._waker, self._selector
-        if waker is None or selector is None:
+        waker, poll = self._waker, self._poll
+        if waker is None or poll is None:
             raise LinkClosedError(f"{self.url} is not open", local=True)
         deadline: Deadline | None = None
         readable = False
@@ -252,7 +252,9 @@ class SerialLink(Link):
                 deadline = Deadline(timeout)
             elif deadline.expired():
                 return b""
-            readable = any(key.fd == fd for key, _ in selector.select(deadline.remaining()))
+            remaining = deadline.remaining()
+            ready = poll.poll(None if remaining is None else remaining * 1000.0)
+            readable = any(ready_fd == fd for ready_fd, _ in ready)
 
     def _write(self, data: memoryview) -> None:
         import serial
@@ -260,10 +262,18 @@ class SerialLink(Link):
         if self._fd is not None and self._waker is not None:
             fd = self._fd
             try:
+                sent = os.write(fd, data)
+            except (BlockingIOError, InterruptedError):
+                sent = 0  # write_all below waits for room
+            except OSError as exc:
+                raise self._gone(exc, "writing") from exc
+            if sent == len(data):  # the usual case: the buffer had room
+                return
+            try:
                 write_all(
                     lambda view: os.write(fd, view),
                     fd,
-                    data,
+                    data[sent:],
                     self._waker,
                     self.write_timeout,
                     self.url,
@@ -295,11 +305,9 @@ class SerialLink(Link):
             port.cancel_write()
 
     def _close(self) -> None:
-        if self._selector is not None:
-            self._selector.close()
         if self._waker is not None:
             self._waker.close()
-        self._fd = self._waker = self._selector = None
+        self._fd = self._waker = self._poll = None
         port, self._serial = self._serial, None
         if port is not None:
             port.close()

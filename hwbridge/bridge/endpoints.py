@@ -91,7 +91,8 @@ class BoardEndpoints:
 
     # ------------------------------------------------------------------ board -> graph
     def advertise(self, topic: str, type_name: str, md5: str) -> Publisher:
-        """A topic the board publishes (declared once per name)."""
+        """A topic the board publishes (declared once per name); the adapters hand the board's
+        bytes to the returned publisher's ``publish_raw`` unchanged."""
         found = self.publishers.get(topic)
         if found is None or found.type.md5 != md5:
             if found is not None:
@@ -99,12 +100,6 @@ class BoardEndpoints:
             found = self.node.raw_publisher(topic, type_name, md5)
             self.publishers[topic] = found
         return found
-
-    def forward(self, topic: str, payload: bytes) -> None:
-        """A board publication: its bytes go to the graph unchanged."""
-        publisher = self.publishers.get(topic)
-        if publisher is not None:
-            publisher.publish_raw(payload)
 
     def subscribe(self, topic: str, type_name: str, deliver: Callable[[bytes], None]) -> None:
         """A topic the board subscribes to: graph messages go to ``deliver(payload)``."""

@@ -32,6 +32,8 @@ class RosserialAdapter(EventDispatch):
         )
         self.endpoints = BoardEndpoints(board.node, board.name, self.log)
         self.connected = False
+        self._forward: dict[str, Callable[[bytes], None]] = {}
+        """Board topic -> its graph publisher's ``publish_raw`` (looked up once per table)."""
 
     def topics(self) -> dict[str, Any]:
         return self.endpoints.names()
@@ -41,6 +43,7 @@ class RosserialAdapter(EventDispatch):
 
     def _on_Connected(self, event: rs.Connected) -> None:
         table = event.topics
+        self._forward.clear()
         for topic in table.publishers.values():
             self.endpoints.advertise(self.board.resolve(topic.name), topic.type, topic.md5)
         for topic in table.subscribers.values():
@@ -76,7 +79,13 @@ class RosserialAdapter(EventDispatch):
         return start
 
     def _on_Message(self, event: rs.Message) -> None:
-        self.endpoints.forward(self.board.resolve(event.topic), event.payload)
+        forward = self._forward.get(event.topic)
+        if forward is None:
+            publisher = self.endpoints.publishers.get(self.board.resolve(event.topic))
+            if publisher is None:
+                return
+            forward = self._forward[event.topic] = publisher.publish_raw
+        forward(event.payload)
 
     def _on_ServiceResponse(self, event: rs.ServiceResponse) -> None:
         self.endpoints.pending.resolve(event.request_id, bytes(event.payload), None)
@@ -123,6 +132,7 @@ class RosserialAdapter(EventDispatch):
         )
         self.endpoints.close(ProtocolError("the board lost sync"))
         self.endpoints = BoardEndpoints(self.board.node, self.board.name, self.log)
+        self._forward.clear()
         self.connected = False
         self.board.set_state("negotiating")
 

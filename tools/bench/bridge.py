@@ -6,14 +6,17 @@ pty, in its own process), the *bridge* (this process: ``Bridge`` reading the pty
 *client* (a graph subscriber, or a service caller, in its own process).
 
 Throughput (``bench`` contains ``throughput``): the board writes N frames of 16-byte payloads as
-fast as the pty takes them; the subscriber process counts what arrives in its callback. The peer
-is ``zenoh_raw``: this process publishing the same payloads straight to Zenoh, no link, framing
-or session (the graph's own ceiling on this machine). CPU use of the bridge process is reported.
+fast as the link takes them (native frames come from 256 encodings made once, as a C firmware
+would be fast enough to do: the measurement is from bytes arriving at the bridge, not of this
+Python producer); the subscriber process counts what arrives in its callback. The peer is
+``zenoh_raw``: this process publishing the same payloads straight to Zenoh, no link, framing or
+session (the graph's own ceiling on this machine). CPU use of the bridge process is reported.
 
 Latency (``bench`` contains ``latency``): the client calls a std_srvs/Trigger service served by
-the board through the bridge. ``host_added`` is the round trip minus what the host does not
-cause: the board's own processing (measured in the board process) and the pty round trip (a raw
-echo over a pty, measured in the same run, which is also the ``peer``).
+the board through the bridge. ``p50_us``/``p99_us`` are host-added: the round trip minus what
+the host does not cause: the board's own processing (``board_us``, measured in the board
+process) and the pty round trip (``pty_echo_us``, a raw echo over a pty measured in the same run,
+which is also the ``peer``). The round trip itself is ``rtt_p50_us``/``rtt_p99_us``.
 
 Runs with no arguments in about a minute; prints one JSON object per line.
 """

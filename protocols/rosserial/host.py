@@ -560,7 +560,9 @@ class RosserialHost:
             ProtocolError: not connected, or the device serves no service ``name``.
             MessageTooLargeError: the request exceeds the device's input buffer.
         """
-        table = self._require_table(f"call service {name!r}")
+        table = self._table
+        if table is None or self._state is _State.CLOSED:
+            table = self._require_table(f"call service {name!r}")  # raises, saying why
         service = table.service_servers.get(name)
         if service is None:
             raise ProtocolError(
@@ -569,7 +571,8 @@ class RosserialHost:
         if not timeout > 0:
             raise ValueError(f"timeout must be positive, not {timeout}")
         data = bytes(request)
-        self._check_size(data, service.input_buffer, f"request for service {name!r}")
+        if len(data) > service.input_buffer:
+            self._check_size(data, service.input_buffer, f"request for service {name!r}")
         call = _Call(self._next_request_id, name, data, timeout, now + timeout)
         self._next_request_id += 1
         self.stats.service_calls += 1

@@ -225,7 +225,7 @@ class SerialLink(Link):
         """Read the port's descriptor: what is there now, else wait for it (POSIX).
 
         pyserial sets VMIN = VTIME = 0, so a read with nothing to read returns no bytes; no
-        bytes right after select() reported the port readable means the device hung up.
+        bytes right after poll() reported the port readable means the device hung up.
         """
         waker, poll = self._waker, self._poll
         if waker is None or poll is None:

@@ -93,16 +93,10 @@ class ChannelStats:
     """False when the type was not in the registry: bytes recorded, definition unknown."""
 
 
-@dataclass(frozen=True)
-class RecorderStats:
-    """A snapshot of a recording in progress (or finished)."""
+class _ChannelTotals:
+    """Totals over ``channels`` (of a recording or a playback)."""
 
-    path: Path
-    elapsed: float
-    """Seconds since :meth:`Recorder.start` (until :meth:`Recorder.stop` once stopped)."""
-    channels: tuple[ChannelStats, ...] = ()
-    dropped: int = 0
-    """Messages lost because the write buffer was full (the disk could not keep up)."""
+    channels: tuple[ChannelStats, ...]
 
     @property
     def messages(self) -> int:
@@ -114,7 +108,19 @@ class RecorderStats:
 
 
 @dataclass(frozen=True)
-class PlayerStats:
+class RecorderStats(_ChannelTotals):
+    """A snapshot of a recording in progress (or finished)."""
+
+    path: Path
+    elapsed: float
+    """Seconds since :meth:`Recorder.start` (until :meth:`Recorder.stop` once stopped)."""
+    channels: tuple[ChannelStats, ...] = ()
+    dropped: int = 0
+    """Messages lost because the write buffer was full (the disk could not keep up)."""
+
+
+@dataclass(frozen=True)
+class PlayerStats(_ChannelTotals):
     """A snapshot of a playback in progress (or finished)."""
 
     path: Path
@@ -127,14 +133,6 @@ class PlayerStats:
     loops: int = 0
     """Passes over the file completed."""
     channels: tuple[ChannelStats, ...] = ()
-
-    @property
-    def messages(self) -> int:
-        return sum(c.messages for c in self.channels)
-
-    @property
-    def bytes(self) -> int:
-        return sum(c.bytes for c in self.channels)
 
 
 @dataclass

@@ -262,18 +262,10 @@ class SerialLink(Link):
         if self._fd is not None and self._waker is not None:
             fd = self._fd
             try:
-                sent = os.write(fd, data)
-            except (BlockingIOError, InterruptedError):
-                sent = 0  # write_all below waits for room
-            except OSError as exc:
-                raise self._gone(exc, "writing") from exc
-            if sent == len(data):  # the usual case: the buffer had room
-                return
-            try:
                 write_all(
                     lambda view: os.write(fd, view),
                     fd,
-                    data[sent:],
+                    data,
                     self._waker,
                     self.write_timeout,
                     self.url,

@@ -880,8 +880,7 @@ class _Session:
         entry = self._entry(channel)
         if entry is None or entry.kind != self._PUBLISH_KIND:
             raise SessionError(self._wrong_channel(channel, entry, "publish on"))
-        if len(payload) > self._peer_max:
-            self._check_size(len(payload), f"message for {entry.name} (channel {channel})")
+        self._check_size(len(payload), "message for %s (channel %d)", entry.name, channel)
         if entry.reliable:
             return self._send_reliable(channel, payload)
         self._send_best_effort(channel, payload)
@@ -926,8 +925,7 @@ class _Session:
             raise SessionError(self._wrong_channel(channel, entry, "call a service on"))
         # An accepted entry's channel and a request id of ours: both are in range.
         msg = encode_service_request(channel, request_id, payload)
-        if len(msg) > self._peer_max:
-            self._check_size(len(msg), f"request for {entry.name} (channel {channel})")
+        self._check_size(len(msg), "request for %s (channel %d)", entry.name, channel)
         if not self._send_reliable(CONTROL_CHANNEL, msg):
             self._events.append(
                 ServiceResponse(
@@ -967,8 +965,7 @@ class _Session:
             msg = encode_service_response(channel, request_id, ServiceStatus.ERROR, body)
         else:
             msg = encode_service_response(channel, request_id, ServiceStatus.OK, payload)
-            if len(msg) > self._peer_max:
-                self._check_size(len(msg), f"response on channel {channel}")
+            self._check_size(len(msg), "response on channel %d", channel)
         return self._send_reliable(CONTROL_CHANNEL, msg, force=True)
 
     def log(self, level: LogLevel, text: str) -> bool:
@@ -1105,12 +1102,14 @@ class _Session:
             self._send_frame(receiver.ack_frame())
         self._pump()
 
-    def _check_size(self, size: int, what: str) -> None:
+    def _check_size(self, size: int, what: str, *args: object) -> None:
+        """Raise if ``size`` is above the peer's max_message; ``what % args`` names the
+        message (formatted only then: this runs for every message sent)."""
         limit = self._peer_max
         if size > limit:
             peer = "board" if self._ROLE == Role.HOST else "host"
             raise SessionError(
-                f"{what} is {size} bytes but the {peer} accepts messages of at most {limit} "
+                f"{what % args} is {size} bytes but the {peer} accepts messages of at most {limit} "
                 f"bytes (its max_message): send less, or raise max_message on the {peer}"
             )
 
@@ -1888,7 +1887,7 @@ class DeviceSession(_Session):
             msg = ParamGetMsg(request_id, type, flags, max_count, name).encode()
         except ValueError as exc:
             raise SessionError(f"parameter request for {name[:40]!r}: {exc}") from None
-        self._check_size(len(msg), f"parameter request for {name}")
+        self._check_size(len(msg), "parameter request for %s", name)
         if not self._send_reliable(CONTROL_CHANNEL, msg):
             self._events.append(
                 ParamResponse(request_id, name, None, None, SessionError("transmit queue full"))

@@ -529,7 +529,7 @@ class RosserialHost:
             ProtocolError: not connected, or the device does not subscribe to ``topic``.
             MessageTooLargeError: the payload exceeds the subscriber's buffer (nothing sent).
         """
-        table = self._require_table(f"publish on {topic!r}")
+        table = self._require_table("publish on %r", topic)
         found = table.subscribers.get(topic)
         if found is None:
             raise ProtocolError(
@@ -537,7 +537,7 @@ class RosserialHost:
                 f"{_names(table.subscribers)}"
             )
         data = bytes(payload)
-        self._check_size(data, found.buffer_size, f"message for {topic!r} ({found.type})")
+        self._check_size(data, found.buffer_size, "message for %r (%s)", topic, found.type)
         self._send(found.topic_id, data)
         self.stats.messages_out += 1
 
@@ -560,9 +560,7 @@ class RosserialHost:
             ProtocolError: not connected, or the device serves no service ``name``.
             MessageTooLargeError: the request exceeds the device's input buffer.
         """
-        table = self._table
-        if table is None or self._state is _State.CLOSED:
-            table = self._require_table(f"call service {name!r}")  # raises, saying why
+        table = self._require_table("call service %r", name)
         service = table.service_servers.get(name)
         if service is None:
             raise ProtocolError(
@@ -571,8 +569,7 @@ class RosserialHost:
         if not timeout > 0:
             raise ValueError(f"timeout must be positive, not {timeout}")
         data = bytes(request)
-        if len(data) > service.input_buffer:
-            self._check_size(data, service.input_buffer, f"request for service {name!r}")
+        self._check_size(data, service.input_buffer, "request for service %r", name)
         call = _Call(self._next_request_id, name, data, timeout, now + timeout)
         self._next_request_id += 1
         self.stats.service_calls += 1
@@ -590,7 +587,7 @@ class RosserialHost:
                 would write the answer through a stale pointer).
             MessageTooLargeError: the response exceeds the device's input buffer.
         """
-        table = self._require_table(f"answer service {name!r}")
+        table = self._require_table("answer service %r", name)
         service = table.service_clients.get(name)
         if service is None:
             raise ProtocolError(
@@ -599,7 +596,7 @@ class RosserialHost:
         if self._client_pending[name] <= 0:
             raise ProtocolError(f"the device's service client {name!r} has no request waiting")
         data = bytes(response)
-        self._check_size(data, service.input_buffer, f"response for service {name!r}")
+        self._check_size(data, service.input_buffer, "response for service %r", name)
         self._client_pending[name] -= 1
         self._send(service.response_topic_id, data)
 
@@ -620,7 +617,7 @@ class RosserialHost:
         if self._params_pending[name] <= 0:
             raise ProtocolError(f"the device has no request for parameter {name!r} waiting")
         payload = self.encode_param(name, value)
-        self._check_size(payload, self.input_buffer, f"value of parameter {name!r}")
+        self._check_size(payload, self.input_buffer, "value of parameter %r", name)
         self._params_pending[name] -= 1
         self.stats.params_answered += 1
         self._send(ReservedId.PARAMETER_REQUEST, payload)
@@ -1032,20 +1029,22 @@ class RosserialHost:
         call.sent = True
         self._send(service.request_topic_id, call.payload)
 
-    def _require_table(self, action: str) -> TopicTable:
+    def _require_table(self, action: str, *args: object) -> TopicTable:
+        """The topic table, or a ProtocolError saying why there is none; ``action % args``
+        (formatted only then) says what could not be done."""
         if self._state is _State.CLOSED:
-            raise ProtocolError(f"cannot {action}: the session is closed")
+            raise ProtocolError(f"cannot {action % args}: the session is closed")
         if self._table is None:
             raise ProtocolError(
-                f"cannot {action}: the device is not connected yet (wait for Connected)"
+                f"cannot {action % args}: the device is not connected yet (wait for Connected)"
             )
         return self._table
 
     @staticmethod
-    def _check_size(payload: bytes, limit: int, what: str) -> None:
+    def _check_size(payload: bytes, limit: int, what: str, *args: object) -> None:
         if len(payload) > limit:
             raise MessageTooLargeError(
-                f"{what} is {len(payload)} bytes, larger than the device's input buffer of "
+                f"{what % args} is {len(payload)} bytes, larger than the device's input buffer of "
                 f"{limit} bytes; not sent (the rosserial client library would overrun its "
                 "memory). Send less, or build the firmware with a larger INPUT_SIZE."
             )

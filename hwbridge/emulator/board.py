@@ -96,6 +96,7 @@ class VirtualBoard:
         self.session = FaultySession(self._new_session(), seed)
         self.resets = 0
         self._count_offset = (0, 0)
+        self._host_offset = 0.0  # host minus board time, as of the reading being taken
         self.pump: SessionPump | None = None
         self.link: Link | None = None
         self.published = 0
@@ -246,8 +247,9 @@ class VirtualBoard:
 
     def _stamp(self) -> dict[str, Any]:
         # The session's clock is the pump's (monotonic) clock: stamp readings with the host
-        # time of the moment they are taken, as firmware with time sync does.
-        return {"stamp": self.session.to_host_time(time.monotonic())}
+        # time of the moment they are taken, as firmware with time sync does. The offset was
+        # read under the pump's lock by _publish: the session itself may be resetting.
+        return {"stamp": time.monotonic() + self._host_offset}
 
     def _read_ticks(self) -> bytes:
         left, right = self.world.base.counts()
@@ -369,8 +371,14 @@ class VirtualBoard:
 
     def _publish(self, read: Callable[[], tuple[int, bytes] | None]) -> None:
         pump = self.pump
-        if pump is None or not self.session.connected or self.session.time_offset is None:
+        if pump is None:
+            return
+        # The pump thread resets the session when the link drops, so connection state and
+        # time offset are read under its lock, in one go.
+        offset = pump.call(lambda s: s.time_offset if s.connected else None)
+        if offset is None:
             return  # like firmware that waits for time sync, so stamps are in host time
+        self._host_offset = offset
         result = read()
         if result is None:
             return

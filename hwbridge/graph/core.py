@@ -338,6 +338,10 @@ def _guarded(callback: Callable[..., Any], *args: Any) -> None:
         log.exception("callback %r failed", callback)
 
 
+_MAX_QUERIERS: Final = 64
+"""Queriers one node keeps declared for its calls (one per service, type and timeout)."""
+
+
 class Node:
     """A named participant; topic and service names resolve in its namespace."""
 
@@ -346,8 +350,11 @@ class Node:
         self.name = name
         self.namespace = namespace
         self._token = graph.announce("node", name)
-        self._call_targets: dict[tuple[str, str, str | None], tuple[str, str, bytes]] = {}
-        """(name, type, md5) -> (resolved name, Zenoh key, attachment): computed once."""
+        self._call_targets: dict[
+            tuple[str, str, str | None, float], tuple[str, Callable[..., Any], bytes]
+        ] = {}
+        """(name, type, md5, timeout) -> (resolved name, querier's get, attachment)."""
+        self._lock = threading.Lock()
 
     def resolve(self, name: str) -> str:
         return resolve_name(name, self.namespace, self.name.rsplit("/", 1)[-1])
@@ -449,24 +456,11 @@ class Node:
         self, name: str, srv_type: str, data: bytes, timeout: float = 5.0, md5: str | None = None
     ) -> bytes:
         """Call a service with serialized request bytes; returns the response bytes."""
-        import zenoh
-
-        target = self._call_targets.get((name, srv_type, md5))
+        target = self._call_targets.get((name, srv_type, md5, timeout))
         if target is None:
-            resolved = self.resolve(name)
-            digest = md5 or self.graph.registry.service(srv_type).md5
-            target = (resolved, self.graph.service_key(resolved), _attachment(digest, srv_type))
-            self._call_targets[name, srv_type, md5] = target
-        resolved, key, attachment = target
-        replies = self.graph.session.get(
-            key,
-            payload=data,
-            attachment=attachment,
-            timeout=timeout,
-            target=zenoh.QueryTarget.BEST_MATCHING,
-            express=True,
-        )
-        for reply in replies:
+            target = self._call_target(name, srv_type, md5, timeout)
+        resolved, get, attachment = target
+        for reply in get(payload=data, attachment=attachment):
             if reply.ok is not None:
                 return bytes(reply.ok.payload.to_bytes())
             if reply.err is not None:
@@ -475,6 +469,36 @@ class Node:
             f"no answer from service {resolved} within {timeout:g} s "
             "(is its server running? see 'hwbridge service list')"
         )
+
+    def _call_target(
+        self, name: str, srv_type: str, md5: str | None, timeout: float
+    ) -> tuple[str, Callable[..., Any], bytes]:
+        """What a call needs, worked out once per (service, type, md5, timeout): the resolved
+        name, a Zenoh querier (declared once: ~10 us cheaper per call than a session ``get``,
+        measured with the two interleaved) and the attachment."""
+        import zenoh
+
+        resolved = self.resolve(name)
+        attachment = _attachment(md5 or self.graph.registry.service(srv_type).md5, srv_type)
+        key = self.graph.service_key(resolved)
+        # Express: a query that waits for Zenoh's batching can wait its whole time limit (1 ms).
+        options: dict[str, Any] = {
+            "target": zenoh.QueryTarget.BEST_MATCHING,
+            "timeout": timeout,
+            "express": True,
+        }
+        session = self.graph.session
+        with self._lock:
+            found = self._call_targets.get((name, srv_type, md5, timeout))
+            if found is not None:
+                return found
+            if len(self._call_targets) >= _MAX_QUERIERS:
+                # Many distinct timeouts (computed ones, say): plain gets, nothing declared.
+                return resolved, functools.partial(session.get, key, **options), attachment
+            querier = self.graph._keep(session.declare_querier(key, **options))
+            target = (resolved, querier.get, attachment)
+            self._call_targets[name, srv_type, md5, timeout] = target
+        return target
 
 
 class Publisher:
@@ -670,7 +694,7 @@ class ServiceServer:
             log.warning("service %s failed: %s", self.name, exc)
             query.reply_err(f"{type(exc).__name__}: {exc}")
             return
-        query.reply(self.key, answer)
+        query.reply(self.key, answer, express=True)  # a caller waits: no batching delay
 
     def close(self) -> None:
         self.node.graph._forget(self._queryable)

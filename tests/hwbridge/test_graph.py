@@ -214,6 +214,34 @@ def test_other_process_publishes_and_exits_without_closing(
     assert got[0].data == "from another process"
 
 
+def test_calls_keep_a_querier_per_timeout_and_cope_with_many_timeouts(
+    router: Graph, client: Graph, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from hwbridge.graph import core
+
+    node = client.node("caller")
+    # Declared before the server exists: the first call finds nobody, later ones reach it.
+    with pytest.raises(HwBridgeTimeoutError, match="no answer from service /late"):
+        node.call("/late", "std_srvs/Trigger", {}, timeout=0.2)
+    served = []
+
+    def handler(_request: Any) -> dict[str, Any]:
+        served.append(1)
+        return {"success": True, "message": f"call {len(served)}"}
+
+    router.node("board").service("/late", "std_srvs/Trigger", handler)
+    call_when_ready(node, "/late", "std_srvs/Trigger", {})
+    monkeypatch.setattr(core, "_MAX_QUERIERS", 3)
+    answers = [
+        node.call("/late", "std_srvs/Trigger", {}, timeout=2.0 + index / 10).message
+        for index in range(6)
+    ]
+    assert answers == [f"call {len(served) - 5 + index}" for index in range(6)]
+    assert len(node._call_targets) == 3  # the cap: further timeouts use one-off gets
+    with pytest.raises(HwBridgeTimeoutError, match="no answer from service /gone"):
+        node.call("/gone", "std_srvs/Trigger", {}, timeout=0.2)  # past the cap too
+
+
 def test_deferred_service_answers_from_another_thread(router: Graph, client: Graph) -> None:
     import threading
 

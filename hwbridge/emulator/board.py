@@ -97,6 +97,8 @@ class VirtualBoard:
         self.resets = 0
         self._count_offset = (0, 0)
         self._host_offset = 0.0  # host minus board time, as of the reading being taken
+        self.read_errors = 0
+        """Device readings that raised (the first is logged with its traceback)."""
         self.pump: SessionPump | None = None
         self.link: Link | None = None
         self.published = 0
@@ -363,7 +365,13 @@ class VirtualBoard:
             for index, (rate, read) in enumerate(self._readers):
                 if self.world.time + 1e-9 >= next_read[index]:
                     next_read[index] = self.world.time + 1.0 / rate
-                    self._publish(read)
+                    try:
+                        self._publish(read)
+                    except Exception:
+                        # One bad reading must not stop the board (and its other devices).
+                        self.read_errors += 1
+                        if self.read_errors == 1:
+                            log.exception("%s: a device reading failed", self.config.name)
             wake = started + steps * dt / self.speed
             delay = wake - time.monotonic()
             if delay > 0:
@@ -375,21 +383,19 @@ class VirtualBoard:
             return
         # The pump thread resets the session when the link drops, so connection state and
         # time offset are read under its lock, in one go.
-        offset = pump.call(lambda s: s.time_offset if s.connected else None)
-        if offset is None:
-            return  # like firmware that waits for time sync, so stamps are in host time
-        self._host_offset = offset
-        result = read()
-        if result is None:
-            return
-        channel, payload = result
         try:
+            offset = pump.call(lambda s: s.time_offset if s.connected else None)
+            if offset is None:
+                return  # like firmware that waits for time sync, so stamps are in host time
+            self._host_offset = offset
+            result = read()
+            if result is None:
+                return
+            channel, payload = result
             if pump.call(lambda s: s.publish(channel, payload)):
                 self.published += 1
-        except HwBridgeError as exc:
-            log.debug(
-                "%s: publish on %s failed: %s", self.config.name, self._channel_names[channel], exc
-            )
+        except HwBridgeError as exc:  # the link went away under us, a full queue: try later
+            log.debug("%s: publishing a reading failed: %s", self.config.name, exc)
 
     def stop(self) -> None:
         self._stop.set()

@@ -99,6 +99,36 @@ def test_virtual_board_through_bridge_and_device_nodes(tmp_path: Path) -> None:
         link.close()
 
 
+def test_a_failing_device_reading_is_logged_and_the_board_keeps_running(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    board = VirtualBoard(load_board("diffbot"), seed=5, speed=2.0)
+
+    def broken() -> tuple[int, bytes]:
+        raise ValueError("I2C bus stuck")
+
+    board._readers.insert(0, (100.0, broken))  # a device read before the others, every step
+    link = open_link(f"pty://?symlink={tmp_path / 'diffbot'}")
+    graph = Graph.embedded(listen=[f"tcp/127.0.0.1:{free_port()}"], domain="emufail")
+    bridge = Bridge(graph)
+    imu: list[Any] = []
+    try:
+        with caplog.at_level("ERROR", logger="hwbridge.emulator"):
+            board.start(link)
+            bridge.add_board(BoardSpec(str(tmp_path / "diffbot"), namespace="/bot"))
+            graph.node("listener").subscriber("/bot/imu_raw", "hwbridge_msgs/ImuRaw", imu.append)
+            assert wait_until(lambda: len(imu) > 20 and board.read_errors > 20, 30)
+        assert board._thread is not None and board._thread.is_alive()
+        failures = [r for r in caplog.records if "a device reading failed" in r.getMessage()]
+        assert len(failures) == 1  # once, with its traceback; then counted
+        assert failures[0].exc_info is not None and "I2C bus stuck" in str(failures[0].exc_info[1])
+    finally:
+        bridge.stop()
+        graph.close()
+        board.stop()
+        link.close()
+
+
 def _env(endpoint: str) -> dict[str, str]:
     return {**os.environ, "HWBRIDGE_ENDPOINT": endpoint, "HWBRIDGE_DOMAIN": "emudemo"}
 

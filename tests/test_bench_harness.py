@@ -49,3 +49,37 @@ def test_publish_repeated_sends_the_frames_publish_would() -> None:
         assert [e.payload for e in events if isinstance(e, Message)] == [payload] * count
     assert fast.device.stats.as_dict() == plain.device.stats.as_dict()
     assert fast.host.stats.as_dict()["be_frames_lost"] == 0
+
+
+def test_bridge_bench_runs_small_and_prints_the_documented_fields() -> None:
+    """A short run of tools/bench/bridge.py (both protocols, pty): each JSON line carries what
+    the docstring promises, and every message sent is counted as received. No timing checks."""
+    import json
+    import subprocess
+
+    done = subprocess.run(
+        [sys.executable, str(BENCH), "--transport", "pty", "--messages", "3000", "--calls", "40"],
+        capture_output=True,
+        text=True,
+        timeout=240,
+        check=True,
+    )
+    lines = [json.loads(line) for line in done.stdout.splitlines() if line.startswith("{")]
+    names = [line["bench"] for line in lines]
+    assert names == [
+        "bridge_throughput_native_pty",
+        "bridge_latency_native_pty",
+        "bridge_throughput_rosserial_pty",
+        "bridge_latency_rosserial_pty",
+    ]
+    for line in lines:
+        if "throughput" in line["bench"]:
+            assert line["received"] == line["sent"] == 3000
+            assert line["bridge_drop_counters"] == {}
+            assert line["hwbridge_per_s"] > 0 and line["peer"] == "zenoh_raw"
+            assert line["bridge_cpu_fraction"] > 0
+        else:
+            assert line["calls"] == 40 and line["peer"] == "pty_echo"
+            for field in ("p50_us", "p99_us", "rtt_p50_us", "board_us", "graph_rtt_p50_us"):
+                assert isinstance(line[field], float), field
+            assert line["rtt_p50_us"] > line["board_us"] > 0

@@ -17,6 +17,9 @@ the board through the bridge. ``p50_us``/``p99_us`` are host-added: the round tr
 the host does not cause: the board's own processing (``board_us``, measured in the board
 process) and the pty round trip (``pty_echo_us``, a raw echo over a pty measured in the same run,
 which is also the ``peer``). The round trip itself is ``rtt_p50_us``/``rtt_p99_us``.
+``graph_rtt_p50_us`` is the floor Zenoh sets: the same caller calling a graph-only service in the
+bridge process (no board, no link), pausing between calls so that, as in a bridged call, both
+processes go idle in between; ``p50_us`` minus it is about what the bridge itself adds.
 
 Runs with no arguments in about a minute; prints one JSON object per line.
 """
@@ -53,7 +56,17 @@ _DROP_COUNTERS = {
     "errors",
 }
 N_CALLS = 2000
+GRAPH_PAUSE = 300e-6
+"""Seconds the caller waits between calls to the graph-only service: about what the board and
+the link take in a bridged call, so both processes go idle between messages as they do there."""
 DOMAIN = "bench"
+
+
+def _trigger_ok() -> bytes:
+    """The answer every benchmark service gives: a std_srvs/Trigger success."""
+    from hwbridge import msg
+
+    return msg.encode(msg.new("std_srvs/TriggerResponse", success=True, message="ok"))
 
 
 # ---------------------------------------------------------------------------------- the board
@@ -65,7 +78,7 @@ def board_main(protocol: str, url: str) -> None:
 
     registry = msg.registry()
     payload = msg.encode(msg.new("std_msgs/String", data="0123456789ab"))  # 16 bytes
-    reply = msg.encode(msg.new("std_srvs/TriggerResponse", success=True, message="ok"))
+    reply = _trigger_ok()
     link = open_link(url)
     handling: list[float] = []
     pump: SessionPump
@@ -262,7 +275,7 @@ def subscriber_main(endpoint: str, topic: str, expected: int) -> None:
         print(json.dumps({"count": count, "seconds": last - first}), flush=True)
 
 
-def caller_main(endpoint: str, service: str, calls: int) -> None:
+def caller_main(endpoint: str, service: str, calls: int, pause: float = 0.0) -> None:
     from hwbridge.graph import Graph
 
     with Graph.attached(connect=[endpoint], domain=DOMAIN) as graph:
@@ -277,6 +290,8 @@ def caller_main(endpoint: str, service: str, calls: int) -> None:
             started = time.perf_counter()
             node.call_raw(service, "std_srvs/Trigger", b"", timeout=2.0)
             times.append(time.perf_counter() - started)
+            if pause:
+                time.sleep(pause)
         print(json.dumps(times), flush=True)
 
 
@@ -388,14 +403,12 @@ def run_protocol(
             bridge_drop_counters=counted,
         )
 
-        caller = subprocess.run(
-            [sys.executable, __file__, "--caller", endpoint, "/bench/trigger", str(calls)],
-            capture_output=True,
-            text=True,
-            timeout=300,
-            check=True,
+        times = _call_times(endpoint, "/bench/trigger", calls)
+        answer = _trigger_ok()
+        graph.node("bench_graph").service(
+            "/bench/graph_trigger", "std_srvs/Trigger", lambda _request: answer, raw=True
         )
-        times = json.loads(caller.stdout.splitlines()[-1])
+        graph_times = _call_times(endpoint, "/bench/graph_trigger", calls, pause=GRAPH_PAUSE)
         handling = json.loads(_ask(board, "handling") or "[]")
         board_time = statistics.median(handling) if handling else 0.0
         host = [t - echo_rtt - board_time for t in times]
@@ -411,6 +424,7 @@ def run_protocol(
             rtt_p99_us=round(_percentile(times, 0.99) * 1e6, 1),
             board_us=round(board_time * 1e6, 1),
             pty_echo_us=round(echo_rtt * 1e6, 1),
+            graph_rtt_p50_us=round(_percentile(graph_times, 0.5) * 1e6, 1),
             calls=len(times),
         )
     finally:
@@ -418,6 +432,19 @@ def run_protocol(
         board.wait(10)
         bridge.stop()
         graph.close()
+
+
+def _call_times(endpoint: str, service: str, calls: int, pause: float = 0.0) -> list[float]:
+    """Round trips (seconds) of ``calls`` calls made by a caller process."""
+    caller = subprocess.run(
+        [sys.executable, __file__, "--caller", endpoint, service, str(calls), f"--pause={pause}"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=True,
+    )
+    times: list[float] = json.loads(caller.stdout.splitlines()[-1])
+    return times
 
 
 def zenoh_raw_rate(graph: Any, endpoint: str, messages: int) -> float:
@@ -459,6 +486,7 @@ def main() -> None:
     parser.add_argument("--echo-client", nargs=2, metavar=("PATH", "ROUNDS"))
     parser.add_argument("--subscriber", nargs=3, metavar=("ENDPOINT", "TOPIC", "N"))
     parser.add_argument("--caller", nargs=3, metavar=("ENDPOINT", "SERVICE", "N"))
+    parser.add_argument("--pause", type=float, default=0.0, help=argparse.SUPPRESS)
     parser.add_argument("--messages", type=int, default=N_MESSAGES)
     parser.add_argument("--calls", type=int, default=N_CALLS)
     parser.add_argument("--protocol", choices=["native", "rosserial", "both"], default="both")
@@ -479,7 +507,7 @@ def main() -> None:
     elif args.subscriber:
         subscriber_main(args.subscriber[0], args.subscriber[1], int(args.subscriber[2]))
     elif args.caller:
-        caller_main(args.caller[0], args.caller[1], int(args.caller[2]))
+        caller_main(args.caller[0], args.caller[1], int(args.caller[2]), args.pause)
     else:
         os.environ.setdefault("HWBRIDGE_DOMAIN", DOMAIN)
         with tempfile.TemporaryDirectory() as tmp:

@@ -7,7 +7,8 @@ device plugin:
   (nav_msgs/Odometry) and ``/tf``; ``cmd_vel`` (geometry_msgs/Twist) -> ``wheel_targets``,
   with the 0.5 s command timeout;
 - :class:`SonarNode`: ``sonar_echo`` (hwbridge_msgs/SonarEcho) -> ``range`` (sensor_msgs/Range);
-- :class:`ImuNode`: ``imu_raw`` (hwbridge_msgs/ImuRaw) -> ``imu`` (sensor_msgs/Imu).
+- :class:`ImuNode`: ``imu_raw`` (hwbridge_msgs/ImuRaw) -> ``imu`` (sensor_msgs/Imu), and on an
+  MPU-9250 with its magnetometer read, ``mag`` (sensor_msgs/MagneticField).
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ from hwbridge.devices.encoders import (
     DiffDriveParams,
     wrap_delta,
 )
-from hwbridge.devices.imu.plugin import MpuImu, RawSample
+from hwbridge.devices.imu.plugin import MpuImu, RawSample, sensitivity_adjustment
 from hwbridge.devices.ultrasonic import UltrasonicRanger
 from hwbridge.graph import Node
 
@@ -131,12 +132,17 @@ class SonarNode:
 
 
 class ImuNode:
-    """Raw MPU-6050/9250 registers -> sensor_msgs/Imu in SI units (REP-145)."""
+    """Raw MPU-6050/9250 registers -> sensor_msgs/Imu in SI units (REP-145); the MPU-9250's
+    magnetometer readings -> sensor_msgs/MagneticField (tesla, NaN on overflow) on ``mag``,
+    advertised with the first of them."""
 
     def __init__(self, node: Node) -> None:
         self.latest: Any = None
+        self.latest_field: Any = None
+        self._node = node
         self._converters: dict[tuple[int, int], MpuImu] = {}
         self._imu = node.publisher("imu", "sensor_msgs/Imu")
+        self._mag: Any = None
         node.subscriber("imu_raw", "hwbridge_msgs/ImuRaw", self._on_raw)
 
     def _converter(self, accel_config: int, gyro_config: int) -> MpuImu:
@@ -158,6 +164,16 @@ class ImuNode:
         stamp = _seconds(raw.header.stamp)
         self.latest = converter.imu_msg(accel, gyro, stamp)
         self._imu.publish(self.latest)
+        if raw.mag_valid:
+            converter.magnetometer_adjustment = sensitivity_adjustment(
+                [int(v) for v in raw.mag_asa]
+            )
+            mx, my, mz = (int(v) for v in raw.mag)
+            field = converter.magnetometer_field((mx, my, mz), int(raw.mag_st2))
+            self.latest_field = converter.magnetic_field_msg(field, stamp)
+            if self._mag is None:
+                self._mag = self._node.publisher("mag", "sensor_msgs/MagneticField")
+            self._mag.publish(self.latest_field)
 
 
 def _seconds(stamp: Any) -> float:

@@ -61,6 +61,7 @@ __all__ = [
     "decode_burst",
     "gyro_scale",
     "sample_rate_divider",
+    "sensitivity_adjustment",
 ]
 
 CHIPS: Final[dict[int, ChipSpec]] = {MPU6050.who_am_i: MPU6050, MPU9250.who_am_i: MPU9250}
@@ -114,6 +115,16 @@ def gyro_scale(range_dps: int) -> float:
     """rad/s per LSB at a full scale of +-``range_dps`` deg/s."""
     lsb = GYRO_LSB_PER_DPS[_index("gyro_range_dps", range_dps, GYRO_RANGES_DPS)]
     return math.radians(1.0) / lsb
+
+
+def sensitivity_adjustment(asa: bytes | tuple[int, int, int] | list[int]) -> Vector3:
+    """The AK8963's per-axis factors from its fuse ROM bytes ASAX..ASAZ (datasheet 8.3.11):
+    ``(ASA - 128) / 256 + 1``."""
+    values = [int(value) for value in asa]
+    if len(values) != 3 or not all(0 <= value <= 255 for value in values):
+        raise ImuError(f"AK8963 sensitivity adjustment is 3 bytes, got {values!r}")
+    ax, ay, az = ((value - 128) / 256.0 + 1.0 for value in values)
+    return (ax, ay, az)
 
 
 def sample_rate_divider(rate_hz: float, dlpf_cfg: int) -> int:
@@ -255,8 +266,7 @@ class MpuImu:
         self.port.write(AK8963_ADDRESS, AK8963_CNTL1, b"\x00")
         self.port.write(AK8963_ADDRESS, AK8963_CNTL1, b"\x16")  # 16-bit, continuous 100 Hz
         self._mag_scale = MAG_UT_PER_LSB_16BIT
-        ax, ay, az = ((value - 128) / 256.0 + 1.0 for value in asa)
-        self.magnetometer_adjustment = (ax, ay, az)
+        self.magnetometer_adjustment = sensitivity_adjustment(asa)
 
     # ------------------------------------------------------------------ reading
     def data_ready(self) -> bool:
@@ -279,6 +289,12 @@ class MpuImu:
         if len(data) != _MAG.size:
             raise ImuError(f"an AK8963 data read is {_MAG.size} bytes, got {len(data)}")
         mx, my, mz, st2 = _MAG.unpack(data)
+        return self.magnetometer_field((mx, my, mz), st2)
+
+    def magnetometer_field(self, counts: tuple[int, int, int], st2: int) -> Vector3:
+        """Field (T) in the IMU's axes from the AK8963's HX, HY, HZ counts and its ST2 byte
+        (bit 4: 16-bit output; bit 3: overflow, giving NaN)."""
+        mx, my, mz = counts
         if st2 & 0x08:  # HOFL: magnetic sensor overflow
             return (math.nan, math.nan, math.nan)
         per_lsb = MAG_UT_PER_LSB_16BIT if st2 & 0x10 else MAG_UT_PER_LSB_14BIT

@@ -23,7 +23,19 @@ from typing import Any
 import yaml
 
 from hwbridge import msg
-from hwbridge.devices.imu.mpu import Mpu6050, Mpu9250, MpuChip
+from hwbridge.devices.imu.mpu import (
+    AK8963_ADDRESS,
+    AK8963_ASAX,
+    AK8963_CNTL1,
+    AK8963_HXL,
+    AK8963_ST1,
+    INT_PIN_CFG,
+    USER_CTRL,
+    I2CBus,
+    Mpu6050,
+    Mpu9250,
+    MpuChip,
+)
 from hwbridge.devices.ultrasonic import HcSr04Model
 from hwbridge.emulator.faults import FaultySession, LinkFaults
 from hwbridge.emulator.world import World, WorldConfig
@@ -176,10 +188,13 @@ class VirtualBoard:
             chip.write(0x6B, bytes([0x00]))  # wake (the 6050 starts asleep)
             chip.write(0x1B, bytes([gyro_fs << 3]))
             chip.write(0x1C, bytes([accel_fs << 3]))
+            mag = None
+            if isinstance(chip, Mpu9250) and device.get("magnetometer", True):
+                mag = _Magnetometer.set_up(chip, self.world.time)
             channel = self._entry(
                 EntryKind.PUBLISHER, device.get("topic", "imu_raw"), "hwbridge_msgs/ImuRaw"
             )
-            self._readers.append((rate, lambda: (channel, self._read_imu(chip, kind))))
+            self._readers.append((rate, lambda: (channel, self._read_imu(chip, kind, mag))))
         elif kind == "dynamixel":
             self._add_dynamixel(device, rate)
         else:
@@ -283,12 +298,13 @@ class VirtualBoard:
             )
         )
 
-    def _read_imu(self, chip: MpuChip, kind: str) -> bytes:
+    def _read_imu(self, chip: MpuChip, kind: str, mag: _Magnetometer | None) -> bytes:
         chip.set_truth(self.world.imu_truth())
         chip.sample()
         burst = chip.read(0x3B, 14)
         words = [int.from_bytes(burst[i : i + 2], "big", signed=True) for i in range(0, 14, 2)]
-        mag = [0, 0, 0]
+        reading = mag.read(self.world.time) if mag is not None else None
+        fields = reading or {"mag": [0, 0, 0], "mag_st2": 0, "mag_asa": [0, 0, 0]}
         return msg.encode(
             msg.from_dict(
                 "hwbridge_msgs/ImuRaw",
@@ -298,8 +314,8 @@ class VirtualBoard:
                     "accel_config": chip.read(0x1C, 1)[0],
                     "gyro_config": chip.read(0x1B, 1)[0],
                     "burst": words,
-                    "mag": mag,
-                    "mag_valid": False,
+                    **fields,
+                    "mag_valid": reading is not None,
                 },
             )
         )
@@ -405,6 +421,36 @@ class VirtualBoard:
             self.pump.stop()
         if self.link is not None:
             self.link.close()
+
+
+class _Magnetometer:
+    """The MPU-9250's AK8963 as firmware drives it: reached through the bypass switch, its
+    sensitivity adjustment read once from fuse ROM, then measuring continuously at 100 Hz with
+    16-bit output; each reading takes the newest measurement, if there is one."""
+
+    def __init__(self, chip: Mpu9250, bus: I2CBus, asa: bytes, now: float) -> None:
+        self.chip, self.bus, self.asa, self.last = chip, bus, list(asa), now
+
+    @classmethod
+    def set_up(cls, chip: Mpu9250, now: float) -> _Magnetometer:
+        bus = I2CBus(chip)
+        chip.write(USER_CTRL, b"\x00")  # the chip's own I2C master off ...
+        chip.write(INT_PIN_CFG, b"\x02")  # ... and the bypass on: the AK8963 answers at 0x0C
+        bus.write(AK8963_ADDRESS, AK8963_CNTL1, b"\x0f")  # fuse ROM access
+        asa = bus.read(AK8963_ADDRESS, AK8963_ASAX, 3)
+        bus.write(AK8963_ADDRESS, AK8963_CNTL1, b"\x00")  # power-down between modes
+        bus.write(AK8963_ADDRESS, AK8963_CNTL1, b"\x16")  # 16-bit, continuous 100 Hz
+        return cls(chip, bus, asa, now)
+
+    def read(self, now: float) -> dict[str, Any] | None:
+        """The ImuRaw magnetometer fields of a new measurement, None if none is ready."""
+        self.chip.magnetometer.advance(max(0.0, now - self.last))
+        self.last = now
+        if not self.bus.read(AK8963_ADDRESS, AK8963_ST1, 1)[0] & 0x01:  # DRDY
+            return None
+        data = self.bus.read(AK8963_ADDRESS, AK8963_HXL, 7)  # HX, HY, HZ, ST2 (ends the read)
+        counts = [int.from_bytes(data[i : i + 2], "little", signed=True) for i in (0, 2, 4)]
+        return {"mag": counts, "mag_st2": data[6], "mag_asa": self.asa}
 
 
 def _as_int32(value: int) -> int:

@@ -45,7 +45,12 @@ from hwbridge.devices.imu.mpu import (
     ChipSpec,
     MpuChip,
 )
-from hwbridge.devices.imu.plugin import accel_scale, gyro_scale, sample_rate_divider
+from hwbridge.devices.imu.plugin import (
+    accel_scale,
+    gyro_scale,
+    sample_rate_divider,
+    sensitivity_adjustment,
+)
 from hwbridge.devices.world import STANDARD_GRAVITY
 
 G = STANDARD_GRAVITY
@@ -403,6 +408,14 @@ def test_acceptance_9250_magnetic_field_in_tesla() -> None:
     chip.advance(0.01)
     field = imu.read(4.0).field
     assert field is not None and all(math.isnan(v) for v in field)
+
+
+def test_sensitivity_adjustment_follows_the_datasheet_formula() -> None:
+    assert sensitivity_adjustment(bytes([128, 0, 255])) == (1.0, 0.5, 1.49609375)
+    assert sensitivity_adjustment(np.array([176, 176, 176], dtype=np.uint8)) == (1.1875,) * 3
+    for bad in ([1, 2], [1, 2, 3, 4], [0, 256, 0], [-1, 0, 0]):
+        with pytest.raises(ImuError, match="sensitivity adjustment is 3 bytes"):
+            sensitivity_adjustment(bad)
 
 
 def test_6050_has_no_magnetometer() -> None:

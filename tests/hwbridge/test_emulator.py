@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import re
@@ -14,6 +15,7 @@ from typing import Any
 import pytest
 import yaml
 
+from hwbridge import msg
 from hwbridge.bridge import BoardSpec, Bridge
 from hwbridge.devices.encoders import DiffDriveParams
 from hwbridge.devices.nodes import DiffDriveNode, ImuNode, SonarNode
@@ -97,6 +99,61 @@ def test_virtual_board_through_bridge_and_device_nodes(tmp_path: Path) -> None:
         graph.close()
         board.stop()
         link.close()
+
+
+def test_mpu9250_board_gives_imu_and_magnetic_field_through_the_bridge(tmp_path: Path) -> None:
+    """An MPU-9250 on a virtual board: the board reads the AK8963 as firmware would (bypass,
+    fuse ROM, continuous 16-bit), ImuRaw carries it, and ImuNode publishes the field in tesla."""
+    diffbot = load_board("diffbot")
+    devices = tuple(
+        {**device, "type": "mpu9250"} if device["type"] == "mpu6050" else device
+        for device in diffbot.devices
+        if device["type"] in ("diffdrive", "mpu6050")
+    )
+    board = VirtualBoard(dataclasses.replace(diffbot, devices=devices), seed=9, speed=2.0)
+    link = open_link(f"pty://?symlink={tmp_path / 'imubot'}")
+    board.start(link)
+    graph = Graph.embedded(listen=[f"tcp/127.0.0.1:{free_port()}"], domain="emumag")
+    bridge = Bridge(graph)
+    fields: list[Any] = []
+    try:
+        bridge.add_board(BoardSpec(str(tmp_path / "imubot"), namespace="/bot", start_delay=0.1))
+        imu = ImuNode(graph.node("devices", namespace="/bot"))
+        graph.node("listener").subscriber("/bot/mag", "sensor_msgs/MagneticField", fields.append)
+        assert wait_until(lambda: len(fields) >= 5 and imu.latest is not None, 30)
+        truth = board.world.imu_truth().magnetic_field  # the robot stands still: constant
+        for got in fields:
+            assert got.header.frame_id == "imu_link"
+            field = got.magnetic_field
+            # 16-bit output is 0.15 uT per count, scaled back by the chip's adjustment (<1.5)
+            for value, expected in zip((field.x, field.y, field.z), truth, strict=True):
+                assert float(value) == pytest.approx(expected, abs=0.12e-6)
+        assert imu.latest.linear_acceleration.z == pytest.approx(9.81, abs=1.2)
+    finally:
+        bridge.stop()
+        graph.close()
+        board.stop()
+        link.close()
+
+
+@pytest.mark.parametrize("magnetometer", [True, False])
+def test_mpu9250_magnetometer_option(magnetometer: bool) -> None:
+    device = {"type": "mpu9250", "topic": "imu_raw", "rate": 50, "magnetometer": magnetometer}
+    config = dataclasses.replace(load_board("diffbot"), devices=(device,))
+    board = VirtualBoard(config, seed=1)
+    ((_, read),) = board._readers
+    raws = []
+    for _ in range(3):
+        board.world.step(0.02)  # the AK8963 measures at 100 Hz: one is ready every reading
+        channel, payload = read()
+        assert board._channel_names[channel] == "imu_raw"
+        raws.append(msg.decode(payload, "hwbridge_msgs/ImuRaw"))
+    assert [bool(raw.mag_valid) for raw in raws] == [magnetometer] * 3
+    if magnetometer:
+        assert all(150 <= int(value) < 200 for value in raws[-1].mag_asa)  # the model's fuses
+        assert int(raws[-1].mag_st2) == 0x10  # 16-bit output, no overflow
+    else:
+        assert list(raws[-1].mag) == [0, 0, 0]
 
 
 def test_a_failing_device_reading_is_logged_and_the_board_keeps_running(

@@ -12,10 +12,13 @@ import threading
 import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from hwbridge.errors import HwBridgeError
 from hwbridge.graph import DeferredReply, Node, Publisher, RawMessage, ServiceServer, Subscriber
+
+if TYPE_CHECKING:
+    from hwbridge.bridge.board import BoardConnection
 
 __all__ = ["ROSOUT_LEVELS", "BoardEndpoints", "PendingCalls"]
 
@@ -30,14 +33,14 @@ class EventDispatch:
     The handler of each event class is looked up once, then kept: this runs per message.
     """
 
-    _handlers: dict[type, Callable[[Any], None]]
+    def __init__(self) -> None:
+        self._handlers: dict[type, Callable[[Any], None]] = {}
 
     def on_event(self, event: Any) -> None:
         kind = type(event)
-        handlers = self.__dict__.setdefault("_handlers", {})
-        handler = handlers.get(kind)
+        handler = self._handlers.get(kind)
         if handler is None:
-            handler = handlers[kind] = getattr(self, f"_on_{kind.__name__}", _ignore)
+            handler = self._handlers[kind] = getattr(self, f"_on_{kind.__name__}", _ignore)
         handler(event)
 
 
@@ -117,12 +120,24 @@ class BoardEndpoints:
         self.subscribers[topic] = self.node.subscriber(topic, type_name, on_message, raw=True)
 
     def serve(
-        self, name: str, srv_type: str, start: Callable[[bytes, DeferredReply], None]
+        self,
+        name: str,
+        srv_type: str,
+        board: BoardConnection,
+        send: Callable[[Any, bytes], int],
     ) -> None:
-        """A service the board serves: ``start(request, reply)`` sends the request to the board
-        and registers ``reply``, answered from the pump thread when the board responds."""
-        if name not in self.servers:
-            self.servers[name] = self.node.deferred_service(name, srv_type, start)
+        """A service the board serves. Each graph call runs ``send(session, request)`` under the
+        board's pump lock: it sends the request and returns the session's request id, under
+        which the caller's reply is registered before the lock is let go, so the board's answer
+        (read by the pump thread, which resolves the reply) always finds it."""
+        if name in self.servers:
+            return
+        pending = self.pending
+
+        def start(request: bytes, reply: DeferredReply) -> None:
+            board.pump.call(lambda session: pending.add(send(session, request), reply))
+
+        self.servers[name] = self.node.deferred_service(name, srv_type, start)
 
     def call_graph_service(
         self,

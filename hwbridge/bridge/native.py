@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Any
 
 from hwbridge.bridge.endpoints import BoardEndpoints, EventDispatch
 from hwbridge.errors import HwBridgeError, LinkError
-from hwbridge.graph import DeferredReply, ParamError
+from hwbridge.graph import ParamError
 from hwbridge.protocols.native import session as ns
 from hwbridge.protocols.native.control import EntryKind
 
@@ -19,12 +19,18 @@ if TYPE_CHECKING:
 __all__ = ["NativeAdapter"]
 
 
+def _call_on(channel: int) -> Callable[[ns.HostSession, bytes], int]:
+    """How a graph call of the board's service on ``channel`` reaches the board."""
+    return lambda session, request: session.call_service(channel, request, now=time.monotonic())
+
+
 class NativeAdapter(EventDispatch):
     """Maps :class:`HostSession` events onto the graph for one board connection."""
 
     protocol = "native"
 
     def __init__(self, board: BoardConnection) -> None:
+        super().__init__()
         self.board = board
         self.log = logging.getLogger(f"hwbridge.board.{board.name}")
         config = ns.HostConfig(epoch_offset=time.time() - time.monotonic())
@@ -104,7 +110,7 @@ class NativeAdapter(EventDispatch):
         elif entry.kind == EntryKind.SUBSCRIBER:
             self.endpoints.subscribe(name, entry.type_name, self._deliver(entry.channel))
         elif entry.kind == EntryKind.SERVICE_SERVER:
-            self.endpoints.serve(name, entry.type_name, self._server_call(entry.channel))
+            self.endpoints.serve(name, entry.type_name, self.board, _call_on(entry.channel))
         # SERVICE_CLIENT entries need nothing until the board calls (ServiceRequest).
 
     def _deliver(self, channel: int) -> Callable[[bytes], None]:
@@ -114,16 +120,6 @@ class NativeAdapter(EventDispatch):
                 self.log.warning("%s: message to channel %d not sent", self.board.name, channel)
 
         return deliver
-
-    def _server_call(self, channel: int) -> Callable[[bytes, DeferredReply], None]:
-        def start(request: bytes, reply: DeferredReply) -> None:
-            def send(session: ns.HostSession) -> None:
-                request_id = session.call_service(channel, request, now=time.monotonic())
-                self.endpoints.pending.add(request_id, reply)
-
-            self.board.pump.call(send)
-
-        return start
 
     def _on_Message(self, event: ns.Message) -> None:
         forward = self._forward.get(event.channel)

@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Any
 
 from hwbridge.bridge.endpoints import BoardEndpoints, EventDispatch
 from hwbridge.errors import HwBridgeError, LinkError, ProtocolError
-from hwbridge.graph import DeferredReply, ParamError
+from hwbridge.graph import ParamError
 from hwbridge.protocols.rosserial import RosserialHost
 from hwbridge.protocols.rosserial import host as rs
 
@@ -19,12 +19,20 @@ if TYPE_CHECKING:
 __all__ = ["RosserialAdapter"]
 
 
+def _call(name: str) -> Callable[[RosserialHost, bytes], int]:
+    """How a graph call of the board's service ``name`` reaches the board."""
+    return lambda session, request: session.call_service(
+        name, request, time.monotonic(), timeout=5.0
+    )
+
+
 class RosserialAdapter(EventDispatch):
     """Maps :class:`RosserialHost` events onto the graph for one board connection."""
 
     protocol = "rosserial"
 
     def __init__(self, board: BoardConnection, *, start_delay: float) -> None:
+        super().__init__()
         self.board = board
         self.log = logging.getLogger(f"hwbridge.board.{board.name}")
         self.session = RosserialHost(
@@ -52,7 +60,7 @@ class RosserialAdapter(EventDispatch):
             )
         for service in table.service_servers.values():
             self.endpoints.serve(
-                self.board.resolve(service.name), service.type, self._server_call(service.name)
+                self.board.resolve(service.name), service.type, self.board, _call(service.name)
             )
         first = not self.connected
         self.connected = True
@@ -67,16 +75,6 @@ class RosserialAdapter(EventDispatch):
             self.board.pump.call(lambda s: s.publish(name, data))
 
         return deliver
-
-    def _server_call(self, name: str) -> Callable[[bytes, DeferredReply], None]:
-        def start(request: bytes, reply: DeferredReply) -> None:
-            def send(session: RosserialHost) -> None:
-                request_id = session.call_service(name, request, time.monotonic(), timeout=5.0)
-                self.endpoints.pending.add(request_id, reply)
-
-            self.board.pump.call(send)
-
-        return start
 
     def _on_Message(self, event: rs.Message) -> None:
         forward = self._forward.get(event.topic)

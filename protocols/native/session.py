@@ -563,7 +563,8 @@ _CONNECTED: Final = SessionState.CONNECTED
 _CLOSED: Final = SessionState.CLOSED
 _ACK: Final = FrameType.ACK
 _BEST_EFFORT: Final = FrameType.BEST_EFFORT
-_SERVICE_OK: Final = ServiceStatus.OK
+_SERVICE_ERROR: Final = ServiceStatus.ERROR
+_SERVICE_NO_SERVICE: Final = ServiceStatus.NO_SERVICE
 
 
 # The events of every message, built the fast way (as framing.make_frame builds frames): a
@@ -1521,14 +1522,14 @@ class _Session:
             return  # answered after its timeout: the caller already got an error
         del self._calls[msg.request_id]
         error: HwBridgeError | None = None
-        if msg.status is not _SERVICE_OK:
-            if msg.status == ServiceStatus.ERROR:
-                text = msg.body.decode("utf-8", errors="replace")
-                error = SessionError(f"service {call.name} (channel {msg.channel}) failed: {text}")
-            elif msg.status == ServiceStatus.NO_SERVICE:
-                error = SessionError(
-                    f"service {call.name} (channel {msg.channel}): the peer does not serve it"
-                )
+        status = msg.status
+        if status is _SERVICE_ERROR:
+            text = msg.body.decode("utf-8", errors="replace")
+            error = SessionError(f"service {call.name} (channel {msg.channel}) failed: {text}")
+        elif status is _SERVICE_NO_SERVICE:
+            error = SessionError(
+                f"service {call.name} (channel {msg.channel}): the peer does not serve it"
+            )
         payload = msg.body if error is None else b""
         self._events.append(_service_response(msg.channel, msg.request_id, payload, error))
 

@@ -220,10 +220,6 @@ class _BoardTimer:
         result: list[Any] = self.inner.receive_data(data, now)
         return result
 
-    def tick(self, now: float) -> list[Any]:
-        result: list[Any] = self.inner.tick(now)
-        return result
-
     def data_to_send(self) -> bytes:
         data: bytes = self.inner.data_to_send()
         if data and self.answered and self._received_at is not None:

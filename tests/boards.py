@@ -9,7 +9,6 @@ port, and the board can be killed and started again at the same path.
 from __future__ import annotations
 
 import threading
-import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -18,6 +17,7 @@ from hwbridge import msg
 from hwbridge.links import open_link
 from hwbridge.protocols.rosserial import RosserialDevice
 from hwbridge.pump import SansIOSession, SessionPump
+from tests.netutil import wait_until
 
 
 class PtyBoard:
@@ -101,12 +101,8 @@ def chatter(count: list[int]) -> Callable[[RosserialDevice], object]:
 
 
 def wait_for(condition: Callable[[], bool], timeout: float = 15.0) -> bool:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if condition():
-            return True
-        time.sleep(0.02)
-    return condition()
+    """:func:`tests.netutil.wait_until` with this module's longer default and coarser step."""
+    return wait_until(condition, timeout, step=0.02)
 
 
 def native_sketch(name: str = "uno") -> Any:

@@ -406,15 +406,15 @@ class DynamixelBus:
 
     def register(self, id: int, name: str | int) -> Register:
         """The register ``name`` (or the one starting at address ``name``) of ``id``'s model."""
-        table = self.model(id).table
+        model = self.model(id)
         if isinstance(name, int):
-            register = table.at(name)
+            register = model.table.at(name)
             if register is None:
                 raise HwBridgeError(
-                    f"servo {id} ({self.model(id).name}): no register starts at address {name}"
+                    f"servo {id} ({model.name}): no register starts at address {name}"
                 )
             return register
-        return table[name]
+        return model.table[name]
 
     def read_register(self, id: int, name: str | int) -> int:
         """A register's value (signed where the register is)."""

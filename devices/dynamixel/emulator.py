@@ -235,8 +235,7 @@ class EmulatedServo:
         self._hold()
 
     def _reset_ram(self) -> None:
-        eeprom = {r.name: self.get(r.name) for r in self.model.table.registers if r.eeprom}
-        self._reset_memory(keep=eeprom)
+        self._reset_memory(keep=[r.name for r in self.model.table.registers if r.eeprom])
 
     def _hold(self) -> None:
         """Goal Position := where the shaft is (torque on, reboot)."""
@@ -291,17 +290,12 @@ class EmulatedServo:
         speed = self.get("Moving Speed")
         magnitude = speed & 0x3FF
         top = self._max_speed()
+        rate = min(self._ticks_per_s(magnitude * self.model.velocity_unit_rpm), top)
         if self.wheel_mode:
-            rate = min(self._ticks_per_s(magnitude * self.model.velocity_unit_rpm), top)
             self.velocity = -rate if speed & 0x400 else rate
             self.position = (self.position + self.velocity * dt) % 1024
         else:
-            vmax = (
-                top
-                if magnitude == 0
-                else min(self._ticks_per_s(magnitude * self.model.velocity_unit_rpm), top)
-            )
-            self._track(float(self.get("Goal Position")), vmax, math.inf, dt)
+            self._track(float(self.get("Goal Position")), rate if magnitude else top, math.inf, dt)
 
     def _ramp(self, goal: float, accel: float, dt: float) -> None:
         change = goal - self.velocity
@@ -337,9 +331,10 @@ class EmulatedServo:
 
     def _publish(self, now: float) -> None:
         """Write the present values into the control table."""
+        velocity_units = round(
+            self.velocity * 60.0 / self.model.ticks_per_turn / self.model.velocity_unit_rpm
+        )
         if self.x_series:
-            unit = self.model.velocity_unit_rpm
-            velocity_units = round(self.velocity * 60.0 / self.model.ticks_per_turn / unit)
             position = round(self.position)
             self.set("Present Position", position)
             self.set("Position Trajectory", position)
@@ -356,16 +351,7 @@ class EmulatedServo:
             self.set("Present Input Voltage", self.voltage)
             self.set("Present Temperature", self.temperature)
         else:
-            magnitude = min(
-                round(
-                    abs(self.velocity)
-                    * 60.0
-                    / self.model.ticks_per_turn
-                    / self.model.velocity_unit_rpm
-                ),
-                0x3FF,
-            )
-            speed = magnitude | (0x400 if self.velocity < 0 else 0)
+            speed = min(abs(velocity_units), 0x3FF) | (0x400 if self.velocity < 0 else 0)
             self.set("Present Position", max(0, min(1023, round(self.position))))
             self.set("Present Speed", speed)
             self.set("Moving", int(self._moving()))
@@ -421,9 +407,7 @@ class EmulatedServo:
             value = self._merged(address, data, reg)
             if reg.allowed is not None and value not in reg.allowed:
                 return Error2.DATA_RANGE
-            if (reg.low is not None and value < reg.low) or (
-                reg.high is not None and value > reg.high
-            ):
+            if not reg.in_range(value):
                 return Error2.DATA_RANGE
             if reg.name == "Goal Position" and mode != 3:
                 if abs(value) > 1_048_575:
@@ -444,9 +428,7 @@ class EmulatedServo:
             return Error1.RANGE
         for reg in regs:
             value = self._merged(address, data, reg)
-            if (reg.low is not None and value < reg.low) or (
-                reg.high is not None and value > reg.high
-            ):
+            if not reg.in_range(value):
                 return Error1.RANGE
             if reg.name == "Goal Position":
                 cw = self._merged(address, data, self.register("CW Angle Limit"))
@@ -456,6 +438,13 @@ class EmulatedServo:
             if reg.name == "Torque Enable" and value and self.alarm & self.get("Shutdown"):
                 return Error1.RANGE
         return 0
+
+    def write(self, address: int, data: bytes) -> int:
+        """:meth:`check_write`, then :meth:`apply_write` if accepted; the error (0: written)."""
+        error = self.check_write(address, data)
+        if not error:
+            self.apply_write(address, data)
+        return error
 
     def apply_write(self, address: int, data: bytes) -> None:
         """Store a checked write and apply its side effects."""
@@ -475,6 +464,15 @@ class EmulatedServo:
         self._reset_memory(keep=keep)
         self.registered = None
         self.alarm = 0
+
+    def clear_multi_turn(self, now: float) -> bool:
+        """CLEAR: Present Position back within one turn; False (refused) while moving."""
+        if self._moving() or self.velocity:
+            return False
+        self.position = self.position % 4096
+        self._hold()
+        self._publish(now)
+        return True
 
     def reboot(self, now: float) -> None:
         """RAM back to initial values, hardware errors cleared, deaf for a moment."""
@@ -718,11 +716,11 @@ class EmulatedDynamixelBus:
                 reply(error, data, level=1)
             elif code in (Instruction.WRITE, Instruction.REG_WRITE):
                 address, data = parse_write(p, packet.params)
-                error = servo.check_write(address, data)
-                if not error:
-                    if code == Instruction.WRITE:
-                        servo.apply_write(address, data)
-                    else:
+                if code == Instruction.WRITE:
+                    error = servo.write(address, data)
+                else:
+                    error = servo.check_write(address, data)
+                    if not error:
                         servo.registered = (address, data)
                         servo.set(servo.registered_name, 1)
                 reply(error)
@@ -735,10 +733,7 @@ class EmulatedDynamixelBus:
                     address, data = servo.registered
                     servo.registered = None
                     servo.set(servo.registered_name, 0)
-                    error = servo.check_write(address, data)
-                    if not error:
-                        servo.apply_write(address, data)
-                    reply(error)
+                    reply(servo.write(address, data))
             elif code == Instruction.FACTORY_RESET:
                 self._factory_reset(servo, packet, broadcast, reply)
             elif code == Instruction.REBOOT and p == 2:
@@ -747,13 +742,8 @@ class EmulatedDynamixelBus:
             elif code == Instruction.CLEAR and p == 2:
                 if bytes(packet.params) != CLEAR_MULTI_TURN:
                     reply(bad_instruction)
-                elif servo._moving() or servo.velocity:
-                    reply(Error2.RESULT_FAIL)
                 else:
-                    servo.position = servo.position % 4096
-                    servo._hold()
-                    servo._publish(now)
-                    reply(0)
+                    reply(0 if servo.clear_multi_turn(now) else Error2.RESULT_FAIL)
             else:
                 reply(bad_instruction)
         except FramingError as exc:
@@ -798,13 +788,13 @@ class EmulatedDynamixelBus:
                 address, _, items = parse_sync_write(p, packet.params)
                 for id_, data in items:
                     servo = by_id.get(id_)
-                    if servo is not None and not servo.check_write(address, data):
-                        servo.apply_write(address, data)
+                    if servo is not None:
+                        servo.write(address, data)
             elif code == Instruction.BULK_WRITE and p == 2:
                 for id_, address, data in parse_bulk_write(packet.params):
                     servo = by_id.get(id_)
-                    if servo is not None and not servo.check_write(address, data):
-                        servo.apply_write(address, data)
+                    if servo is not None:
+                        servo.write(address, data)
             elif code == Instruction.SYNC_READ and p == 2:
                 address, length, ids = parse_sync_read(p, packet.params)
                 self._answer_reads([(i, address, length) for i in ids], by_id, now)

@@ -121,14 +121,14 @@ class DynamixelNode:
             register = "Goal Velocity"
         else:
             register = "Profile Velocity"
+        ax_joint_mode = model.series == "AX" and not self._wheel_mode[joint]
 
         def take(message: Any) -> None:
             value = float(message.data)
             if not math.isfinite(value):
                 return
-            wheel = model.series == "AX"
             raw = model.rad_s_to_velocity(value if register != "Profile Velocity" else abs(value))
-            if wheel and not self._wheel_mode[joint]:
+            if ax_joint_mode:
                 raw &= 0x3FF  # joint mode: a speed, no direction
             self._set_goal(joint, register, raw)
 

@@ -312,9 +312,7 @@ def unstuff(data: bytes | bytearray | memoryview) -> bytes:
 
 
 def _check_id(protocol: int, id_: int, *, status: bool) -> None:
-    top = MAX_ID.get(protocol)
-    if top is None:
-        raise ValueError(f"protocol must be 1 or 2, not {protocol!r}")
+    top = MAX_ID[_protocol(protocol)]
     if not (0 <= id_ <= top or (id_ == BROADCAST_ID and not status)):
         extra = "" if status else f" or {BROADCAST_ID} (broadcast)"
         raise ValueError(f"Protocol {protocol}.0 IDs are 0-{top}{extra}, not {id_}")
@@ -416,8 +414,7 @@ class PacketParser:
     _last_rx: float | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
-        if self.protocol not in (1, 2):
-            raise ValueError(f"protocol must be 1 or 2, not {self.protocol!r}")
+        _protocol(self.protocol)
 
     @property
     def buffered(self) -> int:
@@ -495,8 +492,9 @@ class PacketParser:
             return True
         frame = bytes(buf[:total])
         crc = frame[-2] | (frame[-1] << 8)
-        if crc16(frame[:-2]) != crc:
-            self._corrupt(out, id_, frame, f"CRC {crc:04X} where {crc16(frame[:-2]):04X} fits")
+        fits = crc16(frame[:-2])
+        if fits != crc:
+            self._corrupt(out, id_, frame, f"CRC {crc:04X} where {fits:04X} fits")
             return False
         try:
             body = unstuff(frame[7:-2])
@@ -510,9 +508,7 @@ class PacketParser:
             packet: Packet = StatusPacket(id_, body[1], body[2:], 2)
         else:
             packet = InstructionPacket(id_, body[0], body[1:], 2)
-        del buf[:total]
-        self.stats.packets += 1
-        out.append(packet)
+        self._take(out, packet, total)
         return False
 
     def _scan1(self, out: list[Packet | CorruptPacket]) -> bool:
@@ -535,13 +531,9 @@ class PacketParser:
         if len(buf) < total:
             return True
         frame = bytes(buf[:total])
-        if checksum(frame[2:-1]) != frame[-1]:
-            self._corrupt(
-                out,
-                id_,
-                frame,
-                f"checksum {frame[-1]:02X} where {checksum(frame[2:-1]):02X} fits",
-            )
+        fits = checksum(frame[2:-1])
+        if fits != frame[-1]:
+            self._corrupt(out, id_, frame, f"checksum {frame[-1]:02X} where {fits:02X} fits")
             return False
         code, params = frame[4], frame[5:-1]
         packet: Packet = (
@@ -549,10 +541,14 @@ class PacketParser:
             if self.expect == "status"
             else InstructionPacket(id_, code, params, 1)
         )
-        del buf[:total]
+        self._take(out, packet, total)
+        return False
+
+    def _take(self, out: list[Packet | CorruptPacket], packet: Packet, size: int) -> None:
+        """``packet`` was the first ``size`` bytes of the buffer."""
+        del self._buffer[:size]
         self.stats.packets += 1
         out.append(packet)
-        return False
 
     def _corrupt(
         self, out: list[Packet | CorruptPacket], id_: int, frame: bytes, reason: str

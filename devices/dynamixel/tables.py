@@ -84,6 +84,10 @@ class Register:
     def writable(self) -> bool:
         return self.access == "RW"
 
+    def in_range(self, value: int) -> bool:
+        """``low <= value <= high`` (a missing bound does not limit)."""
+        return (self.low is None or value >= self.low) and (self.high is None or value <= self.high)
+
     def decode(self, data: bytes) -> int:
         """The register's value from its little-endian bytes."""
         return int.from_bytes(data, "little", signed=self.signed)

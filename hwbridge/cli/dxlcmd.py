@@ -82,10 +82,10 @@ def _emit(data: Any) -> None:
 
 
 def _open_bus(
-    url: str, protocol: int, baud: int | None, timeout: float, retries: int, model: str | None
+    url: str, protocol: int, baud: int | None, timeout: float, retries: int
 ) -> DynamixelBus:
     from hwbridge.devices.dynamixel import DynamixelBus
-    from hwbridge.links import create_link
+    from hwbridge.links import open_link
     from hwbridge.links.registry import scheme_of
 
     options: dict[str, Any] = {}
@@ -96,8 +96,7 @@ def _open_bus(
             options["baud"] = _FACTORY_BAUD[protocol]
     elif baud is not None:
         raise typer.BadParameter("--baud applies to serial ports only", param_hint="--baud")
-    link = create_link(url, **options)
-    link.open()
+    link = open_link(url, **options)
     return DynamixelBus(link, protocol, timeout=timeout, retries=retries, owns_link=True)
 
 
@@ -142,7 +141,7 @@ def scan(
 ) -> None:
     """Find the servos on a bus (one broadcast PING on 2.0, a PING per ID on 1.0)."""
     wanted = parse_ids(ids) if ids else None
-    with _open_bus(url, protocol, baud, timeout, retries, None) as bus:
+    with _open_bus(url, protocol, baud, timeout, retries) as bus:
         found = bus.scan(wanted)
     if as_json:
         _emit([r.as_dict() for r in found])
@@ -183,7 +182,7 @@ def ping(
     as_json: JsonOpt = False,
 ) -> None:
     """PING one servo and show its model and firmware."""
-    with _open_bus(url, protocol, baud, timeout, retries, None) as bus:
+    with _open_bus(url, protocol, baud, timeout, retries) as bus:
         result = bus.ping(id_)
     if as_json:
         _emit(result.as_dict())
@@ -209,11 +208,11 @@ def read(
     as_json: JsonOpt = False,
 ) -> None:
     """Read a register (by name from the model's control table) or raw bytes at an address."""
-    with _open_bus(url, protocol, baud, timeout, retries, model) as bus:
+    with _open_bus(url, protocol, baud, timeout, retries) as bus:
         address, length, register = _resolve(bus, id_, target, size, model)
         data = bus.read(id_, address, length)
-        converted = _converted(bus, id_, register, data)
-    value = register.decode(data) if register is not None else int.from_bytes(data, "little")
+        value = register.decode(data) if register is not None else int.from_bytes(data, "little")
+        converted = _converted(bus, id_, register, value)
     if as_json:
         _emit(
             {
@@ -239,7 +238,7 @@ def read(
 
 
 def _converted(
-    bus: DynamixelBus, id_: int, register: Register | None, data: bytes
+    bus: DynamixelBus, id_: int, register: Register | None, value: int
 ) -> dict[str, float]:
     """SI values of position and velocity registers (rad, rad/s)."""
     if register is None:
@@ -248,7 +247,6 @@ def _converted(
         model = bus.model(id_)
     except HwBridgeError:
         return {}
-    value = register.decode(data)
     if register.name in ("Present Position", "Goal Position", "Position Trajectory"):
         return {"value_rad": model.ticks_to_radians(value)}
     if register.name in (
@@ -296,7 +294,7 @@ def write(
 ) -> None:
     """Write a register (by name) or raw bytes at an address (little-endian)."""
     number = _parse_value(value)
-    with _open_bus(url, protocol, baud, timeout, retries, model) as bus:
+    with _open_bus(url, protocol, baud, timeout, retries) as bus:
         address, length, register = _resolve(bus, id_, target, size, model)
         try:
             if register is not None:

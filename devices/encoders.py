@@ -83,6 +83,12 @@ def _counter_bits(bits: int) -> int:
     return bits
 
 
+def _velocity_window(window: int) -> int:
+    if window < 1:
+        raise EncoderConfigError(f"velocity_window must be at least 1, got {window!r}")
+    return window
+
+
 # ---------------------------------------------------------------------- counters
 def wrap_counter(value: int, bits: int) -> int:
     """``value`` as the board's unsigned ``bits``-bit counter holds it (modulo 2**bits)."""
@@ -280,8 +286,7 @@ class DiffDriveOdometry:
         self.wheel_separation = _positive("wheel_separation", wheel_separation)
         self.counts_per_rev = _positive("counts_per_rev", counts_per_rev)
         self.counter_bits = _counter_bits(counter_bits)
-        if velocity_window < 1:
-            raise EncoderConfigError(f"velocity_window must be at least 1, got {velocity_window!r}")
+        _velocity_window(velocity_window)
         self.frame_id = frame_id
         self.child_frame_id = child_frame_id
         self.pose_covariance = covariance_from_diagonal(pose_covariance_diagonal)
@@ -487,10 +492,7 @@ class DiffDriveParams:
             _positive(name, getattr(self, name))
         _positive("cmd_vel_timeout", self.cmd_vel_timeout)
         _counter_bits(self.counter_bits)
-        if self.velocity_window < 1:
-            raise EncoderConfigError(
-                f"velocity_window must be at least 1, got {self.velocity_window!r}"
-            )
+        _velocity_window(self.velocity_window)
         covariance_from_diagonal(self.pose_covariance_diagonal)
         covariance_from_diagonal(self.twist_covariance_diagonal)
 

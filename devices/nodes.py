@@ -26,6 +26,7 @@ from hwbridge.devices.encoders import (
     DiffDriveParams,
     wrap_delta,
 )
+from hwbridge.devices.imu.mpu import ACCEL_RANGES_G, GYRO_RANGES_DPS
 from hwbridge.devices.imu.plugin import MpuImu, RawSample, sensitivity_adjustment
 from hwbridge.devices.ultrasonic import UltrasonicRanger
 from hwbridge.graph import Node
@@ -33,9 +34,6 @@ from hwbridge.graph import Node
 __all__ = ["DiffDriveNode", "ImuNode", "SonarNode"]
 
 log = logging.getLogger("hwbridge.devices")
-
-_ACCEL_RANGES = (2, 4, 8, 16)
-_GYRO_RANGES = (250, 500, 1000, 2000)
 
 
 class DiffDriveNode:
@@ -150,7 +148,9 @@ class ImuNode:
         found = self._converters.get(key)
         if found is None:
             found = MpuImu(
-                _NoPort(), accel_range_g=_ACCEL_RANGES[key[0]], gyro_range_dps=_GYRO_RANGES[key[1]]
+                _NoPort(),
+                accel_range_g=ACCEL_RANGES_G[key[0]],
+                gyro_range_dps=GYRO_RANGES_DPS[key[1]],
             )
             self._converters[key] = found
         return found

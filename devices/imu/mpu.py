@@ -80,6 +80,7 @@ __all__ = [
     "Mpu9250",
     "MpuChip",
     "Vector3",
+    "gyro_output_rate",
 ]
 
 Vector3 = tuple[float, float, float]
@@ -138,6 +139,12 @@ MAG_UT_PER_LSB_16BIT: Final = 0.15
 MAG_UT_PER_LSB_14BIT: Final = 0.6
 MAG_RANGE_UT: Final = 4912.0
 """AK8963 measurement range (+-uT); beyond it ST2's HOFL bit is set."""
+
+
+def gyro_output_rate(dlpf_cfg: int) -> float:
+    """Gyroscope output rate (Hz) that SMPLRT_DIV divides: 8 kHz with the DLPF off (DLPF_CFG 0
+    or 7), 1 kHz otherwise."""
+    return 8000.0 if dlpf_cfg in (0, 7) else 1000.0
 
 
 class I2CError(HwBridgeError):
@@ -398,8 +405,7 @@ class MpuChip:
     @property
     def sample_rate(self) -> float:
         """Sample rate (Hz): gyro output rate / (1 + SMPLRT_DIV)."""
-        gyro_rate = 8000.0 if self.dlpf_cfg in (0, 7) else 1000.0
-        return gyro_rate / (1 + self._regs[SMPLRT_DIV])
+        return gyro_output_rate(self.dlpf_cfg) / (1 + self._regs[SMPLRT_DIV])
 
     # ------------------------------------------------------------------ time
     def set_truth(self, truth: ImuTruth) -> None:

@@ -45,6 +45,7 @@ from hwbridge.devices.imu.mpu import (
     WHO_AM_I,
     ChipSpec,
     Vector3,
+    gyro_output_rate,
 )
 from hwbridge.devices.world import STANDARD_GRAVITY
 from hwbridge.errors import HwBridgeError
@@ -58,6 +59,7 @@ __all__ = [
     "MpuImu",
     "RawSample",
     "accel_scale",
+    "configure_ak8963",
     "decode_burst",
     "gyro_scale",
     "sample_rate_divider",
@@ -129,10 +131,26 @@ def sensitivity_adjustment(asa: bytes | tuple[int, int, int] | list[int]) -> Vec
 
 def sample_rate_divider(rate_hz: float, dlpf_cfg: int) -> int:
     """SMPLRT_DIV giving the rate closest to ``rate_hz``: gyro rate / (1 + div)."""
-    gyro_rate = 8000.0 if dlpf_cfg in (0, 7) else 1000.0
+    gyro_rate = gyro_output_rate(dlpf_cfg)
     if not rate_hz > 0.0:
         raise ImuConfigError(f"sample rate must be positive, got {rate_hz!r}")
     return max(0, min(255, round(gyro_rate / rate_hz) - 1))
+
+
+def configure_ak8963(port: I2CPort, mpu_address: int = MPU_ADDRESS) -> bytes:
+    """Put an MPU-9250's AK8963 on the bus (bypass), read its fuse ROM and start it measuring
+    continuously at 100 Hz with 16-bit output; its sensitivity adjustment bytes ASAX..ASAZ."""
+    port.write(mpu_address, USER_CTRL, b"\x00")  # I2C master off ...
+    port.write(mpu_address, INT_PIN_CFG, b"\x02")  # ... and bypass on: the AK8963 appears at 0x0C
+    wia = port.read(AK8963_ADDRESS, AK8963_WIA, 1)[0]
+    if wia != AK8963_WIA_VALUE:
+        raise ImuError(f"AK8963 at 0x0C says WIA 0x{wia:02X}, expected 0x48")
+    port.write(AK8963_ADDRESS, AK8963_CNTL1, b"\x00")  # power-down between modes
+    port.write(AK8963_ADDRESS, AK8963_CNTL1, b"\x0f")  # fuse ROM access
+    asa = port.read(AK8963_ADDRESS, AK8963_ASAX, 3)
+    port.write(AK8963_ADDRESS, AK8963_CNTL1, b"\x00")
+    port.write(AK8963_ADDRESS, AK8963_CNTL1, b"\x16")  # 16-bit, continuous 100 Hz
+    return asa
 
 
 def _xyz(vector: Vector3) -> dict[str, float]:
@@ -210,7 +228,6 @@ class MpuImu:
         """The chip found by :meth:`configure`."""
         self.magnetometer_adjustment: Vector3 | None = None
         """AK8963 sensitivity adjustment per axis once configured (None without one)."""
-        self._mag_scale = MAG_UT_PER_LSB_16BIT
 
     # ------------------------------------------------------------------ setup
     def configure(self, reset: bool = True) -> ChipSpec:
@@ -226,22 +243,19 @@ class MpuImu:
                 f"device at 0x{self.address:02X} says WHO_AM_I 0x{who:02X}; expected 0x68 "
                 "(MPU-6050) or 0x71 (MPU-9250): check the address and the part"
             )
-        if reset:
-            self._write(PWR_MGMT_1, 0x80)
-        self._write(PWR_MGMT_1, 0x01)  # awake, clock from the X gyro's PLL
-        self._write(SMPLRT_DIV, self.divider)
-        self._write(CONFIG, self.dlpf_cfg)
-        self._write(GYRO_CONFIG, GYRO_RANGES_DPS.index(self.gyro_range_dps) << 3)
-        self._write(ACCEL_CONFIG, ACCEL_RANGES_G.index(self.accel_range_g) << 3)
-        self._write(INT_ENABLE, 0x01)  # data ready
-        expected = {
-            PWR_MGMT_1: 0x01,
+        settings = {
+            PWR_MGMT_1: 0x01,  # awake, clock from the X gyro's PLL
             SMPLRT_DIV: self.divider,
             CONFIG: self.dlpf_cfg,
             GYRO_CONFIG: GYRO_RANGES_DPS.index(self.gyro_range_dps) << 3,
             ACCEL_CONFIG: ACCEL_RANGES_G.index(self.accel_range_g) << 3,
         }
-        for reg, value in expected.items():
+        if reset:
+            self._write(PWR_MGMT_1, 0x80)
+        for reg, value in settings.items():
+            self._write(reg, value)
+        self._write(INT_ENABLE, 0x01)  # data ready
+        for reg, value in settings.items():
             got = self._read(reg, 1)[0]
             if got != value:
                 raise ImuError(
@@ -251,22 +265,9 @@ class MpuImu:
         self.chip = chip
         self.magnetometer_adjustment = None
         if chip is MPU9250 and self.use_magnetometer:
-            self._configure_magnetometer()
+            asa = configure_ak8963(self.port, self.address)
+            self.magnetometer_adjustment = sensitivity_adjustment(asa)
         return chip
-
-    def _configure_magnetometer(self) -> None:
-        self._write(USER_CTRL, 0x00)  # I2C master off ...
-        self._write(INT_PIN_CFG, 0x02)  # ... and bypass on: the AK8963 appears at 0x0C
-        wia = self.port.read(AK8963_ADDRESS, AK8963_WIA, 1)[0]
-        if wia != AK8963_WIA_VALUE:
-            raise ImuError(f"AK8963 at 0x0C says WIA 0x{wia:02X}, expected 0x48")
-        self.port.write(AK8963_ADDRESS, AK8963_CNTL1, b"\x00")  # power-down between modes
-        self.port.write(AK8963_ADDRESS, AK8963_CNTL1, b"\x0f")  # fuse ROM access
-        asa = self.port.read(AK8963_ADDRESS, AK8963_ASAX, 3)
-        self.port.write(AK8963_ADDRESS, AK8963_CNTL1, b"\x00")
-        self.port.write(AK8963_ADDRESS, AK8963_CNTL1, b"\x16")  # 16-bit, continuous 100 Hz
-        self._mag_scale = MAG_UT_PER_LSB_16BIT
-        self.magnetometer_adjustment = sensitivity_adjustment(asa)
 
     # ------------------------------------------------------------------ reading
     def data_ready(self) -> bool:
@@ -275,7 +276,7 @@ class MpuImu:
 
     def convert(self, raw: RawSample) -> tuple[Vector3, Vector3, float]:
         """SI values of a raw sample: acceleration (m/s^2), angular velocity (rad/s), temp (C)."""
-        chip = self.chip if self.chip is not None else MPU6050
+        chip = self._spec
         ab, gb = self.accel_bias, self.gyro_bias
         a = tuple(
             count * self.accel_scale - bias for count, bias in zip(raw.accel, ab, strict=True)
@@ -316,20 +317,23 @@ class MpuImu:
 
     # ------------------------------------------------------------------ messages
     @property
+    def _spec(self) -> ChipSpec:
+        """The chip found by :meth:`configure`; the MPU-6050's figures before that."""
+        return self.chip if self.chip is not None else MPU6050
+
+    @property
     def accel_variance(self) -> float:
         """Variance (m/s^2)^2 put on the diagonal of linear_acceleration_covariance."""
         if self._accel_variance is not None:
             return self._accel_variance
-        chip = self.chip if self.chip is not None else MPU6050
-        return (chip.accel_noise_std(self.dlpf_cfg) * STANDARD_GRAVITY) ** 2
+        return (self._spec.accel_noise_std(self.dlpf_cfg) * STANDARD_GRAVITY) ** 2
 
     @property
     def gyro_variance(self) -> float:
         """Variance (rad/s)^2 put on the diagonal of angular_velocity_covariance."""
         if self._gyro_variance is not None:
             return self._gyro_variance
-        chip = self.chip if self.chip is not None else MPU6050
-        return math.radians(chip.gyro_noise_std(self.dlpf_cfg)) ** 2
+        return math.radians(self._spec.gyro_noise_std(self.dlpf_cfg)) ** 2
 
     def imu_msg(self, accel: Vector3, gyro: Vector3, stamp: float) -> Any:
         """``sensor_msgs/Imu`` without orientation (its covariance[0] is -1)."""

@@ -23,19 +23,23 @@ from typing import Any
 import yaml
 
 from hwbridge import msg
+from hwbridge.devices.encoders import wrap_counter
 from hwbridge.devices.imu.mpu import (
+    ACCEL_CONFIG,
+    ACCEL_RANGES_G,
+    ACCEL_XOUT_H,
     AK8963_ADDRESS,
-    AK8963_ASAX,
-    AK8963_CNTL1,
     AK8963_HXL,
     AK8963_ST1,
-    INT_PIN_CFG,
-    USER_CTRL,
+    GYRO_CONFIG,
+    GYRO_RANGES_DPS,
+    PWR_MGMT_1,
     I2CBus,
     Mpu6050,
     Mpu9250,
     MpuChip,
 )
+from hwbridge.devices.imu.plugin import configure_ak8963, decode_burst
 from hwbridge.devices.ultrasonic import HcSr04Model
 from hwbridge.emulator.faults import FaultySession, LinkFaults
 from hwbridge.emulator.world import World, WorldConfig
@@ -183,11 +187,11 @@ class VirtualBoard:
             self._readers.append((rate, lambda: (channel, self._read_sonar(sonar))))
         elif kind in ("mpu6050", "mpu9250"):
             chip: MpuChip = (Mpu6050 if kind == "mpu6050" else Mpu9250)(seed=self.seed + 3)
-            accel_fs = {2: 0, 4: 1, 8: 2, 16: 3}[int(device.get("accel_range_g", 2))]
-            gyro_fs = {250: 0, 500: 1, 1000: 2, 2000: 3}[int(device.get("gyro_range_dps", 250))]
-            chip.write(0x6B, bytes([0x00]))  # wake (the 6050 starts asleep)
-            chip.write(0x1B, bytes([gyro_fs << 3]))
-            chip.write(0x1C, bytes([accel_fs << 3]))
+            accel_fs = ACCEL_RANGES_G.index(int(device.get("accel_range_g", 2)))
+            gyro_fs = GYRO_RANGES_DPS.index(int(device.get("gyro_range_dps", 250)))
+            chip.write(PWR_MGMT_1, bytes([0x00]))  # wake (the 6050 starts asleep)
+            chip.write(GYRO_CONFIG, bytes([gyro_fs << 3]))
+            chip.write(ACCEL_CONFIG, bytes([accel_fs << 3]))
             mag = None
             if isinstance(chip, Mpu9250) and device.get("magnetometer", True):
                 mag = _Magnetometer.set_up(chip, self.world.time)
@@ -271,8 +275,8 @@ class VirtualBoard:
     def _read_ticks(self) -> bytes:
         left, right = self.world.base.counts()
         bits = self.config.world.counter_bits
-        left = (left - self._count_offset[0]) % (1 << bits)
-        right = (right - self._count_offset[1]) % (1 << bits)
+        left = wrap_counter(left - self._count_offset[0], bits)
+        right = wrap_counter(right - self._count_offset[1], bits)
         return msg.encode(
             msg.from_dict(
                 "hwbridge_msgs/WheelTicks",
@@ -280,7 +284,7 @@ class VirtualBoard:
                     "header": {**self._stamp(), "frame_id": "base_link"},
                     "left": _as_int32(left),
                     "right": _as_int32(right),
-                    "counter_bits": self.config.world.counter_bits,
+                    "counter_bits": bits,
                 },
             )
         )
@@ -301,8 +305,7 @@ class VirtualBoard:
     def _read_imu(self, chip: MpuChip, kind: str, mag: _Magnetometer | None) -> bytes:
         chip.set_truth(self.world.imu_truth())
         chip.sample()
-        burst = chip.read(0x3B, 14)
-        words = [int.from_bytes(burst[i : i + 2], "big", signed=True) for i in range(0, 14, 2)]
+        raw = decode_burst(chip.read(ACCEL_XOUT_H, 14))
         reading = mag.read(self.world.time) if mag is not None else None
         fields = reading or {"mag": [0, 0, 0], "mag_st2": 0, "mag_asa": [0, 0, 0]}
         return msg.encode(
@@ -311,9 +314,9 @@ class VirtualBoard:
                 {
                     "header": {**self._stamp(), "frame_id": "imu_link"},
                     "chip": 0 if kind == "mpu6050" else 1,
-                    "accel_config": chip.read(0x1C, 1)[0],
-                    "gyro_config": chip.read(0x1B, 1)[0],
-                    "burst": words,
+                    "accel_config": chip.read(ACCEL_CONFIG, 1)[0],
+                    "gyro_config": chip.read(GYRO_CONFIG, 1)[0],
+                    "burst": [*raw.accel, raw.temperature, *raw.gyro],
                     **fields,
                     "mag_valid": reading is not None,
                 },
@@ -434,13 +437,7 @@ class _Magnetometer:
     @classmethod
     def set_up(cls, chip: Mpu9250, now: float) -> _Magnetometer:
         bus = I2CBus(chip)
-        chip.write(USER_CTRL, b"\x00")  # the chip's own I2C master off ...
-        chip.write(INT_PIN_CFG, b"\x02")  # ... and the bypass on: the AK8963 answers at 0x0C
-        bus.write(AK8963_ADDRESS, AK8963_CNTL1, b"\x0f")  # fuse ROM access
-        asa = bus.read(AK8963_ADDRESS, AK8963_ASAX, 3)
-        bus.write(AK8963_ADDRESS, AK8963_CNTL1, b"\x00")  # power-down between modes
-        bus.write(AK8963_ADDRESS, AK8963_CNTL1, b"\x16")  # 16-bit, continuous 100 Hz
-        return cls(chip, bus, asa, now)
+        return cls(chip, bus, configure_ak8963(bus, chip.address), now)
 
     def read(self, now: float) -> dict[str, Any] | None:
         """The ImuRaw magnetometer fields of a new measurement, None if none is ready."""

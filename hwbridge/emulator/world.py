@@ -84,7 +84,6 @@ class World:
             *cfg.obstacles,
         ]
         self._rng = np.random.default_rng(self.seed + 1)
-        self._last_v = 0.0
         self._accel = 0.0
 
     @property

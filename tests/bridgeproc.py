@@ -12,9 +12,10 @@ from tests.netutil import free_port, wait_until
 
 
 class BridgeProcess:
-    """``hwbridge connect PATH`` in a subprocess, on its own endpoint and graph domain."""
+    """``hwbridge connect PATH`` (a path or a link URL) in a subprocess, on its own endpoint and
+    graph domain."""
 
-    def __init__(self, path: Path, tmp: Path, domain: str, *extra: str) -> None:
+    def __init__(self, path: Path | str, tmp: Path, domain: str, *extra: str) -> None:
         self.endpoint = f"tcp/127.0.0.1:{free_port()}"
         self.env = {**os.environ, "HWBRIDGE_ENDPOINT": self.endpoint, "HWBRIDGE_DOMAIN": domain}
         self.log = tmp / "bridge.log"

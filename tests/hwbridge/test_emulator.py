@@ -23,6 +23,7 @@ from hwbridge.emulator import VirtualBoard, World, WorldConfig, load_board
 from hwbridge.errors import HwBridgeError
 from hwbridge.graph import Graph
 from hwbridge.links import open_link
+from tests.bridgeproc import BridgeProcess
 from tests.netutil import free_port, wait_until
 
 
@@ -209,11 +210,8 @@ def test_demo_ends_with_the_odometry_error_line() -> None:
 
 
 def test_emulate_prints_the_url_first_and_a_bridge_connects(tmp_path: Path) -> None:
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    env = _env(endpoint)
     emulator = subprocess.Popen(
         [sys.executable, "-m", "hwbridge", "emulate", "diffbot", "--tcp", "0"],
-        env=env,
         stdout=subprocess.PIPE,
         stderr=subprocess.DEVNULL,
         text=True,
@@ -223,42 +221,18 @@ def test_emulate_prints_the_url_first_and_a_bridge_connects(tmp_path: Path) -> N
         assert emulator.stdout is not None
         url = emulator.stdout.readline().strip()
         assert re.fullmatch(r"socket://127\.0\.0\.1:\d+", url), url
-        log = (tmp_path / "bridge.log").open("w")
-        bridge = subprocess.Popen(
-            [sys.executable, "-m", "hwbridge", "connect", url, "--start-delay", "0.1"],
-            env=env,
-            stdout=log,
-            stderr=subprocess.STDOUT,
-        )
-        assert wait_until(lambda: "bridging" in (tmp_path / "bridge.log").read_text(), 60)
-        echo = subprocess.run(
-            [
-                sys.executable,
-                "-m",
-                "hwbridge",
-                "topic",
-                "echo",
-                "/sonar_echo",
-                "-n",
-                "1",
-                "--timeout",
-                "30",
-            ],
-            env=env,
-            capture_output=True,
-            text=True,
-            timeout=60,
-            check=False,
-        )
-        assert echo.returncode == 0, echo.stderr + (tmp_path / "bridge.log").read_text()
+        bridge = BridgeProcess(url, tmp_path, "emudemo")
+        bridge.wait_ready()
+        echo = bridge.cli("topic", "echo", "/sonar_echo", "-n", "1", "--timeout", "30")
+        assert echo.returncode == 0, echo.stderr + bridge.output()
         reading = yaml.safe_load(echo.stdout.split("---")[0])
         assert reading["header"]["frame_id"] == "sonar_link"
         assert reading["echo_us"] > 0
     finally:
-        for process in (bridge, emulator):
-            if process is not None:
-                process.terminate()
-                process.wait(15)
+        if bridge is not None:
+            bridge.stop()
+        emulator.terminate()
+        emulator.wait(15)
 
 
 @pytest.mark.parametrize(

@@ -489,25 +489,47 @@ class ReliableReceiver:
     (a receiver with window 1 holds none: it accepts only the expected frame). Frames behind it
     (up to 128 back) are duplicates. Every reliable frame received, duplicate or not, asks for
     an ACK (:attr:`ack_needed`, :meth:`ack_frame`).
+
+    :attr:`ack_urgent` says the ACK should not be held back (PROTOCOL.md 2.4, delayed ACKs): a
+    duplicate, a frame outside the window, a frame out of order or one that releases held
+    frames (the sender learns of a gap at once), or ``ack_every`` frames in order since the last
+    ACK. With ``ack_every`` 1 every ACK is urgent.
     """
 
     __slots__ = (
         "_buffer",
         "_first_seq",
         "_reassembler",
+        "_unacked",
+        "ack_every",
         "ack_needed",
+        "ack_urgent",
         "expected",
         "stats",
         "window",
     )
 
-    def __init__(self, stats: SequenceStats, *, isn: int, window: int, max_message: int) -> None:
+    def __init__(
+        self,
+        stats: SequenceStats,
+        *,
+        isn: int,
+        window: int,
+        max_message: int,
+        ack_every: int = 1,
+    ) -> None:
         if not 1 <= window <= MAX_WINDOW:
             raise ValueError(f"window must be 1..{MAX_WINDOW}, not {window}")
+        if not 1 <= ack_every <= window:
+            raise ValueError(f"ack_every must be 1..window ({window}), not {ack_every}")
         self.stats = stats
         self.window = window
+        self.ack_every = ack_every
         self.expected = isn & 0xFF
         self.ack_needed = False
+        self.ack_urgent = False
+        self._unacked = 0
+        """Frames accepted in order since the last ACK."""
         self._buffer: dict[int, Frame] = {}
         self._reassembler = Reassembler(max_message)
         self._first_seq = 0
@@ -523,18 +545,25 @@ class ReliableReceiver:
         ahead = (frame.seq - self.expected) & 0xFF  # seq_diff(frame.seq, self.expected), inline
         if ahead >= _HALF or frame.seq in self._buffer:
             self.stats.duplicates += 1
+            self.ack_urgent = True  # the peer resends: it missed an ACK
             return []
         if ahead >= self.window:
             self.stats.out_of_window += 1
+            self.ack_urgent = True
             return []
         self.stats.rel_frames_received += 1
         if ahead:
             self._buffer[frame.seq] = frame
+            self.ack_urgent = True  # a gap: the selective bitmap lets the peer resend at once
             return []
         if not self._buffer:  # the common case: in order, nothing held back to release
+            self._unacked += 1
+            if self._unacked >= self.ack_every:
+                self.ack_urgent = True
             self.expected = (self.expected + 1) & 0xFF
             delivery = self._deliver(frame)
             return [] if delivery is None else [delivery]
+        self.ack_urgent = True  # the gap is filled: tell the peer
         out: list[Delivery] = []
         current: Frame | None = frame
         while current is not None:
@@ -569,7 +598,8 @@ class ReliableReceiver:
         Bit ``i`` of the bitmap (byte ``i // 8``, LSB first) reports seq ``ack + 2 + i`` as
         received; trailing zero bytes are left out, so an in-order receiver sends an empty one.
         """
-        self.ack_needed = False
+        self.ack_needed = self.ack_urgent = False
+        self._unacked = 0
         self.stats.acks_sent += 1
         if not self._buffer:
             return _BARE_ACKS[(self.expected - 1) & 0xFF]

@@ -96,6 +96,7 @@ from hwbridge.protocols.native.reliable import (
 )
 
 __all__ = [
+    "ACK_DELAY_MAX",
     "BoardInfo",
     "Connected",
     "DebugOutput",
@@ -129,6 +130,8 @@ __all__ = [
 
 _U32: Final = 1 << 32
 _MAX_TIME_SAMPLES: Final = 4
+ACK_DELAY_MAX: Final = 0.01
+"""Longest a receiver may hold an ACK back (seconds, PROTOCOL.md 2.4): well under any rto_min."""
 _IDLE_LEAD: Final = 0.1
 """A frame sent after the line was idle this long (seconds) gets a leading 0x00."""
 _VERSION_FRAMES_TO_REPORT: Final = 2
@@ -202,6 +205,10 @@ class SessionConfig:
     rto_max: float = 1.0
     max_retries: int = 10
     """Retransmissions of one reliable frame before the link is declared dead."""
+    ack_delay: float = 0.005
+    """Longest an ACK is held back waiting for other bytes to go out with (seconds, at most
+    ACK_DELAY_MAX; 0 sends every ACK at once). Held only on links with a window of 4 or more,
+    never for frames out of order or duplicates (PROTOCOL.md 2.4)."""
     service_timeout: float = 5.0
     param_timeout: float = 2.0
     time_sync_interval: float = 5.0
@@ -222,6 +229,8 @@ class SessionConfig:
             raise ValueError("link_timeout must be longer than heartbeat_interval")
         if self.max_retries < 1:
             raise ValueError(f"max_retries must be >= 1, not {self.max_retries}")
+        if not 0 <= self.ack_delay <= ACK_DELAY_MAX:
+            raise ValueError(f"ack_delay must be 0..{ACK_DELAY_MAX} s, not {self.ack_delay}")
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -721,6 +730,8 @@ class _Session:
         """Time requests run in this session (both ends have TIME_SYNC, the interval is > 0)."""
         self._last_rx = 0.0
         self._last_tx = 0.0
+        self._ack_due: float | None = None
+        """When a held-back ACK must go out at the latest (None: none is held)."""
         self._next_hello = 0.0
         self._waiting_since = 0.0
         """When the current wait for a connected session began."""
@@ -854,6 +865,8 @@ class _Session:
         else:
             times.append(self._last_rx + cfg.link_timeout)
             times.append(self._last_tx + cfg.heartbeat_interval)
+            if self._ack_due is not None:
+                times.append(self._ack_due)
             if self._rel_tx is not None:
                 rel = self._rel_tx.next_deadline()
                 if rel is not None:
@@ -1060,6 +1073,8 @@ class _Session:
         return events
 
     def _send_frame(self, frame: Frame, *, lead: bool = False) -> None:
+        if self._ack_due is not None:  # a held ACK goes out with the first frame that does
+            self._send_ack()
         # PROTOCOL.md 1.3: a 0x00 before a frame that follows an idle line flushes the receiver.
         now = self._now
         wire = encode_frame(frame, lead=lead or now - self._last_tx >= _IDLE_LEAD)
@@ -1097,11 +1112,21 @@ class _Session:
                 self._send_frame(frame)
 
     def _flush(self) -> None:
-        """Send a pending ACK and release reliable frames the window allows."""
+        """Send a pending ACK (or hold it back, PROTOCOL.md 2.4) and release reliable frames the
+        window allows."""
         receiver = self._rel_rx
         if receiver is not None and receiver.ack_needed:
-            self._send_frame(receiver.ack_frame())
+            if receiver.ack_urgent or self._out or self._rel_tx is None or self._rel_tx.has_pending:
+                self._send_ack()
+            elif self._ack_due is None:
+                self._ack_due = self._now + self._cfg.ack_delay
         self._pump()
+
+    def _send_ack(self) -> None:
+        self._ack_due = None
+        receiver = self._rel_rx
+        if receiver is not None:
+            self._send_frame(receiver.ack_frame())
 
     def _check_size(self, size: int, what: str, *args: object) -> None:
         """Raise if ``size`` is above the peer's max_message; ``what % args`` names the
@@ -1366,8 +1391,14 @@ class _Session:
             queue_limit=cfg.tx_queue_limit,
         )
         self._rel_rx = ReliableReceiver(
-            self._seq, isn=peer.isn, window=window, max_message=cfg.max_message
+            self._seq,
+            isn=peer.isn,
+            window=window,
+            max_message=cfg.max_message,
+            # ACKs wait (ack_delay) only while the peer keeps at least half its window free.
+            ack_every=max(1, window // 2) if cfg.ack_delay > 0 else 1,
         )
+        self._ack_due = None
         self._decoder.max_payload = mtu
         self._state = SessionState.CONFIGURING
         self._configuring_since = self._now
@@ -1396,6 +1427,7 @@ class _Session:
             self._last_peer_id = self._peer_id
         self._rel_tx = None
         self._rel_rx = None
+        self._ack_due = None
         self._established = False
         self._peer_id = NO_SESSION
         self._link = None
@@ -1453,6 +1485,8 @@ class _Session:
             self._teardown(reason, HwBridgeTimeoutError(reason))
             self._run_timers()
             return
+        if self._ack_due is not None and now >= self._ack_due:
+            self._send_ack()
         sender = self._rel_tx
         assert sender is not None
         try:

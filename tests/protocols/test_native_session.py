@@ -422,6 +422,102 @@ def test_window_one_receiver_holds_nothing_out_of_order() -> None:
     assert rx.ack_frame().payload == b""
 
 
+def test_receiver_holds_acks_only_for_frames_in_order() -> None:
+    """ack_every 3: in-order frames make an ACK due but not urgent until the third; anything
+    that tells the sender of a gap or a lost ACK is urgent at once."""
+    rx = ReliableReceiver(SequenceStats(), isn=10, window=8, max_message=100, ack_every=3)
+
+    def frame(seq: int) -> Frame:
+        return Frame(FrameType.RELIABLE, 7, seq & 0xFF, b"")
+
+    for seq, urgent in ((10, False), (11, False), (12, True)):
+        rx.receive(frame(seq))
+        assert (rx.ack_needed, rx.ack_urgent) == (True, urgent)
+    assert rx.ack_frame().seq == 12
+    assert (rx.ack_needed, rx.ack_urgent) == (False, False)
+    rx.receive(frame(13))  # the count starts again after an ACK
+    assert not rx.ack_urgent
+    for name, seq in (("duplicate", 12), ("early", 15), ("fills the gap", 14), ("outside", 40)):
+        rx.ack_frame()
+        rx.receive(frame(seq))
+        assert rx.ack_needed and rx.ack_urgent, name
+    with pytest.raises(ValueError, match=r"ack_every must be 1\.\.window"):
+        ReliableReceiver(SequenceStats(), isn=0, window=2, max_message=10, ack_every=3)
+    with pytest.raises(ValueError, match="ack_delay must be"):
+        HostConfig(ack_delay=0.5)
+
+
+def _frame_types(wire: bytes) -> list[FrameType]:
+    return [f.type for f in FrameDecoder(4096).feed(wire) if isinstance(f, Frame)]
+
+
+def _quiet_link(window: int, ack_delay: float = 0.005) -> SimLink:
+    """A connected link with no timer traffic of its own (no time sync) and nothing in flight."""
+    link = make_link(
+        11,
+        host_cfg=HostConfig(time_sync_interval=0, ack_delay=ack_delay),
+        dev_cfg=DeviceConfig(
+            window=window, mtu=64, max_message=256, time_sync_interval=0, ack_delay=ack_delay
+        ),
+    )
+    connect(link)
+    link.run(0.5)
+    link.drain()
+    return link
+
+
+def test_acks_ride_with_the_next_frame_on_a_wide_window() -> None:
+    link = _quiet_link(window=8)
+    host, device = link.host, link.device
+    t = link.now
+    host.call_service(CH_RESET, b"ping", now=t)
+    request = host.data_to_send()
+    assert _frame_types(request) == [FrameType.RELIABLE]
+    (call,) = of_type(device.receive_data(request, link.device_time(t)), ServiceRequest)
+    assert device.data_to_send() == b""  # the ACK of the request waits for the answer ...
+    device.respond_service(call.channel, call.request_id, b"pong")
+    answer = device.data_to_send()
+    assert _frame_types(answer) == [FrameType.ACK, FrameType.RELIABLE]  # ... and goes with it
+    (response,) = of_type(host.receive_data(answer, t), ServiceResponse)
+    assert response.ok and response.payload == b"pong"
+    assert host.data_to_send() == b""  # held too: the next request takes it along
+    t += 0.001
+    host.call_service(CH_RESET, b"again", now=t)
+    request = host.data_to_send()
+    assert _frame_types(request) == [FrameType.ACK, FrameType.RELIABLE]
+
+    # With nothing else to send, a held ACK goes out once ack_delay has passed.
+    (call,) = of_type(device.receive_data(request, link.device_time(t)), ServiceRequest)
+    device.respond_service(call.channel, call.request_id, b"done")
+    (response,) = of_type(host.receive_data(device.data_to_send(), t), ServiceResponse)
+    assert response.payload == b"done"
+    assert host.data_to_send() == b""
+    due = host.next_deadline()
+    assert due is not None and t < due <= t + 0.005 + 1e-9
+    host.tick(due - 0.0001)
+    assert host.data_to_send() == b""
+    host.tick(due)
+    assert _frame_types(host.data_to_send()) == [FrameType.ACK]
+    assert host.stats.retransmits == device.stats.retransmits == 0
+
+
+@pytest.mark.parametrize(("window", "ack_delay"), [(1, 0.005), (3, 0.005), (8, 0.0)])
+def test_acks_go_at_once_on_narrow_windows_or_without_a_delay(
+    window: int, ack_delay: float
+) -> None:
+    link = _quiet_link(window, ack_delay)
+    host, device = link.host, link.device
+    t = link.now
+    host.call_service(CH_RESET, b"ping", now=t)
+    (call,) = of_type(device.receive_data(host.data_to_send(), link.device_time(t)), ServiceRequest)
+    assert _frame_types(device.data_to_send()) == [FrameType.ACK]
+    device.respond_service(call.channel, call.request_id, b"pong")
+    answer = device.data_to_send()
+    assert _frame_types(answer) == [FrameType.RELIABLE]
+    host.receive_data(answer, t)
+    assert _frame_types(host.data_to_send()) == [FrameType.ACK]
+
+
 def test_best_effort_gaps_and_lost_fragments_are_counted() -> None:
     stats = SequenceStats()
     tx = BestEffortSender(stats)
@@ -563,7 +659,8 @@ def test_silent_board_is_reported_once_after_handshake_timeout() -> None:
     loss=st.floats(0.0, 0.3),
     duplicate=st.floats(0.0, 0.2),
     reorder=st.floats(0.0, 0.3),
-    window=st.integers(1, 4),
+    window=st.integers(1, 12),
+    ack_delay=st.sampled_from([0.0, 0.005, 0.01]),
     mtu=st.sampled_from([24, 32, 64, 100]),
     sizes=st.lists(st.integers(0, 300), min_size=1, max_size=25),
 )
@@ -573,15 +670,21 @@ def test_reliable_traffic_arrives_exactly_once_in_order(
     duplicate: float,
     reorder: float,
     window: int,
+    ack_delay: float,
     mtu: int,
     sizes: list[int],
 ) -> None:
     faults: dict[str, Any] = {"duplicate": duplicate, "reorder": reorder, "max_chunk": 9}
     link = make_link(
         seed,
-        host_cfg=HostConfig(**PATIENT),
+        host_cfg=HostConfig(ack_delay=ack_delay, **PATIENT),
         dev_cfg=DeviceConfig(
-            mtu=mtu, max_message=400, window=window, tx_queue_limit=1 << 20, **PATIENT
+            mtu=mtu,
+            max_message=400,
+            window=window,
+            tx_queue_limit=1 << 20,
+            ack_delay=ack_delay,
+            **PATIENT,
         ),
         h2d=lossy(loss, **faults),
         d2h=lossy(loss, **faults),

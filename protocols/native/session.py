@@ -131,7 +131,8 @@ __all__ = [
 _U32: Final = 1 << 32
 _MAX_TIME_SAMPLES: Final = 4
 ACK_DELAY_MAX: Final = 0.01
-"""Longest a receiver may hold an ACK back (seconds, PROTOCOL.md 2.4): well under any rto_min."""
+"""Longest a receiver may hold an ACK back (seconds, PROTOCOL.md 2.4); a fifth of the default
+rto_min, so a held ACK does not make the peer resend."""
 _IDLE_LEAD: Final = 0.1
 """A frame sent after the line was idle this long (seconds) gets a leading 0x00."""
 _VERSION_FRAMES_TO_REPORT: Final = 2

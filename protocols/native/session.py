@@ -97,6 +97,7 @@ from hwbridge.protocols.native.reliable import (
 
 __all__ = [
     "ACK_DELAY_MAX",
+    "RTO_MIN_FLOOR",
     "BoardInfo",
     "Connected",
     "DebugOutput",
@@ -133,6 +134,9 @@ _MAX_TIME_SAMPLES: Final = 4
 ACK_DELAY_MAX: Final = 0.01
 """Longest a receiver may hold an ACK back (seconds, PROTOCOL.md 2.4); a fifth of the default
 rto_min, so a held ACK does not make the peer resend."""
+RTO_MIN_FLOOR: Final = 2 * ACK_DELAY_MAX
+"""Smallest allowed rto_min: a peer may hold its ACK for ACK_DELAY_MAX, and an RTO that expires
+before the ACK can come resends frames that arrived."""
 _IDLE_LEAD: Final = 0.1
 """A frame sent after the line was idle this long (seconds) gets a leading 0x00."""
 _VERSION_FRAMES_TO_REPORT: Final = 2
@@ -232,6 +236,16 @@ class SessionConfig:
             raise ValueError(f"max_retries must be >= 1, not {self.max_retries}")
         if not 0 <= self.ack_delay <= ACK_DELAY_MAX:
             raise ValueError(f"ack_delay must be 0..{ACK_DELAY_MAX} s, not {self.ack_delay}")
+        if self.rto_min < RTO_MIN_FLOOR:
+            raise ValueError(
+                f"rto_min must be at least {RTO_MIN_FLOOR} s (the peer may hold an ACK for "
+                f"{ACK_DELAY_MAX} s), not {self.rto_min}"
+            )
+        if not self.rto_min <= self.rto_initial <= self.rto_max:
+            raise ValueError(
+                "need rto_min <= rto_initial <= rto_max, not "
+                f"{self.rto_min}, {self.rto_initial}, {self.rto_max}"
+            )
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

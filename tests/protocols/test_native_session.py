@@ -55,6 +55,8 @@ from hwbridge.protocols.native.reliable import (
     SequenceStats,
 )
 from hwbridge.protocols.native.session import (
+    ACK_DELAY_MAX,
+    RTO_MIN_FLOOR,
     BoardInfo,
     Connected,
     DebugOutput,
@@ -445,6 +447,14 @@ def test_receiver_holds_acks_only_for_frames_in_order() -> None:
         ReliableReceiver(SequenceStats(), isn=0, window=2, max_message=10, ack_every=3)
     with pytest.raises(ValueError, match="ack_delay must be"):
         HostConfig(ack_delay=0.5)
+    # The peer may hold an ACK for ACK_DELAY_MAX: an RTO shorter than that resends frames that
+    # arrived. The floor itself is accepted.
+    assert ACK_DELAY_MAX < RTO_MIN_FLOOR
+    HostConfig(rto_min=RTO_MIN_FLOOR)
+    with pytest.raises(ValueError, match="rto_min must be at least"):
+        HostConfig(rto_min=ACK_DELAY_MAX)
+    with pytest.raises(ValueError, match="rto_min <= rto_initial <= rto_max"):
+        HostConfig(rto_initial=2.0)
 
 
 def _frame_types(wire: bytes) -> list[FrameType]:

@@ -80,6 +80,15 @@ def test_bridge_bench_runs_small_and_prints_the_documented_fields() -> None:
             assert line["bridge_cpu_fraction"] > 0
         else:
             assert line["calls"] == 40 and line["peer"] == "pty_echo"
-            for field in ("p50_us", "p99_us", "rtt_p50_us", "board_us", "graph_rtt_p50_us"):
+            for field in (
+                "p50_us",
+                "p99_us",
+                "rtt_p50_us",
+                "board_us",
+                "graph_rtt_p50_us",
+                "zenoh_rtt_p50_us",
+                "pty_echo_idle_us",
+                "p50_idle_echo_us",
+            ):
                 assert isinstance(line[field], float), field
             assert line["rtt_p50_us"] > line["board_us"] > 0

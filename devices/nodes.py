@@ -18,7 +18,8 @@ import logging
 import math
 import threading
 import time
-from typing import Any
+from collections.abc import Callable
+from typing import Any, Final
 
 from hwbridge.devices.encoders import (
     CommandWatchdog,
@@ -26,7 +27,7 @@ from hwbridge.devices.encoders import (
     DiffDriveParams,
     wrap_delta,
 )
-from hwbridge.devices.imu.mpu import ACCEL_RANGES_G, GYRO_RANGES_DPS
+from hwbridge.devices.imu.mpu import ACCEL_RANGES_G, GYRO_RANGES_DPS, MPU6050, MPU9250, ChipSpec
 from hwbridge.devices.imu.plugin import MpuImu, RawSample, sensitivity_adjustment
 from hwbridge.devices.ultrasonic import UltrasonicRanger
 from hwbridge.graph import Node
@@ -37,10 +38,20 @@ log = logging.getLogger("hwbridge.devices")
 
 
 class DiffDriveNode:
-    """Wheel ticks -> odometry and tf; cmd_vel -> wheel targets (stops after 0.5 s silence)."""
+    """Wheel ticks -> odometry and tf; cmd_vel -> wheel targets (stops after 0.5 s silence).
+
+    A thread repeats the latest targets at 10 Hz; when cmd_vel has been quiet for the timeout
+    it sends one stop (zero targets), then nothing until the next command. ``clock`` gives the
+    time (s) the timeout is measured in.
+    """
 
     def __init__(
-        self, node: Node, params: DiffDriveParams, *, max_wheel_speed: float = 50.0
+        self,
+        node: Node,
+        params: DiffDriveParams,
+        *,
+        max_wheel_speed: float = 50.0,
+        clock: Callable[[], float] = time.monotonic,
     ) -> None:
         self.node = node
         self.params = params
@@ -50,6 +61,12 @@ class DiffDriveNode:
         self.rereferences = 0
         self._last: tuple[int, int, float] | None = None
         self.watchdog = CommandWatchdog(params.cmd_vel_timeout)
+        self._clock = clock
+        self._command_lock = threading.Lock()
+        """Held from reading the watchdog to publishing what it said, on both paths (a new
+        cmd_vel, a control cycle), so the targets sent last are always the latest decision."""
+        self._stopped = True
+        """The last targets sent were the watchdog's stop (or nothing was commanded yet)."""
         self.latest: Any = None
         """The last nav_msgs/Odometry published."""
         self._odom = node.publisher("odom", "nav_msgs/Odometry")
@@ -93,18 +110,28 @@ class DiffDriveNode:
 
     def _on_cmd_vel(self, twist: Any) -> None:
         targets = self.odometry.wheel_targets(float(twist.linear.x), float(twist.angular.z))
-        self.watchdog.command(targets, time.monotonic())
-        self._send(targets)
+        with self._command_lock:
+            self.watchdog.command(targets, self._clock())
+            self._stopped = False
+            self._send(targets)
 
     def _send(self, targets: tuple[float, float]) -> None:
         self._targets.publish({"left": targets[0], "right": targets[1]})
 
+    def tick(self) -> None:
+        """One control cycle: repeat the latest targets, or send the stop once when cmd_vel
+        has been quiet for the timeout (the drive thread calls it every 0.1 s)."""
+        with self._command_lock:
+            now = self._clock()
+            if self.watchdog.expired(now):
+                if self._stopped:
+                    return  # stopped already; the board's own timeout holds the motors too
+                self._stopped = True
+            self._send(self.watchdog.targets(now))
+
     def _drive(self) -> None:
-        """Repeat the targets at 10 Hz; zero them once cmd_vel went quiet for the timeout."""
         while not self._stop.wait(0.1):
-            if self.watchdog.expired(time.monotonic()):
-                continue  # the board's own 0.5 s timeout has stopped the motors
-            self._send(self.watchdog.targets(time.monotonic()))
+            self.tick()
 
     def close(self) -> None:
         self._stop.set()
@@ -129,39 +156,63 @@ class SonarNode:
         self._range.publish(self.latest)
 
 
+_RAW_CHIPS: Final[dict[int, ChipSpec]] = {0: MPU6050, 1: MPU9250}
+"""hwbridge_msgs/ImuRaw ``chip`` values (its MPU6050 and MPU9250 constants) -> the chip."""
+
+
 class ImuNode:
     """Raw MPU-6050/9250 registers -> sensor_msgs/Imu in SI units (REP-145); the MPU-9250's
     magnetometer readings -> sensor_msgs/MagneticField (tesla, NaN on overflow) on ``mag``,
-    advertised with the first of them."""
+    advertised with the first of them. Each reading is converted with the figures (temperature,
+    noise) of the chip the board names; readings naming an unknown chip are dropped (counted in
+    :attr:`dropped`, logged once)."""
 
     def __init__(self, node: Node) -> None:
         self.latest: Any = None
         self.latest_field: Any = None
+        self.temperature_c: float | None = None
+        """The die temperature (C) of the latest reading."""
+        self.dropped = 0
+        """Readings dropped because they name a chip this node does not know."""
         self._node = node
-        self._converters: dict[tuple[int, int], MpuImu] = {}
+        self._converters: dict[tuple[str, int, int], MpuImu] = {}
         self._imu = node.publisher("imu", "sensor_msgs/Imu")
         self._mag: Any = None
         node.subscriber("imu_raw", "hwbridge_msgs/ImuRaw", self._on_raw)
 
-    def _converter(self, accel_config: int, gyro_config: int) -> MpuImu:
-        key = ((accel_config >> 3) & 3, (gyro_config >> 3) & 3)
+    def _converter(self, chip: ChipSpec, accel_config: int, gyro_config: int) -> MpuImu:
+        accel_fs, gyro_fs = (accel_config >> 3) & 3, (gyro_config >> 3) & 3
+        key = (chip.name, accel_fs, gyro_fs)
         found = self._converters.get(key)
         if found is None:
             found = MpuImu(
                 _NoPort(),
-                accel_range_g=ACCEL_RANGES_G[key[0]],
-                gyro_range_dps=GYRO_RANGES_DPS[key[1]],
+                accel_range_g=ACCEL_RANGES_G[accel_fs],
+                gyro_range_dps=GYRO_RANGES_DPS[gyro_fs],
+                chip=chip,
             )
             self._converters[key] = found
         return found
 
     def _on_raw(self, raw: Any) -> None:
+        chip = _RAW_CHIPS.get(int(raw.chip))
+        if chip is None:
+            self.dropped += 1
+            if self.dropped == 1:
+                log.warning(
+                    "%s: imu_raw names chip %d, which is neither MPU6050 (0) nor MPU9250 (1); "
+                    "dropping such readings",
+                    self._node.name,
+                    int(raw.chip),
+                )
+            return
         words = [int(v) for v in raw.burst]
-        converter = self._converter(int(raw.accel_config), int(raw.gyro_config))
-        accel, gyro, _ = converter.convert(
+        converter = self._converter(chip, int(raw.accel_config), int(raw.gyro_config))
+        accel, gyro, temperature = converter.convert(
             RawSample((words[0], words[1], words[2]), words[3], (words[4], words[5], words[6]))
         )
         stamp = _seconds(raw.header.stamp)
+        self.temperature_c = temperature
         self.latest = converter.imu_msg(accel, gyro, stamp)
         self._imu.publish(self.latest)
         if raw.mag_valid:

@@ -76,7 +76,13 @@ from hwbridge.devices.dynamixel.packets import (
     parse_write,
     ping_status_params,
 )
-from hwbridge.devices.dynamixel.tables import MODELS, Register, ServoModel, find_model
+from hwbridge.devices.dynamixel.tables import (
+    MODELS,
+    Register,
+    ServoModel,
+    UnknownModelError,
+    find_model,
+)
 from hwbridge.errors import FramingError, HwBridgeError
 
 __all__ = [
@@ -527,21 +533,29 @@ class EmulatedDynamixelBus:
     def from_config(cls, config: Mapping[str, Any], name: str = "") -> EmulatedDynamixelBus:
         """Build from a description: ``{protocol, baud, servos: [{id, model, settings}]}``."""
         try:
-            servos = [
-                EmulatedServo(
-                    entry["model"],
-                    int(entry["id"]),
-                    firmware=entry.get("firmware"),
-                    settings=entry.get("settings"),
+            servos = []
+            for entry in config["servos"]:
+                try:
+                    model = find_model(entry["model"])
+                except UnknownModelError as exc:
+                    bus = f"emulated Dynamixel bus {name}" if name else "emulated Dynamixel bus"
+                    raise UnknownModelError(f"{bus}: servo {entry.get('id')}: {exc}") from None
+                servos.append(
+                    EmulatedServo(
+                        model,
+                        int(entry["id"]),
+                        firmware=entry.get("firmware"),
+                        settings=entry.get("settings"),
+                    )
                 )
-                for entry in config["servos"]
-            ]
             return cls(
                 servos,
                 protocol=int(config.get("protocol", 2)),
                 baud=int(config.get("baud", 57600)),
                 name=name or str(config.get("name", "")),
             )
+        except UnknownModelError:
+            raise
         except (KeyError, TypeError, ValueError) as exc:
             raise HwBridgeError(
                 f"bad emulated Dynamixel bus description {name or ''}: {exc!r}; expected "

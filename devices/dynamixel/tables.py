@@ -158,11 +158,10 @@ class ControlTable:
 
 @dataclass(frozen=True)
 class ServoModel:
-    """A servo model: number, protocol, control table and unit conversions."""
+    """A servo model: number, control table and unit conversions."""
 
     name: str
     number: int
-    protocol: int
     table: ControlTable
     firmware: int
     series: Literal["X", "AX"]
@@ -174,7 +173,6 @@ class ServoModel:
     """No-load speed (emulated motion never goes faster)."""
     baud_rates: Mapping[int, int]
     """Baud Rate register value -> bits per second (the common ones for AX)."""
-    position_range: tuple[int, int]
     eeprom_end: int
     """First RAM address: registers below it are EEPROM."""
 
@@ -209,24 +207,6 @@ class ServoModel:
         if self.series == "AX":
             return round(2_000_000 / (value + 1))
         return self.baud_rates[value]
-
-    def baud_value(self, baud: int) -> int:
-        """The Baud Rate register value for ``baud`` bits per second."""
-        if self.series == "AX":
-            value = round(2_000_000 / baud) - 1
-            if not 0 <= value <= 254:
-                raise ValueError(f"{self.name} cannot run at {baud} baud")
-            return value
-        for value, rate in self.baud_rates.items():
-            if rate == baud:
-                return value
-        raise ValueError(
-            f"{self.name} baud rates are {', '.join(str(r) for r in self.baud_rates.values())}"
-        )
-
-    @property
-    def register_names(self) -> list[str]:
-        return [r.name for r in self.table.registers]
 
 
 def _x_table(
@@ -453,7 +433,6 @@ def _x_model(name: str, number: int, *, xm: bool, velocity_limit: int, speed: fl
     return ServoModel(
         name=name,
         number=number,
-        protocol=2,
         table=table,
         firmware=38 if xm else 45,
         series="X",
@@ -462,7 +441,6 @@ def _x_model(name: str, number: int, *, xm: bool, velocity_limit: int, speed: fl
         velocity_unit_rpm=0.229,
         max_speed_rpm=speed,
         baud_rates=_X_BAUDS,
-        position_range=(0, 4095),
         eeprom_end=64,
     )
 
@@ -476,7 +454,6 @@ MODELS: Final[Mapping[str, ServoModel]] = {
         ServoModel(
             name="AX-12A",
             number=12,
-            protocol=1,
             table=_ax_table(),
             firmware=24,
             series="AX",
@@ -485,7 +462,6 @@ MODELS: Final[Mapping[str, ServoModel]] = {
             velocity_unit_rpm=0.111,
             max_speed_rpm=59.0,
             baud_rates=_AX_BAUDS,
-            position_range=(0, 1023),
             eeprom_end=24,
         ),
     )
@@ -494,16 +470,25 @@ MODELS: Final[Mapping[str, ServoModel]] = {
 
 
 def find_model(key: str | int) -> ServoModel:
-    """A model by name (any case, with or without dashes) or model number."""
-    if isinstance(key, int) or (isinstance(key, str) and key.strip().isdigit()):
+    """A model by name (any case, with or without dashes) or model number.
+
+    Raises :class:`UnknownModelError`, naming ``key`` and the known models, for anything else.
+    """
+    if isinstance(key, int):
+        number: int | None = key
+    elif isinstance(key, str) and key.strip().isdigit():
         number = int(key)
+    else:
+        number = None
+    if number is not None:
         for model in MODELS.values():
             if model.number == number:
                 return model
         known = ", ".join(f"{m.name} ({m.number})" for m in MODELS.values())
         raise UnknownModelError(f"unknown Dynamixel model number {number}; known: {known}")
-    wanted = normalize_name(key)
-    for model in MODELS.values():
-        if normalize_name(model.name) == wanted:
-            return model
-    raise UnknownRegisterError(f"unknown Dynamixel model {key!r}; known: {', '.join(MODELS)}")
+    if isinstance(key, str):
+        wanted = normalize_name(key)
+        for model in MODELS.values():
+            if normalize_name(model.name) == wanted:
+                return model
+    raise UnknownModelError(f"unknown Dynamixel model {key!r}; known: {', '.join(MODELS)}")

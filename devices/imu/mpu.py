@@ -24,8 +24,9 @@ MPU-6050 figures are from its product specification (see DEVICES.md); MPU-9250 f
 from __future__ import annotations
 
 import math
+import sys
 from dataclasses import dataclass
-from typing import Final, Protocol
+from typing import Final, Protocol, SupportsIndex
 
 import numpy as np
 
@@ -71,10 +72,13 @@ __all__ = [
     "Ak8963",
     "ChipErrors",
     "ChipSpec",
+    "FullScales",
     "I2CBus",
     "I2CChip",
     "I2CError",
     "I2CTarget",
+    "ImuConfigError",
+    "ImuError",
     "ImuTruth",
     "Mpu6050",
     "Mpu9250",
@@ -125,10 +129,47 @@ AK8963_CNTL1: Final = 0x0A
 AK8963_CNTL2: Final = 0x0B
 AK8963_ASAX: Final = 0x10
 
-ACCEL_RANGES_G: Final = (2, 4, 8, 16)
+
+class ImuError(HwBridgeError):
+    """The IMU did not answer as expected (unknown WHO_AM_I, a setting that did not stick)."""
+
+
+class ImuConfigError(ImuError, ValueError):
+    """An IMU setting is not one the chip offers."""
+
+
+class FullScales(tuple[int, ...]):
+    """The full-scale choices of one setting, in register (FS_SEL) order.
+
+    A tuple of ints, except that :meth:`index`, which turns a full scale into its FS_SEL
+    value, raises :class:`ImuConfigError` naming the setting, the value and the choices when
+    the chip does not offer that full scale (a plain tuple says only "x not in tuple").
+    """
+
+    setting: str
+    """The setting's name where users give it (``accel_range_g`` in a board YAML)."""
+
+    def __new__(cls, setting: str, values: tuple[int, ...]) -> FullScales:
+        self = super().__new__(cls, values)
+        self.setting = setting
+        return self
+
+    def index(
+        self, value: object, start: SupportsIndex = 0, stop: SupportsIndex = sys.maxsize, /
+    ) -> int:
+        try:
+            return super().index(value, start, stop)
+        except ValueError:
+            choices = ", ".join(map(str, self))
+            raise ImuConfigError(
+                f"{self.setting} must be one of {choices}, got {value!r}"
+            ) from None
+
+
+ACCEL_RANGES_G: Final = FullScales("accel_range_g", (2, 4, 8, 16))
 """Accelerometer full scale (+-g) for AFS_SEL 0..3 (ACCEL_CONFIG bits 4:3)."""
 ACCEL_LSB_PER_G: Final = (16384.0, 8192.0, 4096.0, 2048.0)
-GYRO_RANGES_DPS: Final = (250, 500, 1000, 2000)
+GYRO_RANGES_DPS: Final = FullScales("gyro_range_dps", (250, 500, 1000, 2000))
 """Gyroscope full scale (+-deg/s) for FS_SEL 0..3 (GYRO_CONFIG bits 4:3)."""
 GYRO_LSB_PER_DPS: Final = (131.0, 65.5, 32.8, 16.4)
 DLPF_ACCEL_BANDWIDTH_HZ: Final = (260.0, 184.0, 94.0, 44.0, 21.0, 10.0, 5.0, 260.0)

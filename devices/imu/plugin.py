@@ -44,11 +44,12 @@ from hwbridge.devices.imu.mpu import (
     USER_CTRL,
     WHO_AM_I,
     ChipSpec,
+    ImuConfigError,
+    ImuError,
     Vector3,
     gyro_output_rate,
 )
 from hwbridge.devices.world import STANDARD_GRAVITY
-from hwbridge.errors import HwBridgeError
 
 __all__ = [
     "CHIPS",
@@ -71,14 +72,6 @@ CHIPS: Final[dict[int, ChipSpec]] = {MPU6050.who_am_i: MPU6050, MPU9250.who_am_i
 _BURST: Final = struct.Struct(">7h")
 _MAG: Final = struct.Struct("<3hB")
 _RAW_IMU_ORIENTATION_COVARIANCE: Final = (-1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-
-
-class ImuError(HwBridgeError):
-    """The IMU did not answer as expected (unknown WHO_AM_I, a setting that did not stick)."""
-
-
-class ImuConfigError(ImuError, ValueError):
-    """An IMU setting is not one the chip offers."""
 
 
 class I2CPort(Protocol):
@@ -110,13 +103,12 @@ def decode_burst(data: bytes) -> RawSample:
 
 def accel_scale(range_g: int) -> float:
     """m/s^2 per LSB at a full scale of +-``range_g`` g."""
-    return STANDARD_GRAVITY / ACCEL_LSB_PER_G[_index("accel_range_g", range_g, ACCEL_RANGES_G)]
+    return STANDARD_GRAVITY / ACCEL_LSB_PER_G[ACCEL_RANGES_G.index(range_g)]
 
 
 def gyro_scale(range_dps: int) -> float:
     """rad/s per LSB at a full scale of +-``range_dps`` deg/s."""
-    lsb = GYRO_LSB_PER_DPS[_index("gyro_range_dps", range_dps, GYRO_RANGES_DPS)]
-    return math.radians(1.0) / lsb
+    return math.radians(1.0) / GYRO_LSB_PER_DPS[GYRO_RANGES_DPS.index(range_dps)]
 
 
 def sensitivity_adjustment(asa: bytes | tuple[int, int, int] | list[int]) -> Vector3:
@@ -157,15 +149,6 @@ def _xyz(vector: Vector3) -> dict[str, float]:
     return {"x": vector[0], "y": vector[1], "z": vector[2]}
 
 
-def _index(name: str, value: int, choices: tuple[int, ...]) -> int:
-    try:
-        return choices.index(value)
-    except ValueError:
-        raise ImuConfigError(
-            f"{name} must be one of {', '.join(map(str, choices))}, got {value!r}"
-        ) from None
-
-
 @dataclass(frozen=True)
 class ImuReading:
     """One reading, converted: the messages and the values they hold."""
@@ -190,6 +173,9 @@ class MpuImu:
     scales, ``dlpf_cfg`` (0-6) the bandwidth, ``sample_rate_hz`` the divider. ``accel_bias`` (m/s^2)
     and ``gyro_bias`` (rad/s) are subtracted after conversion (a calibration). Covariances default
     to the datasheet's white noise over the DLPF bandwidth; override with ``*_variance``.
+
+    Temperature and covariances use the figures of the chip: the one :meth:`configure` finds,
+    or ``chip`` when the chip is known otherwise (a board that reads it and says which it is).
     """
 
     def __init__(
@@ -207,6 +193,7 @@ class MpuImu:
         gyro_bias: Vector3 = (0.0, 0.0, 0.0),
         accel_variance: float | None = None,
         gyro_variance: float | None = None,
+        chip: ChipSpec | None = None,
     ) -> None:
         self.port = port
         self.address = address
@@ -224,8 +211,9 @@ class MpuImu:
         self.gyro_bias = gyro_bias
         self._accel_variance = accel_variance
         self._gyro_variance = gyro_variance
-        self.chip: ChipSpec | None = None
-        """The chip found by :meth:`configure`."""
+        self.chip: ChipSpec | None = chip
+        """The chip whose figures convert readings: ``chip``, or the one :meth:`configure`
+        found."""
         self.magnetometer_adjustment: Vector3 | None = None
         """AK8963 sensitivity adjustment per axis once configured (None without one)."""
 
@@ -318,8 +306,13 @@ class MpuImu:
     # ------------------------------------------------------------------ messages
     @property
     def _spec(self) -> ChipSpec:
-        """The chip found by :meth:`configure`; the MPU-6050's figures before that."""
-        return self.chip if self.chip is not None else MPU6050
+        """The chip's figures; an error while the chip is unknown (never another chip's)."""
+        if self.chip is None:
+            raise ImuError(
+                "the IMU's chip is not known yet: call configure() first, or give chip= "
+                "(MPU6050 or MPU9250)"
+            )
+        return self.chip
 
     @property
     def accel_variance(self) -> float:

@@ -1,11 +1,13 @@
-"""Helpers shared by the command modules: the per-invocation context and consoles."""
+"""Helpers shared by the command modules: the per-invocation context, consoles and output."""
 
 from __future__ import annotations
 
 import dataclasses
+import json
+import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import typer
 from rich.console import Console
@@ -15,9 +17,20 @@ from hwbridge.msg import TypeRegistry, registry
 if TYPE_CHECKING:
     from hwbridge.graph import Graph
 
-__all__ = ["Context", "console_err", "get_registry", "open_graph"]
+__all__ = ["Context", "console_err", "emit_json", "get_registry", "json_line", "open_graph"]
 
 console_err = Console(stderr=True, soft_wrap=True)
+
+
+def json_line(data: Any) -> str:
+    """``data`` as one line of JSON (``--json`` output), newline included."""
+    return json.dumps(data) + "\n"
+
+
+def emit_json(data: Any) -> None:
+    """Write ``data`` to stdout as one line of JSON and flush (so pipes see it at once)."""
+    sys.stdout.write(json_line(data))
+    sys.stdout.flush()
 
 
 @dataclass(frozen=True)

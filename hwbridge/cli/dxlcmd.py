@@ -8,13 +8,11 @@ control table (``present_position``, "Present Position") or given as a raw addre
 
 from __future__ import annotations
 
-import json
-import sys
 from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
-from hwbridge.cli.common import console_err
+from hwbridge.cli.common import console_err, emit_json
 from hwbridge.errors import HwBridgeError
 
 if TYPE_CHECKING:
@@ -75,10 +73,6 @@ def parse_ids(text: str) -> list[int]:
     if not ids:
         raise typer.BadParameter("no IDs given", param_hint="--ids")
     return sorted(ids)
-
-
-def _emit(data: Any) -> None:
-    sys.stdout.write(json.dumps(data) + "\n")
 
 
 def _open_bus(
@@ -144,7 +138,7 @@ def scan(
     with _open_bus(url, protocol, baud, timeout, retries) as bus:
         found = bus.scan(wanted)
     if as_json:
-        _emit([r.as_dict() for r in found])
+        emit_json([r.as_dict() for r in found])
     else:
         for result in found:
             typer.echo(
@@ -185,7 +179,7 @@ def ping(
     with _open_bus(url, protocol, baud, timeout, retries) as bus:
         result = bus.ping(id_)
     if as_json:
-        _emit(result.as_dict())
+        emit_json(result.as_dict())
     else:
         typer.echo(_describe(result.id, result.model_name, result.model_number, result.firmware))
 
@@ -214,7 +208,7 @@ def read(
         value = register.decode(data) if register is not None else int.from_bytes(data, "little")
         converted = _converted(bus, id_, register, value)
     if as_json:
-        _emit(
+        emit_json(
             {
                 "id": id_,
                 "register": register.name if register is not None else None,
@@ -308,7 +302,7 @@ def write(
         bus.write(id_, address, data)
     name = register.name if register is not None else "raw"
     if as_json:
-        _emit(
+        emit_json(
             {
                 "id": id_,
                 "register": register.name if register else None,

@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import itertools
-import json
-import math
 import statistics
 import sys
 import threading
@@ -17,7 +15,7 @@ import typer
 import yaml
 
 from hwbridge import msg
-from hwbridge.cli.common import open_graph
+from hwbridge.cli.common import emit_json, json_line, open_graph
 from hwbridge.errors import HwBridgeError, HwBridgeTimeoutError, MessageTypeError
 from hwbridge.graph import ANY_TYPE, Graph, GraphSnapshot, RawMessage
 
@@ -35,17 +33,6 @@ TopicArg = Annotated[str, typer.Argument(metavar="TOPIC", help="Topic name, e.g.
 WaitOpt = Annotated[
     float, typer.Option("--wait", help="Seconds to wait for discovery before giving up.")
 ]
-
-
-def _emit_json(data: Any) -> None:
-    sys.stdout.write(json.dumps(data, default=_json_default) + "\n")
-    sys.stdout.flush()
-
-
-def _json_default(value: Any) -> Any:
-    if isinstance(value, float) and not math.isfinite(value):
-        return str(value)
-    raise TypeError(f"cannot encode {type(value).__name__}")
 
 
 def _snapshot(graph: Graph, wait: float) -> GraphSnapshot:
@@ -77,7 +64,7 @@ def topic_list(
             }
         )
     if as_json:
-        _emit_json(rows)
+        emit_json(rows)
         return
     for row in rows:
         if verbose:
@@ -125,7 +112,7 @@ def topic_info(
     publishers = sorted({e.node for e in entities if e.kind == "pub"})
     subscribers = sorted({e.node for e in entities if e.kind == "sub"})
     if as_json:
-        _emit_json(
+        emit_json(
             {"topic": topic, "types": types, "publishers": publishers, "subscribers": subscribers}
         )
         return
@@ -190,11 +177,8 @@ def _render(
 ) -> str | None:
     if raw:
         if as_json:
-            return (
-                json.dumps(
-                    {"topic": message.topic, "type": message.type, "hex": message.data.hex()}
-                )
-                + "\n"
+            return json_line(
+                {"topic": message.topic, "type": message.type, "hex": message.data.hex()}
             )
         return message.data.hex() + "\n---\n"
     try:
@@ -203,7 +187,7 @@ def _render(
         sys.stderr.write(f"cannot decode a {message.type or 'untyped'} message: {exc}\n")
         return None
     if as_json:
-        return json.dumps(data, default=_json_default) + "\n"
+        return json_line(data)
     return msg.dump_yaml(data) + "---\n"
 
 
@@ -310,7 +294,7 @@ def _measure(
                 sys.stderr.write(f"no new messages on {topic}\n")
                 continue
             if as_json:
-                _emit_json({"topic": topic, **stats})
+                emit_json({"topic": topic, **stats})
             elif kind == "hz":
                 typer.echo(
                     f"average rate: {stats['rate_hz']:.3f}\n"
@@ -369,7 +353,7 @@ def service_list(ctx: typer.Context, as_json: JsonOpt = False, wait: WaitOpt = 1
     with open_graph(ctx) as graph:
         services = _snapshot(graph, wait).services()
     if as_json:
-        _emit_json([{"service": k, "types": sorted(v)} for k, v in sorted(services.items())])
+        emit_json([{"service": k, "types": sorted(v)} for k, v in sorted(services.items())])
         return
     for name in sorted(services):
         typer.echo(name)
@@ -421,7 +405,7 @@ def service_call(
         )
         result = msg.to_dict(response)
     if as_json:
-        _emit_json(result)
+        emit_json(result)
     else:
         typer.echo(msg.dump_yaml(result).rstrip("\n") if result else "{}")
 
@@ -436,7 +420,7 @@ def param_list(ctx: typer.Context, as_json: JsonOpt = False) -> None:
     with open_graph(ctx) as graph:
         names = graph.params.names()
     if as_json:
-        _emit_json(names)
+        emit_json(names)
     else:
         for name in names:
             typer.echo(name)
@@ -448,7 +432,7 @@ def param_get(ctx: typer.Context, name: ParamName, as_json: JsonOpt = False) -> 
     with open_graph(ctx) as graph:
         value = graph.params.get(name)
     if as_json:
-        _emit_json(value)
+        emit_json(value)
     else:
         typer.echo(msg.dump_yaml(value).removesuffix("\n...\n").rstrip("\n"))
 
@@ -518,7 +502,7 @@ def node_list(ctx: typer.Context, as_json: JsonOpt = False, wait: WaitOpt = 1.0)
     with open_graph(ctx) as graph:
         nodes = _snapshot(graph, wait).nodes
     if as_json:
-        _emit_json(nodes)
+        emit_json(nodes)
     else:
         for name in nodes:
             typer.echo(name)

@@ -159,6 +159,29 @@ def test_usage_and_lookup_errors(capsys: pytest.CaptureFixture[str], p2: Emulate
     assert (code, out) == (1, "[]\n") and "no servo answered" in err
 
 
+def test_an_unknown_model_option_lists_the_known_models(
+    capsys: pytest.CaptureFixture[str], p2: EmulatedBusRunner
+) -> None:
+    code, out, err = run(
+        capsys, "dxl", "read", p2.slave_path, "1", "present_position", "--model", "XL999"
+    )
+    assert (code, out) == (1, "")
+    assert err.startswith(
+        "error: unknown Dynamixel model 'XL999'; known: XL430-W250, XM430-W350, XM430-W210, AX-12A"
+    )
+
+
+def test_json_output_is_one_line_per_value(capsys: pytest.CaptureFixture[str]) -> None:
+    """The one JSON writer behind every ``--json`` (dxl and the graph tools alike)."""
+    from hwbridge.cli.common import emit_json
+
+    emit_json({"id": 1, "value_rad": -0.5, "register": None, "ok": True})
+    emit_json([])
+    assert capsys.readouterr().out == (
+        '{"id": 1, "value_rad": -0.5, "register": null, "ok": true}\n[]\n'
+    )
+
+
 def test_parse_ids() -> None:
     assert parse_ids("0-3") == [0, 1, 2, 3]
     assert parse_ids("5, 1-2,5") == [1, 2, 5]

@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import math
 import struct
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -52,6 +55,8 @@ from hwbridge.devices.imu.plugin import (
     sensitivity_adjustment,
 )
 from hwbridge.devices.world import STANDARD_GRAVITY
+from hwbridge.emulator.board import VirtualBoard, load_board
+from hwbridge.errors import HwBridgeError
 
 G = STANDARD_GRAVITY
 RANGES = [(2, 250), (4, 500), (8, 1000), (16, 2000)]
@@ -171,6 +176,35 @@ def test_temperature_formulas() -> None:
     assert (MPU6050.temp_lsb_per_c, MPU6050.temp_offset_c) == (340.0, 36.53)
 
 
+@pytest.mark.parametrize(
+    ("spec", "lsb_per_c", "room_c", "accel_density", "gyro_density"),
+    [
+        (MPU6050, 340.0, 36.53, 400e-6, 0.005),  # DEVICES.md: C = raw/340 + 36.53
+        # MPU-9250: TEMP_degC = (TEMP_OUT - RoomTemp_Offset) / 333.87 + 21, offset 0
+        (MPU9250, 333.87, 21.0, 300e-6, 0.01),
+    ],
+)
+def test_a_known_chip_converts_with_its_own_datasheet_figures(
+    spec: ChipSpec, lsb_per_c: float, room_c: float, accel_density: float, gyro_density: float
+) -> None:
+    """Given the chip (as a board reports it), no configure() round trip: temperature and
+    the noise-derived covariances are that chip's, not the MPU-6050's."""
+    imu = MpuImu(_FakeChipBus(0), chip=spec, dlpf_cfg=0)
+    for word in (-32768, -3339, 0, 3339, 32767):
+        _, _, temperature = imu.convert(decode_burst(struct.pack(">7h", 0, 0, 0, word, 0, 0, 0)))
+        assert temperature == pytest.approx(word / lsb_per_c + room_c)
+    assert imu.accel_variance == pytest.approx((accel_density * math.sqrt(260) * G) ** 2)
+    assert imu.gyro_variance == pytest.approx(math.radians(gyro_density * math.sqrt(256)) ** 2)
+
+
+def test_an_unknown_chip_is_not_silently_taken_for_an_mpu6050() -> None:
+    imu = MpuImu(_FakeChipBus(0))
+    with pytest.raises(ImuError, match="configure"):
+        imu.convert(decode_burst(bytes(14)))
+    with pytest.raises(ImuError, match="configure"):
+        _ = imu.accel_variance
+
+
 @settings(max_examples=200, deadline=None, derandomize=True)
 @given(words=st.lists(st.integers(-32768, 32767), min_size=7, max_size=7))
 def test_decode_burst_is_big_endian_signed(words: list[int]) -> None:
@@ -210,6 +244,41 @@ def test_invalid_settings() -> None:
         MpuImu(bus, address=0x69).configure()
     with pytest.raises(I2CError):
         bus.read(0x68, 0x7F, 2)  # beyond the register map
+
+
+@pytest.mark.parametrize(
+    ("setting", "value", "choices"),
+    [("accel_range_g", 3, "2, 4, 8, 16"), ("gyro_range_dps", 300, "250, 500, 1000, 2000")],
+)
+@pytest.mark.parametrize("kind", ["mpu6050", "mpu9250"])
+def test_an_unsupported_range_in_a_board_yaml_names_the_setting_value_and_choices(
+    kind: str, setting: str, value: int, choices: str, tmp_path: Path
+) -> None:
+    path = tmp_path / "imubot.yaml"
+    path.write_text(
+        f"name: imubot\ndevices:\n  - type: {kind}\n    rate: 50\n    {setting}: {value}\n"
+    )
+    config = load_board(str(path))
+    with pytest.raises(ImuConfigError) as info:
+        VirtualBoard(config)
+    assert isinstance(info.value, HwBridgeError)
+    text = str(info.value)
+    assert setting in text and f"got {value}" in text and choices in text
+
+
+def test_an_unsupported_range_reaches_the_user_as_an_error_line(tmp_path: Path) -> None:
+    path = tmp_path / "imubot.yaml"
+    path.write_text("name: imubot\ndevices:\n  - type: mpu6050\n    accel_range_g: 32\n")
+    done = subprocess.run(
+        [sys.executable, "-m", "hwbridge", "emulate", str(path)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert done.returncode == 1, done.stderr
+    assert done.stderr.startswith("error: accel_range_g must be one of 2, 4, 8, 16"), done.stderr
+    assert "got 32" in done.stderr and "Traceback" not in done.stderr
 
 
 class _FakeChipBus:

@@ -1,0 +1,250 @@
+"""Host device nodes (hwbridge.devices.nodes) on a real Zenoh graph (router on a free port)."""
+
+from __future__ import annotations
+
+import math
+import threading
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from types import FrameType
+from typing import Any
+
+import numpy as np
+import pytest
+
+from hwbridge import msg
+from hwbridge.devices.encoders import DiffDriveOdometry, DiffDriveParams
+from hwbridge.devices.imu import ChipErrors, ImuTruth, Mpu6050, Mpu9250, MpuChip
+from hwbridge.devices.imu.mpu import ACCEL_CONFIG, ACCEL_XOUT_H, GYRO_CONFIG, PWR_MGMT_1
+from hwbridge.devices.imu.plugin import decode_burst
+from hwbridge.devices.nodes import DiffDriveNode, ImuNode
+from hwbridge.devices.world import STANDARD_GRAVITY
+from hwbridge.graph import Graph
+from tests.netutil import wait_until
+
+PARAMS = DiffDriveParams.from_dict(
+    {"wheel_radius": 0.033, "wheel_separation": 0.16, "counts_per_rev": 1320}
+)
+Targets = tuple[float, float]
+
+
+class ManualClock:
+    """A monotonic clock that only moves when the test says so."""
+
+    def __init__(self, now: float = 0.0) -> None:
+        self.now = now
+
+    def __call__(self) -> float:
+        return self.now
+
+
+def _twist(x: float, z: float = 0.0) -> Any:
+    return msg.from_dict("geometry_msgs/Twist", {"linear": {"x": x}, "angular": {"z": z}})
+
+
+def _wire(targets: Targets) -> Targets:
+    """Targets as the board receives them (WheelTargets carries float32)."""
+    return (float(np.float32(targets[0])), float(np.float32(targets[1])))
+
+
+def _listen(client: Graph, namespace: str) -> list[Targets]:
+    """Every wheel_targets message the board would receive, in order."""
+    received: list[Targets] = []
+    client.node("board").subscriber(
+        f"{namespace}/wheel_targets",
+        "hwbridge_msgs/WheelTargets",
+        lambda m: received.append((float(m.left), float(m.right))),
+    )
+    return received
+
+
+class DriveSendPause:
+    """Holds a DiffDriveNode's drive thread still at the start of one ``_send(targets)`` call.
+
+    Installed (as the interpreter's profiling hook for threads started meanwhile) around the
+    node's construction, so that only its drive thread carries it. Once :attr:`armed` is set,
+    the thread's next ``_send`` call whose targets satisfy ``wanted`` sets :attr:`paused` and
+    waits for :meth:`release`. Nothing of the node is replaced: the thread is only held at the
+    point where it has decided what to publish and has not yet published it.
+    """
+
+    def __init__(self, wanted: Callable[[Targets], bool]) -> None:
+        self.wanted = wanted
+        self.armed = threading.Event()
+        self.paused = threading.Event()
+        self._go = threading.Event()
+
+    def _hook(self, frame: FrameType, event: str, _arg: object) -> None:
+        if (
+            event == "call"
+            and self.armed.is_set()
+            and frame.f_code.co_name == "_send"
+            and threading.current_thread().name == "diffdrive"
+            and self.wanted(tuple(frame.f_locals["targets"]))  # type: ignore[arg-type]
+        ):
+            self.armed.clear()
+            self.paused.set()
+            self._go.wait(10)
+
+    @contextmanager
+    def installed(self) -> Iterator[None]:
+        threading.setprofile(self._hook)
+        try:
+            yield
+        finally:
+            threading.setprofile(None)
+
+    def release(self) -> None:
+        self._go.set()
+
+
+@pytest.mark.parametrize("case", ["stale targets", "watchdog stop"])
+def test_a_command_is_never_overtaken_by_what_the_drive_loop_decided_before_it(
+    case: str, router: Graph, client: Graph
+) -> None:
+    """The drive loop has decided what to send (the previous targets, or the watchdog's stop)
+    and is about to publish it when a new cmd_vel arrives. The board must end up with the new
+    command: nothing the loop decided before it may be published after it."""
+    namespace = "/race_" + case.split()[1]
+    received = _listen(client, namespace)
+    odometry = DiffDriveOdometry.from_params(PARAMS)
+    first, newer = odometry.wheel_targets(0.1, 0.0), odometry.wheel_targets(0.3, 0.0)
+    pause = DriveSendPause(lambda t: t == ((0.0, 0.0) if case == "watchdog stop" else first))
+    clock = ManualClock(100.0)
+    with pause.installed():
+        node = router.node("devices", namespace=namespace)
+        if case == "watchdog stop":  # the loop stops the wheels when the test moves the clock
+            drive = DiffDriveNode(node, PARAMS, clock=clock)
+        else:  # real time: the loop repeats the targets for 0.5 s after a command
+            drive = DiffDriveNode(node, PARAMS)
+    command = threading.Thread(target=drive._on_cmd_vel, args=(_twist(0.3),), name="cmd_vel")
+    try:
+
+        def first_arrived() -> bool:  # also: the board's subscription is matched
+            drive._on_cmd_vel(_twist(0.1))
+            return _wire(first) in received
+
+        assert wait_until(first_arrived, 10, step=0.05)
+        pause.armed.set()
+        if case == "watchdog stop":
+            clock.now += 10.0  # cmd_vel went quiet: the next cycle sends the stop
+        assert pause.paused.wait(5), "the drive loop never came to send the expected targets"
+        command.start()  # cmd_vel arrives (as on the graph's thread)
+        # Without a lock its targets go out now, before the loop's; with one they wait for
+        # the loop. Give them the time to go out before letting the loop publish.
+        wait_until(lambda: _wire(newer) in received, 1.0)
+        pause.release()
+        command.join(5)
+        assert wait_until(lambda: received.count(_wire(newer)) >= 2, 5), received
+    finally:
+        pause.release()
+        drive.close()
+    after = received[received.index(_wire(newer)) :]
+    assert all(targets == _wire(newer) for targets in after), received
+
+
+def test_the_watchdog_stops_the_wheels_once_and_a_later_command_restarts_them(
+    router: Graph, client: Graph
+) -> None:
+    clock = ManualClock(0.0)
+    received = _listen(client, "/watchdog")
+    drive = DiffDriveNode(router.node("devices", namespace="/watchdog"), PARAMS, clock=clock)
+    drive.close()  # the test runs the control cycles itself, at the times it chooses
+    marker = _wire(drive.odometry.wheel_targets(0.05, 0.0))
+    go = _wire(drive.odometry.wheel_targets(0.2, 0.0))
+    turn = _wire(drive.odometry.wheel_targets(0.0, 1.0))
+
+    def subscribed() -> bool:
+        drive._on_cmd_vel(_twist(0.05))
+        return marker in received
+
+    assert wait_until(subscribed, 10, step=0.05)
+    clock.now = 10.0
+    drive._on_cmd_vel(_twist(0.2))
+    clock.now = 10.49
+    drive.tick()  # within the timeout: the targets repeat
+    clock.now = 10.5  # 0.5 s without cmd_vel: one stop
+    drive.tick()
+    clock.now = 10.6
+    drive.tick()  # already stopped: nothing
+    drive._on_cmd_vel(_twist(0.0, 1.0))
+    clock.now = 10.7
+    drive.tick()
+    expected = [go, go, (0.0, 0.0), turn, turn]
+
+    def scenario() -> list[Targets]:  # what followed the last warm-up message (all in order)
+        last = len(received) - received[::-1].index(marker)
+        return received[last:]
+
+    assert wait_until(lambda: len(scenario()) >= len(expected), 5), received
+    assert scenario() == expected
+    assert drive.watchdog.timeouts == 1
+
+
+# ---------------------------------------------------------------------- IMU
+def _raw_imu(chip: MpuChip, code: int) -> dict[str, Any]:
+    chip.write(PWR_MGMT_1, b"\x00")  # awake (the MPU-6050 starts asleep)
+    chip.sample()
+    raw = decode_burst(chip.read(ACCEL_XOUT_H, 14))
+    return {
+        "header": {"frame_id": "imu_link"},
+        "chip": code,
+        "accel_config": chip.read(ACCEL_CONFIG, 1)[0],
+        "gyro_config": chip.read(GYRO_CONFIG, 1)[0],
+        "burst": [*raw.accel, raw.temperature, *raw.gyro],
+    }
+
+
+@pytest.mark.parametrize(
+    ("chip_class", "constant", "accel_density", "gyro_density", "lsb_per_c", "offset_c"),
+    [
+        # MPU-6050 product specification; DEVICES.md
+        (Mpu6050, "MPU6050", 400e-6, 0.005, 340.0, 36.53),
+        # MPU-9250 product specification: noise densities, Temp_Sensitivity, RoomTemp 21 C
+        (Mpu9250, "MPU9250", 300e-6, 0.01, 333.87, 21.0),
+    ],
+)
+def test_imu_node_converts_with_the_figures_of_the_chip_the_board_names(
+    chip_class: type[MpuChip],
+    constant: str,
+    accel_density: float,
+    gyro_density: float,
+    lsb_per_c: float,
+    offset_c: float,
+    router: Graph,
+    client: Graph,
+) -> None:
+    namespace = f"/imu_{constant.lower()}"
+    imu = ImuNode(router.node("devices", namespace=namespace))
+    chip = chip_class(errors=ChipErrors(), noise=False, truth=ImuTruth(temperature_c=30.0))
+    code = int(getattr(msg.from_dict("hwbridge_msgs/ImuRaw", {}), constant))
+    raw = _raw_imu(chip, code)
+    pub = client.node("board").publisher(f"{namespace}/imu_raw", "hwbridge_msgs/ImuRaw")
+
+    def converted() -> bool:
+        pub.publish(raw)
+        return imu.latest is not None
+
+    assert wait_until(converted, 10, step=0.05)
+    # The node does not know the board's DLPF setting: it assumes DLPF_CFG 3 (44 / 42 Hz).
+    accel_variance = (accel_density * math.sqrt(44.0) * STANDARD_GRAVITY) ** 2
+    gyro_variance = math.radians(gyro_density * math.sqrt(42.0)) ** 2
+    assert imu.latest.linear_acceleration_covariance[0] == pytest.approx(accel_variance)
+    assert imu.latest.angular_velocity_covariance[4] == pytest.approx(gyro_variance)
+    word = raw["burst"][3]
+    assert imu.temperature_c == pytest.approx(word / lsb_per_c + offset_c)
+    assert imu.temperature_c == pytest.approx(30.0, abs=1 / lsb_per_c)
+    assert imu.latest.linear_acceleration.z == pytest.approx(STANDARD_GRAVITY, abs=1e-3)
+
+
+def test_imu_node_drops_an_unknown_chip_and_counts_it(router: Graph, client: Graph) -> None:
+    imu = ImuNode(router.node("devices", namespace="/imu_unknown"))
+    raw = _raw_imu(Mpu6050(errors=ChipErrors(), noise=False), 7)
+    pub = client.node("board").publisher("/imu_unknown/imu_raw", "hwbridge_msgs/ImuRaw")
+
+    def counted() -> bool:
+        pub.publish(raw)
+        return imu.dropped > 0
+
+    assert wait_until(counted, 10, step=0.05)
+    assert imu.latest is None

@@ -1,6 +1,19 @@
 """The bridge runtime: boards on links, mirrored onto the graph (see :mod:`.core`)."""
 
-from hwbridge.bridge.board import PROTOCOLS, BoardConnection, BoardSpec
+from hwbridge.bridge.board import (
+    DEFAULT_SERVICE_TIMEOUT,
+    PROTOCOLS,
+    BoardConnection,
+    BoardSpec,
+    check_service_timeout,
+)
 from hwbridge.bridge.core import Bridge
 
-__all__ = ["PROTOCOLS", "BoardConnection", "BoardSpec", "Bridge"]
+__all__ = [
+    "DEFAULT_SERVICE_TIMEOUT",
+    "PROTOCOLS",
+    "BoardConnection",
+    "BoardSpec",
+    "Bridge",
+    "check_service_timeout",
+]

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import threading
 import time
 from pathlib import PurePosixPath
@@ -34,9 +35,32 @@ if TYPE_CHECKING:
 
     from hwbridge.bridge.core import Bridge
 
-__all__ = ["PROTOCOLS", "BoardConnection", "BoardSpec"]
+__all__ = [
+    "DEFAULT_SERVICE_TIMEOUT",
+    "MAX_SERVICE_TIMEOUT",
+    "PROTOCOLS",
+    "BoardConnection",
+    "BoardSpec",
+    "check_service_timeout",
+]
 
 PROTOCOLS = ("auto", "native", "rosserial")
+DEFAULT_SERVICE_TIMEOUT = 5.0
+"""Seconds the bridge waits for a service answer (both protocols, both directions)."""
+MAX_SERVICE_TIMEOUT = 86400.0
+"""Longest service timeout accepted (a day): Zenoh refuses query timeouts past about 1e19 s."""
+
+
+def check_service_timeout(seconds: float) -> float:
+    """``seconds`` if it is a usable service timeout; HwBridgeError saying why otherwise."""
+    number = isinstance(seconds, int | float) and not isinstance(seconds, bool)
+    if not number or not math.isfinite(seconds) or not 0 < seconds <= MAX_SERVICE_TIMEOUT:
+        given = f"{seconds:g}" if number else repr(seconds)
+        raise HwBridgeError(
+            f"service timeout must be a number of seconds above 0 and at most "
+            f"{MAX_SERVICE_TIMEOUT:g} (a day), not {given}"
+        )
+    return float(seconds)
 
 
 class Adapter(Protocol):
@@ -57,7 +81,13 @@ class Adapter(Protocol):
 
 
 class BoardSpec:
-    """How to reach one board: URL, protocol, options, namespace and name."""
+    """How to reach one board: URL, protocol, options, namespace and name.
+
+    ``service_timeout`` is how long the bridge waits for an answer to a service call, in both
+    directions: a graph caller's call of one of the board's services, and the board's call of
+    a graph service. A call that takes longer fails with an error naming the service and this
+    timeout (the graph caller's own timeout is separate: make it at least as long).
+    """
 
     def __init__(
         self,
@@ -68,9 +98,11 @@ class BoardSpec:
         namespace: str = "/",
         name: str | None = None,
         start_delay: float = 2.0,
+        service_timeout: float = DEFAULT_SERVICE_TIMEOUT,
     ) -> None:
         if protocol not in PROTOCOLS:
             raise HwBridgeError(f"unknown protocol {protocol!r}; use one of {', '.join(PROTOCOLS)}")
+        self.service_timeout = check_service_timeout(service_timeout)
         self.url = url
         self.protocol = protocol
         self.baud = baud
@@ -137,6 +169,7 @@ class BoardConnection:
             "url": self.spec.url,
             "namespace": self.spec.namespace,
             "protocol": adapter.protocol if adapter else self.spec.protocol,
+            "service_timeout": self.spec.service_timeout,
             "state": self.state,
             "connects": self.connects,
             "topics": adapter.topics() if adapter else {},

@@ -14,7 +14,7 @@ from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from typing import TYPE_CHECKING, Any
 
-from hwbridge.errors import HwBridgeError
+from hwbridge.errors import HwBridgeError, HwBridgeTimeoutError
 from hwbridge.graph import DeferredReply, Node, Publisher, RawMessage, ServiceServer, Subscriber
 
 if TYPE_CHECKING:
@@ -49,11 +49,25 @@ def _ignore(_event: Any) -> None:
 
 
 class PendingCalls:
-    """Graph callers waiting for a board's answer, by the session's request id."""
+    """Graph callers waiting for a board's answer, by the session's request id.
 
-    def __init__(self) -> None:
+    Each entry leaves exactly once: the board's answer, the session's error (the bridge's
+    service timeout among them: the sessions report every call they time out), or
+    :meth:`fail_all` when the board's session ends. A graph caller that gave up earlier (its own
+    timeout) does not remove its entry; the late outcome then goes nowhere.
+    """
+
+    def __init__(self, board_name: str, service_timeout: float) -> None:
         self._calls: dict[int, DeferredReply] = {}
         self._lock = threading.Lock()
+        self._timed_out = (
+            f"board {board_name} did not answer within {service_timeout:g} s (the bridge's "
+            "service timeout; raise it with 'hwbridge connect --service-timeout SECONDS')"
+        )
+
+    def __len__(self) -> int:
+        with self._lock:
+            return len(self._calls)
 
     def add(self, request_id: int, reply: DeferredReply) -> None:
         """Register before the board can answer (call under the pump's lock)."""
@@ -65,7 +79,11 @@ class PendingCalls:
             reply = self._calls.pop(request_id, None)
         if reply is None:
             return
-        if error is not None or payload is None:
+        if isinstance(error, HwBridgeTimeoutError):
+            # The session's own text names the board-side name and a request id; the caller
+            # needs the timeout and what sets it (the graph prefixes the service's name).
+            reply.error(self._timed_out)
+        elif error is not None or payload is None:
             reply.error(str(error) if error is not None else "no answer from the board")
         else:
             reply.ok(payload)
@@ -78,19 +96,32 @@ class PendingCalls:
 
 
 class BoardEndpoints:
-    """Publishers, subscribers and services of one board session on the graph."""
+    """Publishers, subscribers and services of one board session on the graph.
 
-    def __init__(self, node: Node, board_name: str, logger: logging.Logger) -> None:
+    ``service_timeout`` (seconds) bounds every service call through the bridge, both ways:
+    the adapters' ``send`` gets it for graph calls of board services, and board calls of graph
+    services (:meth:`call_graph_service`) use it as the graph call's timeout.
+    """
+
+    def __init__(
+        self, node: Node, board_name: str, logger: logging.Logger, service_timeout: float
+    ) -> None:
         self.node = node
         self.board_name = board_name
         self.log = logger
+        self.service_timeout = service_timeout
         self.publishers: dict[str, Publisher] = {}
         self.subscribers: dict[str, Subscriber] = {}
         self.servers: dict[str, ServiceServer] = {}
-        self.pending = PendingCalls()
+        self.pending = PendingCalls(board_name, service_timeout)
         self._workers = ThreadPoolExecutor(max_workers=4, thread_name_prefix=f"{board_name}-svc")
         self._rosout: Publisher | None = None
         self._closed = False
+
+    @classmethod
+    def for_board(cls, board: BoardConnection, logger: logging.Logger) -> BoardEndpoints:
+        """Endpoints for a new session of ``board``, with its spec's service timeout."""
+        return cls(board.node, board.name, logger, board.spec.service_timeout)
 
     # ------------------------------------------------------------------ board -> graph
     def advertise(self, topic: str, type_name: str, md5: str) -> Publisher:
@@ -124,18 +155,19 @@ class BoardEndpoints:
         name: str,
         srv_type: str,
         board: BoardConnection,
-        send: Callable[[Any, bytes], int],
+        send: Callable[[Any, bytes, float], int],
     ) -> None:
-        """A service the board serves. Each graph call runs ``send(session, request)`` under the
-        board's pump lock: it sends the request and returns the session's request id, under
+        """A service the board serves. Each graph call runs ``send(session, request, timeout)``
+        under the board's pump lock: it sends the request, to be answered within ``timeout``
+        seconds (the bridge's service timeout), and returns the session's request id, under
         which the caller's reply is registered before the lock is let go, so the board's answer
         (read by the pump thread, which resolves the reply) always finds it."""
         if name in self.servers:
             return
-        pending = self.pending
+        pending, timeout = self.pending, self.service_timeout
 
         def start(request: bytes, reply: DeferredReply) -> None:
-            board.pump.call(lambda session: pending.add(send(session, request), reply))
+            board.pump.call(lambda session: pending.add(send(session, request, timeout), reply))
 
         self.servers[name] = self.node.deferred_service(name, srv_type, start)
 
@@ -145,19 +177,43 @@ class BoardEndpoints:
         srv_type: str,
         payload: bytes,
         answer: Callable[[bytes], None],
-        timeout: float,
+        refuse: Callable[[str], None] | None = None,
     ) -> None:
-        """The board calls a graph service; ``answer(response)`` runs when it returns."""
+        """The board calls a graph service; ``answer(response)`` runs when it returns within
+        the service timeout, ``refuse(reason)`` (where the protocol can tell the board) when
+        the call fails."""
+        timeout = self.service_timeout
 
         def work() -> None:
+            started = time.monotonic()
             try:
-                answer(self.node.call_raw(name, srv_type, payload, timeout))
+                response = self.node.call_raw(name, srv_type, payload, timeout)
             except HwBridgeError as exc:
+                reason = str(exc)
+                late = time.monotonic() - started >= timeout
+                if late and not isinstance(exc, HwBridgeTimeoutError):
+                    # A server that took too long: Zenoh ends the call with a bare "Timeout".
+                    reason = (
+                        f"no answer from {name} within {timeout:g} s (the bridge's service "
+                        "timeout; raise it with 'hwbridge connect --service-timeout SECONDS')"
+                    )
                 self.log.error(
-                    "%s: service call %s for the board failed: %s", self.board_name, name, exc
+                    "%s: service call %s for the board failed: %s", self.board_name, name, reason
                 )
+                if refuse is not None:
+                    self._tell_board(refuse, reason, name)
+                return
+            self._tell_board(answer, response, name)
 
         self._workers.submit(work)
+
+    def _tell_board(self, action: Callable[[Any], None], outcome: Any, name: str) -> None:
+        try:
+            action(outcome)
+        except HwBridgeError as exc:
+            self.log.error(
+                "%s: the answer of %s did not reach the board: %s", self.board_name, name, exc
+            )
 
     def log_line(self, level: int, text: str) -> None:
         """A board log line: Python logging and /rosout (rosgraph_msgs/Log)."""

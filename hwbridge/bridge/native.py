@@ -19,9 +19,12 @@ if TYPE_CHECKING:
 __all__ = ["NativeAdapter"]
 
 
-def _call_on(channel: int) -> Callable[[ns.HostSession, bytes], int]:
-    """How a graph call of the board's service on ``channel`` reaches the board."""
-    return lambda session, request: session.call_service(channel, request, now=time.monotonic())
+def _call_on(channel: int) -> Callable[[ns.HostSession, bytes, float], int]:
+    """How a graph call of the board's service on ``channel`` reaches the board (``timeout``:
+    the bridge's service timeout, after which the session fails the call)."""
+    return lambda session, request, timeout: session.call_service(
+        channel, request, timeout=timeout, now=time.monotonic()
+    )
 
 
 class NativeAdapter(EventDispatch):
@@ -35,7 +38,7 @@ class NativeAdapter(EventDispatch):
         self.log = logging.getLogger(f"hwbridge.board.{board.name}")
         config = ns.HostConfig(epoch_offset=time.time() - time.monotonic())
         self.session = ns.HostSession(config, type_check=self._expected_type)
-        self.endpoints = BoardEndpoints(board.node, board.name, self.log)
+        self.endpoints = BoardEndpoints.for_board(self.board, self.log)
         self.channels: dict[int, str] = {}  # board channel -> graph name
         self._forward: dict[int, Callable[[bytes], None]] = {}
         """Board publisher channel -> its graph publisher's ``publish_raw`` (per message)."""
@@ -140,8 +143,11 @@ class NativeAdapter(EventDispatch):
         def answer(response: bytes) -> None:
             self.board.pump.call(lambda s: s.respond_service(channel, request_id, response))
 
+        def refuse(reason: str) -> None:  # the board's call fails now, not at its own timeout
+            self.board.pump.call(lambda s: s.respond_service(channel, request_id, error=reason))
+
         self.endpoints.call_graph_service(
-            self.board.resolve(entry.name), entry.type_name, event.payload, answer, timeout=5.0
+            self.board.resolve(entry.name), entry.type_name, event.payload, answer, refuse
         )
 
     def _on_ParamRequest(self, event: ns.ParamRequest) -> None:
@@ -181,7 +187,7 @@ class NativeAdapter(EventDispatch):
     def _on_Disconnected(self, event: ns.Disconnected) -> None:
         self.log.warning("%s: session ended (%s); negotiating again", self.board.name, event.reason)
         self.endpoints.close(event.error)
-        self.endpoints = BoardEndpoints(self.board.node, self.board.name, self.log)
+        self.endpoints = BoardEndpoints.for_board(self.board, self.log)
         self.channels.clear()
         self._forward.clear()
         self.board.set_state("negotiating")

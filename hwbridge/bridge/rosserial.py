@@ -19,10 +19,11 @@ if TYPE_CHECKING:
 __all__ = ["RosserialAdapter"]
 
 
-def _call(name: str) -> Callable[[RosserialHost, bytes], int]:
-    """How a graph call of the board's service ``name`` reaches the board."""
-    return lambda session, request: session.call_service(
-        name, request, time.monotonic(), timeout=5.0
+def _call(name: str) -> Callable[[RosserialHost, bytes, float], int]:
+    """How a graph call of the board's service ``name`` reaches the board (``timeout``: the
+    bridge's service timeout, after which the session fails the call)."""
+    return lambda session, request, timeout: session.call_service(
+        name, request, time.monotonic(), timeout=timeout
     )
 
 
@@ -38,7 +39,7 @@ class RosserialAdapter(EventDispatch):
         self.session = RosserialHost(
             board.bridge.registry, now=time.monotonic(), start_delay=start_delay
         )
-        self.endpoints = BoardEndpoints(board.node, board.name, self.log)
+        self.endpoints = BoardEndpoints.for_board(self.board, self.log)
         self.connected = False
         self._forward: dict[str, Callable[[bytes], None]] = {}
         """Board topic -> its graph publisher's ``publish_raw`` (looked up once per table)."""
@@ -98,7 +99,7 @@ class RosserialAdapter(EventDispatch):
             event.type,
             bytes(event.payload),
             lambda response: self.board.pump.call(lambda s: s.respond(name, response)),
-            timeout=5.0,
+            # rosserial has no way to fail a board's call: its client waits on (logged here).
         )
 
     def _on_ParamRequest(self, event: rs.ParamRequest) -> None:
@@ -129,7 +130,7 @@ class RosserialAdapter(EventDispatch):
             event.silence,
         )
         self.endpoints.close(ProtocolError("the board lost sync"))
-        self.endpoints = BoardEndpoints(self.board.node, self.board.name, self.log)
+        self.endpoints = BoardEndpoints.for_board(self.board, self.log)
         self._forward.clear()
         self.connected = False
         self.board.set_state("negotiating")

@@ -51,6 +51,15 @@ def connect(
         float,
         typer.Option("--start-delay", min=0, help="Seconds to let a board boot before talking."),
     ] = 2.0,
+    service_timeout: Annotated[
+        float,
+        typer.Option(
+            "--service-timeout",
+            metavar="SECONDS",
+            help="Seconds to wait for a service answer, both ways: graph calls of board "
+            "services and board calls of graph services (above 0, at most 86400).",
+        ),
+    ] = 5.0,
     params: Annotated[
         Path | None,
         typer.Option("--params", exists=True, dir_okay=False, help="YAML file of parameters."),
@@ -64,11 +73,15 @@ def connect(
     ] = None,
 ) -> None:
     """Connect boards to the graph and keep them connected until Ctrl-C."""
-    from hwbridge.bridge import PROTOCOLS, BoardSpec, Bridge
+    from hwbridge.bridge import PROTOCOLS, BoardSpec, Bridge, check_service_timeout
     from hwbridge.graph import Graph, GraphConfig
 
     if protocol not in PROTOCOLS:
         raise typer.BadParameter(f"use one of {', '.join(PROTOCOLS)}", param_hint="--protocol")
+    try:
+        check_service_timeout(service_timeout)
+    except HwBridgeError as exc:
+        raise typer.BadParameter(str(exc), param_hint="--service-timeout") from exc
     names = name or []
     if len(names) > len(urls):
         raise typer.BadParameter("more --name options than URLs", param_hint="--name")
@@ -108,6 +121,7 @@ def connect(
                 namespace=namespace,
                 name=names[index] if index < len(names) else None,
                 start_delay=start_delay,
+                service_timeout=service_timeout,
             )
             bridge.add_board(spec)
         sys.stderr.write(

@@ -107,8 +107,16 @@ class VirtualBoard:
         self._channel_names: dict[int, str] = {}
         self._inputs: dict[int, Callable[[bytes], None]] = {}
         self.dynamixel_bus: Any = None
-        for device in config.devices:
-            self._add_device(device)
+        for index, device in enumerate(config.devices):
+            try:
+                self._add_device(device)
+            except HwBridgeError:
+                raise
+            except (TypeError, ValueError) as exc:  # a setting that is not a number, say
+                kind = device.get("type", "?") if isinstance(device, dict) else "?"
+                raise HwBridgeError(
+                    f"{config.source}: device {index + 1} ({kind}): bad setting: {exc}"
+                ) from exc
         self.session = FaultySession(self._new_session(), seed)
         self.resets = 0
         self._count_offset = (0, 0)

@@ -59,6 +59,10 @@ ANY_TYPE: Final = "*"
 _MD5_LEN: Final = 32
 
 
+_ZENOH_TIMEOUT: Final = "Timeout"
+"""The error reply Zenoh gives a query whose time limit passed while a server was on it."""
+
+
 class ServiceError(HwBridgeError):
     """A service server answered with an error, or refused the request."""
 
@@ -464,7 +468,13 @@ class Node:
             if reply.ok is not None:
                 return bytes(reply.ok.payload.to_bytes())
             if reply.err is not None:
-                raise ServiceError(f"{resolved}: {reply.err.payload.to_string()}")
+                text = reply.err.payload.to_string()
+                if text == _ZENOH_TIMEOUT:
+                    raise HwBridgeTimeoutError(
+                        f"no answer from service {resolved} within {timeout:g} s: its server "
+                        "is still at work or stuck (give a longer timeout if it is slow)"
+                    )
+                raise ServiceError(f"{resolved}: {text}")
         raise HwBridgeTimeoutError(
             f"no answer from service {resolved} within {timeout:g} s "
             "(is its server running? see 'hwbridge service list')"

@@ -274,3 +274,20 @@ def test_emulate_dynamixel_bus_answers_a_scan(bus: str, protocol: str, model: st
     finally:
         emulator.terminate()
         emulator.wait(15)
+
+
+@pytest.mark.parametrize(
+    ("device", "said"),
+    [
+        ("type: mpu6050\n    accel_range_g: 2g", "device 2 (mpu6050): bad setting: "),
+        ("type: hcsr04\n    rate: fast", "device 2 (hcsr04): bad setting: "),
+    ],
+)
+def test_a_setting_that_is_not_a_number_names_the_device(
+    device: str, said: str, tmp_path: Path
+) -> None:
+    path = tmp_path / "bot.yaml"
+    path.write_text(f"name: bot\ndevices:\n  - type: hcsr04\n  - {device}\n")
+    with pytest.raises(HwBridgeError) as info:
+        VirtualBoard(load_board(str(path)))
+    assert f"{path}: {said}" in str(info.value)

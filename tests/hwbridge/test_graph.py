@@ -242,6 +242,40 @@ def test_calls_keep_a_querier_per_timeout_and_cope_with_many_timeouts(
         node.call("/gone", "std_srvs/Trigger", {}, timeout=0.2)  # past the cap too
 
 
+def test_a_server_slower_than_the_callers_timeout_is_a_timeout_not_a_service_error(
+    router: Graph, client: Graph
+) -> None:
+    """Zenoh ends such a call with a bare "Timeout" error reply: the caller gets
+    HwBridgeTimeoutError naming the service and its timeout, as documented for call()."""
+    import threading
+
+    release = threading.Event()
+
+    def handler(_request: bytes, reply: DeferredReply) -> None:
+        def later() -> None:
+            release.wait(5)
+            reply.ok(b"\x01\x02\x00\x00\x00ok")
+
+        threading.Thread(target=later).start()
+
+    router.node("board").deferred_service("/homing", "std_srvs/Trigger", handler)
+    node = client.node("caller")
+    try:
+        assert wait_until(lambda: "/homing" in client.snapshot(timeout=0.5).services())
+        with pytest.raises(HwBridgeTimeoutError) as info:
+            node.call("/homing", "std_srvs/Trigger", {}, timeout=0.3)
+        assert not isinstance(info.value, ServiceError)
+        assert "/homing within 0.3 s" in str(info.value)
+    finally:
+        release.set()
+    # A server's own error text is still a ServiceError, whatever it says.
+    router.node("board").deferred_service(
+        "/says_timeout", "std_srvs/Trigger", lambda _r, reply: reply.error("Timeout of the arm")
+    )
+    with pytest.raises(ServiceError, match="Timeout of the arm"):
+        call_when_ready(node, "/says_timeout", "std_srvs/Trigger", {})
+
+
 def test_deferred_service_answers_from_another_thread(router: Graph, client: Graph) -> None:
     import threading
 

@@ -14,7 +14,7 @@ from typing import Annotated, Any
 import typer
 import yaml
 
-from hwbridge.cli.common import Context, get_registry, open_graph
+from hwbridge.cli.common import Context, emit_json, get_registry, open_graph
 from hwbridge.errors import HwBridgeError, HwBridgeTimeoutError
 
 __all__ = ["board_app", "connect"]
@@ -169,9 +169,7 @@ def board_list(ctx: typer.Context, as_json: JsonOpt = False) -> None:
     """List boards the bridge keeps connected (whether connected right now or not)."""
     rows = _board_names(ctx, 1.0)
     if as_json:
-        sys.stdout.write(
-            json.dumps([{"board": n, "url": u, "protocol": p} for n, u, p in rows]) + "\n"
-        )
+        emit_json([{"board": n, "url": u, "protocol": p} for n, u, p in rows])
         return
     for board, url, proto in rows:
         typer.echo(f"{board}\t{url}\t{proto}")
@@ -203,7 +201,7 @@ def board_stats(ctx: typer.Context, board: BoardArg, as_json: JsonOpt = False) -
 
 def _print(data: dict[str, Any], as_json: bool) -> None:
     if as_json:
-        sys.stdout.write(json.dumps(data) + "\n")
+        emit_json(data)
     else:
         from hwbridge.msg import dump_yaml
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,8 +24,26 @@ console_err = Console(stderr=True, soft_wrap=True)
 
 
 def json_line(data: Any) -> str:
-    """``data`` as one line of JSON (``--json`` output), newline included."""
-    return json.dumps(data) + "\n"
+    """``data`` as one line of strict JSON (``--json`` output), newline included.
+
+    A float that JSON cannot hold (a Range's +-inf, a magnetometer's NaN on overflow) is written
+    as the string ``"Infinity"``, ``"-Infinity"`` or ``"NaN"``: Python's bare ``Infinity`` and
+    ``NaN`` tokens would stop jq and most other JSON readers.
+    """
+    try:
+        return json.dumps(data, allow_nan=False) + "\n"
+    except ValueError:  # only then walk the data
+        return json.dumps(_finite(data), allow_nan=False) + "\n"
+
+
+def _finite(value: Any) -> Any:
+    if isinstance(value, float) and not math.isfinite(value):
+        return "NaN" if math.isnan(value) else "Infinity" if value > 0 else "-Infinity"
+    if isinstance(value, dict):
+        return {key: _finite(item) for key, item in value.items()}
+    if isinstance(value, list | tuple):
+        return [_finite(item) for item in value]
+    return value
 
 
 def emit_json(data: Any) -> None:

@@ -177,8 +177,10 @@ def test_json_output_is_one_line_per_value(capsys: pytest.CaptureFixture[str]) -
 
     emit_json({"id": 1, "value_rad": -0.5, "register": None, "ok": True})
     emit_json([])
+    emit_json({"v": [float("inf"), (float("-inf"), float("nan"))], "ok": 1.5})
     assert capsys.readouterr().out == (
         '{"id": 1, "value_rad": -0.5, "register": null, "ok": true}\n[]\n'
+        '{"v": ["Infinity", ["-Infinity", "NaN"]], "ok": 1.5}\n'
     )
 
 

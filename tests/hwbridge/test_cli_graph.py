@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import subprocess
 import sys
 import threading
@@ -25,6 +26,7 @@ def board(endpoint: str) -> Iterator[dict[str, Any]]:
     node = graph.node("fake_board", namespace="/diffbot")
     chatter = node.publisher("chatter", "std_msgs/String")
     odom = node.publisher("odom", "nav_msgs/Odometry")
+    sonar = node.publisher("sonar", "sensor_msgs/Range")
     received: list[Any] = []
     node.subscriber("cmd_vel", "geometry_msgs/Twist", received.append)
     node.service("reset", "std_srvs/Trigger", lambda _: {"success": True, "message": "reset done"})
@@ -36,6 +38,8 @@ def board(endpoint: str) -> Iterator[dict[str, Any]]:
         while not stop.is_set():
             chatter.publish({"data": f"hello {count}"})
             odom.publish({"header": {"seq": count, "frame_id": "odom"}})
+            # Nothing in range (REP-117: +inf), and a field of no meaning here left NaN.
+            sonar.publish({"range": math.inf, "field_of_view": math.nan, "min_range": 0.02})
             count += 1
             stop.wait(0.02)
 
@@ -76,6 +80,10 @@ def test_topic_list_info_type(capsys: pytest.CaptureFixture[str]) -> None:
     assert "no publisher" in err
 
 
+def _refuse(token: str) -> None:
+    raise AssertionError(f"not strict JSON: {token}")
+
+
 def test_topic_echo(capsys: pytest.CaptureFixture[str]) -> None:
     code, out, _ = run(capsys, "topic", "echo", "/diffbot/chatter", "-n", "2")
     assert code == 0
@@ -84,6 +92,12 @@ def test_topic_echo(capsys: pytest.CaptureFixture[str]) -> None:
     assert all(yaml.safe_load(d)["data"].startswith("hello ") for d in docs)
     code, out, _ = run(capsys, "topic", "echo", "/diffbot/odom", "-n", "1", "--json")
     assert json.loads(out)["header"]["frame_id"] == "odom"
+    # Strict JSON: no bare Infinity/NaN tokens, which jq and most readers refuse.
+    code, out, _ = run(capsys, "topic", "echo", "/diffbot/sonar", "-n", "1", "--json")
+    assert code == 0
+    sonar = json.loads(out, parse_constant=_refuse)
+    assert (sonar["range"], sonar["field_of_view"]) == ("Infinity", "NaN")
+    assert sonar["min_range"] == pytest.approx(0.02)
     code, _, err = run(capsys, "topic", "echo", "/silent", "--timeout", "0.3")
     assert code == 1
     assert "no message on /silent" in err

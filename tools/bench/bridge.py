@@ -469,16 +469,13 @@ def run_protocol(
         raw_server = graph.session.declare_queryable(
             RAW_KEY, lambda query: query.reply(RAW_KEY, answer, express=True)
         )
+        floors = f"@{GRAPH_PAUSE!r}"
+        targets = ["/bench/trigger", "/bench/graph_trigger" + floors, f"zenoh:{RAW_KEY}" + floors]
         try:
-            floors = f"@{GRAPH_PAUSE!r}"
-            measured = _call_times(
-                endpoint,
-                calls,
-                ["/bench/trigger", "/bench/graph_trigger" + floors, f"zenoh:{RAW_KEY}" + floors],
-            )
+            measured = _call_times(endpoint, calls, targets)
         finally:
             raw_server.undeclare()
-        times, graph_times, zenoh_times = measured.values()
+        times, graph_times, zenoh_times = (measured[target] for target in targets)
         handling = json.loads(_ask(board, "handling") or "[]")
         board_time = statistics.median(handling) if handling else 0.0
         host = [t - echo_rtt - board_time for t in times]

@@ -43,6 +43,9 @@ class SessionPump:
 
     ``on_event(event)`` runs on the pump thread, without the lock held, so it may call
     :meth:`call`. ``on_exit(error)`` runs once when the thread ends (``None`` after stop()).
+    On a link that outlives its peers (``tcp-listen://``, ``pty://``) the session goes on with
+    the next peer, unless ``end_with_peer``: then the peer's going ends the pump, with the
+    :class:`LinkClosedError` that said so (for protocols whose session is one peer's).
     """
 
     def __init__(
@@ -55,6 +58,7 @@ class SessionPump:
         clock: Callable[[], float] = time.monotonic,
         on_exit: Callable[[BaseException | None], None] | None = None,
         read_size: int = 65536,
+        end_with_peer: bool = False,
     ) -> None:
         self.link = link
         self.session = session
@@ -63,6 +67,7 @@ class SessionPump:
         self._on_exit = on_exit
         self._clock = clock
         self._read_size = read_size
+        self._end_with_peer = end_with_peer
         self._lock = threading.RLock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -144,7 +149,7 @@ class SessionPump:
                 try:
                     data = link.read(self._read_size, timeout=timeout)
                 except LinkClosedError:
-                    if not link.is_open or self._stop.is_set():
+                    if not link.is_open or self._stop.is_set() or self._end_with_peer:
                         raise
                     log.info("%s: the peer went away; waiting for the next one", self.name)
                     continue

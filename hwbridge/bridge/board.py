@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 from hwbridge.errors import HwBridgeError, LinkError
 from hwbridge.graph import Node, resolve_name
 from hwbridge.graph.names import encode_segment
-from hwbridge.links import Link, create_link
+from hwbridge.links import Link, LinkClosedError, create_link
 from hwbridge.protocols.detect import ProtocolDetector
 from hwbridge.protocols.rosserial import REQUEST_TOPICS
 from hwbridge.pump import SansIOSession, SessionPump
@@ -67,6 +67,7 @@ class Adapter(Protocol):
     """What a protocol adapter offers the board connection."""
 
     protocol: str
+    session_per_peer: bool
 
     @property
     def session(self) -> SansIOSession: ...
@@ -227,7 +228,12 @@ class BoardConnection:
             backoff, last_problem = 0.2, ""
             self.link = link
             try:
-                self._serve(link)
+                # A link that outlives its peers (tcp-listen://, pty://) stays open between
+                # them: closing it would refuse (or rename) the next board while it reopens.
+                while not self._stop.is_set():
+                    self._serve(link)
+                    if not link.is_open:
+                        break
             except LinkError as exc:
                 if not self._stop.is_set():
                     self.log.warning("%s: link lost (%s); reconnecting", self.name, exc)
@@ -237,8 +243,11 @@ class BoardConnection:
                 self.link = None
 
     def _serve(self, link: Link) -> None:
+        early = self._wait_for_peer(link)
+        if early is None:
+            return
         self.set_state("detecting")
-        protocol, early = self._detect(link)
+        protocol, early = self._detect(link, early)
         if protocol is None:
             return
         adapter = self.bridge.make_adapter(protocol, self, early_start=bool(early))
@@ -251,7 +260,12 @@ class BoardConnection:
             done.set()
 
         pump = SessionPump(
-            link, adapter.session, adapter.on_event, name=f"pump-{self.name}", on_exit=on_exit
+            link,
+            adapter.session,
+            adapter.on_event,
+            name=f"pump-{self.name}",
+            on_exit=on_exit,
+            end_with_peer=adapter.session_per_peer,
         )
         self._pump = pump
         self.connects += 1
@@ -269,23 +283,54 @@ class BoardConnection:
         adapter.close(reason)
         self.adapter = None
         self._pump = None
-        if not self._stop.is_set():
+        if self._stop.is_set():
+            return
+        if link.is_open:  # a listening link: its board went, the next one gets a new session
+            self.log.warning("%s: board gone (%s); waiting for the next one", self.name, error)
+            self.set_state("waiting", problem=str(error))
+        else:
             self.log.warning("%s: link lost (%s); reconnecting", self.name, error)
             self.set_state("lost", problem=str(error))
 
-    def _detect(self, link: Link) -> tuple[str | None, bytes]:
-        """The protocol to speak, and bytes already read that belong to the session."""
-        if self.spec.protocol != "auto":
-            return self.spec.protocol, b""
-        detector = ProtocolDetector()
+    def _wait_for_peer(self, link: Link) -> bytes | None:
+        """Wait until a board is on the link (at once but on links that wait for peers, such as
+        tcp-listen:// and pty://); returns what it sent meanwhile, None if stopped first."""
         seen = bytearray()
+        said = False
+        while not self._stop.is_set():
+            if link.connected:
+                return bytes(seen)
+            if not said:
+                said = True
+                self.set_state("waiting", problem="no board attached")
+                where = getattr(link, "slave_path", None)
+                # A pty's path is made up when it opens: the user needs it to attach a board.
+                self.log.log(
+                    logging.WARNING if where else logging.INFO,
+                    "%s: waiting for a board on %s",
+                    self.name,
+                    f"{where} ({self.spec.url})" if where else self.spec.url,
+                )
+            try:
+                seen += link.read(4096, timeout=0.1)  # a listener accepts its client here
+            except LinkClosedError:
+                if not link.is_open:
+                    raise
+        return None
+
+    def _detect(self, link: Link, early: bytes) -> tuple[str | None, bytes]:
+        """The protocol to speak, and bytes already read (``early`` first) that belong to the
+        session. The rosserial probe waits ``start_delay`` from now: the board just attached."""
+        if self.spec.protocol != "auto":
+            return self.spec.protocol, early
+        detector = ProtocolDetector()
+        seen = bytearray(early)
         started = time.monotonic()
         probe_at = started + self.spec.start_delay
         probes_sent = 0
+        data = early
         while not self._stop.is_set():
-            data = link.read(4096, timeout=0.05)
             if data:
-                seen += data
                 found = detector.feed(data)
                 if found is not None:
                     self.log.info("%s: speaks %s", self.name, found)
@@ -303,6 +348,8 @@ class BoardConnection:
                 link.write(REQUEST_TOPICS)
                 probes_sent += 1
                 probe_at = now + 1.0
+            data = link.read(4096, timeout=0.05)
+            seen += data
         return None, b""
 
 

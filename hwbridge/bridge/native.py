@@ -31,6 +31,9 @@ class NativeAdapter(EventDispatch):
     """Maps :class:`HostSession` events onto the graph for one board connection."""
 
     protocol = "native"
+    session_per_peer = False
+    """One session across the peers of a listening link: a board that comes back resumes it
+    or negotiates anew through HELLOs."""
 
     def __init__(self, board: BoardConnection) -> None:
         super().__init__()

@@ -31,6 +31,9 @@ class RosserialAdapter(EventDispatch):
     """Maps :class:`RosserialHost` events onto the graph for one board connection."""
 
     protocol = "rosserial"
+    session_per_peer = True
+    """A new session for each peer of a listening link: a new client says nothing until asked
+    for its topics (rosserial_python also serves each connection apart)."""
 
     def __init__(self, board: BoardConnection, *, start_delay: float) -> None:
         super().__init__()

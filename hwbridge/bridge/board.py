@@ -118,7 +118,7 @@ class BoardSpec:
 def _name_from_url(url: str) -> str:
     tail = url.split("?", 1)[0].rstrip("/")
     tail = PurePosixPath(tail.split("://", 1)[-1]).name or "board"
-    cleaned = "".join(c if c.isalnum() or c == "_" else "_" for c in tail)
+    cleaned = "".join(c if c.isalnum() or c == "_" else "_" for c in tail).strip("_")
     if not cleaned or cleaned[0].isdigit():
         cleaned = "board_" + cleaned
     return cleaned

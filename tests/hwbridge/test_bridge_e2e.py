@@ -15,6 +15,7 @@ from pathlib import Path
 import pytest
 import yaml
 
+from hwbridge.bridge import BoardSpec
 from hwbridge.links import open_link
 from hwbridge.protocols.rosserial import REQUEST_TOPICS
 from tests.boards import (
@@ -176,3 +177,17 @@ def test_native_board_through_bridge_and_cli_with_reset(
         assert bridge.output().count("connected (native)") >= 2
     finally:
         again.stop()
+
+
+@pytest.mark.parametrize(
+    ("url", "name"),
+    [
+        ("/dev/ttyACM0", "ttyACM0"),
+        ("serial:///dev/ttyUSB0?baud=115200", "ttyUSB0"),
+        ("tcp-listen://:11411", "board_11411"),
+        ("socket://192.168.4.1:2323", "board_192_168_4_1_2323"),
+        ("pty://", "pty"),
+    ],
+)
+def test_a_board_is_named_after_its_url(url: str, name: str) -> None:
+    assert BoardSpec(url).name == name

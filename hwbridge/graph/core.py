@@ -146,6 +146,12 @@ class Graph:
                     "; is a bridge running? start one with 'hwbridge connect URL' "
                     "(or set HWBRIDGE_ENDPOINT)"
                 )
+                if self.config.config_file is not None:
+                    # A refused login or TLS handshake ends the same way as no bridge at all.
+                    hint += (
+                        f"; if one is, check that the credentials or certificates in "
+                        f"{self.config.config_file} are the ones it accepts"
+                    )
             raise HwBridgeError(
                 f"cannot join the graph ({self.config.describe()}): {exc}{hint}"
             ) from exc

@@ -41,8 +41,10 @@ def test_user_password_from_config_files(
         ParamServer(router, {"/secret/answer": 42})
         with Graph(GraphConfig.from_file(good, "client", domain="auth")) as client:
             assert client.params.get("/secret/answer") == 42
-        with pytest.raises(HwBridgeError, match="cannot join the graph"):
+        with pytest.raises(HwBridgeError, match="cannot join the graph") as refused:
             Graph(GraphConfig.from_file(bad, "client", domain="auth"))
+        # A refused login looks like no bridge at all to Zenoh: the hint names the file too.
+        assert f"check that the credentials or certificates in {bad}" in str(refused.value)
 
         monkeypatch.delenv("HWBRIDGE_ENDPOINT", raising=False)
         monkeypatch.setenv("HWBRIDGE_DOMAIN", "auth")

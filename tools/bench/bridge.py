@@ -23,12 +23,13 @@ one most). ``pty_echo_idle_us`` is the echo with a pause between rounds as long 
 sleeps in a bridged call, and ``p50_idle_echo_us`` the host-added p50 with that echo subtracted
 instead: what the host adds when the link is charged at the price the call pays for it.
 ``p50_us`` stays the stricter figure.
-Two floors are measured by the same caller process, interleaved with the bridged calls in
-blocks of ``BLOCK`` calls (so a slow spell of the machine weighs on all three alike):
+Two floors are measured by the same caller process right after the bridged calls:
 ``graph_rtt_p50_us``, a graph-only service served in the bridge process (no board, no link),
 and ``zenoh_rtt_p50_us``, a bare Zenoh querier calling a bare Zenoh queryable there (no
 hwbridge code on either side). For both, the caller pauses between calls so that, as in a
-bridged call, both processes go idle in between. ``p50_us`` minus ``graph_rtt_p50_us`` is about
+bridged call, both processes go idle in between. (Interleaving the three in blocks was tried:
+each switch leaves the board and the bridge cold, which adds 65-100 us to the bridged p50, a
+cost a caller that keeps calling does not pay.) ``p50_us`` minus ``graph_rtt_p50_us`` is about
 what the bridge itself adds; ``graph_rtt_p50_us`` minus ``zenoh_rtt_p50_us`` is what the graph
 layer adds to Zenoh.
 
@@ -71,8 +72,6 @@ N_CALLS = 2000
 GRAPH_PAUSE = 300e-6
 """Seconds the caller waits between calls to the floor services: about what the board and the
 link take in a bridged call, so both processes go idle between messages as they do there."""
-BLOCK = 50
-"""Calls in a row to one target before the caller switches to the next."""
 RAW_KEY = "bench_raw/trigger"
 """Key of the bare Zenoh queryable (outside the graph's key space)."""
 DOMAIN = "bench"
@@ -288,7 +287,8 @@ def subscriber_main(endpoint: str, topic: str, expected: int) -> None:
 
 
 def caller_main(endpoint: str, calls: int, targets: list[str]) -> None:
-    """Time ``calls`` calls of each target, interleaved in blocks; prints {target: [seconds]}.
+    """Time ``calls`` calls of each target, one target after the other; prints
+    {target: [seconds]}.
 
     A target is ``SERVICE`` (a graph service, no pause), ``SERVICE@PAUSE`` (seconds to wait
     after each call) or ``zenoh:KEY@PAUSE`` (a bare Zenoh querier on KEY, no hwbridge code).
@@ -324,15 +324,14 @@ def caller_main(endpoint: str, calls: int, targets: list[str]) -> None:
             plans.append((target, call, pause))
         times: dict[str, list[float]] = {target: [] for target in targets}
         clock = time.perf_counter
-        for done in range(0, calls, BLOCK):
-            for target, call, pause in plans:
-                record = times[target].append
-                for _ in range(min(BLOCK, calls - done)):
-                    started = clock()
-                    call()
-                    record(clock() - started)
-                    if pause:
-                        time.sleep(pause)
+        for target, call, pause in plans:
+            record = times[target].append
+            for _ in range(calls):
+                started = clock()
+                call()
+                record(clock() - started)
+                if pause:
+                    time.sleep(pause)
         print(json.dumps(times), flush=True)
 
 

@@ -26,6 +26,8 @@ log = logging.getLogger("hwbridge.pump")
 
 T = TypeVar("T")
 _IDLE_TICK = 0.05  # seconds between ticks of a session that announces no deadline
+_LOCK_WAIT = 0.01
+"""Seconds of waiting for the lock after a read past which the link is read again before a tick."""
 
 
 class SansIOSession(Protocol):
@@ -121,6 +123,18 @@ class SessionPump:
             # lost as on a wire with no board; the protocol's timers deal with it.
             self.dropped_bytes += len(data)
 
+    def _read(self, timeout: float) -> bytes:
+        """Read the link; ``b""`` also when the peer of a link that waits for the next one went
+        away and the session goes on (other link errors are raised)."""
+        link = self.link
+        try:
+            return link.read(self._read_size, timeout=timeout)
+        except LinkClosedError:
+            if not link.is_open or self._stop.is_set() or self._end_with_peer:
+                raise
+            log.info("%s: the peer went away; waiting for the next one", self.name)
+            return b""
+
     def _dispatch(self, event: Any) -> None:
         try:
             self._on_event(event)
@@ -131,7 +145,7 @@ class SessionPump:
 
     def _run(self) -> None:
         error: BaseException | None = None
-        session, link, lock, clock = self.session, self.link, self._lock, self._clock
+        session, lock, clock = self.session, self._lock, self._clock
         deadline_of = getattr(session, "next_deadline", None)
         if not callable(deadline_of):
             deadline_of = None
@@ -146,17 +160,19 @@ class SessionPump:
                     if deadline is None
                     else min(max(deadline - clock(), 0.0), _IDLE_TICK)
                 )
-                try:
-                    data = link.read(self._read_size, timeout=timeout)
-                except LinkClosedError:
-                    if not link.is_open or self._stop.is_set() or self._end_with_peer:
-                        raise
-                    log.info("%s: the peer went away; waiting for the next one", self.name)
-                    continue
+                data = self._read(timeout)
+                read_at = clock()
                 with lock:
                     now = clock()
                     events = session.receive_data(data, now) if data else []
                     if deadline is None or now >= deadline:
+                        if now - read_at > _LOCK_WAIT:
+                            # Another thread held the lock meanwhile (a long write under call(),
+                            # say): take what arrived since the read before the timers judge
+                            # the link, or they take this thread's wait for the peer's silence.
+                            late = self._read(0)
+                            if late:
+                                events += session.receive_data(late, now)
                         events += session.tick(now)
                     self._flush()
                 for event in events:

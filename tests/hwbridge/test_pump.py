@@ -1,0 +1,106 @@
+"""SessionPump (hwbridge.pump) driving real native sessions over a real ``memory://`` pipe."""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Iterator
+from typing import Any, cast
+
+import pytest
+
+from hwbridge.links import Link, open_link
+from hwbridge.protocols.native import session as ns
+from hwbridge.pump import SessionPump
+from tests.boards import native_sketch, wait_for
+
+LINK_TIMEOUT = 0.3
+"""The device's link timeout."""
+HOST_HEARTBEAT = 0.1
+"""The host's heartbeat period: the device, ticking every DEVICE_HEARTBEAT, finds the link empty
+between two of them."""
+DEVICE_HEARTBEAT = 0.05
+HOLD = 0.6
+"""Seconds another thread keeps the device pump's lock: twice the link timeout, while the host's
+heartbeats keep arriving."""
+
+
+class PausingLink:
+    """A real link that, once armed, stops in the next ``read`` that found nothing until
+    :attr:`go` is set (it sets :attr:`empty` first): the pump thread is then exactly between a
+    read that returned nothing and taking the session lock."""
+
+    def __init__(self, link: Link) -> None:
+        self.link = link
+        self.armed = threading.Event()
+        self.empty = threading.Event()
+        self.go = threading.Event()
+
+    def read(self, max_bytes: int = 4096, timeout: float | None = None) -> bytes:
+        data = self.link.read(max_bytes, timeout)
+        if not data and self.armed.is_set():
+            self.armed.clear()
+            self.empty.set()
+            self.go.wait(5)
+        return data
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.link, name)
+
+
+@pytest.fixture
+def pair() -> Iterator[tuple[SessionPump, SessionPump, PausingLink, list[Any], list[Any]]]:
+    host_link, device_link = open_link("memory://pump-lock"), open_link("memory://pump-lock")
+    # The host waits longer than the hold: the device is silent meanwhile (its pump is stuck).
+    host = ns.HostSession(
+        ns.HostConfig(
+            time_sync_interval=0, link_timeout=HOLD * 4, heartbeat_interval=HOST_HEARTBEAT
+        )
+    )
+    timers = {"link_timeout": LINK_TIMEOUT, "heartbeat_interval": DEVICE_HEARTBEAT}
+    sketch = native_sketch()
+    device = ns.DeviceSession(
+        sketch.board, list(sketch.topics.values()), ns.DeviceConfig(time_sync_interval=0, **timers)
+    )
+    pausing = PausingLink(device_link)
+    host_events: list[Any] = []
+    device_events: list[Any] = []
+    host_pump = SessionPump(host_link, host, host_events.append, name="host").start()
+    device_pump = SessionPump(
+        cast(Link, pausing), device, device_events.append, name="device"
+    ).start()
+    try:
+        assert wait_for(lambda: any(isinstance(e, ns.Connected) for e in host_events), 10)
+        yield host_pump, device_pump, pausing, host_events, device_events
+    finally:
+        pausing.go.set()
+        host_pump.stop()
+        device_pump.stop()
+        host_link.close()
+        device_link.close()
+
+
+def test_a_long_hold_of_the_lock_is_not_taken_for_a_silent_peer(
+    pair: tuple[SessionPump, SessionPump, PausingLink, list[Any], list[Any]],
+) -> None:
+    """Another thread holds the device pump's lock (a long write under call()) right after the
+    pump's read found nothing. The host's heartbeats arrive meanwhile; once the pump has the lock,
+    its timers must see them, not a silence of HOLD seconds (twice the link timeout)."""
+    _host_pump, device_pump, pausing, host_events, device_events = pair
+    pausing.armed.set()
+    assert pausing.empty.wait(5), "the device pump never read an empty link"
+    holding = threading.Event()
+
+    def long_action(_session: Any) -> None:
+        holding.set()
+        time.sleep(HOLD)
+
+    holder = threading.Thread(target=device_pump.call, args=(long_action,))
+    holder.start()
+    assert holding.wait(5)
+    pausing.go.set()  # the pump returns from its read and waits for the lock
+    holder.join(5)
+    time.sleep(LINK_TIMEOUT)  # room for a (wrong) timeout to be reported
+    ended = [e for e in device_events + host_events if isinstance(e, ns.Disconnected)]
+    assert ended == []
+    assert device_pump.session.connected

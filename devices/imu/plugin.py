@@ -62,6 +62,7 @@ __all__ = [
     "accel_scale",
     "configure_ak8963",
     "decode_burst",
+    "decode_magnetometer",
     "gyro_scale",
     "sample_rate_divider",
     "sensitivity_adjustment",
@@ -99,6 +100,15 @@ def decode_burst(data: bytes) -> RawSample:
         raise ImuError(f"an MPU data burst is {_BURST.size} bytes, got {len(data)}")
     ax, ay, az, temp, gx, gy, gz = _BURST.unpack(data)
     return RawSample((ax, ay, az), temp, (gx, gy, gz))
+
+
+def decode_magnetometer(data: bytes) -> tuple[tuple[int, int, int], int]:
+    """The HX, HY, HZ counts (little-endian signed) and the ST2 byte of the AK8963's 7 bytes
+    read from 0x03 (HXL..ST2; reading ST2 ends the measurement's read)."""
+    if len(data) != _MAG.size:
+        raise ImuError(f"an AK8963 data read is {_MAG.size} bytes, got {len(data)}")
+    mx, my, mz, st2 = _MAG.unpack(data)
+    return (mx, my, mz), st2
 
 
 def accel_scale(range_g: int) -> float:
@@ -275,10 +285,7 @@ class MpuImu:
 
     def convert_magnetometer(self, data: bytes) -> Vector3:
         """Field (T) in the IMU's axes from the AK8963's 7 bytes at 0x03 (data and ST2)."""
-        if len(data) != _MAG.size:
-            raise ImuError(f"an AK8963 data read is {_MAG.size} bytes, got {len(data)}")
-        mx, my, mz, st2 = _MAG.unpack(data)
-        return self.magnetometer_field((mx, my, mz), st2)
+        return self.magnetometer_field(*decode_magnetometer(data))
 
     def magnetometer_field(self, counts: tuple[int, int, int], st2: int) -> Vector3:
         """Field (T) in the IMU's axes from the AK8963's HX, HY, HZ counts and its ST2 byte

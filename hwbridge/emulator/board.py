@@ -39,7 +39,7 @@ from hwbridge.devices.imu.mpu import (
     Mpu9250,
     MpuChip,
 )
-from hwbridge.devices.imu.plugin import configure_ak8963, decode_burst
+from hwbridge.devices.imu.plugin import configure_ak8963, decode_burst, decode_magnetometer
 from hwbridge.devices.ultrasonic import HcSr04Model
 from hwbridge.emulator.faults import FaultySession, LinkFaults
 from hwbridge.emulator.world import World, WorldConfig
@@ -453,9 +453,8 @@ class _Magnetometer:
         self.last = now
         if not self.bus.read(AK8963_ADDRESS, AK8963_ST1, 1)[0] & 0x01:  # DRDY
             return None
-        data = self.bus.read(AK8963_ADDRESS, AK8963_HXL, 7)  # HX, HY, HZ, ST2 (ends the read)
-        counts = [int.from_bytes(data[i : i + 2], "little", signed=True) for i in (0, 2, 4)]
-        return {"mag": counts, "mag_st2": data[6], "mag_asa": self.asa}
+        counts, st2 = decode_magnetometer(self.bus.read(AK8963_ADDRESS, AK8963_HXL, 7))
+        return {"mag": list(counts), "mag_st2": st2, "mag_asa": self.asa}
 
 
 def _as_int32(value: int) -> int:

@@ -25,6 +25,10 @@ __all__ = ["ROSOUT_LEVELS", "BoardEndpoints", "PendingCalls"]
 # rosgraph_msgs/Log levels for DEBUG, INFO, WARN, ERROR, FATAL (0..4 on the board).
 ROSOUT_LEVELS = (1, 2, 4, 8, 16)
 _PYTHON_LEVELS = (logging.DEBUG, logging.INFO, logging.WARNING, logging.ERROR, logging.CRITICAL)
+_TIMEOUT_HINT = (
+    "(the bridge's service timeout; raise it with 'hwbridge connect --service-timeout SECONDS')"
+)
+"""Ends the error of a service call through the bridge that ran out of time, either way."""
 
 
 class EventDispatch:
@@ -61,8 +65,7 @@ class PendingCalls:
         self._calls: dict[int, DeferredReply] = {}
         self._lock = threading.Lock()
         self._timed_out = (
-            f"board {board_name} did not answer within {service_timeout:g} s (the bridge's "
-            "service timeout; raise it with 'hwbridge connect --service-timeout SECONDS')"
+            f"board {board_name} did not answer within {service_timeout:g} s {_TIMEOUT_HINT}"
         )
 
     def __len__(self) -> int:
@@ -191,10 +194,7 @@ class BoardEndpoints:
             except HwBridgeError as exc:
                 reason = str(exc)
                 if time.monotonic() - started >= timeout:  # a server that took too long
-                    reason = (
-                        f"no answer from {name} within {timeout:g} s (the bridge's service "
-                        "timeout; raise it with 'hwbridge connect --service-timeout SECONDS')"
-                    )
+                    reason = f"no answer from {name} within {timeout:g} s {_TIMEOUT_HINT}"
                 self.log.error(
                     "%s: service call %s for the board failed: %s", self.board_name, name, reason
                 )

@@ -267,11 +267,11 @@ class BoardSession(Protocol):
 
     # ---- driving (the pump) ---------------------------------------------------------------
 
-    def receive_data(self, data: bytes, now: float, /) -> Sequence[Event]:
+    def receive_data(self, data: bytes, now: float, /) -> list[Event]:
         """Feed what one link read returned (a stream chunk or one datagram)."""
         ...
 
-    def tick(self, now: float, /) -> Sequence[Event]:
+    def tick(self, now: float, /) -> list[Event]:
         """Run the timers due at ``now``."""
         ...
 
@@ -323,7 +323,7 @@ class BoardSession(Protocol):
         """Send a new value of a parameter the board subscribed to (False if unsupported)."""
         ...
 
-    def close(self, now: float, /) -> Sequence[Event]:
+    def close(self, now: float, /) -> list[Event]:
         """End the session (a goodbye goes to :meth:`chunks_to_send` where the protocol has
         one); nothing more happens after it."""
         ...

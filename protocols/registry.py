@@ -32,6 +32,7 @@ __all__ = [
     "UnknownProtocolError",
     "get_protocol",
     "protocol_names",
+    "refresh",
     "register_protocol",
 ]
 
@@ -114,6 +115,13 @@ def _load_entry_points(refresh: bool = False) -> dict[str, EntryPoint]:
         if _entry_points is None or refresh:
             _entry_points = {ep.name: ep for ep in entry_points(group=ENTRY_POINT_GROUP)}
         return _entry_points
+
+
+def refresh() -> None:
+    """Read the entry points again and forget loaded specs (after ``sys.path`` changed)."""
+    with _lock:
+        _resolved.clear()
+        _load_entry_points(refresh=True)
 
 
 def protocol_names() -> list[str]:

@@ -3,6 +3,9 @@
 The protocol code (``hwbridge.protocols``) is pure: bytes and a clock in, events and bytes out.
 :class:`SessionPump` is the edge that does the I/O for one link: a thread reads the link, feeds
 the session, fires its timers, writes what it wants to send, and hands each event to a callback.
+The session's framing decides what a read and a write are (a chunk of a stream, or one datagram):
+the pump hands each read to the session whole and writes each item of ``chunks_to_send()`` in one
+write.
 Other threads act on the session through :meth:`SessionPump.call`, which takes the lock, runs the
 action and flushes the bytes it produced, so the session is never used by two threads at once.
 
@@ -33,11 +36,11 @@ _LOCK_WAIT = 0.01
 class SansIOSession(Protocol):
     """What the pump needs from a session (HostSession, DeviceSession, RosserialHost, ...)."""
 
-    def receive_data(self, data: bytes, now: float) -> list[Any]: ...
+    def receive_data(self, data: bytes, now: float, /) -> list[Any]: ...
 
-    def tick(self, now: float) -> list[Any]: ...
+    def tick(self, now: float, /) -> list[Any]: ...
 
-    def data_to_send(self) -> bytes: ...
+    def chunks_to_send(self) -> list[bytes]: ...
 
 
 class SessionPump:
@@ -111,17 +114,19 @@ class SessionPump:
 
     # ------------------------------------------------------------------ thread
     def _flush(self) -> None:
-        data = self.session.data_to_send()
-        if not data:
+        chunks = self.session.chunks_to_send()
+        if not chunks:
             return
+        write = self.link.write
         try:
-            self.link.write(data)
+            for chunk in chunks:
+                write(chunk)
         except LinkClosedError:
             if not self.link.is_open:
                 raise
             # A listening link (pty master, tcp-listen) with nobody attached: the bytes are
             # lost as on a wire with no board; the protocol's timers deal with it.
-            self.dropped_bytes += len(data)
+            self.dropped_bytes += sum(map(len, chunks))
 
     def _read(self, timeout: float) -> bytes:
         """Read the link; ``b""`` also when the peer of a link that waits for the next one went

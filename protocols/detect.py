@@ -1,95 +1,89 @@
-"""Tell a native hwbridge board from a rosserial one by the first bytes it sends (sans-I/O).
+"""Tell which protocol a board speaks on a stream link from the first bytes it sends (sans-I/O).
 
-Evidence, first come first served in stream order:
+Each registered protocol that can be recognised gives a detector (:class:`~hwbridge.protocols.
+registry.ProtocolSpec` ``detector``) that looks for *evidence*: bytes that only that protocol
+produces, such as a native frame whose CRC-16 checks or a rosserial v2 frame with both checksums
+right. The first evidence in stream order wins. Anything else (bootloader noise, debug text,
+truncated frames) is not evidence, so leading garbage only delays the answer.
 
-- ``native``: a run between ``0x00`` delimiters that decodes as a native frame with a valid
-  CRC-16 (a frame of another native version or of the reserved type counts too: its CRC is valid);
-- ``rosserial``: a rosserial v2 frame with both checksums right.
+Detection is for stream links only: a datagram link (CAN, UDP) carries one protocol that the
+board's configuration names, and nothing is written to probe it.
 
-Anything else (bootloader noise, debug text, truncated frames) is not evidence, so leading
-garbage only delays the answer. A false decision needs a random run to pass a CRC-16 (native) or
-a ``FF FE`` pair to pass two 8-bit checksums (rosserial).
-
-Firmware speaking rosserial protocol v1 (pre-hydro) is not detected: its ``FF FF`` header is
-too common in other data (a native payload of 0xFF bytes) to be evidence, and such a board does
-not answer a v2 "request topics" anyway; the rosserial host reports it when it sees it.
-
-Note for callers: a rosserial board says nothing until it hears "request topics"
-(:data:`hwbridge.protocols.rosserial.host.REQUEST_TOPICS`), unless it is still configured from an
-earlier session. If a board stays silent, send that frame and keep feeding what comes back; a
-native decoder sees only invalid runs in those 8 bytes.
+Memory is bounded by the detectors (each keeps at most one frame); the bytes themselves are kept
+by the caller, who decides how many to hold (see ``hwbridge.bridge.board``).
 """
 
 from __future__ import annotations
 
 import copy
-from typing import Final, Literal, TypeAlias
+import logging
+from collections.abc import Iterable
 
-from hwbridge.protocols.native.framing import BadFrame as NativeBadFrame
-from hwbridge.protocols.native.framing import BadFrameReason as NativeReason
-from hwbridge.protocols.native.framing import Frame as NativeFrame
-from hwbridge.protocols.native.framing import FrameDecoder
-from hwbridge.protocols.rosserial.framing import FrameParser, RosFrame
+from hwbridge.protocols.errors import HwBridgeError
+from hwbridge.protocols.registry import Detector, ProtocolSpec, get_protocol, protocol_names
 
-__all__ = ["Protocol", "ProtocolDetector", "detect_protocol"]
+__all__ = ["ProtocolDetector", "detect_protocol", "detectable_protocols"]
 
-Protocol: TypeAlias = Literal["native", "rosserial"]
+_log = logging.getLogger("hwbridge.protocols")
 
-_NATIVE_CRC_VALID: Final = frozenset({NativeReason.VERSION, NativeReason.RESERVED_TYPE})
+
+def detectable_protocols() -> list[ProtocolSpec]:
+    """The registered protocols that can be recognised in a stream, in registry order (one that
+    fails to load is logged and left out: the others still work)."""
+    specs: list[ProtocolSpec] = []
+    for name in protocol_names():
+        try:
+            spec = get_protocol(name)
+        except (HwBridgeError, ImportError, AttributeError) as exc:
+            _log.error("protocol %s cannot be loaded, so it is not detected: %s", name, exc)
+            continue
+        if spec.stream and spec.detector is not None:
+            specs.append(spec)
+    return specs
 
 
 class ProtocolDetector:
-    """Incremental detector: :meth:`feed` chunks until it returns a protocol.
+    """Incremental detector: :meth:`feed` chunks until it returns a protocol's name.
 
-    Memory is bounded by the two decoders' limits (one frame each); bytes fed after a decision
-    are ignored and the decision stays.
+    Bytes fed after a decision are ignored and the decision stays. When several protocols find
+    evidence in one chunk, the chunk is replayed byte by byte (on copies of the detectors taken
+    before it) to see whose evidence came first.
     """
 
-    __slots__ = ("_native", "_ros", "result")
+    __slots__ = ("_detectors", "result")
 
-    def __init__(self) -> None:
-        self._native = FrameDecoder()
-        self._ros = FrameParser()
-        self.result: Protocol | None = None
+    def __init__(self, specs: Iterable[ProtocolSpec] | None = None) -> None:
+        chosen = specs if specs is not None else detectable_protocols()
+        self._detectors: list[tuple[str, Detector]] = [
+            (spec.name, spec.detector()) for spec in chosen if spec.detector is not None
+        ]
+        self.result: str | None = None
         """The decision, once made."""
 
-    def feed(self, data: bytes | bytearray | memoryview) -> Protocol | None:
-        """Consume ``data``; return the protocol once there is evidence, else None."""
+    def feed(self, data: bytes | bytearray | memoryview) -> str | None:
+        """Consume ``data``; return the protocol's name once there is evidence, else None."""
         if self.result is not None or not data:
             return self.result
         chunk = bytes(data)
-        saved = (copy.deepcopy(self._native), copy.deepcopy(self._ros))
-        native = self._native_evidence(chunk)
-        ros = self._ros_evidence(chunk)
-        if native and ros:
-            # Both decided inside this chunk: replay it byte by byte to see which came first.
-            self._native, self._ros = saved
-            for i in range(len(chunk)):
-                byte = chunk[i : i + 1]
-                if self._native_evidence(byte):
-                    self.result = "native"
-                    break
-                if self._ros_evidence(byte):
-                    self.result = "rosserial"
-                    break
-        elif native:
-            self.result = "native"
-        elif ros:
-            self.result = "rosserial"
+        before = copy.deepcopy(self._detectors) if len(self._detectors) > 1 else []
+        found = [name for name, detector in self._detectors if detector.feed(chunk)]
+        if len(found) == 1:
+            self.result = found[0]
+        elif found:
+            self.result = _first_in(before, chunk)
         return self.result
 
-    def _native_evidence(self, data: bytes) -> bool:
-        for event in self._native.feed(data):
-            if isinstance(event, NativeFrame):
-                return True
-            if isinstance(event, NativeBadFrame) and event.reason in _NATIVE_CRC_VALID:
-                return True
-        return False
 
-    def _ros_evidence(self, data: bytes) -> bool:
-        return any(isinstance(event, RosFrame) for event in self._ros.feed(data))
+def _first_in(detectors: list[tuple[str, Detector]], chunk: bytes) -> str:
+    """The protocol whose evidence comes first in ``chunk`` (``detectors`` as before it)."""
+    for i in range(len(chunk)):
+        byte = chunk[i : i + 1]
+        for name, detector in detectors:
+            if detector.feed(byte):
+                return name
+    return detectors[0][0]  # unreachable: the whole chunk gave evidence above
 
 
-def detect_protocol(data: bytes | bytearray | memoryview) -> Protocol | None:
+def detect_protocol(data: bytes | bytearray | memoryview) -> str | None:
     """The protocol of a board whose first bytes are ``data``; None if there is no evidence yet."""
     return ProtocolDetector().feed(data)

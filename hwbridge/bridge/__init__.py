@@ -2,7 +2,6 @@
 
 from hwbridge.bridge.board import (
     DEFAULT_SERVICE_TIMEOUT,
-    PROTOCOLS,
     BoardConnection,
     BoardSpec,
     check_service_timeout,
@@ -11,7 +10,6 @@ from hwbridge.bridge.core import Bridge
 
 __all__ = [
     "DEFAULT_SERVICE_TIMEOUT",
-    "PROTOCOLS",
     "BoardConnection",
     "BoardSpec",
     "Bridge",

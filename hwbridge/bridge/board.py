@@ -3,9 +3,13 @@
 A :class:`BoardConnection` thread keeps its board connected for the bridge's lifetime:
 
 1. open the link (a port that does not exist yet is waited for, with backoff);
-2. find the protocol (forced, or detected from what the board sends; a silent board is sent
-   rosserial's "request topics" after the start delay, which native boards ignore);
-3. run the session in a :class:`~hwbridge.pump.SessionPump` until the link fails;
+2. find the protocol: named in the spec, or on a stream link detected from what the board sends
+   (:mod:`hwbridge.protocols.detect`); a silent board is sent the probes of the protocols that
+   have one (rosserial's "request topics", which native boards ignore) at once and again with
+   backoff. A datagram link is never probed: it carries the protocol the spec names (``auto``
+   takes the first registered protocol that runs on datagrams);
+3. build the protocol's session (:mod:`hwbridge.protocols.registry`) and run it in a
+   :class:`~hwbridge.pump.SessionPump` until the link fails;
 4. take the board's topics off the graph, close the link and start again.
 
 Every transition is logged, so a user sees an unplugged cable, a reset board or a port that
@@ -20,15 +24,22 @@ import math
 import threading
 import time
 from pathlib import PurePosixPath
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any
 
+from hwbridge.bridge.adapter import SessionAdapter
 from hwbridge.errors import HwBridgeError, LinkError
 from hwbridge.graph import Node, resolve_name
 from hwbridge.graph.names import encode_segment
 from hwbridge.links import Link, LinkClosedError, create_link
-from hwbridge.protocols.detect import ProtocolDetector
-from hwbridge.protocols.rosserial import REQUEST_TOPICS
-from hwbridge.pump import SansIOSession, SessionPump
+from hwbridge.protocols.detect import ProtocolDetector, detectable_protocols
+from hwbridge.protocols.registry import (
+    ProtocolSpec,
+    SessionContext,
+    UnknownProtocolError,
+    get_protocol,
+    protocol_names,
+)
+from hwbridge.pump import SessionPump
 
 if TYPE_CHECKING:
     import zenoh
@@ -37,18 +48,23 @@ if TYPE_CHECKING:
 
 __all__ = [
     "DEFAULT_SERVICE_TIMEOUT",
+    "DETECT_BUFFER",
     "MAX_SERVICE_TIMEOUT",
-    "PROTOCOLS",
     "BoardConnection",
     "BoardSpec",
     "check_service_timeout",
 ]
 
-PROTOCOLS = ("auto", "native", "rosserial")
 DEFAULT_SERVICE_TIMEOUT = 5.0
 """Seconds the bridge waits for a service answer (both protocols, both directions)."""
 MAX_SERVICE_TIMEOUT = 86400.0
 """Longest service timeout accepted (a day): Zenoh refuses query timeouts past about 1e19 s."""
+DETECT_BUFFER = 65536
+"""Bytes kept while detecting a protocol (handed to the session once it is known); older ones
+are dropped, so a noisy line costs bounded memory."""
+_PROBE_FIRST = 0.1
+_PROBE_MAX = 1.0
+"""Seconds between probes of a silent board: the first gap, doubling up to the last."""
 
 
 def check_service_timeout(seconds: float) -> float:
@@ -61,24 +77,6 @@ def check_service_timeout(seconds: float) -> float:
             f"{MAX_SERVICE_TIMEOUT:g} (a day), not {given}"
         )
     return float(seconds)
-
-
-class Adapter(Protocol):
-    """What a protocol adapter offers the board connection."""
-
-    protocol: str
-    session_per_peer: bool
-
-    @property
-    def session(self) -> SansIOSession: ...
-
-    def on_event(self, event: Any) -> None: ...
-
-    def close(self, reason: HwBridgeError) -> bytes: ...
-
-    def topics(self) -> dict[str, Any]: ...
-
-    def stats(self) -> dict[str, Any]: ...
 
 
 class BoardSpec:
@@ -98,11 +96,11 @@ class BoardSpec:
         baud: int | None = None,
         namespace: str = "/",
         name: str | None = None,
-        start_delay: float = 2.0,
+        start_delay: float = 0.0,
         service_timeout: float = DEFAULT_SERVICE_TIMEOUT,
     ) -> None:
-        if protocol not in PROTOCOLS:
-            raise HwBridgeError(f"unknown protocol {protocol!r}; use one of {', '.join(PROTOCOLS)}")
+        if protocol != "auto":
+            get_protocol(protocol)  # UnknownProtocolError listing the known ones
         self.service_timeout = check_service_timeout(service_timeout)
         self.url = url
         self.protocol = protocol
@@ -110,6 +108,7 @@ class BoardSpec:
         self.namespace = resolve_name(namespace) if namespace != "/" else "/"
         self.name = name or _name_from_url(url)
         self.start_delay = start_delay
+        """Seconds of silence after the link opens before the first probe (0: probe at once)."""
 
     def link_options(self) -> dict[str, Any]:
         return {"baud": self.baud} if self.baud is not None else {}
@@ -137,7 +136,7 @@ class BoardConnection:
         self.state_detail: dict[str, Any] = {}
         self.connects = 0
         self.link: Link | None = None
-        self.adapter: Adapter | None = None
+        self.adapter: SessionAdapter | None = None
         self._pump: SessionPump | None = None
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name=f"board-{self.name}", daemon=True)
@@ -174,6 +173,7 @@ class BoardConnection:
             "state": self.state,
             "connects": self.connects,
             "topics": adapter.topics() if adapter else {},
+            "session": adapter.describe() if adapter else {},
             "stats": adapter.stats() if adapter else {},
             "link": self.link.stats.as_dict() if self.link is not None else {},
             **self.state_detail,
@@ -197,10 +197,10 @@ class BoardConnection:
                 goodbye = (
                     pump.call(lambda _s: adapter.close(HwBridgeError("bridge stopped")))
                     if pump
-                    else b""
+                    else []
                 )
-                if goodbye:
-                    link.write(goodbye)
+                for chunk in goodbye:
+                    link.write(chunk)
             except HwBridgeError as exc:
                 self.log.debug("%s: goodbye not sent: %s", self.name, exc)
         if pump is not None:
@@ -238,6 +238,14 @@ class BoardConnection:
                 if not self._stop.is_set():
                     self.log.warning("%s: link lost (%s); reconnecting", self.name, exc)
                     self.set_state("lost", problem=str(exc))
+            except HwBridgeError as exc:  # e.g. a protocol that cannot start: say so, try again
+                self.log.error("%s: %s", self.name, exc)
+                self.set_state("failed", problem=str(exc))
+                self._stop.wait(2.0)
+            except Exception as exc:  # a bug: log it where the user sees it, keep the board
+                self.log.exception("%s: board connection failed", self.name)
+                self.set_state("failed", problem=f"{type(exc).__name__}: {exc}")
+                self._stop.wait(2.0)
             finally:
                 link.close()
                 self.link = None
@@ -247,10 +255,20 @@ class BoardConnection:
         if early is None:
             return
         self.set_state("detecting")
-        protocol, early = self._detect(link, early)
-        if protocol is None:
+        spec, early = self._detect(link, early)
+        if spec is None:
             return
-        adapter = self.bridge.make_adapter(protocol, self, early_start=bool(early))
+        datagram = _is_datagram(link)
+        session = spec.new_session(
+            SessionContext(
+                registry=self.bridge.registry,
+                datagram=datagram,
+                now=time.monotonic(),
+                wall_offset=time.time() - time.monotonic(),
+                board_spoke=bool(early),
+            )
+        )
+        adapter = SessionAdapter(self, spec, session)
         self.adapter = adapter
         done = threading.Event()
         exit_error: list[BaseException | None] = []
@@ -261,7 +279,7 @@ class BoardConnection:
 
         pump = SessionPump(
             link,
-            adapter.session,
+            session,
             adapter.on_event,
             name=f"pump-{self.name}",
             on_exit=on_exit,
@@ -270,8 +288,8 @@ class BoardConnection:
         self._pump = pump
         self.connects += 1
         self.set_state("negotiating")
-        if early:
-            pump.call(lambda s: s.receive_data(early, time.monotonic()))
+        for chunk in early:
+            pump.call(lambda s, chunk=chunk: s.receive_data(chunk, time.monotonic()))
         pump.start()
         while not done.wait(0.2):
             if self._stop.is_set():
@@ -292,14 +310,15 @@ class BoardConnection:
             self.log.warning("%s: link lost (%s); reconnecting", self.name, error)
             self.set_state("lost", problem=str(error))
 
-    def _wait_for_peer(self, link: Link) -> bytes | None:
+    def _wait_for_peer(self, link: Link) -> list[bytes] | None:
         """Wait until a board is on the link (at once but on links that wait for peers, such as
-        tcp-listen:// and pty://); returns what it sent meanwhile, None if stopped first."""
-        seen = bytearray()
+        tcp-listen:// and pty://); returns what it sent meanwhile (one item per read), None if
+        stopped first."""
+        seen = _Received()
         said = False
         while not self._stop.is_set():
             if link.connected:
-                return bytes(seen)
+                return seen.chunks
             if not said:
                 said = True
                 self.set_state("waiting", problem="no board attached")
@@ -312,45 +331,90 @@ class BoardConnection:
                     f"{where} ({self.spec.url})" if where else self.spec.url,
                 )
             try:
-                seen += link.read(4096, timeout=0.1)  # a listener accepts its client here
+                seen.add(link.read(4096, timeout=0.1))  # a listener accepts its client here
             except LinkClosedError:
                 if not link.is_open:
                     raise
         return None
 
-    def _detect(self, link: Link, early: bytes) -> tuple[str | None, bytes]:
-        """The protocol to speak, and bytes already read (``early`` first) that belong to the
-        session. The rosserial probe waits ``start_delay`` from now: the board just attached."""
+    def _detect(self, link: Link, early: list[bytes]) -> tuple[ProtocolSpec | None, list[bytes]]:
+        """The protocol to speak, and what was already read (``early`` first) that belongs to
+        the session. Only stream links are detected and probed."""
         if self.spec.protocol != "auto":
-            return self.spec.protocol, early
-        detector = ProtocolDetector()
-        seen = bytearray(early)
+            return get_protocol(self.spec.protocol), early
+        if _is_datagram(link):
+            return self._datagram_default(), early
+        specs = detectable_protocols()
+        detector = ProtocolDetector(specs)
+        probes = [spec.probe for spec in specs if spec.probe]
+        seen = _Received(early)
         started = time.monotonic()
         probe_at = started + self.spec.start_delay
-        probes_sent = 0
-        data = early
+        gap = _PROBE_FIRST
+        warned_at = started
+        pending = list(early)
         while not self._stop.is_set():
-            if data:
+            for data in pending:
                 found = detector.feed(data)
                 if found is not None:
                     self.log.info("%s: speaks %s", self.name, found)
-                    return found, bytes(seen)
+                    return get_protocol(found), seen.chunks
             now = time.monotonic()
-            if now >= probe_at:
-                if probes_sent and probes_sent % 5 == 0:
-                    self.log.warning(
-                        "%s: no answer on %s after %.0f s (neither native nor rosserial); "
-                        "still trying",
-                        self.name,
-                        self.spec.url,
-                        now - started,
-                    )
-                link.write(REQUEST_TOPICS)
-                probes_sent += 1
-                probe_at = now + 1.0
+            if probes and now >= probe_at:
+                for probe in probes:
+                    link.write(probe)
+                probe_at, gap = now + gap, min(gap * 2, _PROBE_MAX)
+            if now - warned_at >= 5.0:
+                warned_at = now
+                self.log.warning(
+                    "%s: no protocol recognised on %s after %.0f s and %d bytes (%s)%s; "
+                    "still trying",
+                    self.name,
+                    self.spec.url,
+                    now - started,
+                    seen.total,
+                    " or ".join(spec.name for spec in specs),
+                    ": wrong baud rate?" if seen.total else "",
+                )
             data = link.read(4096, timeout=0.05)
-            seen += data
-        return None, b""
+            pending = [data] if data else []
+            seen.add(data)
+        return None, []
+
+    def _datagram_default(self) -> ProtocolSpec:
+        for name in protocol_names():
+            spec = get_protocol(name)
+            if spec.datagram:
+                self.log.info("%s: a datagram link; speaking %s", self.name, spec.name)
+                return spec
+        raise UnknownProtocolError("no registered protocol runs on datagram links")
+
+
+class _Received:
+    """What a board sent before its session started, at most :data:`DETECT_BUFFER` bytes
+    (the oldest reads are dropped first), one item per read."""
+
+    def __init__(self, chunks: list[bytes] | None = None) -> None:
+        self.chunks: list[bytes] = []
+        self.kept = 0
+        self.total = 0
+        """Bytes received in all (dropped ones included)."""
+        for chunk in chunks or ():
+            self.add(chunk)
+
+    def add(self, data: bytes) -> None:
+        if not data:
+            return
+        self.chunks.append(data)
+        self.kept += len(data)
+        self.total += len(data)
+        while self.kept > DETECT_BUFFER and len(self.chunks) > 1:
+            self.kept -= len(self.chunks.pop(0))
+
+
+def _is_datagram(link: Link) -> bool:
+    """True for links that carry whole frames (CAN, UDP) rather than a byte stream."""
+    return bool(getattr(link, "datagram", False))
 
 
 def board_key(prefix: str, name: str) -> str:

@@ -9,8 +9,10 @@
         bridge.wait()                                 # until stop() or Ctrl-C
 
 Each board runs in its own thread (:class:`~hwbridge.bridge.board.BoardConnection`) and comes
-back by itself after a reset, an unplugged cable or a port that disappears. The bridge also hosts
-the graph's parameter server, which boards read from.
+back by itself after a reset, an unplugged cable or a port that disappears. Whatever protocol a
+board speaks (:mod:`hwbridge.protocols.registry`), one
+:class:`~hwbridge.bridge.adapter.SessionAdapter` mirrors its session onto the graph. The bridge
+also hosts the graph's parameter server, which boards read from.
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ import threading
 from typing import Any
 
 from hwbridge import msg
-from hwbridge.bridge.board import Adapter, BoardConnection, BoardSpec
+from hwbridge.bridge.board import BoardConnection, BoardSpec
 from hwbridge.errors import HwBridgeError
 from hwbridge.graph import Graph, GraphConfig, ParamServer
 
@@ -64,19 +66,6 @@ class Bridge:
         board.start()
         log.info("board %s on %s (%s)", spec.name, spec.url, spec.protocol)
         return board
-
-    def make_adapter(self, protocol: str, board: BoardConnection, *, early_start: bool) -> Adapter:
-        """The protocol adapter for a board (``early_start``: the board already spoke)."""
-        delay = 0.0 if early_start else board.spec.start_delay
-        if protocol == "rosserial":
-            from hwbridge.bridge.rosserial import RosserialAdapter
-
-            return RosserialAdapter(board, start_delay=delay)
-        if protocol == "native":
-            from hwbridge.bridge.native import NativeAdapter
-
-            return NativeAdapter(board)
-        raise HwBridgeError(f"no adapter for protocol {protocol!r}")
 
     def get_param(self, name: str) -> Any:
         """A parameter for a board (ParamError if missing)."""

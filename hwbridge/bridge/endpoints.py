@@ -1,6 +1,6 @@
 """What one connected board puts on the graph, and how it is taken off again.
 
-Protocol adapters (native, rosserial) translate session events into calls on
+The session adapter (:mod:`hwbridge.bridge.adapter`) turns session events into calls on
 :class:`BoardEndpoints`; it owns every publisher, subscriber and service it declares for the
 board, so a lost link removes exactly those from the graph (discovery sees them go).
 """
@@ -29,27 +29,6 @@ _TIMEOUT_HINT = (
     "(the bridge's service timeout; raise it with 'hwbridge connect --service-timeout SECONDS')"
 )
 """Ends the error of a service call through the bridge that ran out of time, either way."""
-
-
-class EventDispatch:
-    """Calls ``self._on_<EventClassName>(event)`` for each session event (others are ignored).
-
-    The handler of each event class is looked up once, then kept: this runs per message.
-    """
-
-    def __init__(self) -> None:
-        self._handlers: dict[type, Callable[[Any], None]] = {}
-
-    def on_event(self, event: Any) -> None:
-        kind = type(event)
-        handler = self._handlers.get(kind)
-        if handler is None:
-            handler = self._handlers[kind] = getattr(self, f"_on_{kind.__name__}", _ignore)
-        handler(event)
-
-
-def _ignore(_event: Any) -> None:
-    """Events an adapter has no use for."""
 
 
 class PendingCalls:

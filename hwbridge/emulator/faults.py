@@ -77,12 +77,19 @@ class FaultySession:
         result: list[Any] = self.inner.tick(now)
         return result
 
-    def data_to_send(self) -> bytes:
-        self._held += self._damage(self.inner.data_to_send())
-        if self._now < self._stalled_until:
-            return b""
+    def chunks_to_send(self) -> list[bytes]:
+        """What the board writes, damaged; on a stream link (virtual boards are on one), so it
+        is held back whole while stalled and goes out as one chunk."""
+        chunks: list[bytes] = self.inner.chunks_to_send()
+        for chunk in chunks:
+            self._held += self._damage(chunk)
+        if self._now < self._stalled_until or not self._held:
+            return []
         data, self._held = bytes(self._held), bytearray()
-        return data
+        return [data]
+
+    def data_to_send(self) -> bytes:
+        return b"".join(self.chunks_to_send())
 
     def next_deadline(self) -> float | None:
         deadline: float | None = self.inner.next_deadline()

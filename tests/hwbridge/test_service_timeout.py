@@ -23,9 +23,8 @@ import pytest
 
 from hwbridge import msg
 from hwbridge.bridge import DEFAULT_SERVICE_TIMEOUT, BoardSpec, Bridge
+from hwbridge.bridge.adapter import SessionAdapter
 from hwbridge.bridge.endpoints import PendingCalls
-from hwbridge.bridge.native import NativeAdapter
-from hwbridge.bridge.rosserial import RosserialAdapter
 from hwbridge.errors import HwBridgeError
 from hwbridge.graph import DeferredReply, Graph, Node
 from hwbridge.protocols.native import session as ns
@@ -107,7 +106,7 @@ class Rig:
 
     def pending(self, board: str) -> PendingCalls:
         adapter = self.bridge.boards[board].adapter
-        assert isinstance(adapter, NativeAdapter | RosserialAdapter), adapter
+        assert isinstance(adapter, SessionAdapter), adapter
         return adapter.endpoints.pending
 
     def call(self, board: str, service: str, timeout: float) -> tuple[Any, float]:

@@ -1,0 +1,246 @@
+"""One board session mirrored onto the graph, whatever protocol the board speaks.
+
+Every protocol gives the bridge the same events (:mod:`hwbridge.protocols.base`) and takes the
+same actions by channel, so one adapter serves them all: it matches each event by its type (a
+protocol's subclass of an event is handled as the event it extends) and turns it into calls on
+:class:`~hwbridge.bridge.endpoints.BoardEndpoints`, which own what the board has on the graph.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
+
+from hwbridge.bridge.endpoints import BoardEndpoints
+from hwbridge.errors import HwBridgeError, LinkError
+from hwbridge.graph import ParamError
+from hwbridge.protocols import base
+
+if TYPE_CHECKING:
+    from hwbridge.bridge.board import BoardConnection
+    from hwbridge.protocols.registry import ProtocolSpec
+
+__all__ = ["SessionAdapter"]
+
+_Handler = Callable[[Any], None]
+
+
+def _call_on(channel: int) -> Callable[[base.BoardSession, bytes, float], int]:
+    """How a graph call of the board's service on ``channel`` reaches the board (``timeout``:
+    the bridge's service timeout, after which the session fails the call)."""
+    return lambda session, request, timeout: session.call_service(
+        channel, request, timeout=timeout, now=time.monotonic()
+    )
+
+
+class SessionAdapter:
+    """Maps the events of one board's session onto the graph, and graph traffic onto it."""
+
+    def __init__(
+        self, board: BoardConnection, spec: ProtocolSpec, session: base.BoardSession
+    ) -> None:
+        self.board = board
+        self.protocol = spec.name
+        self.session_per_peer = spec.session_per_peer
+        """A listening link gives each peer a new session (rosserial) rather than one session
+        across peers (native boards resume theirs through HELLOs)."""
+        self.session = session
+        self.log = logging.getLogger(f"hwbridge.board.{board.name}")
+        self.endpoints = BoardEndpoints.for_board(board, self.log)
+        self.channels: dict[int, base.Endpoint] = {}
+        """The board's endpoints by channel (as last announced)."""
+        self._forward: dict[int, Callable[[bytes], None]] = {}
+        """Board publisher channel -> its graph publisher's ``publish_raw`` (per message)."""
+        self.param_names: dict[str, str] = {}
+        """Graph parameter name -> the board's name of it, for parameters it subscribed to."""
+        self._announced = False
+        self._handlers: dict[type, _Handler] = {
+            base.Message: self._on_message,
+            base.Connected: self._on_connected,
+            base.TopicAnnounced: self._on_topic_announced,
+            base.ServiceResponse: self._on_service_response,
+            base.ServiceRequest: self._on_service_request,
+            base.ParamRequest: self._on_param_request,
+            base.Log: self._on_log,
+            base.DebugOutput: self._on_debug_output,
+            base.Error: self._on_error,
+            base.TimeSynced: self._on_time_synced,
+            base.Disconnected: self._on_disconnected,
+        }
+        board.bridge.params.on_update(self._on_param_changed)
+
+    # ------------------------------------------------------------------ info
+    def topics(self) -> dict[str, Any]:
+        return self.endpoints.names()
+
+    def stats(self) -> dict[str, Any]:
+        return self.session.counters().as_dict()
+
+    def describe(self) -> dict[str, Any]:
+        return self.session.describe()
+
+    # ------------------------------------------------------------------ dispatch
+    def on_event(self, event: Any) -> None:
+        """Handle one session event (runs on the pump thread, per message)."""
+        handler = self._handlers.get(type(event))
+        if handler is None:
+            handler = self._handler_of(type(event))
+        handler(event)
+
+    def _handler_of(self, kind: type) -> _Handler:
+        """The handler of a protocol's own event class: that of the base event it extends, or
+        one that ignores it (an event the bridge has no use for)."""
+        for parent in kind.__mro__[1:]:
+            found = self._handlers.get(parent)
+            if found is not None:
+                break
+        else:
+            found = _ignore
+        self._handlers[kind] = found
+        return found
+
+    # ------------------------------------------------------------------ endpoints
+    def _on_connected(self, event: base.Connected) -> None:
+        self.channels.clear()
+        self._forward.clear()
+        for endpoint in event.endpoints:
+            self._declare(endpoint)
+        self._wire_publishers()
+        self.board.set_state("connected", board=event.board_name or None, resumed=event.resumed)
+        if not self._announced:
+            self._announced = True
+            self.log.info(
+                "%s: board %sconnected (%s%s): %s",
+                self.board.name,
+                f"{event.board_name!r} " if event.board_name else "",
+                self.protocol,
+                ", session resumed" if event.resumed else "",
+                self.endpoints.names(),
+            )
+
+    def _on_topic_announced(self, event: base.TopicAnnounced) -> None:
+        if self.session.connected:
+            self._declare(event.endpoint)
+            self._wire_publishers()
+
+    def _declare(self, endpoint: base.Endpoint) -> None:
+        name = self.board.resolve(endpoint.name)
+        self.channels[endpoint.channel] = endpoint
+        kind = endpoint.kind
+        if kind == base.EntryKind.PUBLISHER:
+            self.endpoints.advertise(name, endpoint.type_name, endpoint.md5)
+        elif kind == base.EntryKind.SUBSCRIBER:
+            self.endpoints.subscribe(name, endpoint.type_name, self._deliver(endpoint.channel))
+        elif kind == base.EntryKind.SERVICE_SERVER:
+            self.endpoints.serve(name, endpoint.type_name, self.board, _call_on(endpoint.channel))
+        # SERVICE_CLIENT endpoints need nothing until the board calls (ServiceRequest).
+
+    def _wire_publishers(self) -> None:
+        """Point every publisher channel at its graph publisher (a re-declared type replaces the
+        publisher of every channel with that name)."""
+        publishers = self.endpoints.publishers
+        for channel, endpoint in self.channels.items():
+            if endpoint.kind == base.EntryKind.PUBLISHER:
+                publisher = publishers.get(self.board.resolve(endpoint.name))
+                if publisher is not None:
+                    self._forward[channel] = publisher.publish_raw
+
+    def _deliver(self, channel: int) -> Callable[[bytes], None]:
+        def deliver(data: bytes) -> None:
+            if not self.board.pump.call(lambda s: s.publish(channel, data)):
+                self.log.warning("%s: message to channel %d not sent", self.board.name, channel)
+
+        return deliver
+
+    # ------------------------------------------------------------------ traffic
+    def _on_message(self, event: base.Message) -> None:
+        forward = self._forward.get(event.channel)
+        if forward is not None:
+            forward(event.payload)
+
+    def _on_service_response(self, event: base.ServiceResponse) -> None:
+        self.endpoints.pending.resolve(
+            event.request_id, None if event.error else event.payload, event.error
+        )
+
+    def _on_service_request(self, event: base.ServiceRequest) -> None:
+        endpoint = self.channels.get(event.channel)
+        if endpoint is None:
+            self.log.warning(
+                "%s: board called a service on unknown channel %d", self.board.name, event.channel
+            )
+            return
+        channel, request_id, pump = event.channel, event.request_id, self.board.pump
+
+        def answer(response: bytes) -> None:
+            pump.call(lambda s: s.respond_service(channel, request_id, response))
+
+        def refuse(reason: str) -> None:  # the board's call fails now, where it can be told
+            pump.call(lambda s: s.respond_service(channel, request_id, error=reason))
+
+        self.endpoints.call_graph_service(
+            self.board.resolve(endpoint.name), endpoint.type_name, event.payload, answer, refuse
+        )
+
+    def _on_param_request(self, event: base.ParamRequest) -> None:
+        name = self.board.resolve(event.name)
+        if event.subscribe:
+            self.param_names[name] = event.name
+        try:
+            value = self.board.bridge.get_param(name)
+        except ParamError:
+            self.log.warning("%s: board asked for missing parameter %s", self.board.name, name)
+            value = None
+        try:
+            self.board.pump.call(lambda s: s.answer_param(event.request_id, value))
+        except HwBridgeError as exc:
+            self.log.error("%s: cannot answer parameter %s: %s", self.board.name, name, exc)
+
+    def _on_param_changed(self, name: str, value: Any) -> None:
+        board_name = self.param_names.get(name)
+        if board_name is None or value is None or self.board.adapter is not self:
+            return
+        try:
+            self.board.pump.call(lambda s: s.push_param(board_name, value))
+        except HwBridgeError as exc:
+            self.log.error("%s: cannot push parameter %s: %s", self.board.name, name, exc)
+
+    # ------------------------------------------------------------------ reports
+    def _on_log(self, event: base.Log) -> None:
+        self.endpoints.log_line(int(event.level), event.text)
+
+    def _on_debug_output(self, event: base.DebugOutput) -> None:
+        self.log.info("%s: board printed %r", self.board.name, bytes(event.data))
+
+    def _on_error(self, event: base.Error) -> None:
+        self.log.error("%s: %s", self.board.name, event.error)
+
+    def _on_time_synced(self, event: base.TimeSynced) -> None:
+        self.log.debug(
+            "%s: time offset %.6f s, rtt %.3f ms", self.board.name, event.offset, event.rtt * 1e3
+        )
+
+    def _on_disconnected(self, event: base.Disconnected) -> None:
+        self.log.warning("%s: session ended (%s); negotiating again", self.board.name, event.reason)
+        self.endpoints.close(event.error)
+        self.endpoints = BoardEndpoints.for_board(self.board, self.log)
+        self.channels.clear()
+        self._forward.clear()
+        self._announced = False
+        self.board.set_state("negotiating")
+
+    # ------------------------------------------------------------------ end
+    def close(self, reason: HwBridgeError) -> list[bytes]:
+        """Take the board's endpoints off the graph; returns a goodbye to write if the link
+        lives (one item per write)."""
+        self.endpoints.close(reason)
+        if isinstance(reason, LinkError):
+            return []
+        self.session.close(time.monotonic())
+        return self.session.chunks_to_send()
+
+
+def _ignore(_event: Any) -> None:
+    """Events the bridge has no use for."""

@@ -49,8 +49,13 @@ def connect(
     ] = None,
     start_delay: Annotated[
         float,
-        typer.Option("--start-delay", min=0, help="Seconds to let a board boot before talking."),
-    ] = 2.0,
+        typer.Option(
+            "--start-delay",
+            min=0,
+            help="Seconds of silence before probing a board that has not spoken (default: probe "
+            "at once, then again with backoff while a reset board boots).",
+        ),
+    ] = 0.0,
     service_timeout: Annotated[
         float,
         typer.Option(
@@ -73,11 +78,15 @@ def connect(
     ] = None,
 ) -> None:
     """Connect boards to the graph and keep them connected until Ctrl-C."""
-    from hwbridge.bridge import PROTOCOLS, BoardSpec, Bridge, check_service_timeout
+    from hwbridge.bridge import BoardSpec, Bridge, check_service_timeout
     from hwbridge.graph import Graph, GraphConfig
+    from hwbridge.protocols.registry import get_protocol
 
-    if protocol not in PROTOCOLS:
-        raise typer.BadParameter(f"use one of {', '.join(PROTOCOLS)}", param_hint="--protocol")
+    if protocol != "auto":
+        try:
+            get_protocol(protocol)
+        except HwBridgeError as exc:
+            raise typer.BadParameter(str(exc), param_hint="--protocol") from exc
     try:
         check_service_timeout(service_timeout)
     except HwBridgeError as exc:

@@ -1,12 +1,14 @@
 """Dynamixel servos: packet codecs (Protocol 1.0 and 2.0), a host bus driver, an emulated bus
 and a graph node.
 
-* :mod:`~hwbridge.devices.dynamixel.packets`: encode/decode, CRC-16, checksum, byte stuffing,
-  a stream parser; :mod:`~hwbridge.devices.dynamixel.tables`: control tables and units.
+* :mod:`~hwbridge.devices.dynamixel.packets`: encode/decode, CRC-16, checksum, byte stuffing
+  (``framing``), a stream parser (``parser``), instruction parameters;
+  :mod:`~hwbridge.devices.dynamixel.tables`: control tables and units.
 * :class:`DynamixelBus`: ping/scan, read/write, REG_WRITE + ACTION, SYNC/BULK READ/WRITE,
   reboot, factory reset, typed register helpers, on any :class:`~hwbridge.links.Link`.
-* :class:`EmulatedDynamixelBus` (sans-I/O) and :class:`EmulatedBusRunner` (serves it on a pty);
-  :func:`emulated_bus` builds the ready ones, ``dxl-bus`` and ``dxl-bus-p1``.
+* :class:`EmulatedDynamixelBus` (sans-I/O; its :class:`EmulatedServo` lives in ``servo``) and
+  :class:`EmulatedBusRunner` (serves it on a pty); :func:`emulated_bus` builds the ready ones,
+  ``dxl-bus`` and ``dxl-bus-p1``.
 * :class:`DynamixelNode`: ``joint_states``, per-joint goals and ``torque_enable`` on the graph.
 
 The graph node is imported on first use, so this package does not load Zenoh.

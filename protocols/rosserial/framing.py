@@ -14,6 +14,9 @@ payload looks like a frame start; the parser copes by rescanning.
 - :class:`OldProtocol` for ``FF FF`` followed by anything but ``FE``: the header of rosserial
   protocol version 1 (pre-hydro firmware), or line noise.
 
+:class:`RosserialFraming` is the :class:`hwbridge.protocols.base.Framing` of a rosserial session:
+a :class:`FrameParser` for what the link delivers and :func:`encode_frame` for what goes out.
+
 Resynchronisation: a frame can only start at a ``0xFF``. When a candidate fails, the parser
 reports the bytes from its sync byte up to the next ``0xFF`` inside the candidate (or the whole
 candidate if there is none) and resumes scanning there. A corrupted or truncated frame therefore
@@ -28,6 +31,7 @@ How a stream is split into chunks changes nothing but how non-frame bytes are sp
 from __future__ import annotations
 
 import struct
+from collections.abc import Sequence
 from dataclasses import dataclass, fields
 from enum import Enum
 from typing import Final, TypeAlias
@@ -50,6 +54,7 @@ __all__ = [
     "ParserEvent",
     "ParserStats",
     "RosFrame",
+    "RosserialFraming",
     "checksum",
     "decode_frame",
     "encode_frame",
@@ -312,6 +317,45 @@ class FrameParser:
         else:
             events.append(NonFrameBytes(bytes(buf[start:end])))
         self.stats.non_frame_bytes += end - start
+
+
+class RosserialFraming:
+    """The framing of rosserial v2 on a stream link (rosserial has no datagram form).
+
+    ``decode`` feeds a :class:`FrameParser` and returns its events (:class:`RosFrame` and the
+    notes about what was not a frame); ``encode`` joins the frames into one chunk to write.
+    """
+
+    __slots__ = ("parser",)
+
+    datagram = False
+
+    def __init__(self, max_payload: int = DEFAULT_MAX_PAYLOAD) -> None:
+        self.parser = FrameParser(max_payload)
+
+    @property
+    def max_payload(self) -> int:
+        """Largest payload ``decode`` accepts (the host tunes it to the device's buffers)."""
+        return self.parser.max_payload
+
+    @max_payload.setter
+    def max_payload(self, value: int) -> None:
+        self.parser.max_payload = value
+
+    @property
+    def stats(self) -> ParserStats:
+        """The receive parser's counters."""
+        return self.parser.stats
+
+    def decode(self, data: bytes | bytearray | memoryview, /) -> list[ParserEvent]:
+        """Consume a chunk of the stream; return the frames and notes it completes."""
+        return self.parser.feed(data)
+
+    def encode(self, frames: Sequence[RosFrame], now: float = 0.0, /) -> list[bytes]:
+        """The wire bytes of ``frames`` as one chunk (no chunk for no frames)."""
+        if not frames:
+            return []
+        return [b"".join(encode_frame(f.topic_id, f.payload) for f in frames)]
 
 
 def _check_max(value: int) -> int:

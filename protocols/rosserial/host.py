@@ -1,25 +1,35 @@
 """Host side of a rosserial protocol v2 session, sans-I/O (what rosserial_python's node does).
 
-Drive it like h11: feed received bytes with :meth:`RosserialHost.receive_data`, call
-:meth:`RosserialHost.tick` regularly (at the latest at :meth:`RosserialHost.next_deadline`),
-write out :meth:`RosserialHost.data_to_send` after every call, and act on the returned events::
+:class:`RosserialHost` is a :class:`hwbridge.protocols.base.BoardSession`: feed what the link
+read with :meth:`~RosserialHost.receive_data`, call :meth:`~RosserialHost.tick` at the latest at
+:meth:`~RosserialHost.next_deadline`, write out :meth:`~RosserialHost.chunks_to_send` after every
+call, and act on the returned events (the shared ones of :mod:`hwbridge.protocols.base`)::
 
     host = RosserialHost(registry, now=clock())
     while running:
-        events = host.receive_data(link.read(), clock()) + host.tick(clock())
-        link.write(host.data_to_send())
+        events = [*host.receive_data(link.read(), clock()), *host.tick(clock())]
+        for chunk in host.chunks_to_send():
+            link.write(chunk)
         ...
-    link.write(host.close())
+    host.close(clock())
+    for chunk in host.chunks_to_send():  # TX_STOP
+        link.write(chunk)
 
-Times (``now``) are seconds on any monotonic clock; only time replies use ``wall_clock``.
+Times (``now``) are seconds on one monotonic clock; time replies use ``now + wall_offset`` (or
+``wall_clock()`` when no offset is given). Channels are topic ids (see
+:mod:`hwbridge.protocols.rosserial.table`).
 
-Life cycle. Opening a serial port resets most Arduinos, so the host stays silent for
-``start_delay`` seconds (the bootloader; time requests heard meanwhile go unanswered), then
-sends "request topics". The device answers with a
-time request and one ``rosserial_msgs/TopicInfo`` per endpoint. Each TopicInfo is checked at
-once against the host's type of the same name (md5 of the message, or of the request or
-response half of a service); a mismatch or an unknown type is reported as an :class:`Error`
-event and only that endpoint is left out. Service endpoints arrive as two halves (a publisher
+Life cycle. The host sends "request topics" at once and repeats it with backoff (0.1, 0.2, 0.4,
+0.8 s, then every 1 s) until the device answers: a sketch that is already running answers within
+milliseconds, and one that the opening of the port reset (an Arduino bootloader waits about 1-2
+s; it discards what it hears, or starts the sketch sooner) is caught soon after its sketch
+starts. ``start_delay`` (default 0) keeps the host silent for that long first; time requests are
+answered meanwhile. The device answers with a time request and one ``rosserial_msgs/TopicInfo``
+per endpoint. Each TopicInfo is checked at once against the host's type of the same name (md5 of
+the message, or of the request or response half of a service): a mismatch is reported as an
+:class:`~hwbridge.protocols.base.Error` event and only that endpoint is left out; a type the host
+does not know passes through (its bytes are carried unchecked, with the device's type name and
+md5) and is logged once per type as a warning. Service endpoints arrive as two halves (a publisher
 and a subscriber TopicInfo with the same name) and are joined by name.
 
 When is the board configured? The device sends its TopicInfos back to back and then says
@@ -30,16 +40,21 @@ nothing that marks the end, so the host uses this rule:
   (or since the time request, for a board without topics), or at once when a data frame arrives
   on a topic id announced in this negotiation (the library only publishes once configured, and
   it sends all its TopicInfos in one go before that);
-- completion emits :class:`Connected` with the whole topic table.
+- completion emits :class:`~hwbridge.protocols.base.Connected` with all accepted endpoints.
 
 A TopicInfo arriving after that (a slow link) reopens the negotiation: it is merged into the
-table and :class:`Connected` is emitted again once the line is quiet. If nothing answers a
-request for ``sync_timeout`` (15 s), the host sends it again and reports an :class:`Error`.
-Once connected, the device asks for the time every ~2.5 s; ``sync_timeout`` without a time
-request means "lost sync": the host emits :class:`SyncLost`, abandons pending calls, drops the
-topic table (not connected until the next :class:`Connected`) and asks for topics again. A data
-frame on a topic id the host does not know also makes it ask again (at most once a second), as
-rosserial_python does; meanwhile the current table stays in use.
+table and ``Connected`` is emitted again once the line is quiet. If nothing answers the requests
+for ``sync_timeout`` (15 s), the host reports an ``Error`` (again every ``sync_timeout``) and keeps
+asking. Once connected, the device asks for the time every ~2.5 s; ``sync_timeout`` without a
+time request means "lost sync": the host fails pending calls, emits
+:class:`~hwbridge.protocols.base.Disconnected`, drops the topic table (not connected until the
+next ``Connected``) and asks for topics again. A data frame on a topic id the host does not know
+also makes it ask again (at most once a second), as rosserial_python does; meanwhile the current
+table stays in use.
+
+Services and parameters have no request ids on the wire; the host makes them up and keeps the
+order (see :mod:`hwbridge.protocols.rosserial.services`). rosserial cannot fail a device's call,
+nor push a parameter: ``respond_service(..., error=...)`` and ``push_param`` return False.
 
 Sizes. The client library does not check the length of what it receives, so the host refuses
 (with :class:`MessageTooLargeError`, before anything is sent) a payload larger than the device's
@@ -54,71 +69,84 @@ from __future__ import annotations
 
 import logging
 import math
+import struct
 import time
-from collections import Counter, deque
-from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass, field, fields
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
 from enum import Enum
-from typing import Any, Final, TypeAlias
+from typing import Any, Final
 
-import numpy as np
-
+from hwbridge.protocols.base import (
+    Connected,
+    DebugOutput,
+    Disconnected,
+    Error,
+    Event,
+    Log,
+    Message,
+    ParamRequest,
+    ServiceRequest,
+    ServiceResponse,
+    SessionStats,
+)
 from hwbridge.protocols.errors import (
     FramingError,
     HwBridgeError,
     HwBridgeTimeoutError,
-    MessageTypeError,
     ProtocolError,
     ProtocolMismatchError,
     SerializationError,
-    UnknownTypeError,
 )
-from hwbridge.protocols.msgtypes import INT_RANGES, TypeRegistry
+from hwbridge.protocols.msgtypes import TypeRegistry
 from hwbridge.protocols.rosserial.framing import (
     DEFAULT_MAX_PAYLOAD,
+    FRAME_OVERHEAD,
     MAX_PAYLOAD,
     BadFrame,
-    FrameParser,
     NonFrameBytes,
     OldProtocol,
-    ParserStats,
     RosFrame,
+    RosserialFraming,
     encode_frame,
 )
 from hwbridge.protocols.rosserial.ids import (
     FIRST_USER_TOPIC,
     LOG_TYPE,
     PARAM_SERVICE,
-    TIME_TYPE,
     TOPIC_INFO_TYPE,
     ReservedId,
+)
+from hwbridge.protocols.rosserial.params import ParamValue, encode_param
+from hwbridge.protocols.rosserial.services import Call, HostCalls, PendingRequests, RequestIds
+from hwbridge.protocols.rosserial.stats import HostStats
+from hwbridge.protocols.rosserial.table import (
+    DEVICE_OUTPUT_KINDS,
+    RX_CLIENT_REQUEST,
+    RX_MESSAGE,
+    TOPIC_INFO_IDS,
+    BuiltTable,
+    Info,
+    Service,
+    Topic,
+    TopicTable,
+    build_table,
+    check_info,
 )
 
 __all__ = [
     "OLD_FIRMWARE_MESSAGE",
     "REQUEST_TOPICS",
     "TX_STOP",
-    "Connected",
-    "DeviceOutput",
-    "Error",
-    "HostEvent",
     "HostStats",
-    "Log",
-    "Message",
     "MessageTooLargeError",
-    "ParamRequest",
     "ParamValue",
     "RosserialHost",
     "Service",
-    "ServiceFailed",
-    "ServiceRequest",
-    "ServiceResponse",
-    "SyncLost",
     "Topic",
     "TopicTable",
 ]
 
-_log = logging.getLogger(__name__)
+_log = logging.getLogger("hwbridge.protocols.rosserial")
 
 OLD_FIRMWARE_MESSAGE: Final = (
     "old rosserial firmware (protocol v1, pre-hydro): update rosserial_arduino (ros_lib) to "
@@ -130,194 +158,15 @@ TX_STOP: Final = encode_frame(ReservedId.TX_STOP)
 """The frame a host sends when it stops, ``FF FE 00 00 FF 0B 00 F4``."""
 _REQUEST_MIN_INTERVAL: Final = 1.0
 """Least time between two "request topics" sent because of an unknown topic id."""
-_MAX_PENDING_PARAMS: Final = 64
-"""Parameter requests remembered per name before the oldest are forgotten."""
-
-ParamValue: TypeAlias = bool | int | float | str | Sequence[bool | int | float | str] | None
-"""What :meth:`RosserialHost.answer_param` accepts; None answers "missing" (empty arrays)."""
+_PARAMS: Final = 0
+"""The key of parameter requests among the pending requests."""
+_TIME: Final = struct.Struct("<II")
 
 
 class MessageTooLargeError(FramingError):
     """A payload does not fit the device's input buffer; nothing was sent."""
 
 
-# ---------------------------------------------------------------------------------- topic table
-@dataclass(frozen=True)
-class Topic:
-    """One device publisher or subscriber, as the device announced it (md5 checked)."""
-
-    name: str
-    type: str
-    md5: str
-    topic_id: int
-    buffer_size: int
-    """Device output buffer (publishers) or input buffer (subscribers), in bytes."""
-
-
-@dataclass(frozen=True)
-class Service:
-    """A device service server or client, joined from its two announced halves."""
-
-    name: str
-    type: str
-    request_topic_id: int
-    """Topic id the Request travels on (host -> device for servers, device -> host for clients)."""
-    response_topic_id: int
-    """Topic id the Response travels on."""
-    request_md5: str
-    response_md5: str
-    input_buffer: int
-    """The device's input buffer for what the host sends to this service."""
-
-
-@dataclass(frozen=True)
-class TopicTable:
-    """Everything a device announced and the host accepted, by name."""
-
-    publishers: dict[str, Topic] = field(default_factory=dict)
-    """Topics the device publishes (the host receives them as :class:`Message`)."""
-    subscribers: dict[str, Topic] = field(default_factory=dict)
-    """Topics the device subscribes to (the host sends with :meth:`RosserialHost.publish`)."""
-    service_servers: dict[str, Service] = field(default_factory=dict)
-    """Services the device serves (called with :meth:`RosserialHost.call_service`)."""
-    service_clients: dict[str, Service] = field(default_factory=dict)
-    """Services the device calls (answered with :meth:`RosserialHost.respond`)."""
-
-
-# ---------------------------------------------------------------------------------- events
-@dataclass(frozen=True)
-class Connected:
-    """A negotiation completed; ``topics`` is the whole table (emitted again after each one)."""
-
-    topics: TopicTable
-
-
-@dataclass(frozen=True)
-class SyncLost:
-    """No time request for ``silence`` seconds: the device is gone or reset; topics requested."""
-
-    silence: float
-
-
-@dataclass(frozen=True)
-class Message:
-    """A device publication; ``payload`` is the ROS 1 serialized message, untouched."""
-
-    topic: str
-    type: str
-    payload: bytes
-
-
-@dataclass(frozen=True)
-class ServiceRequest:
-    """A device service client calls ``name``; answer with :meth:`RosserialHost.respond`."""
-
-    name: str
-    payload: bytes
-    type: str = ""
-
-
-@dataclass(frozen=True)
-class ServiceResponse:
-    """The device service server answered call ``request_id``."""
-
-    request_id: int
-    payload: bytes
-    name: str = ""
-
-
-@dataclass(frozen=True)
-class ServiceFailed:
-    """Call ``request_id`` will never be answered (timeout, lost sync, host closed)."""
-
-    request_id: int
-    error: HwBridgeError
-    name: str = ""
-
-
-@dataclass(frozen=True)
-class ParamRequest:
-    """The device asks for parameter ``name``; answer with :meth:`RosserialHost.answer_param`."""
-
-    name: str
-
-
-@dataclass(frozen=True)
-class Log:
-    """A log line from the device; ``level`` is DEBUG 0, INFO 1, WARN 2, ERROR 3, FATAL 4."""
-
-    level: int
-    text: str
-
-
-@dataclass(frozen=True)
-class DeviceOutput:
-    """Bytes outside frames (debug prints, bootloader noise)."""
-
-    data: bytes
-
-
-@dataclass(frozen=True)
-class Error:
-    """Something the user should hear about; the session goes on (e.g. one topic refused)."""
-
-    error: HwBridgeError
-
-
-HostEvent: TypeAlias = (
-    Connected
-    | SyncLost
-    | Message
-    | ServiceRequest
-    | ServiceResponse
-    | ServiceFailed
-    | ParamRequest
-    | Log
-    | DeviceOutput
-    | Error
-)
-
-
-@dataclass(slots=True)
-class HostStats:
-    """Counters of a :class:`RosserialHost`; ``framing`` holds the receive parser's counters."""
-
-    framing: ParserStats
-    tx_frames: int = 0
-    tx_bytes: int = 0
-    time_syncs: int = 0
-    """Time requests answered."""
-    topic_requests: int = 0
-    """"Request topics" frames sent."""
-    topic_infos: int = 0
-    topics_refused: int = 0
-    """TopicInfos refused (md5 mismatch, unknown type, undecodable)."""
-    messages_in: int = 0
-    messages_out: int = 0
-    service_calls: int = 0
-    service_responses: int = 0
-    service_timeouts: int = 0
-    late_service_responses: int = 0
-    """Responses that arrived when no call was in flight (after a timeout), dropped."""
-    device_service_requests: int = 0
-    params_requested: int = 0
-    params_answered: int = 0
-    logs: int = 0
-    unknown_topic_frames: int = 0
-    refused_topic_frames: int = 0
-    """Frames on the id of a refused topic, dropped."""
-    undecodable: int = 0
-    """Control frames (TopicInfo, Log, parameter request) that did not decode."""
-    sync_lost: int = 0
-
-    def as_dict(self) -> dict[str, int]:
-        """All counters, the parser's prefixed with ``rx_``."""
-        out = {f"rx_{k}": v for k, v in self.framing.as_dict().items()}
-        out.update({f.name: getattr(self, f.name) for f in fields(self) if f.name != "framing"})
-        return out
-
-
-# ---------------------------------------------------------------------------------- internals
 class _State(Enum):
     WAITING = "waiting"
     NEGOTIATING = "negotiating"
@@ -325,56 +174,16 @@ class _State(Enum):
     CLOSED = "closed"
 
 
-@dataclass(frozen=True)
-class _Info:
-    """One accepted TopicInfo: the reserved id it came on and its fields."""
-
-    kind: int
-    topic_id: int
-    name: str
-    type: str
-    md5: str
-    buffer_size: int
-
-
 @dataclass
 class _Negotiation:
     started: float
-    infos: dict[int, _Info] = field(default_factory=dict)
+    infos: dict[int, Info] = field(default_factory=dict)
     answered_at: float | None = None
     last_info_at: float | None = None
-
-
-@dataclass
-class _Call:
-    request_id: int
-    name: str
-    payload: bytes
-    timeout: float
-    deadline: float
-    sent: bool = False
-
-
-_ROLE: Final = {
-    ReservedId.PUBLISHER: "publisher",
-    ReservedId.SUBSCRIBER: "subscriber",
-    ReservedId.SERVICE_SERVER: "service server (response half)",
-    ReservedId.SERVICE_SERVER + 1: "service server (request half)",
-    ReservedId.SERVICE_CLIENT: "service client (request half)",
-    ReservedId.SERVICE_CLIENT + 1: "service client (response half)",
-}
-_TOPIC_INFO_IDS: Final = frozenset(range(ReservedId.PUBLISHER, ReservedId.SERVICE_CLIENT + 2))
-_DEVICE_OUTPUT_KINDS: Final = frozenset(
-    {ReservedId.PUBLISHER, ReservedId.SERVICE_SERVER, ReservedId.SERVICE_CLIENT}
-)
-"""TopicInfo ids whose endpoint the device writes to (their buffer_size is its output buffer)."""
-_DEVICE_INPUT_KINDS: Final = frozenset(
-    {ReservedId.SUBSCRIBER, ReservedId.SERVICE_SERVER + 1, ReservedId.SERVICE_CLIENT + 1}
-)
-
-_RX_MESSAGE: Final = "message"
-_RX_SERVER_RESPONSE: Final = "server_response"
-_RX_CLIENT_REQUEST: Final = "client_request"
+    retry_gap: float = 0.0
+    retry_at: float = math.inf
+    reported_at: float = 0.0
+    """When the host last said that nothing answers (the start, before that)."""
 
 
 class RosserialHost:
@@ -383,11 +192,19 @@ class RosserialHost:
     Args:
         registry: message and service types to check md5 sums against (a new one if None).
         now: the time the link was opened (seconds, same clock as later calls).
-        wall_clock: time source for time replies (seconds since the epoch).
-        start_delay: silence after opening, for the bootloader (0 for links that do not reset).
+        framing: the framing to decode and encode with (a new :class:`RosserialFraming` if None);
+            the host sets its ``max_payload``.
+        wall_clock: time source for time replies (seconds since the epoch), used when
+            ``wall_offset`` is None.
+        wall_offset: wall-clock time minus the ``now`` clock, seconds: time replies are
+            ``now + wall_offset``.
+        start_delay: silence after opening before the first "request topics" (0: none).
         settle_time: quiet period that ends a negotiation (see the module docstring).
-        sync_timeout: seconds without a time request before "lost sync", and between
-            unanswered topic requests.
+        sync_timeout: seconds without a time request before "lost sync", and between reports
+            that nothing answers.
+        request_retry: first interval between unanswered "request topics"; it doubles up to
+            ``request_retry_max``.
+        request_retry_max: the longest interval between unanswered "request topics".
         max_payload: largest payload the receive parser accepts until the device announced
             its buffers; then the largest output buffer it announced is the limit.
         fallback_input_buffer: input buffer assumed for parameter answers when the device
@@ -401,48 +218,59 @@ class RosserialHost:
         registry: TypeRegistry | None = None,
         *,
         now: float = 0.0,
+        framing: RosserialFraming | None = None,
         wall_clock: Callable[[], float] = time.time,
-        start_delay: float = 2.0,
+        wall_offset: float | None = None,
+        start_delay: float = 0.0,
         settle_time: float = 0.5,
         sync_timeout: float = 15.0,
+        request_retry: float = 0.1,
+        request_retry_max: float = 1.0,
         max_payload: int = DEFAULT_MAX_PAYLOAD,
         fallback_input_buffer: int = 150,
         old_protocol_threshold: int = 2,
     ) -> None:
+        if not 0 < request_retry <= request_retry_max:
+            raise ValueError(
+                f"need 0 < request_retry <= request_retry_max, not {request_retry}, "
+                f"{request_retry_max}"
+            )
         self.registry = registry if registry is not None else TypeRegistry()
         self._wall_clock = wall_clock
+        self._wall_offset = wall_offset
         self._start_delay = start_delay
         self._settle_time = settle_time
         self._sync_timeout = sync_timeout
+        self._retry = request_retry
+        self._retry_max = request_retry_max
         self._max_payload = max_payload
         self._fallback_input_buffer = fallback_input_buffer
         self._old_threshold = max(1, old_protocol_threshold)
-        self._parser = FrameParser(max_payload)
-        self.stats = HostStats(self._parser.stats)
+        self.framing = framing if framing is not None else RosserialFraming(max_payload)
+        self.framing.max_payload = max_payload
+        self.stats = HostStats(self.framing.stats)
+        self._now = now
         self._opened_at = now
         self._state = _State.WAITING
-        self._tx = bytearray()
-        self._pending_events: list[HostEvent] = []
-        self._table: TopicTable | None = None
-        self._rx: dict[int, tuple[str, str, str]] = {}  # topic id -> (kind, name, type)
+        self._tx: list[RosFrame] = []
+        self._pending_events: list[Event] = []
+        self._built: BuiltTable | None = None
         self._refused_ids: set[int] = set()
-        self._accepted: dict[int, _Info] = {}
-        self._input_buffer: int | None = None
+        self._accepted: dict[int, Info] = {}
+        self._warned_types: set[str] = set()
         self._negotiation: _Negotiation | None = None
         self._requested_at: float | None = None
         self._want_topics = False
         self._sync_ref = now
-        self._calls: dict[str, deque[_Call]] = {}
-        self._next_request_id = 1
-        self._client_pending: Counter[str] = Counter()
-        self._params_pending: Counter[str] = Counter()
+        self._ids = RequestIds()
+        self._calls = HostCalls()
+        self._requests = PendingRequests()
+        """Requests of device service clients (by channel) and parameter requests."""
         self._old_streak = 0
         self._old_reported = False
-        self._time_msg = self.registry.message_class(TIME_TYPE)
-        self._time_field = self.registry.message_class("builtin_interfaces/msg/Time")
-        self._param_response = self.registry.service(PARAM_SERVICE).response.name
-        self._param_response_cls = self.registry.message_class(self._param_response)
         self._param_request = self.registry.service(PARAM_SERVICE).request.name
+        if start_delay <= 0:
+            self._request_topics(now)
 
     # ------------------------------------------------------------------ state
     @property
@@ -453,19 +281,41 @@ class RosserialHost:
     @property
     def connected(self) -> bool:
         """True once a negotiation completed (also while a later one reopens it)."""
-        return self._table is not None and self._state is not _State.CLOSED
+        return self._built is not None and self._state is not _State.CLOSED
 
     @property
     def topics(self) -> TopicTable | None:
-        """The current topic table, None before the first :class:`Connected`."""
-        return self._table
+        """The current topic table, None before the first ``Connected``."""
+        return self._built.table if self._built is not None else None
 
     @property
     def input_buffer(self) -> int:
         """Input buffer assumed for frames that go to no subscriber (parameter answers)."""
-        if self._input_buffer is not None:
-            return self._input_buffer
+        if self._built is not None and self._built.input_buffer is not None:
+            return self._built.input_buffer
         return self._fallback_input_buffer
+
+    def counters(self) -> SessionStats:
+        """The session's counters (the host's own ones in ``detail``)."""
+        return self.stats.session_stats()
+
+    def describe(self) -> dict[str, Any]:
+        """Facts about the device and the session (JSON-able)."""
+        built = self._built
+        table = built.table if built is not None else TopicTable()
+        return {
+            "protocol": "rosserial",
+            "state": self.state,
+            "input_buffer": self.input_buffer,
+            "max_rx_payload": self.framing.max_payload,
+            "publishers": len(table.publishers),
+            "subscribers": len(table.subscribers),
+            "service_servers": len(table.service_servers),
+            "service_clients": len(table.service_clients),
+            "unknown_types": sorted(self._warned_types),
+            "refused_topic_ids": sorted(self._refused_ids),
+            "pending_calls": len(self._calls),
+        }
 
     def next_deadline(self) -> float | None:
         """The latest time :meth:`tick` should next be called, or None if nothing is timed."""
@@ -479,34 +329,44 @@ class RosserialHost:
             mark = neg.last_info_at if neg.last_info_at is not None else neg.answered_at
             if mark is not None:
                 times.append(mark + self._settle_time)
-            if self._requested_at is not None:
-                times.append(self._requested_at + self._sync_timeout)
-        if self._table is not None:
+            else:
+                times.append(neg.retry_at)
+                times.append(neg.reported_at + self._sync_timeout)
+        if self._built is not None:
             times.append(self._sync_ref + self._sync_timeout)
         if self._state is _State.CONNECTED and self._want_topics and self._requested_at is not None:
             times.append(self._requested_at + _REQUEST_MIN_INTERVAL)
-        times.extend(queue[0].deadline for queue in self._calls.values() if queue)
+        call_deadline = self._calls.deadline()
+        if call_deadline is not None:
+            times.append(call_deadline)
         return min(times) if times else None
+
+    def chunks_to_send(self) -> list[bytes]:
+        """What to write to the link (one chunk, or none); empties the queue."""
+        if not self._tx:
+            return []
+        frames = self._tx
+        self._tx = []
+        return self.framing.encode(frames, self._now)
 
     def data_to_send(self) -> bytes:
         """Bytes to write to the link, in order; empties the queue."""
-        out = bytes(self._tx)
-        self._tx.clear()
-        return out
+        return b"".join(self.chunks_to_send())
 
     # ------------------------------------------------------------------ input
-    def receive_data(self, data: bytes | bytearray | memoryview, now: float) -> list[HostEvent]:
+    def receive_data(self, data: bytes | bytearray | memoryview, now: float) -> list[Event]:
         """Consume bytes read from the link at time ``now``; return the resulting events."""
         events = self._take_pending()
         if self._state is _State.CLOSED:
             return events
+        self._now = now
         self._timers(now, events)
-        for item in self._parser.feed(data):
+        for item in self.framing.decode(data):
             if isinstance(item, RosFrame):
                 self._old_streak = 0
                 self._on_frame(item, now, events)
             elif isinstance(item, NonFrameBytes):
-                events.append(DeviceOutput(item.data))
+                events.append(DebugOutput(item.data))
             elif isinstance(item, BadFrame):
                 _log.debug("rosserial bad frame (%s): %s", item.reason.value, item.data.hex(" "))
             elif isinstance(item, OldProtocol):
@@ -514,158 +374,181 @@ class RosserialHost:
         self._timers(now, events)
         return events
 
-    def tick(self, now: float) -> list[HostEvent]:
+    def tick(self, now: float) -> list[Event]:
         """Advance timers to ``now``: start-up, negotiation, lost sync, service timeouts."""
         events = self._take_pending()
         if self._state is not _State.CLOSED:
+            self._now = now
             self._timers(now, events)
         return events
 
-    # ------------------------------------------------------------------ output API
-    def publish(self, topic: str, payload: bytes | bytearray | memoryview) -> None:
-        """Send ``payload`` (ROS 1 bytes) to the device's subscriber ``topic``.
+    # ------------------------------------------------------------------ actions
+    def publish(self, channel: int, payload: bytes | bytearray | memoryview, /) -> bool:
+        """Send ``payload`` (ROS 1 bytes) to the device subscriber on topic id ``channel``.
+
+        Returns False when not connected (or closed).
 
         Raises:
-            ProtocolError: not connected, or the device does not subscribe to ``topic``.
+            ProtocolError: the device has no subscriber on ``channel``.
             MessageTooLargeError: the payload exceeds the subscriber's buffer (nothing sent).
         """
-        table = self._require_table("publish on %r", topic)
-        found = table.subscribers.get(topic)
-        if found is None:
+        built = self._usable()
+        if built is None:
+            return False
+        topic = built.subscribers.get(channel)
+        if topic is None:
             raise ProtocolError(
-                f"the device does not subscribe to {topic!r}; it subscribes to "
-                f"{_names(table.subscribers)}"
+                f"the device has no subscriber on topic id {channel}; it subscribes to "
+                f"{_channels((t.topic_id, t.name) for t in built.subscribers.values())}"
             )
         data = bytes(payload)
-        self._check_size(data, found.buffer_size, "message for %r (%s)", topic, found.type)
-        self._send(found.topic_id, data)
+        self._check_size(data, topic.buffer_size, "message for %r (%s)", topic.name, topic.type)
+        self._send(topic.topic_id, data)
         self.stats.messages_out += 1
+        return True
 
     def call_service(
         self,
-        name: str,
+        channel: int,
         request: bytes | bytearray | memoryview,
-        now: float,
+        *,
         timeout: float = 5.0,
+        now: float,
     ) -> int:
-        """Call the device's service server ``name``; returns the request id.
+        """Call the device's service server on ``channel``; returns the request id.
 
         rosserial carries no request ids, so calls to one service are queued and sent one at a
-        time. The outcome arrives as :class:`ServiceResponse` or :class:`ServiceFailed` (after
-        ``timeout`` seconds from this call at the latest). Without ids, a response that arrives
-        after its call timed out is dropped while no call is in flight, but is taken for the
-        next call's response if that one was already sent.
+        time. Exactly one :class:`ServiceResponse` with the id follows: the answer, or an error
+        (after ``timeout`` seconds from this call at the latest; at once when not connected).
+        Without ids, a response that arrives after its call timed out is dropped while no call
+        is in flight, but is taken for the next call's response if that one was already sent.
 
         Raises:
-            ProtocolError: not connected, or the device serves no service ``name``.
+            ProtocolError: connected, but the device serves no service on ``channel``.
             MessageTooLargeError: the request exceeds the device's input buffer.
+            ValueError: ``timeout`` is not positive.
         """
-        table = self._require_table("call service %r", name)
-        service = table.service_servers.get(name)
-        if service is None:
-            raise ProtocolError(
-                f"the device serves no service {name!r}; it serves {_names(table.service_servers)}"
-            )
         if not timeout > 0:
             raise ValueError(f"timeout must be positive, not {timeout}")
-        data = bytes(request)
-        self._check_size(data, service.input_buffer, "request for service %r", name)
-        call = _Call(self._next_request_id, name, data, timeout, now + timeout)
-        self._next_request_id += 1
-        self.stats.service_calls += 1
-        queue = self._calls.setdefault(name, deque())
-        queue.append(call)
-        if len(queue) == 1:
-            self._send_call(call)
-        return call.request_id
-
-    def respond(self, name: str, response: bytes | bytearray | memoryview) -> None:
-        """Answer the pending :class:`ServiceRequest` of the device's service client ``name``.
-
-        Raises:
-            ProtocolError: no such client, or it has no request waiting (the client library
-                would write the answer through a stale pointer).
-            MessageTooLargeError: the response exceeds the device's input buffer.
-        """
-        table = self._require_table("answer service %r", name)
-        service = table.service_clients.get(name)
+        built = self._usable()
+        if built is None:
+            request_id = self._ids.new()
+            why = "the session is closed" if self._state is _State.CLOSED else "not connected"
+            error = ProtocolError(f"service call on topic id {channel}: {why}")
+            self._pending_events.append(ServiceResponse(channel, request_id, b"", error))
+            return request_id
+        service = built.servers.get(channel)
         if service is None:
             raise ProtocolError(
-                f"the device has no service client {name!r}; it has {_names(table.service_clients)}"
+                f"the device serves no service on topic id {channel}; it serves "
+                f"{_channels((s.request_topic_id, s.name) for s in built.servers.values())}"
             )
-        if self._client_pending[name] <= 0:
-            raise ProtocolError(f"the device's service client {name!r} has no request waiting")
-        data = bytes(response)
-        self._check_size(data, service.input_buffer, "response for service %r", name)
-        self._client_pending[name] -= 1
-        self._send(service.response_topic_id, data)
+        data = bytes(request)
+        self._check_size(data, service.input_buffer, "request for service %r", service.name)
+        request_id = self._ids.new()
+        call = Call(request_id, channel, service.name, data, timeout, now + timeout)
+        self.stats.service_calls += 1
+        if self._calls.add(call):
+            self._send_call(call)
+        return request_id
 
-    def answer_param(self, name: str, value: ParamValue) -> None:
-        """Answer the device's pending request for parameter ``name``.
+    def respond_service(
+        self,
+        channel: int,
+        request_id: int,
+        payload: bytes | bytearray | memoryview = b"",
+        *,
+        error: str | None = None,
+    ) -> bool:
+        """Answer the :class:`ServiceRequest` ``request_id`` of the device client ``channel``.
 
-        ``value`` is a bool, int, float or str, or a list of them (bools and ints go in the
-        ``ints`` array, floats in ``floats``, strings in ``strings``; a list mixing ints and
-        floats is sent as floats). None means the parameter does not exist: an empty answer,
-        which the library reports as a length mismatch at once instead of waiting.
+        Returns False (nothing sent) when the request is not pending (answered already, or
+        forgotten when sync was lost), and with ``error``: rosserial cannot fail a device's
+        call (its client keeps waiting), so the request is only forgotten.
 
         Raises:
-            ProtocolError: the device has no request for ``name`` waiting.
+            MessageTooLargeError: the response exceeds the device's input buffer (the request
+                stays pending).
+        """
+        if error is not None:
+            if self._requests.take(channel, request_id) is not None:
+                _log.info(
+                    "rosserial cannot fail the device's call %d on topic id %d (%s); "
+                    "its client keeps waiting",
+                    request_id,
+                    channel,
+                    error,
+                )
+            return False
+        built = self._usable()
+        if built is None or self._requests.peek(channel, request_id) is None:
+            return False
+        service = built.clients.get(channel)
+        if service is None:  # pragma: no cover - requests are forgotten with their client
+            return False
+        data = bytes(payload)
+        self._check_size(data, service.input_buffer, "response for service %r", service.name)
+        self._requests.take(channel, request_id)
+        self._send(service.response_topic_id, data)
+        return True
+
+    def answer_param(self, request_id: int, value: ParamValue, /) -> bool:
+        """Answer the device's :class:`ParamRequest` ``request_id`` (see :mod:`.params`).
+
+        ``value`` is a bool, int, float or str, or a list of them; None means the parameter does
+        not exist. Returns False (nothing sent) when the request is not pending.
+
+        Raises:
             SerializationError: the value has no rosserial form (dict, mixed strings and
-                numbers, out of int32/float32 range).
+                numbers, out of int32/float32 range); the request stays pending.
             MessageTooLargeError: the answer exceeds the device's input buffer.
         """
-        if self._params_pending[name] <= 0:
-            raise ProtocolError(f"the device has no request for parameter {name!r} waiting")
-        payload = self.encode_param(name, value)
+        name = self._requests.peek(_PARAMS, request_id)
+        if name is None or self._state is _State.CLOSED:
+            return False
+        payload = encode_param(name, value)
         self._check_size(payload, self.input_buffer, "value of parameter %r", name)
-        self._params_pending[name] -= 1
+        self._requests.take(_PARAMS, request_id)
         self.stats.params_answered += 1
         self._send(ReservedId.PARAMETER_REQUEST, payload)
+        return True
 
-    def encode_param(self, name: str, value: ParamValue) -> bytes:
+    def push_param(self, name: str, value: Any, /) -> bool:
+        """rosserial cannot push parameters: always False."""
+        return False
+
+    @staticmethod
+    def encode_param(name: str, value: ParamValue) -> bytes:
         """The ``RequestParam`` response bytes for ``value`` (see :meth:`answer_param`)."""
-        ints: list[int] = []
-        floats: list[float] = []
-        strings: list[str] = []
-        items = _param_items(name, value)
-        kinds = {_param_kind(name, item) for item in items}
-        if "str" in kinds and len(kinds) > 1:
-            raise SerializationError(
-                f"parameter {name!r}: a list must not mix strings and numbers (rosserial sends "
-                f"one array type per parameter)"
-            )
-        if "str" in kinds:
-            strings = [str(item) for item in items]
-        elif "float" in kinds:
-            floats = [_float32(name, float(item)) for item in items]
-        else:
-            ints = [_int32(name, int(item)) for item in items]
-        message = self._param_response_cls(
-            ints=np.array(ints, dtype=np.int32),
-            floats=np.array(floats, dtype=np.float32),
-            strings=strings,
-        )
-        return self.registry.serialize(message, self._param_response)
+        return encode_param(name, value)
 
-    def close(self) -> bytes:
-        """Stop the session: returns the last bytes to write (TX_STOP included).
+    def close(self, now: float | None = None, /) -> list[Event]:
+        """Stop the session: TX_STOP goes to :meth:`chunks_to_send`; pending calls fail.
 
-        Pending service calls are reported as :class:`ServiceFailed` by the next
-        :meth:`tick` or :meth:`receive_data`; after that the host does nothing more.
+        Returns the last events (failed calls, then ``Disconnected`` if it was connected);
+        after that the host does nothing more.
         """
-        if self._state is not _State.CLOSED:
-            self._abandon_calls(self._pending_events, ProtocolError("the host closed the link"))
-            self._send(ReservedId.TX_STOP, b"")
-            self._state = _State.CLOSED
-        return self.data_to_send()
+        events = self._take_pending()
+        if self._state is _State.CLOSED:
+            return events
+        if now is not None:
+            self._now = now
+        error = ProtocolError("the host closed the session")
+        events += self._calls.abandon(error)
+        if self.connected:
+            events.append(Disconnected("closed by the host", error))
+        self._requests.clear()
+        self._send(ReservedId.TX_STOP, b"")
+        self._state = _State.CLOSED
+        return events
 
     # ------------------------------------------------------------------ timers
-    def _timers(self, now: float, events: list[HostEvent]) -> None:
+    def _timers(self, now: float, events: list[Event]) -> None:
         state = self._state
         if state is _State.WAITING:
             if now - self._opened_at >= self._start_delay:
                 self._request_topics(now)
-        elif self._table is not None and now - self._sync_ref >= self._sync_timeout:
+        elif self._built is not None and now - self._sync_ref >= self._sync_timeout:
             self._lose_sync(now, events)  # connected, or renegotiating with a table in use
         elif state is _State.NEGOTIATING:
             self._check_negotiation(now, events)
@@ -675,168 +558,109 @@ class RosserialHost:
             and (self._requested_at is None or now - self._requested_at >= _REQUEST_MIN_INTERVAL)
         ):
             self._request_topics(now)
-        self._expire_calls(now, events)
+        failed, resend = self._calls.expire(now)
+        if failed:
+            self.stats.service_timeouts += len(failed)
+            events += failed
+        for call in resend:
+            self._send_call(call)
 
-    def _lose_sync(self, now: float, events: list[HostEvent]) -> None:
+    def _lose_sync(self, now: float, events: list[Event]) -> None:
         silence = now - self._sync_ref
         self.stats.sync_lost += 1
-        events.append(SyncLost(silence))
-        self._abandon_calls(
-            events,
-            ProtocolError(f"lost sync with the device (no time request for {silence:.1f} s)"),
+        reason = f"no time request for {silence:.1f} s"
+        events += self._calls.abandon(ProtocolError(f"lost sync with the device ({reason})"))
+        events.append(
+            Disconnected(
+                reason,
+                HwBridgeTimeoutError(
+                    f"lost sync with the rosserial device: {reason} (it resets, stopped or "
+                    "lost the link); asking for its topics again"
+                ),
+            )
         )
-        self._client_pending.clear()
-        self._params_pending.clear()
-        self._table = None
-        self._rx = {}
+        self._requests.clear()
+        self._built = None
         self._accepted = {}
         self._request_topics(now)
 
-    def _check_negotiation(self, now: float, events: list[HostEvent]) -> None:
+    def _check_negotiation(self, now: float, events: list[Event]) -> None:
         neg = self._negotiation
         if neg is None:  # pragma: no cover - NEGOTIATING always has one
             return
         mark = neg.last_info_at if neg.last_info_at is not None else neg.answered_at
-        if mark is not None and now - mark >= self._settle_time:
-            self._finish_negotiation(now, events)
+        if mark is not None:
+            if now - mark >= self._settle_time:
+                self._finish_negotiation(now, events)
             return
-        if (
-            neg.answered_at is None
-            and self._requested_at is not None
-            and now - self._requested_at >= self._sync_timeout
-        ):
-            waited = now - self._requested_at
+        if now - neg.reported_at >= self._sync_timeout:
+            neg.reported_at = now
+            waited = now - neg.started
             events.append(
                 Error(
                     HwBridgeTimeoutError(
                         f"no answer from the device to 'request topics' for {waited:.1f} s; "
                         "check the baud rate (rosserial's default is 57600), that the sketch "
                         "calls nh.initNode() and nh.spinOnce(), and that it is a rosserial "
-                        "(hydro or later) sketch; asking again"
+                        "(hydro or later) sketch; still asking"
                     )
                 )
             )
-            self._request_topics(now)
+        if now >= neg.retry_at:
+            self._send_request(now)
+            neg.retry_gap = min(neg.retry_gap * 2, self._retry_max)
+            neg.retry_at = now + neg.retry_gap
 
-    def _request_topics(self, now: float) -> None:
-        self._want_topics = False
+    def _send_request(self, now: float) -> None:
         self._send(ReservedId.PUBLISHER, b"")
         self.stats.topic_requests += 1
         self._requested_at = now
-        self._negotiation = _Negotiation(started=now)
-        self._parser.max_payload = self._max_payload
+
+    def _request_topics(self, now: float) -> None:
+        self._want_topics = False
+        self._send_request(now)
+        self._negotiation = _Negotiation(
+            started=now, retry_gap=self._retry, retry_at=now + self._retry, reported_at=now
+        )
+        self.framing.max_payload = self._max_payload
         self._state = _State.NEGOTIATING
 
-    def _finish_negotiation(self, now: float, events: list[HostEvent]) -> None:
+    def _finish_negotiation(self, now: float, events: list[Event]) -> None:
         neg = self._negotiation
         assert neg is not None
         self._negotiation = None
-        publishers: dict[str, Topic] = {}
-        subscribers: dict[str, Topic] = {}
-        servers: dict[str, Service] = {}
-        clients: dict[str, Service] = {}
-        halves: dict[tuple[int, str], dict[int, _Info]] = {}
-        rx: dict[int, tuple[str, str, str]] = {}
-        for info in neg.infos.values():
-            topic = Topic(info.name, info.type, info.md5, info.topic_id, info.buffer_size)
-            if info.kind == ReservedId.PUBLISHER:
-                publishers[info.name] = topic
-                rx[info.topic_id] = (_RX_MESSAGE, info.name, info.type)
-            elif info.kind == ReservedId.SUBSCRIBER:
-                subscribers[info.name] = topic
-            else:
-                base: int = (
-                    ReservedId.SERVICE_SERVER if info.kind < 4 else ReservedId.SERVICE_CLIENT
-                )
-                halves.setdefault((base, info.name), {})[info.kind - base] = info
-        for (base, name), parts in halves.items():
-            role = "service server" if base == ReservedId.SERVICE_SERVER else "service client"
-            pub, sub = parts.get(0), parts.get(1)
-            if pub is None or sub is None:
-                missing = "publisher" if pub is None else "subscriber"
-                events.append(
-                    Error(
-                        ProtocolError(
-                            f"device {role} {name!r} announced no {missing} half "
-                            f"(TopicInfo on id {base + (0 if pub is None else 1)}); it is "
-                            "left out"
-                        )
-                    )
-                )
-                continue
-            if base == ReservedId.SERVICE_SERVER:
-                servers[name] = Service(
-                    name, sub.type, sub.topic_id, pub.topic_id, sub.md5, pub.md5, sub.buffer_size
-                )
-                rx[pub.topic_id] = (_RX_SERVER_RESPONSE, name, pub.type)
-            else:
-                clients[name] = Service(
-                    name, pub.type, pub.topic_id, sub.topic_id, pub.md5, sub.md5, sub.buffer_size
-                )
-                rx[pub.topic_id] = (_RX_CLIENT_REQUEST, name, pub.type)
-        inputs = [i.buffer_size for i in neg.infos.values() if i.kind in _DEVICE_INPUT_KINDS]
-        every = [i.buffer_size for i in neg.infos.values()]
-        self._input_buffer = min(inputs) if inputs else (min(every) if every else None)
-        outputs = [i.buffer_size for i in neg.infos.values() if i.kind in _DEVICE_OUTPUT_KINDS]
+        errors: list[HwBridgeError] = []
+        built = build_table(self.registry, neg.infos.values(), errors)
+        events += [Error(e) for e in errors]
         # The library never sends a frame larger than its output buffer: accepting no more
         # bounds how long a corrupted header that claims a long payload can hold frames back.
-        self._parser.max_payload = min(MAX_PAYLOAD, max(outputs)) if outputs else self._max_payload
-        self._table = TopicTable(publishers, subscribers, servers, clients)
+        out = built.output_buffer
+        self.framing.max_payload = min(MAX_PAYLOAD, out) if out is not None else self._max_payload
+        if self._built is None:
+            self.stats.sessions += 1
+        self._built = built
         self._accepted = dict(neg.infos)
-        self._rx = rx
         self._state = _State.CONNECTED
         self._sync_ref = max(self._sync_ref, now)
-        for name in list(self._calls):
-            if name not in servers:
-                self._abandon_calls(
-                    events,
-                    ProtocolError(f"the device no longer serves {name!r}"),
-                    only=name,
-                )
-        events.append(Connected(self._table))
-
-    def _expire_calls(self, now: float, events: list[HostEvent]) -> None:
-        for name, queue in self._calls.items():
-            expired = False
-            while queue and queue[0].deadline <= now:
-                call = queue.popleft()
-                expired = True
-                self.stats.service_timeouts += 1
-                if call.sent:
-                    why = (
-                        "the request or its response may have been lost on the line "
-                        "(rosserial has no retransmission)"
-                    )
-                else:
-                    why = "it was never sent: an earlier call to it was still unanswered"
-                events.append(
-                    ServiceFailed(
-                        call.request_id,
-                        HwBridgeTimeoutError(
-                            f"device service {name!r} did not answer call {call.request_id} "
-                            f"within {call.timeout:g} s: {why}"
-                        ),
-                        name,
-                    )
-                )
-            if expired and queue and not queue[0].sent:
-                self._send_call(queue[0])
-
-    def _abandon_calls(
-        self, events: list[HostEvent], error: HwBridgeError, only: str | None = None
-    ) -> None:
-        for name in [only] if only is not None else list(self._calls):
-            for call in self._calls.pop(name, ()):
-                events.append(ServiceFailed(call.request_id, error, name))
+        gone = [
+            channel
+            for channel, name in self._calls.channels()
+            if channel not in built.servers or built.servers[channel].name != name
+        ]
+        if gone:
+            events += self._calls.abandon(
+                ProtocolError("the device no longer serves this service"), gone
+            )
+        events.append(Connected(built.endpoints))
 
     # ------------------------------------------------------------------ frames in
-    def _on_frame(self, frame: RosFrame, now: float, events: list[HostEvent]) -> None:
+    def _on_frame(self, frame: RosFrame, now: float, events: list[Event]) -> None:
         topic_id = frame.topic_id
         if topic_id >= FIRST_USER_TOPIC:
             self._on_data(frame, now, events)
         elif topic_id == ReservedId.TIME:
             self._on_time_request(now)
-        elif topic_id in _TOPIC_INFO_IDS:
+        elif topic_id in TOPIC_INFO_IDS:
             if topic_id == ReservedId.PUBLISHER and not frame.payload:
                 self.stats.unknown_topic_frames += 1  # our own "request topics" echoed back
                 return
@@ -853,20 +677,16 @@ class RosserialHost:
         neg = self._negotiation
         if neg is not None and neg.answered_at is None:
             neg.answered_at = now
-        if self._state is _State.WAITING:
-            return  # not talking yet
-        wall = max(0.0, self._wall_clock())
+        wall = self._wall_clock() if self._wall_offset is None else now + self._wall_offset
+        wall = max(0.0, wall)
         sec = math.floor(wall)
         nsec = round((wall - sec) * 1e9)
         if nsec >= 1_000_000_000:
             sec, nsec = sec + 1, nsec - 1_000_000_000
-        stamp = self._time_msg(data=self._time_field(sec=sec & 0xFFFFFFFF, nanosec=nsec))
-        self._send(ReservedId.TIME, self.registry.serialize(stamp, TIME_TYPE))
+        self._send(ReservedId.TIME, _TIME.pack(sec & 0xFFFFFFFF, nsec))
         self.stats.time_syncs += 1
 
-    def _on_topic_info(
-        self, kind: int, payload: bytes, now: float, events: list[HostEvent]
-    ) -> None:
+    def _on_topic_info(self, kind: int, payload: bytes, now: float, events: list[Event]) -> None:
         self.stats.topic_infos += 1
         try:
             msg = self.registry.deserialize(payload, TOPIC_INFO_TYPE)
@@ -875,7 +695,7 @@ class RosserialHost:
             self.stats.topics_refused += 1
             events.append(Error(ProtocolError(f"undecodable TopicInfo on id {kind}: {exc}")))
             return
-        info = _Info(
+        info = Info(
             kind,
             int(msg.topic_id),
             str(msg.topic_name),
@@ -885,70 +705,37 @@ class RosserialHost:
         )
         neg = self._negotiation
         if neg is None:  # a late TopicInfo: reopen, keeping what was accepted
-            neg = self._negotiation = _Negotiation(started=now)
-            neg.infos.update(self._accepted_infos())
+            neg = self._negotiation = _Negotiation(started=now, retry_at=math.inf)
+            neg.infos.update(self._accepted)
             if self._state is _State.CONNECTED:
                 self._state = _State.NEGOTIATING
         if neg.answered_at is None:
             neg.answered_at = now
         neg.last_info_at = now
-        problem = self._check_info(info)
-        if problem is not None:
+        checked = check_info(self.registry, info, self._warned_types)
+        if isinstance(checked, HwBridgeError):
             self.stats.topics_refused += 1
             self._refused_ids.add(info.topic_id)
             neg.infos.pop(info.topic_id, None)
-            events.append(Error(problem))
+            events.append(Error(checked))
             return
+        if not checked.known:
+            self.stats.unknown_types += 1
         self._refused_ids.discard(info.topic_id)
-        neg.infos[info.topic_id] = info
+        neg.infos[info.topic_id] = checked
 
-    def _accepted_infos(self) -> dict[int, _Info]:
-        """The TopicInfos behind the current table (to merge late TopicInfos into)."""
-        return dict(self._accepted)
-
-    def _check_info(self, info: _Info) -> HwBridgeError | None:
-        """Why the host refuses ``info`` (unknown type, md5 mismatch), or None."""
-        role = _ROLE.get(info.kind, f"endpoint (id {info.kind})")
-        where = f"device {role} {info.name!r} (topic id {info.topic_id})"
-        try:
-            if info.kind in (ReservedId.PUBLISHER, ReservedId.SUBSCRIBER):
-                host_type = self.registry.message(info.type)
-                half = ""
-            else:
-                service = self.registry.service(info.type)
-                is_request = info.kind in (ReservedId.SERVICE_SERVER + 1, ReservedId.SERVICE_CLIENT)
-                host_type = service.request if is_request else service.response
-                half = " request" if is_request else " response"
-        except UnknownTypeError as exc:
-            kind = "message" if info.kind <= ReservedId.SUBSCRIBER else "service"
-            ext = ".msg" if kind == "message" else ".srv"
-            error = MessageTypeError(
-                f"{where} has {kind} type {info.type!r}, which hwbridge does not know ({exc}); "
-                f"add its {ext} file to the message search path. This endpoint is left out."
-            )
-            error.__cause__ = exc
-            return error
-        if info.md5 != host_type.md5:
-            return ProtocolMismatchError(
-                f"md5 mismatch on {where}: the device's {info.type}{half} has md5 {info.md5}, "
-                f"hwbridge's {host_type.name} (from {host_type.source}) has md5 "
-                f"{host_type.md5}. Build both from the same definition (regenerate the "
-                "sketch's ros_lib, or fix hwbridge's .msg). This endpoint is left out; the "
-                "others keep working."
-            )
-        return None
-
-    def _on_data(self, frame: RosFrame, now: float, events: list[HostEvent]) -> None:
+    def _on_data(self, frame: RosFrame, now: float, events: list[Event]) -> None:
         topic_id = frame.topic_id
         neg = self._negotiation
         if (
             neg is not None
             and self._state is _State.NEGOTIATING
             and topic_id in neg.infos
-            and neg.infos[topic_id].kind in _DEVICE_OUTPUT_KINDS
+            and neg.infos[topic_id].kind in DEVICE_OUTPUT_KINDS
         ):
             self._finish_negotiation(now, events)  # the device publishes: it is configured
-        entry = self._rx.get(topic_id)
+        built = self._built
+        entry = built.rx.get(topic_id) if built is not None else None
         if entry is None:
             if topic_id in self._refused_ids:
                 self.stats.refused_topic_frames += 1
@@ -961,26 +748,26 @@ class RosserialHost:
                 self._want_topics = True
                 self._timers(now, events)
             return
-        kind, name, type_name = entry
-        if kind == _RX_MESSAGE:
+        kind, channel = entry
+        if kind == RX_MESSAGE:
             self.stats.messages_in += 1
-            events.append(Message(name, type_name, frame.payload))
-        elif kind == _RX_SERVER_RESPONSE:
-            queue = self._calls.get(name)
-            if not queue or not queue[0].sent:
+            events.append(Message(channel, frame.payload, 0))
+        elif kind == RX_CLIENT_REQUEST:
+            self.stats.device_service_requests += 1
+            request_id = self._ids.new()
+            self._requests.add(channel, request_id)
+            events.append(ServiceRequest(channel, request_id, frame.payload))
+        else:
+            call, after = self._calls.answered(channel)
+            if call is None:
                 self.stats.late_service_responses += 1
                 return
-            call = queue.popleft()
             self.stats.service_responses += 1
-            events.append(ServiceResponse(call.request_id, frame.payload, name))
-            if queue:
-                self._send_call(queue[0])
-        else:
-            self.stats.device_service_requests += 1
-            self._client_pending[name] += 1
-            events.append(ServiceRequest(name, frame.payload, type_name))
+            events.append(ServiceResponse(channel, call.request_id, frame.payload))
+            if after is not None:
+                self._send_call(after)
 
-    def _on_param_request(self, payload: bytes, events: list[HostEvent]) -> None:
+    def _on_param_request(self, payload: bytes, events: list[Event]) -> None:
         try:
             request = self.registry.deserialize(payload, self._param_request)
         except SerializationError as exc:
@@ -989,11 +776,11 @@ class RosserialHost:
             return
         name = str(request.name)
         self.stats.params_requested += 1
-        if self._params_pending[name] < _MAX_PENDING_PARAMS:
-            self._params_pending[name] += 1
-        events.append(ParamRequest(name))
+        request_id = self._ids.new()
+        self._requests.add(_PARAMS, request_id, name)
+        events.append(ParamRequest(request_id, name))
 
-    def _on_log(self, payload: bytes, events: list[HostEvent]) -> None:
+    def _on_log(self, payload: bytes, events: list[Event]) -> None:
         try:
             record = self.registry.deserialize(payload, LOG_TYPE)
         except SerializationError as exc:
@@ -1003,42 +790,34 @@ class RosserialHost:
         self.stats.logs += 1
         events.append(Log(int(record.level), str(record.msg)))
 
-    def _on_old_protocol(self, events: list[HostEvent]) -> None:
+    def _on_old_protocol(self, events: list[Event]) -> None:
         self._old_streak += 1
         if self._old_streak >= self._old_threshold and not self._old_reported:
             self._old_reported = True
             events.append(Error(ProtocolMismatchError(OLD_FIRMWARE_MESSAGE)))
 
     # ------------------------------------------------------------------ helpers
-    def _take_pending(self) -> list[HostEvent]:
+    def _take_pending(self) -> list[Event]:
         events = self._pending_events
         self._pending_events = []
         return events
 
-    def _send(self, topic_id: int, payload: bytes) -> None:
-        frame = encode_frame(topic_id, payload)
-        self._tx += frame
-        self.stats.tx_frames += 1
-        self.stats.tx_bytes += len(frame)
+    def _usable(self) -> BuiltTable | None:
+        """The table, if the session is connected and not closed."""
+        return self._built if self._state is not _State.CLOSED else None
 
-    def _send_call(self, call: _Call) -> None:
-        table = self._table
-        service = table.service_servers.get(call.name) if table is not None else None
+    def _send(self, topic_id: int, payload: bytes) -> None:
+        self._tx.append(RosFrame(topic_id, payload))
+        self.stats.tx_frames += 1
+        self.stats.tx_bytes += len(payload) + FRAME_OVERHEAD
+
+    def _send_call(self, call: Call) -> None:
+        built = self._built
+        service = built.servers.get(call.channel) if built is not None else None
         if service is None:  # pragma: no cover - calls are abandoned when a service goes away
             return
         call.sent = True
         self._send(service.request_topic_id, call.payload)
-
-    def _require_table(self, action: str, *args: object) -> TopicTable:
-        """The topic table, or a ProtocolError saying why there is none; ``action % args``
-        (formatted only then) says what could not be done."""
-        if self._state is _State.CLOSED:
-            raise ProtocolError(f"cannot {action % args}: the session is closed")
-        if self._table is None:
-            raise ProtocolError(
-                f"cannot {action % args}: the device is not connected yet (wait for Connected)"
-            )
-        return self._table
 
     @staticmethod
     def _check_size(payload: bytes, limit: int, what: str, *args: object) -> None:
@@ -1048,47 +827,13 @@ class RosserialHost:
                 f"{limit} bytes; not sent (the rosserial client library would overrun its "
                 "memory). Send less, or build the firmware with a larger INPUT_SIZE."
             )
+        if len(payload) > MAX_PAYLOAD:
+            raise MessageTooLargeError(
+                f"{what % args} is {len(payload)} bytes, more than a rosserial frame carries "
+                f"({MAX_PAYLOAD} bytes); not sent"
+            )
 
 
-def _names(items: Iterable[str]) -> str:
+def _channels(items: Iterable[tuple[int, str]]) -> str:
     found = sorted(items)
-    return ", ".join(repr(n) for n in found) if found else "nothing"
-
-
-def _param_items(name: str, value: ParamValue) -> list[Any]:
-    if value is None:
-        return []
-    if isinstance(value, list | tuple):
-        return list(value)
-    return [value]
-
-
-def _param_kind(name: str, item: Any) -> str:
-    if isinstance(item, bool | int | np.integer):
-        return "int"
-    if isinstance(item, float | np.floating):
-        return "float"
-    if isinstance(item, str):
-        return "str"
-    raise SerializationError(
-        f"parameter {name!r}: {type(item).__name__} values cannot be sent to a rosserial "
-        "device (only bool, int, float, str and lists of one of them)"
-    )
-
-
-def _int32(name: str, value: int) -> int:
-    low, high = INT_RANGES["int32"]
-    if not low <= value <= high:
-        raise SerializationError(
-            f"parameter {name!r}: {value} does not fit an int32 (rosserial sends ints as int32)"
-        )
-    return value
-
-
-def _float32(name: str, value: float) -> float:
-    if math.isfinite(value) and abs(value) > float(np.finfo(np.float32).max):
-        raise SerializationError(
-            f"parameter {name!r}: {value} does not fit a float32 (rosserial sends floats as "
-            "float32)"
-        )
-    return value
+    return ", ".join(f"{ch} ({name!r})" for ch, name in found) if found else "nothing"

@@ -6,17 +6,32 @@ every simulated 10 ms, optionally dropping or corrupting them.
 
 from __future__ import annotations
 
+import json
 import random
+import struct
 from collections.abc import Callable
 from typing import Any
 
 import pytest
 
 from hwbridge import msg
+from hwbridge.protocols.base import (
+    BoardSession,
+    Connected,
+    DebugOutput,
+    Disconnected,
+    EntryKind,
+    Error,
+    Event,
+    Log,
+    Message,
+    ParamRequest,
+    ServiceRequest,
+    ServiceResponse,
+)
 from hwbridge.protocols.errors import (
     HwBridgeError,
     HwBridgeTimeoutError,
-    MessageTypeError,
     ProtocolError,
     ProtocolMismatchError,
     SerializationError,
@@ -39,19 +54,9 @@ from hwbridge.protocols.rosserial.host import (
     OLD_FIRMWARE_MESSAGE,
     REQUEST_TOPICS,
     TX_STOP,
-    Connected,
-    DeviceOutput,
-    Error,
-    HostEvent,
-    Log,
-    Message,
     MessageTooLargeError,
-    ParamRequest,
     RosserialHost,
-    ServiceFailed,
-    ServiceRequest,
-    ServiceResponse,
-    SyncLost,
+    TopicTable,
 )
 
 REG = msg.registry()
@@ -93,7 +98,7 @@ class Sim:
         self.steps = 0
         self.device = device
         self.host = RosserialHost(REG, now=0.0, wall_clock=self.wall, **host_options)
-        self.host_events: list[tuple[float, HostEvent]] = []
+        self.host_events: list[tuple[float, Event]] = []
         self.device_events: list[tuple[float, DeviceEvent]] = []
         self.link_up = True
         self.mangle: Callable[[bytes], bytes] = lambda data: data
@@ -139,7 +144,26 @@ class Sim:
         self.run_until(lambda: bool(self.host_of(Connected)), limit=10)
         return self.host_of(Connected)[-1]  # type: ignore[no-any-return]
 
-    def take(self) -> list[HostEvent]:
+    @property
+    def table(self) -> TopicTable:
+        table = self.host.topics
+        assert table is not None
+        return table
+
+    def sub(self, name: str) -> int:
+        """The channel of the device's subscriber ``name``."""
+        return self.table.subscribers[name].topic_id
+
+    def pub(self, name: str) -> int:
+        return self.table.publishers[name].topic_id
+
+    def server(self, name: str) -> int:
+        return self.table.service_servers[name].request_topic_id
+
+    def client(self, name: str) -> int:
+        return self.table.service_clients[name].request_topic_id
+
+    def take(self) -> list[Event]:
         """Host events so far, forgetting them."""
         events = [e for _, e in self.host_events]
         self.host_events.clear()
@@ -155,15 +179,21 @@ def connected_sim(device: RosserialDevice | None = None, **host_options: Any) ->
 
 
 # ---------------------------------------------------------------------------------- start-up
+def _check(h: RosserialHost) -> BoardSession:
+    """RosserialHost implements the runtime's BoardSession (checked by mypy, not run)."""
+    return h
+
+
 def test_negotiation() -> None:
     sim = Sim(board())
-    sim.run(1.9)
-    assert sim.to_device_log == b"", "the host must stay silent during the bootloader delay"
-    assert sim.host.state == "waiting"
+    assert sim.host.state == "negotiating", "'request topics' is queued at once"
     connected = sim.connect()
-    assert sim.to_device_log.startswith(REQUEST_TOPICS)
+    assert sim.to_device_log == REQUEST_TOPICS + sim.to_device_log[8:]
     assert sim.device_of(Configured) == [Configured()]
-    table = connected.topics
+    (at,) = [t for t, e in sim.host_events if isinstance(e, Connected)]
+    assert at <= DT + 0.5 + DT  # the first step's round trip plus the settle time
+    assert sim.host.stats.topic_requests == 1, "an answered request is not repeated"
+    table = sim.table
     assert set(table.publishers) == {"chatter"}
     assert table.publishers["chatter"].type == "std_msgs/String"
     assert table.publishers["chatter"].topic_id == 125
@@ -175,40 +205,94 @@ def test_negotiation() -> None:
         126,
     )
     assert server.request_md5 == REG.service("std_srvs/SetBool").request.md5
+    assert server.md5 == REG.service("std_srvs/SetBool").md5
     client = table.service_clients["trigger"]
     assert (client.request_topic_id, client.response_topic_id) == (127, 102)
     assert client.response_md5 == REG.service("std_srvs/Trigger").response.md5
-    (at,) = [t for t, e in sim.host_events if isinstance(e, Connected)]
-    assert 2.0 <= at <= 2.0 + 0.5 + 0.05  # start delay + settle time
+    by_name = {e.name: e for e in connected.endpoints}
+    assert len(connected.endpoints) == 4
+    assert (by_name["chatter"].kind, by_name["chatter"].channel) == (EntryKind.PUBLISHER, 125)
+    assert by_name["chatter"].md5 == REG.md5("std_msgs/String")
+    assert (by_name["led"].kind, by_name["led"].channel) == (EntryKind.SUBSCRIBER, 100)
+    assert by_name["led"].type_name == "std_msgs/Bool"
+    toggle_ep = by_name["toggle_led"]
+    assert (toggle_ep.kind, toggle_ep.channel) == (EntryKind.SERVICE_SERVER, 101)
+    assert toggle_ep.md5 == REG.service("std_srvs/SetBool").md5 and toggle_ep.is_service
+    trigger_ep = by_name["trigger"]
+    assert (trigger_ep.kind, trigger_ep.channel) == (EntryKind.SERVICE_CLIENT, 127)
+    assert trigger_ep.type_name == "std_srvs/Trigger"
+    assert (connected.board_name, connected.resumed) == ("", False)
     assert sim.host.state == "connected" and sim.host.connected
-    assert sim.host.topics == table
     assert not sim.host_of(Error)
+    assert sim.host.counters().sessions == 1
 
 
 def test_connected_at_once_when_the_device_publishes() -> None:
     sim = Sim(board())
-    sim.run(2.0)
+    sim.run(0.1)
     sim.device.publish("chatter", string("first"))  # type: ignore[union-attr]
     sim.step()
     events = sim.take()
     assert [type(e) for e in events] == [Connected, Message]
-    assert events[1] == Message("chatter", "std_msgs/String", string("first"))
+    assert events[1] == Message(125, string("first"), 0)
 
 
 def test_board_without_topics_connects_with_an_empty_table() -> None:
     sim = Sim(RosserialDevice(REG))
     connected = sim.connect()
-    assert connected.topics.publishers == {} and connected.topics.service_servers == {}
+    assert connected.endpoints == ()
+    assert sim.table.publishers == {} and sim.table.service_servers == {}
 
 
-def test_no_answer_is_reported_and_retried() -> None:
-    sim = Sim(None, start_delay=0.5, sync_timeout=15.0)
+def test_request_is_repeated_with_backoff_until_answered() -> None:
+    sim = Sim(None, sync_timeout=15.0)
     sim.run(16.0)
+    log = bytes(sim.to_device_log)
+    assert log == REQUEST_TOPICS * (len(log) // len(REQUEST_TOPICS))
+    # at 0, then 0.1, 0.2, 0.4, 0.8 s apart, then every second: 0.1 0.3 0.7 1.5 2.5 ... 15.5
+    assert sim.host.stats.topic_requests == 1 + 4 + 14
     (error,) = sim.host_of(Error)
     assert isinstance(error.error, HwBridgeTimeoutError)
     assert "no answer" in str(error.error) and "57600" in str(error.error)
-    assert sim.to_device_log == REQUEST_TOPICS * 2
-    assert sim.host.stats.topic_requests == 2
+    sim.run(15.0)
+    assert len(sim.host_of(Error)) == 2, "reported again every sync_timeout"
+    assert not sim.host.connected
+
+
+def test_request_times() -> None:
+    host = RosserialHost(REG, now=0.0)
+    assert host.data_to_send() == REQUEST_TOPICS
+    sent = [0.0]
+    now = 0.0
+    while now < 5.0:
+        deadline = host.next_deadline()
+        assert deadline is not None
+        now = deadline
+        host.tick(now)
+        if host.data_to_send() == REQUEST_TOPICS:
+            sent.append(round(now, 6))
+    assert sent[:8] == [0.0, 0.1, 0.3, 0.7, 1.5, 2.5, 3.5, 4.5]
+
+
+def test_a_board_that_starts_late_is_caught_soon() -> None:
+    sim = Sim(None)
+    sim.run(1.5)  # the bootloader: nothing answers
+    sim.device = board()
+    sim.run_until(lambda: bool(sim.device_of(Configured)), limit=2)
+    assert sim.t <= 1.5 + 1.0 + 2 * DT, "the next request comes within a second"
+    sim.connect()
+
+
+def test_start_delay_keeps_the_host_silent_but_answers_time_requests() -> None:
+    host = RosserialHost(REG, now=10.0, wall_offset=100.0, start_delay=2.0)
+    assert host.state == "waiting"
+    assert host.next_deadline() == 12.0
+    assert host.tick(11.0) == [] and host.data_to_send() == b""
+    assert host.receive_data(encode_frame(10, bytes(8)), 11.5) == []
+    assert host.data_to_send() == encode_frame(10, struct.pack("<II", 111, 500_000_000))
+    host.tick(12.0)
+    assert host.data_to_send() == REQUEST_TOPICS
+    assert host.next_deadline() == pytest.approx(12.1)
 
 
 def test_md5_mismatch_refuses_only_that_topic() -> None:
@@ -220,19 +304,20 @@ def test_md5_mismatch_refuses_only_that_topic() -> None:
         ]
     )
     sim = Sim(device)
-    table = sim.connect().topics
+    sim.connect()
     (error,) = sim.host_of(Error)
     assert isinstance(error.error, ProtocolMismatchError)
     text = str(error.error)
     for part in ("'bad'", "std_msgs/Int32", wrong, REG.md5("std_msgs/Int32"), "126"):
         assert part in text
-    assert set(table.publishers) == {"chatter"}
+    assert set(sim.table.publishers) == {"chatter"}
     # the other topics keep working; frames on the refused one are dropped and counted
     device.publish("bad", bytes(4))
     device.publish("chatter", string("still here"))
     sim.step()
-    assert sim.host_of(Message) == [Message("chatter", "std_msgs/String", string("still here"))]
+    assert sim.host_of(Message) == [Message(125, string("still here"), 0)]
     assert sim.host.stats.refused_topic_frames == 1
+    assert sim.host.counters().dropped_messages == 1
     assert sim.host.stats.topic_requests == 1, "a refused topic must not trigger renegotiation"
 
 
@@ -244,60 +329,46 @@ def test_service_half_md5_mismatch() -> None:
         ]
     )
     sim = Sim(device)
-    table = sim.connect().topics
+    sim.connect()
     errors = [e.error for e in sim.host_of(Error)]
     assert isinstance(errors[0], ProtocolMismatchError)
     assert "response" in str(errors[0]) and wrong in str(errors[0])
     assert REG.service("std_srvs/SetBool").response.md5 in str(errors[0])
     # the half that remains is reported as incomplete; the service is left out
     assert any("no publisher half" in str(e) for e in errors[1:])
-    assert "toggle_led" not in table.service_servers
-    assert "trigger" in table.service_clients
-
-
-def test_unknown_type_is_a_clear_error() -> None:
-    device = board(
-        subscribers=[Endpoint("led", "std_msgs/Bool"), Endpoint("x", "foo_msgs/Bar", "a" * 32)]
-    )
-    sim = Sim(device)
-    table = sim.connect().topics
-    (error,) = sim.host_of(Error)
-    assert isinstance(error.error, MessageTypeError)
-    assert "foo_msgs/Bar" in str(error.error) and "search path" in str(error.error)
-    assert set(table.subscribers) == {"led"}
+    assert "toggle_led" not in sim.table.service_servers
+    assert "trigger" in sim.table.service_clients
 
 
 def test_late_topic_info_reopens_the_negotiation() -> None:
-    host = RosserialHost(REG, now=0.0, wall_clock=lambda: WALL0, start_delay=0.0)
-    host.tick(0.0)
+    host = RosserialHost(REG, now=0.0, wall_clock=lambda: WALL0)
     device = board()
     device.receive_data(host.data_to_send(), 0.0)
     frames = device.data_to_send()
     cut = frames.index(b"\xff\xfe", 60)  # after the time request and the first TopicInfo
-    host.receive_data(frames[:cut], 0.1)
+    host.receive_data(frames[:cut], 0.05)
     (first,) = host.tick(1.0)
-    assert isinstance(first, Connected) and set(first.topics.publishers) == {"chatter"}
+    assert isinstance(first, Connected) and [e.name for e in first.endpoints] == ["chatter"]
     assert host.receive_data(frames[cut:], 1.1) == []
     assert host.state == "negotiating" and host.connected
     (second,) = host.tick(2.0)
     assert isinstance(second, Connected)
-    assert set(second.topics.subscribers) == {"led"}
-    assert set(second.topics.publishers) == {"chatter"}
-    assert set(second.topics.service_servers) == {"toggle_led"}
+    assert {e.name for e in second.endpoints} == {"chatter", "led", "toggle_led", "trigger"}
+    assert host.counters().sessions == 1, "a reopened negotiation is the same session"
 
 
 def test_unknown_topic_id_triggers_a_new_negotiation() -> None:
     device = board()
     sim = connected_sim(device)
-    device.advertise("late", "std_msgs/String")  # advertised after the negotiation
+    late = device.advertise("late", "std_msgs/String")  # advertised after the negotiation
     device.publish("late", string("x"))
     sim.run(0.02)
     assert sim.host.stats.unknown_topic_frames == 1
     sim.run_until(lambda: bool(sim.host_of(Connected)), limit=5)
-    assert "late" in sim.host_of(Connected)[0].topics.publishers
+    assert "late" in {e.name for e in sim.host_of(Connected)[0].endpoints}
     device.publish("late", string("y"))
     sim.step()
-    assert sim.host_of(Message)[-1] == Message("late", "std_msgs/String", string("y"))
+    assert sim.host_of(Message)[-1] == Message(late, string("y"), 0)
 
 
 # ---------------------------------------------------------------------------------- data
@@ -306,50 +377,65 @@ def test_data_both_ways() -> None:
     sim = connected_sim(device)
     for i in range(5):
         assert device.publish("chatter", string(f"hello {i}")) > 0
-    sim.host.publish("led", msg.encode(msg.from_dict("std_msgs/Bool", {"data": True})))
+    assert sim.host.publish(sim.sub("led"), msg.encode(msg.from_dict("std_msgs/Bool", {"data": 1})))
     sim.step()
-    assert sim.host_of(Message) == [
-        Message("chatter", "std_msgs/String", string(f"hello {i}")) for i in range(5)
-    ]
+    assert sim.host_of(Message) == [Message(125, string(f"hello {i}"), 0) for i in range(5)]
     assert sim.device_of(Received) == [Received("led", b"\x01")]
     stats = sim.host.stats.as_dict()
     assert stats["messages_in"] == 5 and stats["messages_out"] == 1
     assert stats["rx_checksum_errors"] == 0
+    common = sim.host.counters()
+    assert common.frames_received == sim.host.stats.framing.frames >= 5
+    assert common.frames_sent == sim.host.stats.tx_frames
+    assert common.bytes_sent == len(sim.to_device_log)
+    assert common.bad_frames == common.crc_errors == 0
+    assert common.detail["messages_in"] == 5
+    assert common.as_dict()["rx_frames"] == common.frames_received
 
 
 def test_publish_errors() -> None:
     host = RosserialHost(REG, now=0.0)
-    with pytest.raises(ProtocolError, match="not connected"):
-        host.publish("led", b"\x01")
+    assert host.publish(100, b"\x01") is False, "not connected: nothing sent"
     sim = connected_sim()
-    with pytest.raises(ProtocolError, match="'led'"):
-        sim.host.publish("nope", b"\x01")
+    with pytest.raises(ProtocolError, match="100 \\('led'\\)"):
+        sim.host.publish(999, b"\x01")
     with pytest.raises(ProtocolError, match="serves no service"):
-        sim.host.call_service("nope", b"", sim.t)
-    with pytest.raises(ProtocolError, match="no service client"):
-        sim.host.respond("nope", b"")
+        sim.host.call_service(999, b"", now=sim.t)
+    with pytest.raises(ProtocolError):
+        sim.host.publish(sim.pub("chatter"), b"")  # the device publishes it, it does not listen
+    with pytest.raises(ValueError, match="positive"):
+        sim.host.call_service(sim.server("toggle_led"), b"", timeout=0, now=sim.t)
+    assert sim.host.respond_service(999, 1, b"") is False
     assert sim.host.data_to_send() == b""
+
+
+def test_call_while_not_connected_fails_at_once() -> None:
+    host = RosserialHost(REG, now=0.0)
+    request_id = host.call_service(101, b"\x01", now=0.0)
+    (failed,) = host.tick(0.0)
+    assert isinstance(failed, ServiceResponse) and failed.request_id == request_id
+    assert failed.channel == 101 and not failed.ok and "not connected" in str(failed.error)
 
 
 def test_oversize_is_refused_before_sending() -> None:
     device = board(input_size=280, output_size=280)  # an ATmega328P build
     sim = connected_sim(device)
-    assert sim.host.topics is not None
-    assert sim.host.topics.subscribers["led"].buffer_size == 280
+    assert sim.table.subscribers["led"].buffer_size == 280
     with pytest.raises(MessageTooLargeError, match="280"):
-        sim.host.publish("led", bytes(281))
+        sim.host.publish(sim.sub("led"), bytes(281))
     with pytest.raises(MessageTooLargeError):
-        sim.host.call_service("toggle_led", bytes(281), sim.t)
+        sim.host.call_service(sim.server("toggle_led"), bytes(281), now=sim.t)
     assert sim.host.data_to_send() == b"", "nothing may be sent for a refused frame"
-    sim.host.publish("led", bytes(280))
+    assert sim.host.publish(sim.sub("led"), bytes(280))
     sim.step()
     assert sim.device_of(Received) == [Received("led", bytes(280))]
     assert device.stats.input_overruns == 0
     device.request_param("names", sim.t)
     sim.step()
+    (asked,) = sim.host_of(ParamRequest)
     with pytest.raises(MessageTooLargeError):
-        sim.host.answer_param("names", ["x" * 100] * 3)
-    sim.host.answer_param("names", ["x" * 100] * 2)
+        sim.host.answer_param(asked.request_id, ["x" * 100] * 3)
+    assert sim.host.answer_param(asked.request_id, ["x" * 100] * 2)
     sim.step()
     assert sim.device_of(ParamResult)[0].strings == ("x" * 100, "x" * 100)
 
@@ -357,29 +443,27 @@ def test_oversize_is_refused_before_sending() -> None:
 def test_debug_output_is_passed_on() -> None:
     sim = connected_sim()
     events = sim.host.receive_data(b"free ram: 812\r\n" + encode_frame(125, string("a")), sim.t)
-    assert events == [
-        DeviceOutput(b"free ram: 812\r\n"),
-        Message("chatter", "std_msgs/String", string("a")),
-    ]
+    assert events == [DebugOutput(b"free ram: 812\r\n"), Message(125, string("a"), 0)]
 
 
 # ---------------------------------------------------------------------------------- services
 def test_device_service_server_calls_are_queued_one_at_a_time() -> None:
     device = board()
     sim = connected_sim(device)
+    channel = sim.server("toggle_led")
     on = msg.encode(msg.from_dict("std_srvs/SetBoolRequest", {"data": True}))
     off = msg.encode(msg.from_dict("std_srvs/SetBoolRequest", {"data": False}))
-    first = sim.host.call_service("toggle_led", on, sim.t)
-    second = sim.host.call_service("toggle_led", off, sim.t)
+    first = sim.host.call_service(channel, on, now=sim.t)
+    second = sim.host.call_service(channel, off, now=sim.t)
     assert first != second
-    third = sim.host.call_service("toggle_led", on, sim.t)
+    third = sim.host.call_service(channel, on, now=sim.t)
     sim.step()
     assert sim.device_of(ServiceCalled) == [ServiceCalled("toggle_led", on)], "one at a time"
     assert sim.to_device_log.endswith(encode_frame(101, on))
     sim.run(0.05)
     assert sim.host_of(ServiceResponse)[:2] == [
-        ServiceResponse(first, set_bool_response(True, "on"), "toggle_led"),
-        ServiceResponse(second, set_bool_response(False, "off"), "toggle_led"),
+        ServiceResponse(channel, first, set_bool_response(True, "on")),
+        ServiceResponse(channel, second, set_bool_response(False, "off")),
     ]
     assert sim.host_of(ServiceResponse)[2].request_id == third
     assert [e.request for e in sim.device_of(ServiceCalled)] == [on, off, on]
@@ -391,18 +475,19 @@ def test_service_timeout_never_hangs() -> None:
         service_servers=[ServiceEndpoint("toggle_led", "std_srvs/SetBool", lambda r: next(answers))]
     )
     sim = connected_sim(device)
-    lost = sim.host.call_service("toggle_led", b"\x01", sim.t, timeout=1.0)
-    queued = sim.host.call_service("toggle_led", b"\x00", sim.t, timeout=5.0)
+    channel = sim.server("toggle_led")
+    lost = sim.host.call_service(channel, b"\x01", now=sim.t, timeout=1.0)
+    queued = sim.host.call_service(channel, b"\x00", now=sim.t, timeout=5.0)
     sim.run(0.9)
-    assert not sim.host_of(ServiceFailed)
+    assert not sim.host_of(ServiceResponse)
     sim.run(0.2)
-    (failed,) = sim.host_of(ServiceFailed)
-    assert failed.request_id == lost
+    failed = sim.host_of(ServiceResponse)[0]
+    assert failed.request_id == lost and failed.channel == channel and failed.payload == b""
     assert isinstance(failed.error, HwBridgeTimeoutError) and isinstance(failed.error, TimeoutError)
     assert "toggle_led" in str(failed.error)
     sim.run(0.1)  # the queued call goes out once the first one has failed
-    assert sim.host_of(ServiceResponse) == [
-        ServiceResponse(queued, set_bool_response(True, "late but fine"), "toggle_led")
+    assert sim.host_of(ServiceResponse)[1:] == [
+        ServiceResponse(channel, queued, set_bool_response(True, "late but fine"))
     ]
     assert sim.host.stats.service_timeouts == 1
 
@@ -410,10 +495,10 @@ def test_service_timeout_never_hangs() -> None:
 def test_late_response_after_timeout_is_dropped() -> None:
     sim = connected_sim()
     host, now = sim.host, sim.t
-    call = host.call_service("toggle_led", b"\x01", now, timeout=0.5)
+    call = host.call_service(101, b"\x01", now=now, timeout=0.5)
     host.data_to_send()
     (failed,) = host.tick(now + 0.6)
-    assert isinstance(failed, ServiceFailed) and failed.request_id == call
+    assert isinstance(failed, ServiceResponse) and failed.request_id == call and not failed.ok
     assert host.receive_data(encode_frame(126, set_bool_response(True, "on")), now + 0.7) == []
     assert host.stats.late_service_responses == 1
 
@@ -421,17 +506,47 @@ def test_late_response_after_timeout_is_dropped() -> None:
 def test_device_service_client() -> None:
     device = board()
     sim = connected_sim(device)
-    with pytest.raises(ProtocolError, match="no request waiting"):
-        sim.host.respond("trigger", b"")
+    channel = sim.client("trigger")
+    assert sim.host.respond_service(channel, 1, b"") is False, "no request waiting"
     assert device.call_service("trigger", b"")
     sim.step()
-    assert sim.host_of(ServiceRequest) == [ServiceRequest("trigger", b"", "std_srvs/Trigger")]
+    (request,) = sim.host_of(ServiceRequest)
+    assert (request.channel, request.payload) == (channel, b"")
     answer = msg.encode(
         msg.from_dict("std_srvs/TriggerResponse", {"success": True, "message": "ok"})
     )
-    sim.host.respond("trigger", answer)
+    assert sim.host.respond_service(channel, request.request_id + 1, answer) is False
+    assert sim.host.respond_service(channel, request.request_id, answer)
+    assert sim.host.respond_service(channel, request.request_id, answer) is False, "answered"
     sim.step()
     assert sim.device_of(ServiceResult) == [ServiceResult("trigger", answer)]
+
+
+def test_device_service_client_requests_get_their_own_ids() -> None:
+    """A board that reset mid-call asks again: each request has an id; any can be answered."""
+    sim = connected_sim()
+    channel, response_id = sim.client("trigger"), 102
+    requests = sim.host.receive_data(encode_frame(channel, b"") * 3, sim.t)
+    ids = [r.request_id for r in requests if isinstance(r, ServiceRequest)]
+    assert len(set(ids)) == 3 and 0 not in ids
+    assert sim.host.respond_service(channel, ids[1], b"\x01")
+    assert sim.host.respond_service(channel, ids[0], b"\x02")
+    assert sim.host.respond_service(channel, ids[1], b"\x03") is False
+    assert sim.host.data_to_send() == encode_frame(response_id, b"\x01") + encode_frame(
+        response_id, b"\x02"
+    )
+
+
+def test_a_device_call_cannot_be_failed() -> None:
+    device = board()
+    sim = connected_sim(device)
+    channel = sim.client("trigger")
+    device.call_service("trigger", b"")
+    sim.step()
+    (request,) = sim.host_of(ServiceRequest)
+    assert sim.host.respond_service(channel, request.request_id, error="no such service") is False
+    assert sim.host.data_to_send() == b"", "rosserial has no way to say so"
+    assert sim.host.respond_service(channel, request.request_id, b"") is False, "forgotten"
 
 
 # ---------------------------------------------------------------------------------- params
@@ -456,20 +571,30 @@ def test_param_exchange(value: Any, arrays: tuple[Any, Any, Any]) -> None:
     sim = connected_sim(device)
     device.request_param("p", sim.t)
     sim.step()
-    assert sim.host_of(ParamRequest) == [ParamRequest("p")]
-    sim.host.answer_param("p", value)
+    (asked,) = sim.host_of(ParamRequest)
+    assert asked == ParamRequest(asked.request_id, "p", False)
+    assert sim.host.answer_param(asked.request_id, value)
     sim.step()
     assert sim.device_of(ParamResult) == [ParamResult("p", True, *arrays)]
     assert not sim.host_of(Log), "an answered request must not time out on the device"
 
 
+@pytest.mark.parametrize(("value", "arrays"), PARAM_CASES, ids=repr)
+def test_param_encoding_matches_the_registry(value: Any, arrays: tuple[Any, Any, Any]) -> None:
+    """The hand-written encoder gives the bytes the generic serializer gives."""
+    ints, floats, strings = arrays
+    fields = {"ints": list(ints), "floats": list(floats), "strings": list(strings)}
+    expected = msg.encode(msg.from_dict("rosserial_msgs/RequestParamResponse", fields))
+    assert RosserialHost.encode_param("p", value) == expected
+
+
 def test_param_errors_and_device_timeout() -> None:
     device = board()
     sim = connected_sim(device)
-    with pytest.raises(ProtocolError, match="no request"):
-        sim.host.answer_param("p", 1)
+    assert sim.host.answer_param(1, 1) is False, "no request waiting"
     device.request_param("p", sim.t)
     sim.step()
+    (asked,) = sim.host_of(ParamRequest)
     cases: list[tuple[Any, str]] = [
         ({"a": 1}, "dict"),
         ([1, "a"], "mix"),
@@ -478,8 +603,9 @@ def test_param_errors_and_device_timeout() -> None:
     ]
     for bad, match in cases:
         with pytest.raises(SerializationError, match=match):
-            sim.host.answer_param("p", bad)
+            sim.host.answer_param(asked.request_id, bad)
     assert sim.host.data_to_send() == b""
+    assert sim.host.push_param("p", 1) is False, "rosserial cannot push parameters"
     sim.run(1.1)  # unanswered: the library gives up after 1 s and says so
     assert sim.device_of(ParamResult) == [ParamResult("p", False)]
     assert Log(2, "Failed to get param: timeout expired") in sim.host_of(Log)
@@ -505,7 +631,7 @@ def test_time_sync_is_answered() -> None:
     assert sim.host.stats.time_syncs - before == 4
     sec, nsec = device.ros_time(sim.t)
     assert abs(sec + nsec / 1e9 - sim.wall()) < 0.03  # the device adds the whole round trip
-    assert device.configured and not sim.host_of(SyncLost)
+    assert device.configured and not sim.host_of(Disconnected)
 
 
 def test_lost_sync_and_renegotiation() -> None:
@@ -514,19 +640,20 @@ def test_lost_sync_and_renegotiation() -> None:
     sim.link_up = False
     sim.run(11.5)
     assert sim.device_of(Unconfigured) == [Unconfigured("sync_timeout")]
-    sim.run_until(lambda: bool(sim.host_of(SyncLost)), limit=10)
-    (lost,) = sim.host_of(SyncLost)
-    assert 15.0 <= lost.silence < 17.6
+    sim.run_until(lambda: bool(sim.host_of(Disconnected)), limit=10)
+    (lost,) = sim.host_of(Disconnected)
+    assert lost.reason.startswith("no time request for ")
+    assert 15.0 <= float(lost.reason.split()[4]) < 17.6
+    assert isinstance(lost.error, HwBridgeTimeoutError)
     assert not sim.host.connected
-    with pytest.raises(ProtocolError, match="not connected"):
-        sim.host.publish("led", b"\x01")
-    sim.link_up = True  # the request sent at "lost sync" was lost; the host asks again
-    sim.run_until(lambda: bool(sim.host_of(Connected)), limit=20)
-    assert any(isinstance(e.error, HwBridgeTimeoutError) for e in sim.host_of(Error))
+    assert sim.host.publish(100, b"\x01") is False
+    sim.link_up = True  # the requests sent since were lost; the host keeps asking
+    sim.run_until(lambda: bool(sim.host_of(Connected)), limit=3)
     assert device.configured
     device.publish("chatter", string("back"))
     sim.step()
-    assert sim.host_of(Message)[-1] == Message("chatter", "std_msgs/String", string("back"))
+    assert sim.host_of(Message)[-1] == Message(125, string("back"), 0)
+    assert sim.host.counters().sessions == 2
 
 
 def test_device_gone_during_renegotiation_is_lost_sync() -> None:
@@ -537,17 +664,20 @@ def test_device_gone_during_renegotiation_is_lost_sync() -> None:
     sim.run_until(lambda: sim.host.state == "negotiating", limit=2)
     sim.link_up = False  # the host asked for topics again, but the board is gone
     assert sim.host.connected
-    sim.run_until(lambda: bool(sim.host_of(SyncLost)), limit=16)
+    sim.run_until(lambda: bool(sim.host_of(Disconnected)), limit=16)
     assert not sim.host.connected
 
 
-def test_lost_sync_fails_pending_calls() -> None:
+def test_lost_sync_fails_pending_calls_first() -> None:
     device = board(service_servers=[ServiceEndpoint("toggle_led", "std_srvs/SetBool", None)])
     sim = connected_sim(device)
-    call = sim.host.call_service("toggle_led", b"\x01", sim.t, timeout=60.0)
+    call = sim.host.call_service(sim.server("toggle_led"), b"\x01", now=sim.t, timeout=60.0)
     sim.link_up = False
-    sim.run_until(lambda: bool(sim.host_of(ServiceFailed)), limit=20)
-    (failed,) = sim.host_of(ServiceFailed)
+    sim.run_until(lambda: bool(sim.host_of(Disconnected)), limit=20)
+    events = [e for e in sim.take() if isinstance(e, ServiceResponse | Disconnected)]
+    assert [type(e) for e in events] == [ServiceResponse, Disconnected]
+    failed = events[0]
+    assert isinstance(failed, ServiceResponse)
     assert failed.request_id == call and "lost sync" in str(failed.error)
 
 
@@ -557,37 +687,52 @@ def test_device_reset_is_recovered() -> None:
     device.reset()
     assert device.publish("chatter", string("x")) == 0  # dropped: not configured
     sim.run_until(lambda: bool(sim.host_of(Connected)), limit=20)
-    assert sim.host_of(SyncLost)
+    assert sim.host_of(Disconnected)
     assert device.configured
 
 
-def test_tx_stop_unconfigures_the_device() -> None:
+def test_close_sends_tx_stop_and_fails_pending_calls() -> None:
     device = board(service_servers=[ServiceEndpoint("toggle_led", "std_srvs/SetBool", None)])
     sim = connected_sim(device)
-    call = sim.host.call_service("toggle_led", b"\x01", sim.t)
-    last = sim.host.close()
-    assert last.endswith(TX_STOP)
-    events = device.receive_data(last, sim.t)
-    assert Unconfigured("tx_stop") in events
+    call = sim.host.call_service(sim.server("toggle_led"), b"\x01", now=sim.t)
+    events = sim.host.close(sim.t)
+    assert [type(e) for e in events] == [ServiceResponse, Disconnected]
+    assert isinstance(events[0], ServiceResponse) and events[0].request_id == call
+    chunks = sim.host.chunks_to_send()
+    assert len(chunks) == 1 and chunks[0].endswith(TX_STOP)
+    device_events = device.receive_data(chunks[0], sim.t)
+    assert Unconfigured("tx_stop") in device_events
     assert device.publish("chatter", string("x")) == 0
     assert device.stats.dropped_unconfigured == 1
-    (failed,) = sim.host.tick(sim.t)
-    assert isinstance(failed, ServiceFailed) and failed.request_id == call
     assert sim.host.tick(sim.t + 100) == []
+    assert sim.host.next_deadline() is None
     assert sim.host.receive_data(encode_frame(125, string("x")), sim.t) == []
-    assert sim.host.close() == b""
-    assert sim.host.state == "closed"
-    with pytest.raises(ProtocolError, match="closed"):
-        sim.host.publish("led", b"\x01")
+    assert sim.host.close(sim.t) == []
+    assert sim.host.chunks_to_send() == []
+    assert sim.host.state == "closed" and not sim.host.connected
+    assert sim.host.publish(sim.sub("led"), b"\x01") is False
+    later = sim.host.call_service(101, b"", now=sim.t)
+    (refused,) = sim.host.tick(sim.t)
+    assert isinstance(refused, ServiceResponse) and refused.request_id == later
+    assert "closed" in str(refused.error)
+
+
+def test_describe() -> None:
+    sim = connected_sim(board(input_size=280))
+    facts = sim.host.describe()
+    assert facts["state"] == "connected" and facts["input_buffer"] == 280
+    assert (facts["publishers"], facts["subscribers"]) == (1, 1)
+    assert (facts["service_servers"], facts["service_clients"]) == (1, 1)
+    json.dumps(facts)
+    json.dumps(sim.host.counters().as_dict())
 
 
 # ---------------------------------------------------------------------------------- robustness
 def test_old_firmware_is_reported_once() -> None:
-    host = RosserialHost(REG, now=0.0, start_delay=0.0)
-    host.tick(0.0)
+    host = RosserialHost(REG, now=0.0)
     v1_time_request = b"\xff\xff\x0a\x00\x08\x00" + bytes(8) + b"\xeb"
-    assert not [e for e in host.receive_data(v1_time_request, 0.1) if isinstance(e, Error)]
-    errors = [e for e in host.receive_data(v1_time_request * 3, 0.2) if isinstance(e, Error)]
+    assert not [e for e in host.receive_data(v1_time_request, 0.01) if isinstance(e, Error)]
+    errors = [e for e in host.receive_data(v1_time_request * 3, 0.02) if isinstance(e, Error)]
     assert len(errors) == 1
     assert isinstance(errors[0].error, ProtocolMismatchError)
     assert str(errors[0].error) == OLD_FIRMWARE_MESSAGE
@@ -628,9 +773,10 @@ def test_noisy_link_never_raises_and_recovers() -> None:
     sim.run(20.0)  # whatever state the noise left, the session comes back
     device.publish("chatter", string("clean"))
     sim.step()
-    assert sim.host_of(Message)[-1] == Message("chatter", "std_msgs/String", string("clean"))
+    assert sim.host_of(Message)[-1] == Message(125, string("clean"), 0)
     stats = sim.host.stats.as_dict()
     assert stats["rx_checksum_errors"] + stats["rx_length_checksum_errors"] > 0
+    assert sim.host.counters().crc_errors > 0
     assert 200 < received <= 300
     for _, event in sim.host_events:
         if isinstance(event, Error):
@@ -638,12 +784,12 @@ def test_noisy_link_never_raises_and_recovers() -> None:
 
 
 def test_next_deadline() -> None:
-    host = RosserialHost(REG, now=10.0, start_delay=2.0)
-    assert host.next_deadline() == 12.0
-    host.tick(12.0)
-    assert host.next_deadline() == 12.0 + 15.0
+    host = RosserialHost(REG, now=10.0)
+    assert host.next_deadline() == pytest.approx(10.1)
+    host.tick(10.1)
+    assert host.next_deadline() == pytest.approx(10.3)
     sim = connected_sim()
     deadline = sim.host.next_deadline()
     assert deadline is not None and sim.t < deadline <= sim.t + 15.0
-    sim.host.call_service("toggle_led", b"\x01", sim.t, timeout=0.25)
+    sim.host.call_service(sim.server("toggle_led"), b"\x01", now=sim.t, timeout=0.25)
     assert sim.host.next_deadline() == pytest.approx(sim.t + 0.25)

@@ -14,6 +14,14 @@ from typing import Any
 import pytest
 
 from hwbridge import msg
+from hwbridge.protocols.base import (
+    Connected,
+    Log,
+    Message,
+    ParamRequest,
+    ServiceRequest,
+    ServiceResponse,
+)
 from hwbridge.protocols.msgtypes import BUNDLED_MSG_DIR
 from hwbridge.protocols.rosserial.device import (
     ParamResult,
@@ -31,17 +39,7 @@ from hwbridge.protocols.rosserial.framing import (
     decode_frame,
     encode_frame,
 )
-from hwbridge.protocols.rosserial.host import (
-    REQUEST_TOPICS,
-    TX_STOP,
-    Connected,
-    Log,
-    Message,
-    ParamRequest,
-    RosserialHost,
-    ServiceRequest,
-    ServiceResponse,
-)
+from hwbridge.protocols.rosserial.host import REQUEST_TOPICS, TX_STOP, RosserialHost
 
 VECTORS: dict[str, Any] = json.loads(
     (BUNDLED_MSG_DIR.parent / "vectors" / "rosserial.json").read_text(encoding="utf-8")
@@ -230,48 +228,61 @@ def test_device_replay() -> None:
 
 
 def test_host_replay() -> None:
-    host = RosserialHost(REG, now=0.0, wall_clock=lambda: WALL, start_delay=0.0)
+    host = RosserialHost(REG, now=0.0, wall_clock=lambda: WALL)
     assert host.tick(0.0) == []
     assert host.data_to_send() == wire("request_topics")
+    host = RosserialHost(REG, now=0.0, wall_offset=WALL - 0.05)  # the same, by offset
+    assert host.data_to_send() == wire("request_topics")
 
-    host.receive_data(wire("time_request"), 0.1)
+    host.receive_data(wire("time_request"), 0.05)  # before the request is repeated at 0.1
     assert host.data_to_send() == wire("time_reply")
     for name in TOPIC_INFOS:
-        assert host.receive_data(wire(name), 0.1) == []
+        assert host.receive_data(wire(name), 0.05) == []
     assert host.data_to_send() == b""
     (connected,) = host.tick(1.0)
     assert isinstance(connected, Connected)
-    table = connected.topics
+    table = host.topics
+    assert table is not None
     assert table.publishers["chatter"].topic_id == 125
     assert table.subscribers["led"].topic_id == 101
     assert table.service_servers["toggle_led"].request_topic_id == 100
     assert table.service_servers["toggle_led"].response_topic_id == 126
     assert table.service_clients["trigger"].request_topic_id == 127
     assert table.service_clients["trigger"].response_topic_id == 102
+    assert {(e.name, e.channel) for e in connected.endpoints} == {
+        ("chatter", 125),
+        ("led", 101),
+        ("toggle_led", 100),
+        ("trigger", 127),
+    }
 
     assert host.receive_data(wire("message_chatter"), 1.1) == [
-        Message("chatter", "std_msgs/String", payload("message_chatter"))
+        Message(125, payload("message_chatter"), 0)
     ]
-    host.publish("led", payload("message_led"))
+    assert host.publish(101, payload("message_led"))
     assert host.data_to_send() == wire("message_led")
 
-    request_id = host.call_service("toggle_led", payload("service_server_request"), 1.2)
+    request_id = host.call_service(100, payload("service_server_request"), now=1.2)
     assert host.data_to_send() == wire("service_server_request")
     assert host.receive_data(wire("service_server_response"), 1.3) == [
-        ServiceResponse(request_id, payload("service_server_response"), "toggle_led")
+        ServiceResponse(100, request_id, payload("service_server_response"))
     ]
 
-    assert host.receive_data(wire("service_client_request"), 1.4) == [
-        ServiceRequest("trigger", payload("service_client_request"), "std_srvs/Trigger")
-    ]
-    host.respond("trigger", payload("service_client_response"))
+    (request,) = host.receive_data(wire("service_client_request"), 1.4)
+    assert isinstance(request, ServiceRequest)
+    assert request == ServiceRequest(127, request.request_id, payload("service_client_request"))
+    assert host.respond_service(127, request.request_id, payload("service_client_response"))
     assert host.data_to_send() == wire("service_client_response")
 
     for name in PARAMS:
-        assert host.receive_data(wire(f"param_request_{name}"), 1.5) == [ParamRequest(name)]
-        host.answer_param(name, FRAMES[f"param_response_{name}"]["decoded"]["param_value"])
+        (asked,) = host.receive_data(wire(f"param_request_{name}"), 1.5)
+        assert isinstance(asked, ParamRequest)
+        assert asked == ParamRequest(asked.request_id, name)
+        value = FRAMES[f"param_response_{name}"]["decoded"]["param_value"]
+        assert host.answer_param(asked.request_id, value)
         assert host.data_to_send() == wire(f"param_response_{name}")
 
     assert host.receive_data(wire("log_info"), 1.6) == [Log(1, "hello from the board")]
-    assert host.close() == wire("tx_stop")
+    host.close(1.7)
+    assert host.chunks_to_send() == [wire("tx_stop")]
     assert host.data_to_send() == b""

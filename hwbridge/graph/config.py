@@ -114,6 +114,7 @@ class GraphConfig:
             config.insert_json5("listen/endpoints", json.dumps(list(self.listen)))
         if self.config_file is not None and self.connect:
             config.insert_json5("connect/endpoints", json.dumps(list(self.connect)))
+        _no_scouting_delay(config)
         for path, value in self.extra.items():
             config.insert_json5(path, value)
         return config
@@ -125,6 +126,21 @@ class GraphConfig:
         )
         source = f" from {self.config_file}" if self.config_file else ""
         return f"Zenoh {self.mode} ({where}){source}, domain {self.domain}"
+
+
+def _no_scouting_delay(config: zenoh.Config) -> None:
+    """Open at once when nothing is scouted.
+
+    Zenoh's ``scouting/delay`` holds ``zenoh.open`` of a router for 500 ms by default, time
+    given to multicast scouting to find peers before the session is used. With multicast
+    scouting off (hwbridge's default) there is nothing to wait for; the delay was most of the
+    bridge's start-up time. A delay set in a config file, or multicast scouting enabled
+    (Zenoh's own default when a file does not say), keeps Zenoh's behaviour.
+    """
+    if config.get_json("scouting/delay") == "null" and (
+        config.get_json("scouting/multicast/enabled") == "false"
+    ):
+        config.insert_json5("scouting/delay", "0")
 
 
 def _endpoints(given: Sequence[str] | None) -> tuple[str, ...]:

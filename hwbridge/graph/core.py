@@ -12,7 +12,11 @@ A rospy user should feel at home::
 
 Topics carry ROS 1 serialized bytes with the type's md5 and name in the Zenoh attachment; a
 subscriber that expects another md5 gets an error naming both types and never sees the bytes.
-Raw publishers and subscribers (used by the bridge) move bytes without decoding them.
+Raw publishers and subscribers (used by the bridge) move bytes without decoding them; a raw
+publisher needs no definition of its type (a board may publish a type this host does not know).
+
+Importing this module imports neither Zenoh nor the message registry: Zenoh is imported when a
+graph opens, the registry (``hwbridge.msg``, rosbags) when something first needs a type.
 """
 
 from __future__ import annotations
@@ -28,15 +32,16 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Final
 
-from hwbridge import msg as msgmod
 from hwbridge.errors import HwBridgeError, HwBridgeTimeoutError, ProtocolMismatchError
 from hwbridge.graph.config import GraphConfig
+from hwbridge.graph.guard import call_guarded
 from hwbridge.graph.names import decode_segment, encode_segment, resolve_name
+from hwbridge.graph.params import ParamClient
 
 if TYPE_CHECKING:
     import zenoh
 
-    from hwbridge.graph.params import ParamClient
+    from hwbridge.msg import MessageType, TypeRegistry
 
 __all__ = [
     "ANY_TYPE",
@@ -163,7 +168,7 @@ class Graph:
         self._alive: dict[str, GraphEntity] = {}
         self._discovery_started = False
         self._last_discovery_event = 0.0
-        self.registry = msgmod.registry()
+        self._registry: TypeRegistry | None = None
         _OPEN_GRAPHS.add(self)
         log.debug("joined the graph as %s: %s", self.zid, self.config.describe())
 
@@ -176,6 +181,20 @@ class Graph:
     def attached(cls, connect: list[str] | None = None, domain: str | None = None) -> Graph:
         """Join a running bridge's graph (see GraphConfig.attached)."""
         return cls(GraphConfig.attached(connect, domain))
+
+    @property
+    def registry(self) -> TypeRegistry:
+        """Message types this graph encodes and decodes with (``hwbridge.msg.registry()``
+        unless set); built on first use, so tools that only move bytes never load it."""
+        if self._registry is None:
+            from hwbridge import msg
+
+            self._registry = msg.registry()
+        return self._registry
+
+    @registry.setter
+    def registry(self, value: TypeRegistry) -> None:
+        self._registry = value
 
     # ------------------------------------------------------------------ lifecycle
     def __enter__(self) -> Graph:
@@ -202,21 +221,32 @@ class Graph:
             self.session.close()  # type: ignore[no-untyped-call]
         _OPEN_GRAPHS.discard(self)
 
-    def _keep(self, item: Any) -> Any:
+    def keep(self, declaration: Any) -> Any:
+        """Own ``declaration`` (anything with ``undeclare()`` made on :attr:`session`: a Zenoh
+        publisher, subscriber, queryable, querier or liveliness token): it is undeclared when
+        the graph closes, or at once (HwBridgeError) if the graph is already closed. Returns
+        it, so ``pub = graph.keep(graph.session.declare_publisher(key))`` reads naturally.
+        For code that uses the session directly next to the graph's own API."""
         with self._lock:
             if self._closed:
                 with contextlib.suppress(Exception):
-                    item.undeclare()
+                    declaration.undeclare()
                 raise HwBridgeError("the graph is closed")
-            self._closeables.append(item)
-        return item
+            self._closeables.append(declaration)
+        return declaration
 
-    def _forget(self, item: Any) -> None:
+    def forget(self, declaration: Any) -> None:
+        """Undeclare something given to :meth:`keep` now, and stop owning it."""
         with self._lock:
-            if item in self._closeables:
-                self._closeables.remove(item)
+            if declaration in self._closeables:
+                self._closeables.remove(declaration)
         with contextlib.suppress(Exception):
-            item.undeclare()
+            declaration.undeclare()
+
+    _keep = keep
+    """Old name of :meth:`keep`, kept for callers not yet moved (use ``keep``)."""
+    _forget = forget
+    """Old name of :meth:`forget`, kept for callers not yet moved (use ``forget``)."""
 
     # ------------------------------------------------------------------ keys
     def topic_key(self, topic: str) -> str:
@@ -231,7 +261,7 @@ class Graph:
         if name or type_name:
             parts += [encode_segment(name), encode_segment(type_name)]
         key = f"{self.prefix}/@/{self.zid}/" + "/".join(parts)
-        return self._keep(self.session.liveliness().declare_token(key))
+        return self.keep(self.session.liveliness().declare_token(key))
 
     # ------------------------------------------------------------------ API
     def node(self, name: str, namespace: str = "/") -> Node:
@@ -242,8 +272,6 @@ class Graph:
     def params(self) -> ParamClient:
         """Client of the parameter server (hosted by the bridge)."""
         if self._params is None:
-            from hwbridge.graph.params import ParamClient
-
             self._params = ParamClient(self)
         return self._params
 
@@ -301,9 +329,9 @@ class Graph:
             key = str(sample.key_expr)
             entity = self._parse_entity(key)
             if entity is not None:
-                _guarded(callback, key, entity, sample.kind == zenoh.SampleKind.PUT)
+                call_guarded(callback, key, entity, sample.kind == zenoh.SampleKind.PUT)
 
-        return self._keep(
+        return self.keep(
             self.session.liveliness().declare_subscriber(
                 f"{self.prefix}/@/**", on_sample, history=True
             )
@@ -341,13 +369,6 @@ else:  # pragma: no cover - other interpreters
     atexit.register(_close_open_graphs)
 
 
-def _guarded(callback: Callable[..., Any], *args: Any) -> None:
-    try:
-        callback(*args)
-    except Exception:
-        log.exception("callback %r failed", callback)
-
-
 _MAX_QUERIERS: Final = 64
 """Queriers one node keeps declared for its calls (one per service, type and timeout)."""
 
@@ -369,7 +390,7 @@ class Node:
     def resolve(self, name: str) -> str:
         return resolve_name(name, self.namespace, self.name.rsplit("/", 1)[-1])
 
-    def _message_type(self, type_name: str) -> msgmod.MessageType:
+    def _message_type(self, type_name: str) -> MessageType:
         return self.graph.registry.message(type_name)
 
     # ------------------------------------------------------------------ topics
@@ -381,8 +402,13 @@ class Node:
         return Publisher(self, self.resolve(topic), mtype, drop_when_congested)
 
     def raw_publisher(self, topic: str, type_name: str, md5: str) -> Publisher:
-        """Publish bytes that are already serialized (the bridge's path): type and md5 as given."""
-        mtype = msgmod.MessageType(name=type_name, md5=md5, source="raw", store_name="")
+        """Publish bytes that are already serialized (the bridge's path): type and md5 as given.
+
+        The type needs no definition here: subscribers see ``type_name`` and ``md5`` as given
+        (``hwbridge topic echo`` shows the bytes of a type it cannot decode)."""
+        from hwbridge.msg import MessageType
+
+        mtype = MessageType(name=type_name, md5=md5, source="raw", store_name="")
         return Publisher(self, self.resolve(topic), mtype, False)
 
     def subscriber(
@@ -455,6 +481,8 @@ class Node:
         ``request`` is a message object or a dict; errors: ServiceError (the server refused or
         failed), HwBridgeTimeoutError (no answer in time, or no server).
         """
+        from hwbridge import msg as msgmod
+
         service = self.graph.registry.service(srv_type)
         if isinstance(request, Mapping):
             request = msgmod.from_dict(service.request.name, request, self.graph.registry)
@@ -511,7 +539,7 @@ class Node:
             if len(self._call_targets) >= _MAX_QUERIERS:
                 # Many distinct timeouts (computed ones, say): plain gets, nothing declared.
                 return resolved, functools.partial(session.get, key, **options), attachment
-            querier = self.graph._keep(session.declare_querier(key, **options))
+            querier = self.graph.keep(session.declare_querier(key, **options))
             target = (resolved, querier.get, attachment)
             self._call_targets[name, srv_type, md5, timeout] = target
         return target
@@ -521,7 +549,7 @@ class Publisher:
     """Publishes on one topic. ``publish`` takes a message or dict; ``publish_raw`` bytes."""
 
     def __init__(
-        self, node: Node, topic: str, mtype: msgmod.MessageType, drop_when_congested: bool
+        self, node: Node, topic: str, mtype: MessageType, drop_when_congested: bool
     ) -> None:
         import zenoh
 
@@ -533,7 +561,7 @@ class Publisher:
         congestion = (
             zenoh.CongestionControl.DROP if drop_when_congested else zenoh.CongestionControl.BLOCK
         )
-        self._publisher = graph._keep(
+        self._publisher = graph.keep(
             graph.session.declare_publisher(graph.topic_key(topic), congestion_control=congestion)
         )
         self._attachment = _attachment(mtype.md5, mtype.name)
@@ -541,6 +569,8 @@ class Publisher:
 
     def publish(self, message: Any) -> None:
         """Serialize and publish a message object (or a dict of its fields)."""
+        from hwbridge import msg as msgmod
+
         registry = self.node.graph.registry
         if isinstance(message, Mapping):
             message = msgmod.from_dict(self.type.name, message, registry)
@@ -568,8 +598,8 @@ class Publisher:
         return True
 
     def close(self) -> None:
-        self.node.graph._forget(self._publisher)
-        self.node.graph._forget(self._token)
+        self.node.graph.forget(self._publisher)
+        self.node.graph.forget(self._token)
 
 
 class Subscriber:
@@ -579,7 +609,7 @@ class Subscriber:
         self,
         node: Node,
         topic: str,
-        expected: msgmod.MessageType | None,
+        expected: MessageType | None,
         callback: Callable[[Any], None],
         raw: bool,
         on_error: Callable[[HwBridgeError], None] | None,
@@ -595,7 +625,7 @@ class Subscriber:
         self._on_error = on_error
         self._reported: set[str] = set()
         graph = node.graph
-        self._subscriber = graph._keep(
+        self._subscriber = graph.keep(
             graph.session.declare_subscriber(graph.topic_key(topic), self._on_sample)
         )
         type_label = expected.name if expected else ANY_TYPE
@@ -619,8 +649,10 @@ class Subscriber:
         data = sample.payload.to_bytes()
         self.received += 1
         if self._raw:
-            _guarded(self._callback, RawMessage(self.topic, type_name, md5, data))
+            call_guarded(self._callback, RawMessage(self.topic, type_name, md5, data))
             return
+        from hwbridge import msg as msgmod
+
         try:
             message = msgmod.decode(
                 data, expected.name if expected else type_name, self.node.graph.registry
@@ -629,18 +661,18 @@ class Subscriber:
             self.decode_errors += 1
             self._fail(f"decode:{type_name}", exc)
             return
-        _guarded(self._callback, message)
+        call_guarded(self._callback, message)
 
     def _fail(self, key: str, error: HwBridgeError) -> None:
         if self._on_error is not None:
-            _guarded(self._on_error, error)
+            call_guarded(self._on_error, error)
         elif key not in self._reported:
             self._reported.add(key)
             log.error("%s (further errors of this kind are counted, not logged)", error)
 
     def close(self) -> None:
-        self.node.graph._forget(self._subscriber)
-        self.node.graph._forget(self._token)
+        self.node.graph.forget(self._subscriber)
+        self.node.graph.forget(self._token)
 
 
 class ServiceServer:
@@ -669,7 +701,7 @@ class ServiceServer:
         self.key = zenoh.KeyExpr(graph.service_key(name))
         """The service's key, built once: replies carry it (a queryable of one concrete key is
         asked on that key only)."""
-        self._queryable = graph._keep(graph.session.declare_queryable(self.key, self._on_query))
+        self._queryable = graph.keep(graph.session.declare_queryable(self.key, self._on_query))
         self._token = graph.announce("srv", node.name, name, srv_type)
 
     def _on_query(self, query: zenoh.Query) -> None:
@@ -695,11 +727,13 @@ class ServiceServer:
             except Exception as exc:  # noqa: BLE001 - any handler failure goes back to the caller
                 reply.error(f"{type(exc).__name__}: {exc}")
             return
-        registry = self.node.graph.registry
         try:
             if self._raw:
                 answer = bytes(self._handler(data))
             else:
+                from hwbridge import msg as msgmod
+
+                registry = self.node.graph.registry
                 request = msgmod.decode(data, service.request.name, registry)
                 response = self._handler(request)
                 if isinstance(response, Mapping) or response is None:
@@ -713,8 +747,8 @@ class ServiceServer:
         query.reply(self.key, answer, express=True)  # a caller waits: no batching delay
 
     def close(self) -> None:
-        self.node.graph._forget(self._queryable)
-        self.node.graph._forget(self._token)
+        self.node.graph.forget(self._queryable)
+        self.node.graph.forget(self._token)
 
 
 class DeferredReply:

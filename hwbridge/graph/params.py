@@ -15,16 +15,34 @@ from __future__ import annotations
 import json
 import threading
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 from hwbridge.errors import HwBridgeError, HwBridgeTimeoutError
-from hwbridge.graph.core import Graph, _guarded
+from hwbridge.graph.guard import call_guarded
 from hwbridge.graph.names import resolve_name
 
 if TYPE_CHECKING:
     import zenoh
 
-__all__ = ["ParamClient", "ParamError", "ParamServer", "flatten"]
+__all__ = ["ParamClient", "ParamError", "ParamHost", "ParamServer", "flatten"]
+
+
+class ParamHost(Protocol):
+    """What parameters need of a graph; :class:`hwbridge.graph.Graph` is one.
+
+    (A protocol rather than the Graph class itself, so that this module does not import
+    :mod:`hwbridge.graph.core`, which imports this one for ``Graph.params``.)
+    """
+
+    @property
+    def prefix(self) -> str: ...
+
+    @property
+    def session(self) -> zenoh.Session: ...
+
+    def keep(self, declaration: Any) -> Any: ...
+
+    def announce(self, kind: str, node: str, name: str = "", type_name: str = "") -> Any: ...
 
 
 class ParamError(HwBridgeError, KeyError):
@@ -58,15 +76,15 @@ def _check_value(name: str, value: Any) -> None:
 class ParamServer:
     """Holds parameters for the graph. One per graph (the bridge starts it)."""
 
-    def __init__(self, graph: Graph, initial: dict[str, Any] | None = None) -> None:
+    def __init__(self, graph: ParamHost, initial: dict[str, Any] | None = None) -> None:
         self.graph = graph
         self._values: dict[str, Any] = {}
         self._lock = threading.Lock()
         self._listeners: list[Callable[[str, Any], None]] = []
-        self._update_pub = graph._keep(
+        self._update_pub = graph.keep(
             graph.session.declare_publisher(f"{graph.prefix}/param_update")
         )
-        self._queryable = graph._keep(
+        self._queryable = graph.keep(
             graph.session.declare_queryable(f"{graph.prefix}/param", self._on_query)
         )
         self._token = graph.announce("param_server", "/hwbridge_params")
@@ -119,7 +137,7 @@ class ParamServer:
     def _announce(self, name: str, value: Any) -> None:
         self._update_pub.put(json.dumps({"name": name, "value": value}).encode())
         for listener in list(self._listeners):
-            _guarded(listener, name, value)
+            call_guarded(listener, name, value)
 
     def _on_query(self, query: zenoh.Query) -> None:
         try:
@@ -159,7 +177,7 @@ def _nest(prefix: str, flat: dict[str, Any]) -> dict[str, Any]:
 class ParamClient:
     """Talks to the graph's parameter server from any process."""
 
-    def __init__(self, graph: Graph, timeout: float = 2.0) -> None:
+    def __init__(self, graph: ParamHost, timeout: float = 2.0) -> None:
         self.graph = graph
         self.timeout = timeout
 
@@ -204,8 +222,8 @@ class ParamClient:
 
         def on_sample(sample: zenoh.Sample) -> None:
             change = json.loads(bytes(sample.payload.to_bytes()))
-            _guarded(callback, change["name"], change["value"])
+            call_guarded(callback, change["name"], change["value"])
 
-        return self.graph._keep(
+        return self.graph.keep(
             self.graph.session.declare_subscriber(f"{self.graph.prefix}/param_update", on_sample)
         )

@@ -15,7 +15,7 @@ from hwbridge.graph.core import (
     Subscriber,
 )
 from hwbridge.graph.names import GraphNameError, resolve_name
-from hwbridge.graph.params import ParamClient, ParamError, ParamServer
+from hwbridge.graph.params import ParamClient, ParamError, ParamHost, ParamServer
 
 __all__ = [
     "ANY_TYPE",
@@ -29,6 +29,7 @@ __all__ = [
     "Node",
     "ParamClient",
     "ParamError",
+    "ParamHost",
     "ParamServer",
     "Publisher",
     "RawMessage",

@@ -1,26 +1,132 @@
 """The ``hwbridge`` command line.
 
 Exit status: 0 on success, 2 on a usage error (bad option, missing argument), 1 on any other
-error; error messages go to stderr. Each command group lives in its own module and is added in
-:func:`build_app`; heavy imports (Zenoh, serial ports) happen inside the commands that need them.
+error; error messages go to stderr.
+
+Start-up matters (``hwbridge connect`` is timed from launch to a board's first message on the
+graph), so importing this package imports typer and nothing else heavy. Each command group lives
+in its own module, named in :data:`COMMANDS` with its one-line help and imported only when that
+command runs (or its own ``--help`` is asked for); ``hwbridge --help`` lists the table without
+importing any of them. The command modules in turn import Zenoh, the message registry (rosbags,
+numpy), YAML, serial ports or rich inside the commands that need them.
 """
 
 from __future__ import annotations
 
+import importlib
 import logging
+import os
 import sys
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
-from rich.markup import escape
+from typer.core import TyperCommand, TyperGroup
 
 from hwbridge._version import __version__
-from hwbridge.cli import bridgecmd, dxlcmd, emucmd, graphcmd, msgcmd, recordcmd
-from hwbridge.cli.common import Context, console_err
+from hwbridge.cli.common import Context
 from hwbridge.errors import HwBridgeError
 
-__all__ = ["build_app", "main"]
+__all__ = ["COMMANDS", "LazyCommand", "build_app", "main"]
+
+
+@dataclass(frozen=True)
+class LazyCommand:
+    """A top-level command: where it lives (``module:attribute``, a Typer group or a command
+    function) and the one-line help ``hwbridge --help`` shows for it."""
+
+    target: str
+    help: str
+
+    def load(self, name: str) -> Any:
+        """The click command, importing its module."""
+        module_name, _, attribute = self.target.partition(":")
+        obj = getattr(importlib.import_module(module_name), attribute)
+        command: Any
+        if isinstance(obj, typer.Typer):
+            command = typer.main.get_group(obj)  # a group even with one command (node list)
+        else:
+            single = typer.Typer()
+            single.command(name)(obj)
+            command = typer.main.get_command(single)
+        command.name = name
+        return command
+
+
+_CLI = "hwbridge.cli."
+COMMANDS: dict[str, LazyCommand] = {
+    "msg": LazyCommand(_CLI + "msgcmd:msg_app", "Message types: list, show, md5."),
+    "srv": LazyCommand(_CLI + "msgcmd:srv_app", "Service types: list, show, md5."),
+    "topic": LazyCommand(
+        _CLI + "graphcmd:topic_app", "Topics: list, echo, pub, hz, bw, info, type."
+    ),
+    "service": LazyCommand(_CLI + "graphcmd:service_app", "Services: list, call, type."),
+    "param": LazyCommand(
+        _CLI + "graphcmd:param_app", "Parameters: list, get, set, delete, load, dump."
+    ),
+    "node": LazyCommand(_CLI + "graphcmd:node_app", "Nodes: list."),
+    "connect": LazyCommand(
+        _CLI + "bridgecmd:connect",
+        "Connect boards to the graph and keep them connected until Ctrl-C.",
+    ),
+    "board": LazyCommand(
+        _CLI + "bridgecmd:board_app", "Boards of the running bridge: list, info, stats."
+    ),
+    "record": LazyCommand(
+        _CLI + "recordcmd:record",
+        "Record topics to an MCAP file (ROS 1 profile) until Ctrl-C, --duration or --limit.",
+    ),
+    "play": LazyCommand(
+        _CLI + "recordcmd:play",
+        "Publish the messages of an MCAP file with their recorded timing (scaled by --rate).",
+    ),
+    "emulate": LazyCommand(
+        _CLI + "emucmd:emulate",
+        "Start a virtual board; the first line printed is the URL to connect to. Ctrl-C stops.",
+    ),
+    "demo": LazyCommand(
+        _CLI + "emucmd:demo",
+        "Drive an emulated diffbot through the real bridge and show what the graph sees.",
+    ),
+    "dxl": LazyCommand(
+        _CLI + "dxlcmd:dxl_app", "Dynamixel servos on a serial bus: scan, ping, read, write."
+    ),
+}
+"""Top-level commands in the order ``hwbridge --help`` lists them."""
+
+
+class _LazyGroup(TyperGroup):
+    """The root group: commands from :data:`COMMANDS`, each imported when first resolved.
+
+    While the root's own help is written, commands not yet imported are listed from the
+    table (name and one-line help) instead of being imported just to be listed.
+    """
+
+    _listing = False
+
+    def list_commands(self, ctx: Any) -> list[str]:
+        return [*COMMANDS, *(name for name in super().list_commands(ctx) if name not in COMMANDS)]
+
+    def get_command(self, ctx: Any, cmd_name: str) -> Any:
+        command = super().get_command(ctx, cmd_name)
+        if command is not None:
+            return command
+        lazy = COMMANDS.get(cmd_name)
+        if lazy is None:
+            return None
+        if self._listing:
+            return TyperCommand(name=cmd_name, help=lazy.help)
+        command = lazy.load(cmd_name)
+        self.add_command(command, cmd_name)
+        return command
+
+    def format_help(self, ctx: Any, formatter: Any) -> None:
+        self._listing = True
+        try:
+            super().format_help(ctx, formatter)
+        finally:
+            self._listing = False
 
 
 def _version(value: bool) -> None:
@@ -30,9 +136,10 @@ def _version(value: bool) -> None:
 
 
 def build_app() -> typer.Typer:
-    """The root Typer application with every command group attached."""
+    """The root Typer application; its commands (:data:`COMMANDS`) load when resolved."""
     app = typer.Typer(
         name="hwbridge",
+        cls=_LazyGroup,
         help="Connect microcontroller boards to a host graph of topics and services.",
         no_args_is_help=True,
         pretty_exceptions_enable=False,
@@ -93,20 +200,15 @@ def build_app() -> typer.Typer:
             zenoh_config=zenoh_config,
         )
 
-    app.add_typer(msgcmd.msg_app, name="msg")
-    app.add_typer(msgcmd.srv_app, name="srv")
-    app.add_typer(graphcmd.topic_app, name="topic")
-    app.add_typer(graphcmd.service_app, name="service")
-    app.add_typer(graphcmd.param_app, name="param")
-    app.add_typer(graphcmd.node_app, name="node")
-    app.command("connect")(bridgecmd.connect)
-    app.add_typer(bridgecmd.board_app, name="board")
-    app.command("record")(recordcmd.record)
-    app.command("play")(recordcmd.play)
-    app.command("emulate")(emucmd.emulate)
-    app.command("demo")(emucmd.demo)
-    app.add_typer(dxlcmd.dxl_app, name="dxl")
     return app
+
+
+def _error(text: str) -> None:
+    """``error: text`` on stderr (``error:`` in bold red on a terminal, unless NO_COLOR)."""
+    color = sys.stderr.isatty() and not os.environ.get("NO_COLOR")
+    label = "\x1b[1;31merror:\x1b[0m" if color else "error:"
+    sys.stderr.write(f"{label} {text}\n")
+    sys.stderr.flush()
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -118,10 +220,10 @@ def main(argv: list[str] | None = None) -> int:
         code = exc.code
         return code if isinstance(code, int) else (0 if code is None else 1)
     except HwBridgeError as exc:
-        console_err.print(f"[bold red]error:[/] {escape(str(exc))}", highlight=False)
+        _error(str(exc))
         return 1
     except KeyboardInterrupt:
-        console_err.print("interrupted")
+        sys.stderr.write("interrupted\n")
         return 130
     return 0
 

@@ -12,7 +12,6 @@ from types import FrameType
 from typing import Annotated, Any
 
 import typer
-import yaml
 
 from hwbridge.cli.common import Context, emit_json, get_registry, open_graph
 from hwbridge.errors import HwBridgeError, HwBridgeTimeoutError
@@ -96,6 +95,8 @@ def connect(
         raise typer.BadParameter("more --name options than URLs", param_hint="--name")
     initial: dict[str, Any] = {}
     if params is not None:
+        import yaml
+
         loaded = yaml.safe_load(params.read_text()) or {}
         if not isinstance(loaded, dict):
             raise HwBridgeError(f"{params}: expected a mapping of parameter names to values")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import math
 import sys
@@ -11,16 +12,22 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import typer
-from rich.console import Console
-
-from hwbridge.msg import TypeRegistry, registry
 
 if TYPE_CHECKING:
+    from rich.console import Console
+
     from hwbridge.graph import Graph
+    from hwbridge.msg import TypeRegistry
 
-__all__ = ["Context", "console_err", "emit_json", "get_registry", "json_line", "open_graph"]
+__all__ = ["Context", "emit_json", "get_registry", "json_line", "open_graph", "stderr_console"]
 
-console_err = Console(stderr=True, soft_wrap=True)
+
+@functools.cache
+def stderr_console() -> Console:
+    """A rich console on stderr (imports rich on first use: most commands never need it)."""
+    from rich.console import Console
+
+    return Console(stderr=True, soft_wrap=True)
 
 
 def json_line(data: Any) -> str:
@@ -69,6 +76,8 @@ def _options(ctx: typer.Context) -> Context:
 
 def get_registry(ctx: typer.Context) -> TypeRegistry:
     """The type registry for this invocation's --msg-path and HWBRIDGE_MSG_PATH."""
+    from hwbridge.msg import registry
+
     return registry(_options(ctx).msg_path)
 
 
@@ -84,5 +93,8 @@ def open_graph(ctx: typer.Context) -> Graph:
             config, config_file=options.zenoh_config, connect=tuple(connect or ())
         )
     graph = Graph(config)
-    graph.registry = get_registry(ctx)
+    msg_path = options.msg_path
+    if msg_path:
+        graph.registry = get_registry(ctx)
+    # else the graph builds the default registry (HWBRIDGE_MSG_PATH) if and when it needs one
     return graph

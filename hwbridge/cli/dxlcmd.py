@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
-from hwbridge.cli.common import console_err, emit_json
+from hwbridge.cli.common import emit_json, stderr_console
 from hwbridge.errors import HwBridgeError
 
 if TYPE_CHECKING:
@@ -146,7 +146,7 @@ def scan(
             )
     if not found:
         span = f"IDs {ids}" if ids else "any ID"
-        console_err.print(
+        stderr_console().print(
             f"no servo answered on {url} (Protocol {protocol}.0, {span}); check power, wiring, "
             "--protocol and --baud",
             highlight=False,

@@ -9,7 +9,6 @@ import typer
 from hwbridge import msg
 from hwbridge.cli.common import get_registry
 from hwbridge.errors import UnknownTypeError
-from hwbridge.protocols.msgtypes import suggest
 
 __all__ = ["msg_app", "srv_app"]
 
@@ -27,6 +26,8 @@ PackageArg = Annotated[
 
 def _check_package(reg: msg.TypeRegistry, package: str | None, names: list[str]) -> None:
     if package is not None and not names:
+        from hwbridge.protocols.msgtypes import suggest
+
         raise UnknownTypeError(package, suggest(package, reg.packages()), "package")
 
 

@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
-from hwbridge.cli.common import Context, console_err, get_registry, open_graph
+from hwbridge.cli.common import Context, get_registry, open_graph, stderr_console
 
 if TYPE_CHECKING:
     from rich.console import RenderableType
@@ -119,7 +119,7 @@ def record(
                 while not interrupted.is_set() and not recorder.done:
                     interrupted.wait(0.1)
             if interrupted.is_set() and not quiet:
-                console_err.print(f"finishing {path}...", highlight=False)
+                stderr_console().print(f"finishing {path}...", highlight=False)
         finally:
             stats = recorder.stop()
     if not quiet:
@@ -291,10 +291,12 @@ def _progress(
     if quiet:
         yield
         return
-    if console_err.is_terminal:
+    if stderr_console().is_terminal:
         from rich.live import Live
 
-        with Live(get_renderable=render, console=console_err, refresh_per_second=4, transient=True):
+        with Live(
+            get_renderable=render, console=stderr_console(), refresh_per_second=4, transient=True
+        ):
             yield
         return
     done = threading.Event()

@@ -1,4 +1,14 @@
-"""``hwbridge topic|service|param|node``: ROS-style tools attached to a running graph."""
+"""``hwbridge topic|service|param|node``: ROS-style tools attached to a running graph.
+
+Tools that only move or count bytes (``topic list``, ``topic hz``, ``node list``...) never load
+the message registry: ``hwbridge.msg`` (rosbags, numpy) and YAML are imported where a command
+decodes, encodes or parses.
+
+A topic may carry a type this host has no definition of (a board's own message package): the
+bridge publishes its bytes under the board's type name and md5. ``topic list``, ``info``, ``hz``
+and ``bw`` work as for any topic; ``topic echo`` shows such messages as their type, md5 and
+bytes in hex (``{type, md5, raw}``), saying once on stderr which definition is missing.
+"""
 
 from __future__ import annotations
 
@@ -9,15 +19,16 @@ import threading
 import time
 from collections import deque
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
-import yaml
 
-from hwbridge import msg
 from hwbridge.cli.common import emit_json, json_line, open_graph
-from hwbridge.errors import HwBridgeError, HwBridgeTimeoutError, MessageTypeError
+from hwbridge.errors import HwBridgeError, HwBridgeTimeoutError, MessageTypeError, UnknownTypeError
 from hwbridge.graph import ANY_TYPE, Graph, GraphSnapshot, RawMessage
+
+if TYPE_CHECKING:
+    from hwbridge.msg import TypeRegistry
 
 __all__ = ["node_app", "param_app", "service_app", "topic_app"]
 
@@ -126,7 +137,7 @@ def topic_info(
         typer.echo(f" * {name}")
 
 
-def _md5_or_unknown(registry: msg.TypeRegistry, type_name: str) -> str:
+def _md5_or_unknown(registry: TypeRegistry, type_name: str) -> str:
     try:
         return registry.md5(type_name)
     except HwBridgeError:
@@ -146,7 +157,11 @@ def topic_echo(
         float | None, typer.Option("--timeout", help="Fail if no message within SECONDS.")
     ] = None,
 ) -> None:
-    """Print messages on a topic as YAML (``---`` between them), like rostopic echo."""
+    """Print messages on a topic as YAML (``---`` between them), like rostopic echo.
+
+    A message of a type with no definition here (or a different one) is shown as its type,
+    md5 and bytes in hex: ``{type, md5, raw}``.
+    """
     done = threading.Event()
     lock = threading.Lock()
     seen = [0]
@@ -155,7 +170,7 @@ def topic_echo(
         with lock:
             if done.is_set():
                 return
-            text = _render(message, as_json, raw, registry)
+            text = renderer.render(message)
             if text is not None:
                 sys.stdout.write(text)
                 sys.stdout.flush()
@@ -164,7 +179,7 @@ def topic_echo(
                 done.set()
 
     with open_graph(ctx) as graph:
-        registry = graph.registry
+        renderer = _Renderer(graph, as_json, raw)
         graph.node(f"hwbridge_echo_{graph.zid[:8]}").subscriber(topic, ANY_TYPE, show, raw=True)
         started = time.monotonic()
         while not done.wait(0.1):
@@ -172,23 +187,67 @@ def topic_echo(
                 raise HwBridgeTimeoutError(f"no message on {topic} within {timeout:g} s")
 
 
-def _render(
-    message: RawMessage, as_json: bool, raw: bool, registry: msg.TypeRegistry
-) -> str | None:
-    if raw:
-        if as_json:
-            return json_line(
-                {"topic": message.topic, "type": message.type, "hex": message.data.hex()}
-            )
-        return message.data.hex() + "\n---\n"
-    try:
-        data = msg.to_dict(msg.decode(message.data, message.type, registry))
-    except HwBridgeError as exc:
-        sys.stderr.write(f"cannot decode a {message.type or 'untyped'} message: {exc}\n")
-        return None
-    if as_json:
-        return json_line(data)
-    return msg.dump_yaml(data) + "---\n"
+class _Renderer:
+    """Text for each message ``topic echo`` prints (called under its lock)."""
+
+    def __init__(self, graph: Graph, as_json: bool, hex_only: bool) -> None:
+        self.graph = graph
+        self.as_json = as_json
+        self.hex_only = hex_only
+        self._undecodable: dict[tuple[str, str], bool] = {}
+        """(type, md5) -> True if shown raw (the reason was said once on stderr)."""
+
+    def render(self, message: RawMessage) -> str | None:
+        if self.hex_only:
+            if self.as_json:
+                return json_line(
+                    {"topic": message.topic, "type": message.type, "hex": message.data.hex()}
+                )
+            return message.data.hex() + "\n---\n"
+        from hwbridge import msg
+
+        if self._raw_only(message):
+            data: dict[str, Any] = {
+                "type": message.type,
+                "md5": message.md5,
+                "raw": message.data.hex(),
+            }
+        else:
+            try:
+                data = msg.to_dict(msg.decode(message.data, message.type, self.graph.registry))
+            except HwBridgeError as exc:
+                sys.stderr.write(f"cannot decode a {message.type} message: {exc}\n")
+                return None
+        if self.as_json:
+            return json_line(data)
+        return msg.dump_yaml(data) + "---\n"
+
+    def _raw_only(self, message: RawMessage) -> bool:
+        """Whether ``message`` is shown as bytes: its type is unknown here, or known with
+        another md5 (another definition). Says why on stderr, once per type and md5."""
+        key = (message.type, message.md5)
+        known = self._undecodable.get(key)
+        if known is not None:
+            return known
+        reason = ""
+        if not message.type:
+            reason = "a message without a type (not published through hwbridge?)"
+        else:
+            try:
+                ours = self.graph.registry.message(message.type).md5
+            except UnknownTypeError:
+                reason = f"no definition of {message.type} here: add its package with --msg-path"
+            else:
+                if ours != message.md5:
+                    reason = (
+                        f"the definition of {message.type} here (md5 {ours}) is not the "
+                        f"publisher's (md5 {message.md5 or '?'})"
+                    )
+        if reason:
+            sys.stderr.write(f"{reason}; showing raw bytes\n")
+            sys.stderr.flush()
+        self._undecodable[key] = bool(reason)
+        return bool(reason)
 
 
 @topic_app.command("pub")
@@ -219,6 +278,8 @@ def topic_pub(
         raise typer.BadParameter("give values or --file, not both")
     if once and rate is not None:
         raise typer.BadParameter("-1 and -r exclude each other")
+    from hwbridge import msg
+
     text = file.read_text() if file is not None else values or "{}"
     with open_graph(ctx) as graph:
         message = msg.from_yaml(type_name, text, graph.registry)
@@ -394,6 +455,10 @@ def service_call(
     wait: WaitOpt = 1.0,
 ) -> None:
     """Call a service and print the response, like rosservice call."""
+    import yaml
+
+    from hwbridge import msg
+
     with open_graph(ctx) as graph:
         resolved_type = srv_type or _service_type(graph, name, wait)
         try:
@@ -434,6 +499,8 @@ def param_get(ctx: typer.Context, name: ParamName, as_json: JsonOpt = False) -> 
     if as_json:
         emit_json(value)
     else:
+        from hwbridge import msg
+
         typer.echo(msg.dump_yaml(value).removesuffix("\n...\n").rstrip("\n"))
 
 
@@ -446,6 +513,8 @@ def param_set(
     ],
 ) -> None:
     """Set a parameter; the value is parsed as YAML."""
+    import yaml
+
     try:
         parsed = yaml.safe_load(value)
     except yaml.YAMLError as exc:
@@ -468,6 +537,8 @@ def param_load(
     namespace: Annotated[str, typer.Argument(metavar="[NAMESPACE]")] = "/",
 ) -> None:
     """Set every parameter in a YAML file (under NAMESPACE), like rosparam load."""
+    import yaml
+
     try:
         data = yaml.safe_load(file.read_text())
     except yaml.YAMLError as exc:
@@ -488,6 +559,8 @@ def param_dump(
     """Write every parameter as YAML (to FILE, or stdout), like rosparam dump."""
     with open_graph(ctx) as graph:
         value = graph.params.get(namespace, {})
+    from hwbridge import msg
+
     text = msg.dump_yaml(value)
     if file is None:
         sys.stdout.write(text)

@@ -140,7 +140,9 @@ _PHASES: Final[tuple[tuple[bool, bool], ...]] = (
     (True, True),
     (False, True),
 )
-_PHASE_OF: Final = {levels: index for index, levels in enumerate(_PHASES)}
+_PHASE_OF: Final[dict[tuple[bool, bool], int]] = {
+    levels: index for index, levels in enumerate(_PHASES)
+}
 
 
 class QuadratureEncoder:
@@ -170,7 +172,7 @@ class QuadratureEncoder:
         target = self._step_at(wheel_angle)
         direction = 1 if target >= self._step else -1
         steps = range(self._step + direction, target + direction, direction)
-        states = [_PHASES[s % 4] for s in steps]
+        states: list[tuple[bool, bool]] = [_PHASES[s % 4] for s in steps]
         self._step = target
         return states
 

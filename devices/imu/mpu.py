@@ -305,6 +305,7 @@ class I2CTarget(Protocol):
 
     def read(self, reg: int, n: int) -> bytes:
         """Read ``n`` bytes from register ``reg`` on (auto-increment)."""
+        ...
 
 
 class I2CChip(Protocol):

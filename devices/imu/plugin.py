@@ -12,8 +12,9 @@ from __future__ import annotations
 
 import math
 import struct
+from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import Any, Final, Protocol
+from typing import Any, Final, Protocol, SupportsInt
 
 from hwbridge import msg
 from hwbridge.devices.imu.mpu import (
@@ -83,6 +84,7 @@ class I2CPort(Protocol):
 
     def read(self, address: int, reg: int, n: int) -> bytes:
         """Read ``n`` bytes from registers from ``reg`` of the device at ``address``."""
+        ...
 
 
 @dataclass(frozen=True)
@@ -121,7 +123,7 @@ def gyro_scale(range_dps: int) -> float:
     return math.radians(1.0) / GYRO_LSB_PER_DPS[GYRO_RANGES_DPS.index(range_dps)]
 
 
-def sensitivity_adjustment(asa: bytes | tuple[int, int, int] | list[int]) -> Vector3:
+def sensitivity_adjustment(asa: Iterable[SupportsInt]) -> Vector3:
     """The AK8963's per-axis factors from its fuse ROM bytes ASAX..ASAZ (datasheet 8.3.11):
     ``(ASA - 128) / 256 + 1``."""
     values = [int(value) for value in asa]

@@ -21,7 +21,7 @@ import re
 import threading
 from collections.abc import Callable
 from importlib.metadata import EntryPoint, entry_points
-from typing import Any, Final
+from typing import Any, Final, cast
 
 from hwbridge.errors import LinkError
 from hwbridge.links.base import Link, closest
@@ -208,8 +208,7 @@ def _resolve(name: str, target: LinkFactory | str | EntryPoint) -> LinkFactory:
         ) from exc
     if not callable(loaded):
         raise LinkError(f"the link scheme {name!r} points at {where}, which is not callable")
-    factory: LinkFactory = loaded
-    return factory
+    return cast("LinkFactory", loaded)
 
 
 def _load_entry_points(*, refresh: bool) -> dict[str, EntryPoint]:

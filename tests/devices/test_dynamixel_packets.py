@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import pytest
 from hypothesis import given, settings
@@ -99,9 +99,9 @@ def test_vector_parameters_decode_to_their_meaning(vector: dict[str, Any]) -> No
         )
         built = p.sync_read_packet(proto, decoded["address"], decoded["length"], decoded["ids"])
     elif code == p.Instruction.BULK_READ:
-        items = [tuple(i) for i in decoded["items"]]
-        assert p.parse_bulk_read(proto, params) == items
-        built = p.bulk_read_packet(proto, items)
+        reads = [(i[0], i[1], i[2]) for i in decoded["items"]]
+        assert p.parse_bulk_read(proto, params) == reads
+        built = p.bulk_read_packet(proto, reads)
     elif code == p.Instruction.FACTORY_RESET:
         built = p.factory_reset_packet(proto, vector["id"], decoded["option"])
     else:  # pragma: no cover - every vector with "decoded" is handled above
@@ -282,7 +282,9 @@ def test_parser_finds_every_packet_among_noise_in_any_chunks(case: Any) -> None:
     """Noise without FF bytes between packets, the stream cut anywhere: every packet comes out,
     in order, and nothing else (both protocols)."""
     proto, sent, noise, cuts = case
-    kind = "status" if isinstance(sent[0], StatusPacket) else "instruction"
+    kind: Literal["instruction", "status"] = (
+        "status" if isinstance(sent[0], StatusPacket) else "instruction"
+    )
     sent = [s for s in sent if _kind(s) == kind] if proto == 1 else sent
     stream = noise[0] + b"".join(p.encode(s) + n for s, n in zip(sent, noise[1:], strict=False))
     parser = PacketParser(proto, expect=kind)

@@ -67,7 +67,7 @@ def test_wrap_delta_16_bit_both_directions() -> None:
 def test_odometry_through_16_bit_wrap(direction: int) -> None:
     odom = DiffDriveOdometry(0.05, 0.3, 1000, counter_bits=16)
     count = 65000 if direction > 0 else 500
-    odom.update(count, count, 0.0)
+    state = odom.update(count, count, 0.0)
     for i in range(1, 21):  # 20 steps of 100 counts: crosses the wrap
         count = wrap_counter(count + direction * 100, 16)
         state = odom.update(count, count, i * 0.02)
@@ -199,7 +199,7 @@ def test_turn_below_threshold_is_continuous_with_the_arc() -> None:
 
 def test_velocity_rolling_mean_and_short_steps() -> None:
     odom = DiffDriveOdometry(0.05, 0.3, 1000, velocity_window=10)
-    odom.update(0, 0, 0.0)
+    state = odom.update(0, 0, 0.0)
     for i in range(1, 20):  # accelerate: 10, 20, ... counts per 20 ms step
         state = odom.update(sum(10 * k for k in range(1, i + 1)), 0, i * 0.02)
     m = odom.metres_per_count
@@ -381,7 +381,7 @@ def test_acceptance_odometry_error_over_100m_random_drive(
     rng = random.Random(20240521)
     t, next_command, command = 0.0, 0.0, (0.0, 0.0)
     previous = base.counts()
-    odom.update(*previous, t)
+    state = odom.update(*previous, t)
     wraps, worst = 0, 0.0
     while base.distance < 100.0:
         if t >= next_command:  # a new random command every 0.5-3 s, some straight

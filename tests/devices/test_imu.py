@@ -143,7 +143,7 @@ def test_full_scale_lsb_factors(fs_sel: int) -> None:
     chip.set_truth(
         ImuTruth(
             specific_force=(0.5 * G, -0.25 * G, 1.0 * G),
-            angular_velocity=tuple(math.radians(d) for d in (100.0, -200.0, 10.0)),
+            angular_velocity=(math.radians(100.0), math.radians(-200.0), math.radians(10.0)),
             temperature_c=36.53,
         )
     )
@@ -326,14 +326,17 @@ def test_acceptance_at_rest_z_up_reads_plus_g_on_z(chip_class: type[MpuChip]) ->
     assert np.mean(values) == pytest.approx(expected, abs=spec.accel_noise_std(3) * G)
 
 
+def _vector3(values: np.ndarray) -> tuple[float, float, float]:
+    x, y, z = (float(v) for v in values)
+    return (x, y, z)
+
+
 def _truths(count: int, range_g: int, range_dps: int, seed: int) -> list[ImuTruth]:
     rng = np.random.default_rng(seed)
     return [
         ImuTruth(
-            specific_force=tuple(float(v) for v in rng.uniform(-0.8, 0.8, 3) * range_g * G),
-            angular_velocity=tuple(
-                float(v) for v in np.radians(rng.uniform(-0.8, 0.8, 3) * range_dps)
-            ),
+            specific_force=_vector3(rng.uniform(-0.8, 0.8, 3) * range_g * G),
+            angular_velocity=_vector3(np.radians(rng.uniform(-0.8, 0.8, 3) * range_dps)),
             temperature_c=float(rng.uniform(-10, 60)),
         )
         for _ in range(count)

@@ -80,7 +80,7 @@ class DriveSendPause:
             and self.armed.is_set()
             and frame.f_code.co_name == "_send"
             and threading.current_thread().name == "diffdrive"
-            and self.wanted(tuple(frame.f_locals["targets"]))  # type: ignore[arg-type]
+            and self.wanted(tuple(frame.f_locals["targets"]))
         ):
             self.armed.clear()
             self.paused.set()

@@ -31,12 +31,27 @@ wrapping at 2**32 as on the board.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable
-from dataclasses import dataclass, fields
-from typing import Any, Final, TypeAlias
+from collections.abc import Iterable
+from dataclasses import dataclass
+from typing import Any, Final
 
 from hwbridge.protocols.errors import ProtocolError, SerializationError
 from hwbridge.protocols.msgtypes import TypeRegistry
+from hwbridge.protocols.rosserial.device_events import (
+    Configured,
+    DeviceEvent,
+    DeviceStats,
+    Endpoint,
+    InputOverrun,
+    ParamResult,
+    Received,
+    ServiceCalled,
+    ServiceEndpoint,
+    ServiceHandler,
+    ServiceResult,
+    TimeSynced,
+    Unconfigured,
+)
 from hwbridge.protocols.rosserial.framing import (
     FRAME_OVERHEAD,
     SYNC,
@@ -91,136 +106,6 @@ _NSEC: Final = 1_000_000_000
 # receive state machine modes, as in node_handle.h
 _FIRST_FF, _PROTOCOL_VER, _SIZE_L, _SIZE_H, _SIZE_CHECKSUM = 0, 1, 2, 3, 4
 _TOPIC_L, _TOPIC_H, _MESSAGE, _MSG_CHECKSUM = 5, 6, 7, 8
-
-ServiceHandler: TypeAlias = Callable[[bytes], "bytes | None"]
-"""A device service server's callback: request bytes -> response bytes (None: never answer)."""
-
-
-@dataclass(frozen=True)
-class Endpoint:
-    """A publisher or subscriber: topic name, message type and md5 (None: the registry's)."""
-
-    name: str
-    type: str
-    md5: str | None = None
-
-
-@dataclass(frozen=True)
-class ServiceEndpoint:
-    """A service server (with ``handler``) or client; half md5s default to the registry's."""
-
-    name: str
-    type: str
-    handler: ServiceHandler | None = None
-    request_md5: str | None = None
-    response_md5: str | None = None
-
-
-# ---------------------------------------------------------------------------------- events
-@dataclass(frozen=True)
-class Configured:
-    """The device answered "request topics" and is now configured."""
-
-
-@dataclass(frozen=True)
-class Unconfigured:
-    """The device stopped being configured: ``tx_stop``, ``sync_timeout`` or ``reset``."""
-
-    reason: str
-
-
-@dataclass(frozen=True)
-class Received:
-    """A subscriber callback ran with ``payload``."""
-
-    topic: str
-    payload: bytes
-
-
-@dataclass(frozen=True)
-class ServiceCalled:
-    """The host called the device's service server ``name``."""
-
-    name: str
-    request: bytes
-
-
-@dataclass(frozen=True)
-class ServiceResult:
-    """A device service client call returned; ``response`` is None if it gave up (unconfigured)."""
-
-    name: str
-    response: bytes | None
-
-
-@dataclass(frozen=True)
-class ParamResult:
-    """A parameter request ended; ``ok`` is False on timeout (the arrays are then empty)."""
-
-    name: str
-    ok: bool
-    ints: tuple[int, ...] = ()
-    floats: tuple[float, ...] = ()
-    strings: tuple[str, ...] = ()
-
-
-@dataclass(frozen=True)
-class TimeSynced:
-    """A time reply set the device clock; ``sec``/``nsec`` is its time right after."""
-
-    sec: int
-    nsec: int
-
-
-@dataclass(frozen=True)
-class InputOverrun:
-    """A frame's payload is larger than ``input_size``: the real library would overrun memory."""
-
-    topic_id: int
-    size: int
-
-
-DeviceEvent: TypeAlias = (
-    Configured
-    | Unconfigured
-    | Received
-    | ServiceCalled
-    | ServiceResult
-    | ParamResult
-    | TimeSynced
-    | InputOverrun
-)
-
-
-@dataclass(slots=True)
-class DeviceStats:
-    """Counters of a :class:`RosserialDevice`."""
-
-    frames_in: int = 0
-    """Frames whose checksums passed."""
-    frames_out: int = 0
-    bytes_out: int = 0
-    length_checksum_errors: int = 0
-    checksum_errors: int = 0
-    timed_out_frames: int = 0
-    """Frames abandoned because they took more than 20 ms to arrive."""
-    version_mismatches: int = 0
-    dropped_unconfigured: int = 0
-    """Publications dropped because the device was not configured."""
-    dropped_too_large: int = 0
-    input_overruns: int = 0
-    unknown_topic: int = 0
-    """Frames on ids with no subscriber slot (undefined behaviour in the real library)."""
-    stray_responses: int = 0
-    """Service responses or parameter answers that nothing waited for."""
-    undecodable: int = 0
-    time_requests: int = 0
-    time_syncs: int = 0
-    negotiations: int = 0
-
-    def as_dict(self) -> dict[str, int]:
-        """Counters by name."""
-        return {f.name: getattr(self, f.name) for f in fields(self)}
 
 
 @dataclass
@@ -392,6 +277,11 @@ class RosserialDevice:
         out = bytes(self._tx)
         self._tx.clear()
         return out
+
+    def chunks_to_send(self) -> list[bytes]:
+        """:meth:`data_to_send` as the pump writes it: one chunk, or none."""
+        out = self.data_to_send()
+        return [out] if out else []
 
     def receive_data(self, data: bytes | bytearray | memoryview, now: float) -> list[DeviceEvent]:
         """One ``spinOnce`` at ``now`` with ``data`` available; returns what happened."""

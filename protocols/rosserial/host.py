@@ -19,38 +19,14 @@ Times (``now``) are seconds on one monotonic clock; time replies use ``now + wal
 ``wall_clock()`` when no offset is given). Channels are topic ids (see
 :mod:`hwbridge.protocols.rosserial.table`).
 
-Life cycle. The host sends "request topics" at once and repeats it with backoff (0.1, 0.2, 0.4,
-0.8 s, then every 1 s) until the device answers: a sketch that is already running answers within
-milliseconds, and one that the opening of the port reset (an Arduino bootloader waits about 1-2
-s; it discards what it hears, or starts the sketch sooner) is caught soon after its sketch
-starts. ``start_delay`` (default 0) keeps the host silent for that long first; time requests are
-answered meanwhile. The device answers with a time request and one ``rosserial_msgs/TopicInfo``
-per endpoint. Each TopicInfo is checked at once against the host's type of the same name (md5 of
-the message, or of the request or response half of a service): a mismatch is reported as an
-:class:`~hwbridge.protocols.base.Error` event and only that endpoint is left out; a type the host
-does not know passes through (its bytes are carried unchecked, with the device's type name and
-md5) and is logged once per type as a warning. Service endpoints arrive as two halves (a publisher
-and a subscriber TopicInfo with the same name) and are joined by name.
-
-When is the board configured? The device sends its TopicInfos back to back and then says
-nothing that marks the end, so the host uses this rule:
-
-- the negotiation has an answer once a time request or a TopicInfo arrived after the request;
-- it is complete when ``settle_time`` (0.5 s) passed without a new TopicInfo since the last one
-  (or since the time request, for a board without topics), or at once when a data frame arrives
-  on a topic id announced in this negotiation (the library only publishes once configured, and
-  it sends all its TopicInfos in one go before that);
-- completion emits :class:`~hwbridge.protocols.base.Connected` with all accepted endpoints.
-
-A TopicInfo arriving after that (a slow link) reopens the negotiation: it is merged into the
-table and ``Connected`` is emitted again once the line is quiet. If nothing answers the requests
-for ``sync_timeout`` (15 s), the host reports an ``Error`` (again every ``sync_timeout``) and keeps
-asking. Once connected, the device asks for the time every ~2.5 s; ``sync_timeout`` without a
-time request means "lost sync": the host fails pending calls, emits
-:class:`~hwbridge.protocols.base.Disconnected`, drops the topic table (not connected until the
-next ``Connected``) and asks for topics again. A data frame on a topic id the host does not know
-also makes it ask again (at most once a second), as rosserial_python does; meanwhile the current
-table stays in use.
+Life cycle (details in :mod:`hwbridge.protocols.rosserial.negotiation`). The host sends "request
+topics" at once and repeats it with backoff (0.1 s doubling up to 1 s) until the device answers,
+so a running sketch answers within milliseconds and one that the opening of the port reset is
+caught soon after its bootloader; ``start_delay`` (default 0) keeps it silent for that long first.
+Each TopicInfo is checked against the host's type: a md5 mismatch is refused (an ``Error``
+event), a type the host does not know passes through with the device's name and md5 (a warning
+once per type). ``Connected`` follows once the line is quiet; lost sync (no time request for
+``sync_timeout``) gives ``Disconnected`` and a new negotiation.
 
 Services and parameters have no request ids on the wire; the host makes them up and keeps the
 order (see :mod:`hwbridge.protocols.rosserial.services`). rosserial cannot fail a device's call,
@@ -68,16 +44,11 @@ header claiming a long payload can hold back the frames behind it.
 from __future__ import annotations
 
 import logging
-import math
-import struct
 import time
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass, field
-from enum import Enum
 from typing import Any, Final
 
 from hwbridge.protocols.base import (
-    Connected,
     DebugOutput,
     Disconnected,
     Error,
@@ -90,9 +61,6 @@ from hwbridge.protocols.base import (
     SessionStats,
 )
 from hwbridge.protocols.errors import (
-    FramingError,
-    HwBridgeError,
-    HwBridgeTimeoutError,
     ProtocolError,
     ProtocolMismatchError,
     SerializationError,
@@ -100,8 +68,6 @@ from hwbridge.protocols.errors import (
 from hwbridge.protocols.msgtypes import TypeRegistry
 from hwbridge.protocols.rosserial.framing import (
     DEFAULT_MAX_PAYLOAD,
-    FRAME_OVERHEAD,
-    MAX_PAYLOAD,
     BadFrame,
     NonFrameBytes,
     OldProtocol,
@@ -113,11 +79,23 @@ from hwbridge.protocols.rosserial.ids import (
     FIRST_USER_TOPIC,
     LOG_TYPE,
     PARAM_SERVICE,
-    TOPIC_INFO_TYPE,
     ReservedId,
 )
+from hwbridge.protocols.rosserial.negotiation import (
+    REQUEST_MIN_INTERVAL,
+    Negotiation,
+    NegotiationMixin,
+    State,
+)
 from hwbridge.protocols.rosserial.params import ParamValue, encode_param
-from hwbridge.protocols.rosserial.services import Call, HostCalls, PendingRequests, RequestIds
+from hwbridge.protocols.rosserial.services import (
+    Call,
+    HostCalls,
+    MessageTooLargeError,
+    PendingRequests,
+    RequestIds,
+    check_size,
+)
 from hwbridge.protocols.rosserial.stats import HostStats
 from hwbridge.protocols.rosserial.table import (
     DEVICE_OUTPUT_KINDS,
@@ -129,8 +107,6 @@ from hwbridge.protocols.rosserial.table import (
     Service,
     Topic,
     TopicTable,
-    build_table,
-    check_info,
 )
 
 __all__ = [
@@ -156,37 +132,11 @@ REQUEST_TOPICS: Final = encode_frame(ReservedId.PUBLISHER)
 """The "request topics" frame, ``FF FE 00 00 FF 00 00 FF``."""
 TX_STOP: Final = encode_frame(ReservedId.TX_STOP)
 """The frame a host sends when it stops, ``FF FE 00 00 FF 0B 00 F4``."""
-_REQUEST_MIN_INTERVAL: Final = 1.0
-"""Least time between two "request topics" sent because of an unknown topic id."""
 _PARAMS: Final = 0
 """The key of parameter requests among the pending requests."""
-_TIME: Final = struct.Struct("<II")
 
 
-class MessageTooLargeError(FramingError):
-    """A payload does not fit the device's input buffer; nothing was sent."""
-
-
-class _State(Enum):
-    WAITING = "waiting"
-    NEGOTIATING = "negotiating"
-    CONNECTED = "connected"
-    CLOSED = "closed"
-
-
-@dataclass
-class _Negotiation:
-    started: float
-    infos: dict[int, Info] = field(default_factory=dict)
-    answered_at: float | None = None
-    last_info_at: float | None = None
-    retry_gap: float = 0.0
-    retry_at: float = math.inf
-    reported_at: float = 0.0
-    """When the host last said that nothing answers (the start, before that)."""
-
-
-class RosserialHost:
+class RosserialHost(NegotiationMixin):
     """One rosserial v2 session with one device; see the module docstring.
 
     Args:
@@ -251,14 +201,14 @@ class RosserialHost:
         self.stats = HostStats(self.framing.stats)
         self._now = now
         self._opened_at = now
-        self._state = _State.WAITING
+        self._state = State.WAITING
         self._tx: list[RosFrame] = []
         self._pending_events: list[Event] = []
         self._built: BuiltTable | None = None
         self._refused_ids: set[int] = set()
         self._accepted: dict[int, Info] = {}
         self._warned_types: set[str] = set()
-        self._negotiation: _Negotiation | None = None
+        self._negotiation: Negotiation | None = None
         self._requested_at: float | None = None
         self._want_topics = False
         self._sync_ref = now
@@ -281,7 +231,7 @@ class RosserialHost:
     @property
     def connected(self) -> bool:
         """True once a negotiation completed (also while a later one reopens it)."""
-        return self._built is not None and self._state is not _State.CLOSED
+        return self._built is not None and self._state is not State.CLOSED
 
     @property
     def topics(self) -> TopicTable | None:
@@ -320,12 +270,12 @@ class RosserialHost:
     def next_deadline(self) -> float | None:
         """The latest time :meth:`tick` should next be called, or None if nothing is timed."""
         times: list[float] = []
-        if self._state is _State.CLOSED:
+        if self._state is State.CLOSED:
             return None
-        if self._state is _State.WAITING:
+        if self._state is State.WAITING:
             times.append(self._opened_at + self._start_delay)
         neg = self._negotiation
-        if self._state is _State.NEGOTIATING and neg is not None:
+        if self._state is State.NEGOTIATING and neg is not None:
             mark = neg.last_info_at if neg.last_info_at is not None else neg.answered_at
             if mark is not None:
                 times.append(mark + self._settle_time)
@@ -334,8 +284,8 @@ class RosserialHost:
                 times.append(neg.reported_at + self._sync_timeout)
         if self._built is not None:
             times.append(self._sync_ref + self._sync_timeout)
-        if self._state is _State.CONNECTED and self._want_topics and self._requested_at is not None:
-            times.append(self._requested_at + _REQUEST_MIN_INTERVAL)
+        if self._state is State.CONNECTED and self._want_topics and self._requested_at is not None:
+            times.append(self._requested_at + REQUEST_MIN_INTERVAL)
         call_deadline = self._calls.deadline()
         if call_deadline is not None:
             times.append(call_deadline)
@@ -357,7 +307,7 @@ class RosserialHost:
     def receive_data(self, data: bytes | bytearray | memoryview, now: float) -> list[Event]:
         """Consume bytes read from the link at time ``now``; return the resulting events."""
         events = self._take_pending()
-        if self._state is _State.CLOSED:
+        if self._state is State.CLOSED:
             return events
         self._now = now
         self._timers(now, events)
@@ -377,7 +327,7 @@ class RosserialHost:
     def tick(self, now: float) -> list[Event]:
         """Advance timers to ``now``: start-up, negotiation, lost sync, service timeouts."""
         events = self._take_pending()
-        if self._state is not _State.CLOSED:
+        if self._state is not State.CLOSED:
             self._now = now
             self._timers(now, events)
         return events
@@ -402,7 +352,7 @@ class RosserialHost:
                 f"{_channels((t.topic_id, t.name) for t in built.subscribers.values())}"
             )
         data = bytes(payload)
-        self._check_size(data, topic.buffer_size, "message for %r (%s)", topic.name, topic.type)
+        check_size(data, topic.buffer_size, "message for %r (%s)", topic.name, topic.type)
         self._send(topic.topic_id, data)
         self.stats.messages_out += 1
         return True
@@ -433,7 +383,7 @@ class RosserialHost:
         built = self._usable()
         if built is None:
             request_id = self._ids.new()
-            why = "the session is closed" if self._state is _State.CLOSED else "not connected"
+            why = "the session is closed" if self._state is State.CLOSED else "not connected"
             error = ProtocolError(f"service call on topic id {channel}: {why}")
             self._pending_events.append(ServiceResponse(channel, request_id, b"", error))
             return request_id
@@ -444,7 +394,7 @@ class RosserialHost:
                 f"{_channels((s.request_topic_id, s.name) for s in built.servers.values())}"
             )
         data = bytes(request)
-        self._check_size(data, service.input_buffer, "request for service %r", service.name)
+        check_size(data, service.input_buffer, "request for service %r", service.name)
         request_id = self._ids.new()
         call = Call(request_id, channel, service.name, data, timeout, now + timeout)
         self.stats.service_calls += 1
@@ -487,7 +437,7 @@ class RosserialHost:
         if service is None:  # pragma: no cover - requests are forgotten with their client
             return False
         data = bytes(payload)
-        self._check_size(data, service.input_buffer, "response for service %r", service.name)
+        check_size(data, service.input_buffer, "response for service %r", service.name)
         self._requests.take(channel, request_id)
         self._send(service.response_topic_id, data)
         return True
@@ -504,10 +454,10 @@ class RosserialHost:
             MessageTooLargeError: the answer exceeds the device's input buffer.
         """
         name = self._requests.peek(_PARAMS, request_id)
-        if name is None or self._state is _State.CLOSED:
+        if name is None or self._state is State.CLOSED:
             return False
         payload = encode_param(name, value)
-        self._check_size(payload, self.input_buffer, "value of parameter %r", name)
+        check_size(payload, self.input_buffer, "value of parameter %r", name)
         self._requests.take(_PARAMS, request_id)
         self.stats.params_answered += 1
         self._send(ReservedId.PARAMETER_REQUEST, payload)
@@ -529,7 +479,7 @@ class RosserialHost:
         after that the host does nothing more.
         """
         events = self._take_pending()
-        if self._state is _State.CLOSED:
+        if self._state is State.CLOSED:
             return events
         if now is not None:
             self._now = now
@@ -539,119 +489,18 @@ class RosserialHost:
             events.append(Disconnected("closed by the host", error))
         self._requests.clear()
         self._send(ReservedId.TX_STOP, b"")
-        self._state = _State.CLOSED
+        self._state = State.CLOSED
         return events
 
     # ------------------------------------------------------------------ timers
     def _timers(self, now: float, events: list[Event]) -> None:
-        state = self._state
-        if state is _State.WAITING:
-            if now - self._opened_at >= self._start_delay:
-                self._request_topics(now)
-        elif self._built is not None and now - self._sync_ref >= self._sync_timeout:
-            self._lose_sync(now, events)  # connected, or renegotiating with a table in use
-        elif state is _State.NEGOTIATING:
-            self._check_negotiation(now, events)
-        elif (
-            state is _State.CONNECTED
-            and self._want_topics
-            and (self._requested_at is None or now - self._requested_at >= _REQUEST_MIN_INTERVAL)
-        ):
-            self._request_topics(now)
+        self._negotiation_timers(now, events)
         failed, resend = self._calls.expire(now)
         if failed:
             self.stats.service_timeouts += len(failed)
             events += failed
         for call in resend:
             self._send_call(call)
-
-    def _lose_sync(self, now: float, events: list[Event]) -> None:
-        silence = now - self._sync_ref
-        self.stats.sync_lost += 1
-        reason = f"no time request for {silence:.1f} s"
-        events += self._calls.abandon(ProtocolError(f"lost sync with the device ({reason})"))
-        events.append(
-            Disconnected(
-                reason,
-                HwBridgeTimeoutError(
-                    f"lost sync with the rosserial device: {reason} (it resets, stopped or "
-                    "lost the link); asking for its topics again"
-                ),
-            )
-        )
-        self._requests.clear()
-        self._built = None
-        self._accepted = {}
-        self._request_topics(now)
-
-    def _check_negotiation(self, now: float, events: list[Event]) -> None:
-        neg = self._negotiation
-        if neg is None:  # pragma: no cover - NEGOTIATING always has one
-            return
-        mark = neg.last_info_at if neg.last_info_at is not None else neg.answered_at
-        if mark is not None:
-            if now - mark >= self._settle_time:
-                self._finish_negotiation(now, events)
-            return
-        if now - neg.reported_at >= self._sync_timeout:
-            neg.reported_at = now
-            waited = now - neg.started
-            events.append(
-                Error(
-                    HwBridgeTimeoutError(
-                        f"no answer from the device to 'request topics' for {waited:.1f} s; "
-                        "check the baud rate (rosserial's default is 57600), that the sketch "
-                        "calls nh.initNode() and nh.spinOnce(), and that it is a rosserial "
-                        "(hydro or later) sketch; still asking"
-                    )
-                )
-            )
-        if now >= neg.retry_at:
-            self._send_request(now)
-            neg.retry_gap = min(neg.retry_gap * 2, self._retry_max)
-            neg.retry_at = now + neg.retry_gap
-
-    def _send_request(self, now: float) -> None:
-        self._send(ReservedId.PUBLISHER, b"")
-        self.stats.topic_requests += 1
-        self._requested_at = now
-
-    def _request_topics(self, now: float) -> None:
-        self._want_topics = False
-        self._send_request(now)
-        self._negotiation = _Negotiation(
-            started=now, retry_gap=self._retry, retry_at=now + self._retry, reported_at=now
-        )
-        self.framing.max_payload = self._max_payload
-        self._state = _State.NEGOTIATING
-
-    def _finish_negotiation(self, now: float, events: list[Event]) -> None:
-        neg = self._negotiation
-        assert neg is not None
-        self._negotiation = None
-        errors: list[HwBridgeError] = []
-        built = build_table(self.registry, neg.infos.values(), errors)
-        events += [Error(e) for e in errors]
-        # The library never sends a frame larger than its output buffer: accepting no more
-        # bounds how long a corrupted header that claims a long payload can hold frames back.
-        out = built.output_buffer
-        self.framing.max_payload = min(MAX_PAYLOAD, out) if out is not None else self._max_payload
-        if self._built is None:
-            self.stats.sessions += 1
-        self._built = built
-        self._accepted = dict(neg.infos)
-        self._state = _State.CONNECTED
-        self._sync_ref = max(self._sync_ref, now)
-        gone = [
-            channel
-            for channel, name in self._calls.channels()
-            if channel not in built.servers or built.servers[channel].name != name
-        ]
-        if gone:
-            events += self._calls.abandon(
-                ProtocolError("the device no longer serves this service"), gone
-            )
-        events.append(Connected(built.endpoints))
 
     # ------------------------------------------------------------------ frames in
     def _on_frame(self, frame: RosFrame, now: float, events: list[Event]) -> None:
@@ -672,64 +521,12 @@ class RosserialHost:
         else:
             self.stats.unknown_topic_frames += 1
 
-    def _on_time_request(self, now: float) -> None:
-        self._sync_ref = max(self._sync_ref, now)
-        neg = self._negotiation
-        if neg is not None and neg.answered_at is None:
-            neg.answered_at = now
-        wall = self._wall_clock() if self._wall_offset is None else now + self._wall_offset
-        wall = max(0.0, wall)
-        sec = math.floor(wall)
-        nsec = round((wall - sec) * 1e9)
-        if nsec >= 1_000_000_000:
-            sec, nsec = sec + 1, nsec - 1_000_000_000
-        self._send(ReservedId.TIME, _TIME.pack(sec & 0xFFFFFFFF, nsec))
-        self.stats.time_syncs += 1
-
-    def _on_topic_info(self, kind: int, payload: bytes, now: float, events: list[Event]) -> None:
-        self.stats.topic_infos += 1
-        try:
-            msg = self.registry.deserialize(payload, TOPIC_INFO_TYPE)
-        except SerializationError as exc:
-            self.stats.undecodable += 1
-            self.stats.topics_refused += 1
-            events.append(Error(ProtocolError(f"undecodable TopicInfo on id {kind}: {exc}")))
-            return
-        info = Info(
-            kind,
-            int(msg.topic_id),
-            str(msg.topic_name),
-            str(msg.message_type),
-            str(msg.md5sum),
-            int(msg.buffer_size),
-        )
-        neg = self._negotiation
-        if neg is None:  # a late TopicInfo: reopen, keeping what was accepted
-            neg = self._negotiation = _Negotiation(started=now, retry_at=math.inf)
-            neg.infos.update(self._accepted)
-            if self._state is _State.CONNECTED:
-                self._state = _State.NEGOTIATING
-        if neg.answered_at is None:
-            neg.answered_at = now
-        neg.last_info_at = now
-        checked = check_info(self.registry, info, self._warned_types)
-        if isinstance(checked, HwBridgeError):
-            self.stats.topics_refused += 1
-            self._refused_ids.add(info.topic_id)
-            neg.infos.pop(info.topic_id, None)
-            events.append(Error(checked))
-            return
-        if not checked.known:
-            self.stats.unknown_types += 1
-        self._refused_ids.discard(info.topic_id)
-        neg.infos[info.topic_id] = checked
-
     def _on_data(self, frame: RosFrame, now: float, events: list[Event]) -> None:
         topic_id = frame.topic_id
         neg = self._negotiation
         if (
             neg is not None
-            and self._state is _State.NEGOTIATING
+            and self._state is State.NEGOTIATING
             and topic_id in neg.infos
             and neg.infos[topic_id].kind in DEVICE_OUTPUT_KINDS
         ):
@@ -741,7 +538,7 @@ class RosserialHost:
                 self.stats.refused_topic_frames += 1
                 return
             self.stats.unknown_topic_frames += 1
-            if self._state is _State.CONNECTED and not self._want_topics:
+            if self._state is State.CONNECTED and not self._want_topics:
                 # the device knows a topic the host does not: ask again (the request goes out
                 # at once, or a second after the previous one)
                 _log.info("rosserial frame on unknown topic id %d: asking for topics", topic_id)
@@ -804,12 +601,7 @@ class RosserialHost:
 
     def _usable(self) -> BuiltTable | None:
         """The table, if the session is connected and not closed."""
-        return self._built if self._state is not _State.CLOSED else None
-
-    def _send(self, topic_id: int, payload: bytes) -> None:
-        self._tx.append(RosFrame(topic_id, payload))
-        self.stats.tx_frames += 1
-        self.stats.tx_bytes += len(payload) + FRAME_OVERHEAD
+        return self._built if self._state is not State.CLOSED else None
 
     def _send_call(self, call: Call) -> None:
         built = self._built
@@ -818,20 +610,6 @@ class RosserialHost:
             return
         call.sent = True
         self._send(service.request_topic_id, call.payload)
-
-    @staticmethod
-    def _check_size(payload: bytes, limit: int, what: str, *args: object) -> None:
-        if len(payload) > limit:
-            raise MessageTooLargeError(
-                f"{what % args} is {len(payload)} bytes, larger than the device's input buffer of "
-                f"{limit} bytes; not sent (the rosserial client library would overrun its "
-                "memory). Send less, or build the firmware with a larger INPUT_SIZE."
-            )
-        if len(payload) > MAX_PAYLOAD:
-            raise MessageTooLargeError(
-                f"{what % args} is {len(payload)} bytes, more than a rosserial frame carries "
-                f"({MAX_PAYLOAD} bytes); not sent"
-            )
 
 
 def _channels(items: Iterable[tuple[int, str]]) -> str:

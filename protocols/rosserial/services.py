@@ -21,12 +21,40 @@ from dataclasses import dataclass
 from typing import Final
 
 from hwbridge.protocols.base import ServiceResponse
-from hwbridge.protocols.errors import HwBridgeError, HwBridgeTimeoutError
+from hwbridge.protocols.errors import FramingError, HwBridgeError, HwBridgeTimeoutError
+from hwbridge.protocols.rosserial.framing import MAX_PAYLOAD
 
-__all__ = ["Call", "HostCalls", "PendingRequests", "RequestIds"]
+__all__ = [
+    "Call",
+    "HostCalls",
+    "MessageTooLargeError",
+    "PendingRequests",
+    "RequestIds",
+    "check_size",
+]
 
 MAX_PENDING: Final = 64
 """Requests remembered per queue before the oldest are forgotten (an unanswering bridge)."""
+
+
+class MessageTooLargeError(FramingError):
+    """A payload does not fit the device's input buffer; nothing was sent."""
+
+
+def check_size(payload: bytes, limit: int, what: str, *args: object) -> None:
+    """Raise :class:`MessageTooLargeError` if ``payload`` exceeds the device's ``limit`` or a
+    frame; ``what % args`` (formatted only then) names it."""
+    if len(payload) > limit:
+        raise MessageTooLargeError(
+            f"{what % args} is {len(payload)} bytes, larger than the device's input buffer of "
+            f"{limit} bytes; not sent (the rosserial client library would overrun its "
+            "memory). Send less, or build the firmware with a larger INPUT_SIZE."
+        )
+    if len(payload) > MAX_PAYLOAD:
+        raise MessageTooLargeError(
+            f"{what % args} is {len(payload)} bytes, more than a rosserial frame carries "
+            f"({MAX_PAYLOAD} bytes); not sent"
+        )
 
 
 class RequestIds:

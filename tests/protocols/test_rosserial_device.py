@@ -217,7 +217,8 @@ def test_tx_stop_and_reset() -> None:
     device.receive_data(REQUEST_TOPICS, 2.0)
     assert device.configured
     device.reset()
-    assert not device.configured and device.tick(2.1) == [Unconfigured("reset")]
+    assert device.tick(2.1) == [Unconfigured("reset")]
+    assert not device.configured
 
 
 def test_param_request_waits_one_second() -> None:

@@ -37,11 +37,12 @@ def _connected(device_class: Any) -> SimLink:
 def test_publish_repeated_sends_the_frames_publish_would() -> None:
     plain = _connected(DeviceSession)
     fast = _connected(_bench()._fast_publisher_class())
+    fast_device: Any = fast.device  # a FastPublisher
     payload = b"\x0c\x00\x00\x000123456789ab"
     for count in (1, 255, 300, 1000):  # across sequence number wrap-arounds
         for _ in range(count):
             plain.device.publish(CH_CHATTER, payload)
-        fast.device.publish_repeated(CH_CHATTER, payload, count)
+        fast_device.publish_repeated(CH_CHATTER, payload, count)
         expected = plain.device.data_to_send()
         sent = fast.device.data_to_send()
         assert sent == expected.lstrip(b"\x00")  # publish() may lead with 0x00 after idling

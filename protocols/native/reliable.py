@@ -23,6 +23,11 @@ from dataclasses import dataclass, fields
 from typing import Final
 
 from hwbridge.protocols.errors import HwBridgeTimeoutError
+from hwbridge.protocols.native._hotpath import ACK as _ACK
+from hwbridge.protocols.native._hotpath import BEST_EFFORT as _BEST_EFFORT
+from hwbridge.protocols.native._hotpath import RELIABLE as _RELIABLE
+from hwbridge.protocols.native._hotpath import WHOLE as _WHOLE
+from hwbridge.protocols.native._hotpath import slot_setter
 from hwbridge.protocols.native.control import MAX_WINDOW
 from hwbridge.protocols.native.framing import (
     Frag,
@@ -31,7 +36,6 @@ from hwbridge.protocols.native.framing import (
     Reassembler,
     fragment,
     make_frame,
-    slot_setter,
 )
 
 __all__ = [
@@ -49,13 +53,6 @@ __all__ = [
 ACK_CHANNEL = 0
 """Channel byte of every ACK frame."""
 _HALF = 128
-
-# Enum members for the per-frame paths (a lookup on the enum class costs ~0.1 us on 3.11).
-_BEST_EFFORT: Final = FrameType.BEST_EFFORT
-_RELIABLE: Final = FrameType.RELIABLE
-_ACK: Final = FrameType.ACK
-_WHOLE: Final = Frag.WHOLE
-
 
 _BARE_ACKS: Final = tuple(make_frame(_ACK, ACK_CHANNEL, seq, b"") for seq in range(256))
 """The ACK without a bitmap of each seq (frames are immutable: one per reliable frame received
@@ -77,6 +74,7 @@ class Delivery:
     """Seq of the message's first (or only) frame."""
 
 
+# Deliveries (one per message) are built the fast way: see native._hotpath (slot setters).
 _new_delivery: Final[Callable[[type[Delivery]], Delivery]] = object.__new__
 _set_channel: Final = slot_setter(Delivery, "channel")
 _set_payload: Final = slot_setter(Delivery, "payload")

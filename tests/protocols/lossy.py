@@ -6,6 +6,10 @@ frame stays exactly one bad frame), duplicates it, or delays it past later frame
 Delivered bytes are split into random chunks. The device runs on its own clock (offset and
 drift) so that time sync has something to measure. Nothing sleeps: time jumps to the next
 deadline, delivery, or step.
+
+With ``datagram=True`` the sessions must use the datagram framing: each direction carries the
+datagrams of ``chunks_to_send()`` one by one (dropped, corrupted, duplicated or delayed whole,
+one datagram per delivery) instead of a byte stream.
 """
 
 from __future__ import annotations
@@ -15,7 +19,7 @@ import random
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from hwbridge.protocols.native.framing import FrameType, decode_frame
+from hwbridge.protocols.native.framing import FrameType, decode_datagram, decode_frame
 from hwbridge.protocols.native.session import DeviceSession, Event, HostSession
 
 
@@ -59,6 +63,8 @@ class Direction:
     faults: Faults
     rng: random.Random
     stats: DirectionStats = field(default_factory=DirectionStats)
+    datagram: bool = False
+    """Carry whole datagrams (one frame each) rather than a byte stream."""
     _queue: list[tuple[float, int, bytes]] = field(default_factory=list)
     _order: int = 0
 
@@ -70,15 +76,19 @@ class Direction:
         for run in runs:
             self._send_frame(run, now)
 
+    def send_datagrams(self, datagrams: list[bytes], now: float) -> None:
+        for datagram in datagrams:
+            self._send_frame(datagram, now)
+
     def _send_frame(self, run: bytes, now: float) -> None:
         f = self.faults
-        wire = run + b"\x00"
+        wire = run if self.datagram else run + b"\x00"
         is_be = False
         frame_type: FrameType | None = None
         if run:
             self.stats.frames += 1
             try:
-                frame = decode_frame(wire)
+                frame = decode_datagram(wire) if self.datagram else decode_frame(wire)
             except Exception:  # noqa: BLE001 - the sender never sends bad frames; count them
                 frame = None
             if frame is not None:
@@ -98,7 +108,7 @@ class Direction:
         if run and self.rng.random() < f.corrupt:
             self.stats.corrupted += 1
             self.stats.be_corrupted += is_be
-            wire = self._corrupt(run) + b"\x00"
+            wire = self._corrupt(run) if self.datagram else self._corrupt(run) + b"\x00"
         copies = 1
         if run and self.rng.random() < f.duplicate:
             self.stats.duplicated += 1
@@ -116,11 +126,16 @@ class Direction:
         while True:
             i = self.rng.randrange(len(data))
             flipped = data[i] ^ (1 << self.rng.randrange(8))
-            if flipped:
+            if flipped or self.datagram:
                 data[i] = flipped
                 return bytes(data)
 
     def pop_due(self, now: float) -> list[bytes]:
+        if self.datagram:
+            due = []
+            while self._queue and self._queue[0][0] <= now:
+                due.append(heapq.heappop(self._queue)[2])
+            return due
         out = bytearray()
         while self._queue and self._queue[0][0] <= now:
             out += heapq.heappop(self._queue)[2]
@@ -164,12 +179,14 @@ class SimLink:
         clock_offset: float = 1000.0,
         clock_drift: float = 0.0,
         max_step: float = 0.01,
+        datagram: bool = False,
     ) -> None:
         self.host = host
         self.device = device
+        self.datagram = datagram
         rng = random.Random(seed)
-        self.h2d = Direction(h2d or Faults(), random.Random(rng.getrandbits(64)))
-        self.d2h = Direction(d2h or Faults(), random.Random(rng.getrandbits(64)))
+        self.h2d = Direction(h2d or Faults(), random.Random(rng.getrandbits(64)), datagram=datagram)
+        self.d2h = Direction(d2h or Faults(), random.Random(rng.getrandbits(64)), datagram=datagram)
         self.clock_offset = clock_offset
         self.clock_drift = clock_drift
         self.max_step = max_step
@@ -219,6 +236,12 @@ class SimLink:
 
     def flush(self) -> None:
         """Put what both ends want to send on the wire (at the current time)."""
+        if self.datagram:
+            out_chunks = self.host.chunks_to_send()
+            self.h2d_log.extend(out_chunks)
+            self.h2d.send_datagrams(out_chunks, self.now)
+            self.d2h.send_datagrams(self.device.chunks_to_send(), self.now)
+            return
         out = self.host.data_to_send()
         if out:
             self.h2d_log.append(out)

@@ -18,7 +18,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from hwbridge.protocols.errors import FramingError, ProtocolError
-from hwbridge.protocols.native import cobs, control, reliable, session
+from hwbridge.protocols.native import _hotpath, cobs, control, reliable
 from hwbridge.protocols.native.control import (
     Features,
     ServiceRequestMsg,
@@ -47,9 +47,6 @@ from hwbridge.protocols.native.session import (
     DeviceConfig,
     HostConfig,
     Message,
-    ServiceRequest,
-    ServiceResponse,
-    SessionError,
 )
 from tests.protocols.test_native_framing import ref_body, ref_cobs_encode
 from tests.protocols.test_native_session import connect, make_link
@@ -151,13 +148,7 @@ def test_service_decoders_match_the_reference(payload: bytes) -> None:
 def test_fast_built_objects_equal_the_constructed_ones() -> None:
     assert_same_object(make_frame(FrameType.ACK, 3, 4, b"x"), Frame(FrameType.ACK, 3, 4, b"x"))
     assert_same_object(reliable._delivery(5, b"ab", 9), Delivery(5, b"ab", 9))
-    assert_same_object(session._message(1, b"hi", 2), Message(1, b"hi", 2))
-    assert_same_object(session._service_request(6, 7, b"q"), ServiceRequest(6, 7, b"q"))
-    error = SessionError("no")
-    assert_same_object(
-        session._service_response(6, 7, b"", error), ServiceResponse(6, 7, b"", error)
-    )
-    assert_same_object(session._service_response(6, 7, b"a", None), ServiceResponse(6, 7, b"a"))
+    assert_same_object(_hotpath.message(1, b"hi", 2), Message(1, b"hi", 2))
 
 
 def test_bare_acks_are_the_acks_built_in_place() -> None:

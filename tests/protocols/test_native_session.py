@@ -567,11 +567,11 @@ def test_handshake_negotiates_limits_and_announces_table() -> None:
     assert (hc.link.device_max_message, hc.link.host_max_message) == (200, 1 << 20)
     assert hc.link.features == Features.TIME_SYNC
     assert hc.board == BOARD
-    assert hc.topics == TOPICS == dc.topics
+    assert hc.endpoints == TOPICS == dc.topics
     assert (hc.host_session, hc.device_session) == (link.host.session_id, link.device.session_id)
     assert (dc.host_session, dc.device_session) == (hc.host_session, hc.device_session)
     assert not hc.resumed
-    assert [e.entry for e in of_type(link.host_events, TopicAnnounced)] == list(TOPICS)
+    assert [e.endpoint for e in of_type(link.host_events, TopicAnnounced)] == list(TOPICS)
     assert link.host.topics == {e.channel: e for e in TOPICS}
     assert not errors(link.host_events + link.device_events)
 

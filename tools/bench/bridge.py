@@ -47,7 +47,7 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -182,37 +182,51 @@ def board_main(protocol: str, url: str) -> None:
 
 def _fast_publisher_class() -> type:
     from hwbridge.protocols.native import session as ns
-    from hwbridge.protocols.native.framing import FrameType, encode_frame, make_frame
+    from hwbridge.protocols.native.framing import Frame, NativeStreamFraming, encode_frame
+
+    class CachedFraming(NativeStreamFraming):
+        """The stream framing, with the encodings of frames seen before kept (as a C firmware
+        would be fast enough to encode them): the same bytes, a dictionary lookup each."""
+
+        __slots__ = ("_cache",)
+
+        def __init__(self) -> None:
+            super().__init__()
+            self._cache: dict[tuple[object, ...], bytes] = {}
+
+        def encode(self, frames: Sequence[Frame], now: float, /) -> list[bytes]:
+            if not frames:
+                return []
+            head = super().encode(frames[:1], now)  # the first frame, led by 0x00 if due
+            cache = self._cache
+            wire = [head[0]]
+            for frame in frames[1:]:
+                key = (frame.type, frame.channel, frame.seq, frame.payload, frame.frag)
+                encoded = cache.get(key)
+                if encoded is None:
+                    encoded = encode_frame(frame)
+                    if len(cache) < 4096:
+                        cache[key] = encoded
+                wire.append(encoded)
+            return [b"".join(wire)]
 
     class FastPublisher(ns.DeviceSession):
         """A device session that publishes like a C firmware: fast enough that the bridge, not
         this Python process, limits the throughput bench.
 
-        ``publish_repeated`` puts on the wire exactly the frames that ``count`` calls of
-        ``publish(channel, payload)`` would (a best-effort channel, a payload that fits one
-        frame): the same bytes and sequence numbers, taken from 256 encodings made once.
+        It is an ordinary session (public API only) on a framing that keeps the encodings of the
+        frames it sent: ``publish_repeated`` calls ``publish(channel, payload)`` ``count``
+        times, and the 256 encodings of a best-effort message (one per sequence number) are
+        made once.
         """
 
-        _encoded: dict[tuple[int, bytes], list[bytes]]
+        def __init__(self, *args: Any, **kwargs: Any) -> None:
+            super().__init__(*args, framing=CachedFraming(), **kwargs)
 
         def publish_repeated(self, channel: int, payload: bytes, count: int) -> None:
-            encoded = self.__dict__.setdefault("_encoded", {})
-            frames = encoded.get((channel, payload))
-            if frames is None:
-                frames = encoded[channel, payload] = [
-                    encode_frame(make_frame(FrameType.BEST_EFFORT, channel, seq, payload))
-                    for seq in range(256)
-                ]
-            sender = self._be_tx
-            first = sender.next_seq
-            wire = b"".join([frames[(first + i) & 0xFF] for i in range(count)])
-            self._out.append(wire)
-            sender.next_seq = (first + count) & 0xFF
-            self._seq.be_frames_sent += count
-            self._seq.be_messages_sent += count
-            self._c.frames_sent += count
-            self._c.bytes_sent += len(wire)
-            self._last_tx = self._now
+            publish = self.publish
+            for _ in range(count):
+                publish(channel, payload)
 
     return FastPublisher
 
@@ -235,13 +249,13 @@ class _BoardTimer:
         result: list[Any] = self.inner.receive_data(data, now)
         return result
 
-    def data_to_send(self) -> bytes:
-        data: bytes = self.inner.data_to_send()
-        if data and self.answered and self._received_at is not None:
+    def chunks_to_send(self) -> list[bytes]:
+        chunks: list[bytes] = self.inner.chunks_to_send()
+        if chunks and self.answered and self._received_at is not None:
             self.samples.append(time.perf_counter() - self._received_at)
             self.answered = False
             self._received_at = None
-        return data
+        return chunks
 
 
 def echo_main(symlink: str) -> None:
@@ -305,7 +319,7 @@ def caller_main(endpoint: str, calls: int, targets: list[str]) -> None:
             pause = float(pause_text or 0.0)
             if name.startswith("zenoh:"):
                 # The graph's own querier options (express: no wait for Zenoh's batching).
-                querier = graph._keep(
+                querier = graph.keep(
                     graph.session.declare_querier(
                         name[len("zenoh:") :],
                         target=zenoh.QueryTarget.BEST_MATCHING,

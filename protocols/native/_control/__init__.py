@@ -1,0 +1,1 @@
+"""The native control messages, by group (import them from ``native.control``)."""

@@ -1,0 +1,1 @@
+"""The native framing, in parts (import it from ``hwbridge.protocols.native.framing``)."""

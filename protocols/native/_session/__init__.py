@@ -1,0 +1,1 @@
+"""The native sessions, in parts; import them from ``hwbridge.protocols.native.session``."""

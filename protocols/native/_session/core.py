@@ -1,0 +1,587 @@
+"""The part of a native session both ends share: state, clock, input, output, ACK holding.
+
+:class:`SessionCore` holds every piece of state the session's parts use and the per-frame
+paths: ``receive_data`` feeds the framing's frames to ``_on_frame``, which hands reliable
+frames to the reliability layer (:mod:`hwbridge.protocols.native.reliable`) and control
+messages to ``_on_control``; ``_send_frame`` queues frames that ``chunks_to_send`` encodes with
+the framing. The other parts are mixins on this class (handshake, services, time sync, the
+topic table and parameters of each end); the hooks they fill in are declared here.
+"""
+
+from __future__ import annotations
+
+import random
+from collections import deque
+from collections.abc import Iterable
+from dataclasses import dataclass
+from typing import Any, ClassVar, Generic, TypeVar
+
+from hwbridge.protocols.errors import HwBridgeError, ProtocolError
+from hwbridge.protocols.native._control.common import (
+    CONTROL_CHANNEL,
+    MIN_MTU,
+    NO_SESSION,
+    EntryKind,
+    LogLevel,
+    Role,
+)
+from hwbridge.protocols.native._framing.frames import BadFrame, Frame, NonFrameBytes
+from hwbridge.protocols.native._framing.links import NativeFraming, NativeStreamFraming
+from hwbridge.protocols.native._hotpath import CLOSED, CONFIGURING, CONNECTED
+from hwbridge.protocols.native._session.config import (
+    _MAX_TIME_SAMPLES,
+    _U32,
+    BoardInfo,
+    LinkParams,
+    NativeStats,
+    SessionConfig,
+    SessionError,
+    SessionResetError,
+    SessionState,
+    TopicEntry,
+)
+from hwbridge.protocols.native._session.events import DebugOutput, Error
+from hwbridge.protocols.native.control import (
+    ControlMessage,
+    GoodbyeMsg,
+    HelloMsg,
+    LogMsg,
+    ServiceRequestMsg,
+    ServiceResponseMsg,
+)
+from hwbridge.protocols.native.reliable import (
+    BestEffortReceiver,
+    BestEffortSender,
+    ReliableReceiver,
+    ReliableSender,
+    RttEstimator,
+    SequenceStats,
+)
+
+_E = TypeVar("_E")
+"""The events a session gives (a host's are the shared vocabulary; a device has two more)."""
+
+HELLO_FIRST_RETRY = 0.05
+"""The first HELLO goes out at once; the next after this long, each wait doubling up to
+``hello_interval`` (PROTOCOL.md 2.5)."""
+
+
+@dataclass(slots=True)
+class _Pending:
+    """An outgoing request waiting for its answer."""
+
+    channel: int
+    name: str
+    deadline: float
+
+
+@dataclass(slots=True)
+class _Counters:
+    frames_sent: int = 0
+    bytes_sent: int = 0
+    ignored_frames: int = 0
+    dropped_messages: int = 0
+    tx_refused: int = 0
+    protocol_errors: int = 0
+    hellos_sent: int = 0
+    heartbeats_sent: int = 0
+    sessions: int = 0
+    link_losses: int = 0
+    peer_resets: int = 0
+
+
+def _truncate(text: str, limit: int) -> bytes:
+    """``text`` as UTF-8, cut to at most ``limit`` bytes on a character boundary."""
+    raw = text.encode("utf-8")
+    if len(raw) <= limit:
+        return raw
+    return raw[: max(0, limit)].decode("utf-8", errors="ignore").encode("utf-8")
+
+
+def _role_name(role: Role) -> str:
+    return "host" if role == Role.HOST else "board"
+
+
+class SessionCore(Generic[_E]):
+    """Code shared by both ends; the mixins and the subclasses add the rest."""
+
+    _ROLE: ClassVar[Role]
+    _PUBLISH_KIND: ClassVar[EntryKind]
+    """Entry kind this end publishes on."""
+    _RECEIVE_KIND: ClassVar[EntryKind]
+    """Entry kind whose messages this end receives."""
+    _CALL_KIND: ClassVar[EntryKind]
+    """Entry kind of services this end calls."""
+    _SERVE_KIND: ClassVar[EntryKind]
+    """Entry kind of services this end serves."""
+
+    def __init__(
+        self,
+        config: SessionConfig,
+        *,
+        framing: NativeFraming | None = None,
+        session_id: int | None = None,
+        rng: random.Random | None = None,
+    ) -> None:
+        self._cfg = config
+        self._rng = rng if rng is not None else random.Random()
+        if session_id is not None and not 0 < session_id < _U32:
+            raise ValueError(f"session id must be 1..2**32-1, not {session_id}")
+        self._id = session_id if session_id is not None else self._random_session_id()
+        if framing is None:
+            framing = NativeStreamFraming(config.mtu)
+        else:
+            framing.max_payload = config.mtu
+        self._framing = framing
+        self._out: list[Frame] = []
+        """Frames not yet taken by chunks_to_send (encoded together, by the framing)."""
+        self._events: list[Any] = []
+        self._now = 0.0
+        """The latest time seen (0.0 before the first); the clock of every action."""
+        self._started = False
+        """True once a time was seen: the timers start from that time."""
+        self._c = _Counters()
+        self._seq = SequenceStats()
+        self._rtt = RttEstimator(config.rto_initial, config.rto_min, config.rto_max)
+        self._be_tx = BestEffortSender(self._seq)
+        self._be_rx = BestEffortReceiver(self._seq, config.max_message)
+        self._be_peer = NO_SESSION
+        """Peer session whose best-effort seq space ``_be_rx`` follows."""
+        self._rel_tx: ReliableSender | None = None
+        self._rel_rx: ReliableReceiver | None = None
+        self._state = SessionState.HANDSHAKE
+        self._established = False
+        self._peer_id = NO_SESSION
+        self._last_peer_id = NO_SESSION
+        self._isn = self._rng.getrandbits(8)
+        self._link: LinkParams | None = None
+        self._peer_max = MIN_MTU
+        """The largest message the peer accepts (its max_message; MIN_MTU without a session)."""
+        self._time_sync = False
+        """Time requests run in this session (both ends have TIME_SYNC, the interval is > 0)."""
+        self._last_rx = 0.0
+        self._last_tx = 0.0
+        self._ack_due: float | None = None
+        """When a held-back ACK must go out at the latest (None: none is held)."""
+        self._next_hello = 0.0
+        self._hello_wait = min(HELLO_FIRST_RETRY, config.hello_interval)
+        """Wait before the next HELLO retry: doubles from HELLO_FIRST_RETRY to hello_interval."""
+        self._waiting_since = 0.0
+        """When the current wait for a connected session began."""
+        self._wait_reported = False
+        self._configuring_since = 0.0
+        self._version_frames = 0
+        self._reported: set[str] = set()
+        """Keys of errors already reported this session (to avoid floods)."""
+        self._calls: dict[int, _Pending] = {}
+        self._incoming_calls: set[tuple[int, int]] = set()
+        self._next_request_id = 1
+        self._time_next = 0.0
+        self._time_samples: deque[tuple[float, float, float]] = deque(maxlen=_MAX_TIME_SAMPLES)
+        """(rtt, offset, reference) of recent time sync exchanges."""
+
+    def _start(self, now: float | None) -> None:
+        """Start the clock at ``now`` (if given) and run the timers: the first HELLO goes out."""
+        if now is not None:
+            self._advance(now)
+            self._run_timers()
+            self._flush()
+
+    # ---- public API shared by both ends --------------------------------------------------
+
+    @property
+    def state(self) -> SessionState:
+        """Where the session is."""
+        return self._state
+
+    @property
+    def connected(self) -> bool:
+        """True in the CONNECTED state."""
+        return self._state is CONNECTED
+
+    @property
+    def session_id(self) -> int:
+        """This end's session id (a device picks a new one at every boot)."""
+        return self._id
+
+    @property
+    def peer_session_id(self) -> int:
+        """The peer's session id, 0 when no session is established."""
+        return self._peer_id if self._established else NO_SESSION
+
+    @property
+    def link(self) -> LinkParams | None:
+        """The negotiated parameters, None without a session."""
+        return self._link
+
+    @property
+    def config(self) -> SessionConfig:
+        """This end's configuration."""
+        return self._cfg
+
+    @property
+    def framing(self) -> NativeFraming:
+        """The framing this session reads and writes with (stream or datagram)."""
+        return self._framing
+
+    @property
+    def rtt(self) -> float | None:
+        """Smoothed round-trip time of reliable frames (seconds), None before a sample."""
+        return self._rtt.srtt
+
+    @property
+    def stats(self) -> NativeStats:
+        """A snapshot of this end's counters (as :meth:`counters`)."""
+        d = self._framing.stats
+        bad = (
+            d.crc_errors
+            + d.cobs_errors
+            + d.too_short
+            + d.version_errors
+            + d.reserved_type
+            + d.oversize
+        )
+        c = self._c
+        q = self._seq
+        return NativeStats(
+            frames_sent=c.frames_sent,
+            bytes_sent=c.bytes_sent,
+            frames_received=d.frames,
+            bytes_received=d.bytes,
+            bad_frames=bad,
+            crc_errors=d.crc_errors,
+            non_frame_bytes=d.non_frame_bytes,
+            dropped_messages=c.dropped_messages,
+            protocol_errors=c.protocol_errors,
+            sessions=c.sessions,
+            ignored_frames=c.ignored_frames,
+            tx_refused=c.tx_refused,
+            hellos_sent=c.hellos_sent,
+            heartbeats_sent=c.heartbeats_sent,
+            link_losses=c.link_losses,
+            peer_resets=c.peer_resets,
+            rtt=self._rtt.srtt,
+            rto=self._rtt.rto,
+            be_frames_sent=q.be_frames_sent,
+            be_frames_received=q.be_frames_received,
+            be_frames_lost=q.be_frames_lost,
+            be_frames_late=q.be_frames_late,
+            be_resyncs=q.be_resyncs,
+            be_messages_sent=q.be_messages_sent,
+            be_messages_received=q.be_messages_received,
+            be_messages_incomplete=q.be_messages_incomplete,
+            be_fragments_discarded=q.be_fragments_discarded,
+            rel_frames_sent=q.rel_frames_sent,
+            rel_frames_received=q.rel_frames_received,
+            rel_messages_sent=q.rel_messages_sent,
+            rel_messages_received=q.rel_messages_received,
+            retransmits=q.retransmits,
+            fast_retransmits=q.fast_retransmits,
+            duplicates=q.duplicates,
+            out_of_window=q.out_of_window,
+            acks_sent=q.acks_sent,
+            acks_received=q.acks_received,
+            oversize_messages=q.oversize_messages,
+            malformed_messages=q.malformed_messages,
+        )
+
+    def counters(self) -> NativeStats:
+        """A snapshot of this end's counters."""
+        return self.stats
+
+    def receive_data(self, data: bytes, now: float, /) -> list[_E]:
+        """Feed what one link read returned (a stream chunk, or one datagram on a datagram
+        framing); returns the events it causes."""
+        self._advance(now)
+        if self._state is not CLOSED:
+            on_frame = self._on_frame
+            for item in self._framing.decode(data):
+                if isinstance(item, Frame):
+                    on_frame(item)
+                elif isinstance(item, NonFrameBytes):
+                    self._events.append(DebugOutput(item.data))
+                else:
+                    self._on_bad_frame(item)
+            self._flush()
+        events: list[_E] = self._events  # _take_events(), inline: a per-read path
+        self._events = []
+        return events
+
+    def tick(self, now: float, /) -> list[_E]:
+        """Run the timers due at ``now``; returns the events they cause."""
+        self._advance(now)
+        if self._state is not CLOSED:
+            self._run_timers()
+            self._flush()
+        events: list[_E] = self._events  # _take_events(), inline
+        self._events = []
+        return events
+
+    def chunks_to_send(self) -> list[bytes]:
+        """What to write to the link, one write per item (one chunk on a stream framing, one
+        datagram per frame on a datagram framing); the buffer is emptied."""
+        out = self._out
+        if not out:
+            return []
+        self._out = []
+        chunks = self._framing.encode(out, self._now)
+        self._c.bytes_sent += sum(map(len, chunks))
+        return chunks
+
+    def data_to_send(self) -> bytes:
+        """:meth:`chunks_to_send`, joined (for stream links, tests and simple users)."""
+        chunks = self.chunks_to_send()
+        return chunks[0] if len(chunks) == 1 else b"".join(chunks)
+
+    def next_deadline(self) -> float | None:
+        """The time at which ``tick`` has work next, or None (closed)."""
+        state = self._state
+        if state is CLOSED:
+            return None
+        cfg = self._cfg
+        times: list[float] = []
+        if not self._wait_reported and state is not CONNECTED:
+            times.append(self._waiting_since + cfg.handshake_timeout)
+        if not self._established:
+            times.append(self._next_hello)
+        else:
+            times.append(self._last_rx + cfg.link_timeout)
+            times.append(self._last_tx + cfg.heartbeat_interval)
+            if self._ack_due is not None:
+                times.append(self._ack_due)
+            if self._rel_tx is not None:
+                rel = self._rel_tx.next_deadline()
+                if rel is not None:
+                    times.append(rel)
+            if state is CONFIGURING:
+                times.append(self._configuring_since + cfg.handshake_timeout)
+            else:
+                for call in self._calls.values():
+                    times.append(call.deadline)
+                times.extend(self._other_deadlines())
+                if self._time_sync:
+                    times.append(self._time_next)
+        return min(times)
+
+    def publish(self, channel: int, payload: bytes) -> bool:
+        """Send one topic message; False when not connected or the queue is full.
+
+        Raises:
+            SessionError: the channel is not a topic this end publishes, or the message is
+                larger than the peer accepts.
+        """
+        if self._state is not CONNECTED:
+            self._c.tx_refused += 1
+            return False
+        entry = self._entry(channel)
+        if entry is None or entry.kind != self._PUBLISH_KIND:
+            raise SessionError(self._wrong_channel(channel, entry, "publish on"))
+        self._check_size(len(payload), "message for %s (channel %d)", entry.name, channel)
+        if entry.reliable:
+            return self._send_reliable(channel, payload)
+        self._send_best_effort(channel, payload)
+        return True
+
+    def log(self, level: LogLevel, text: str) -> bool:
+        """Send a log line to the peer (truncated to fit); False when it cannot be sent."""
+        if not self.connected or not self._may_log():
+            self._c.tx_refused += 1
+            return False
+        raw = _truncate(text, self._peer_max - 2)
+        return self._send_reliable(CONTROL_CHANNEL, LogMsg(level, raw.decode("utf-8")).encode())
+
+    def close(self, now: float | None = None, /) -> list[_E]:
+        """End the session: tell the peer (GOODBYE), fail pending operations, stop all timers."""
+        self._advance_opt(now)
+        if self._state is CLOSED:
+            return self._take_events()
+        if self._established:
+            self._send_control_be(GoodbyeMsg())
+        self._teardown("closed by this end", SessionResetError("the session was closed"))
+        self._state = SessionState.CLOSED
+        return self._take_events()
+
+    # ---- hooks: filled in by the mixins (handshake, services, time) and the two ends -------
+
+    def _entry(self, channel: int) -> TopicEntry | None:
+        """The accepted entry on ``channel`` in the current session."""
+        raise NotImplementedError
+
+    def _on_established(self) -> None:
+        """The handshake completed (state CONFIGURING)."""
+
+    def _on_teardown(self) -> None:
+        """The session ended; drop role-specific state."""
+
+    def _on_role_control(self, msg: ControlMessage) -> bool:
+        """Handle a role-specific control message; False if this end does not accept it."""
+        raise NotImplementedError
+
+    def _other_deadlines(self) -> Iterable[float]:
+        """Role-specific timer deadlines (CONNECTED state)."""
+        return ()
+
+    def _run_role_timers(self, now: float) -> None:
+        """Role-specific timers (CONNECTED state)."""
+
+    def _send_time_request(self) -> None:
+        raise NotImplementedError
+
+    def _may_log(self) -> bool:
+        return True
+
+    def _request_id_in_use(self, request_id: int) -> bool:
+        """True when a role-specific request uses this id."""
+        return False
+
+    def _fail_role_pending(self, reason: str) -> None:
+        """Fail role-specific pending operations (the session ended)."""
+
+    def _hello_context(self) -> str:
+        return ""
+
+    def _on_frame(self, frame: Frame) -> None:
+        """Handle one valid frame (receive mixin)."""
+        raise NotImplementedError
+
+    def _on_bad_frame(self, item: BadFrame) -> None:
+        raise NotImplementedError
+
+    def _run_timers(self) -> None:
+        """Run the timers due at ``self._now`` (handshake mixin)."""
+        raise NotImplementedError
+
+    def _on_hello(self, msg: HelloMsg) -> None:
+        raise NotImplementedError
+
+    def _teardown(self, reason: str, error: HwBridgeError) -> None:
+        raise NotImplementedError
+
+    def _connect(self, board: BoardInfo, topics: tuple[TopicEntry, ...]) -> None:
+        raise NotImplementedError
+
+    def _on_service_request(self, msg: ServiceRequestMsg) -> None:
+        raise NotImplementedError
+
+    def _expire_calls(self, now: float) -> None:
+        raise NotImplementedError
+
+    def _on_service_response(self, msg: ServiceResponseMsg) -> None:
+        raise NotImplementedError
+
+    # ---- clock -----------------------------------------------------------------------------
+
+    def _advance(self, now: float) -> None:
+        if not self._started:
+            self._started = True
+            self._now = now
+            self._next_hello = now
+            self._waiting_since = now
+            self._last_tx = now
+        elif now > self._now:
+            self._now = now
+
+    def _alive(self) -> None:
+        self._last_rx = self._now
+
+    def _advance_opt(self, now: float | None) -> None:
+        if now is not None:
+            self._advance(now)
+
+    # ---- output -----------------------------------------------------------------------------
+
+    def _take_events(self) -> list[_E]:
+        events: list[_E] = self._events
+        self._events = []
+        return events
+
+    def _send_frame(self, frame: Frame) -> None:
+        if self._ack_due is not None:  # a held ACK goes out with the first frame that does
+            self._send_ack()
+        self._out.append(frame)
+        self._c.frames_sent += 1
+        self._last_tx = self._now
+
+    def _send_best_effort(self, channel: int, payload: bytes) -> None:
+        mtu = self._link.mtu if self._link is not None else MIN_MTU
+        for frame in self._be_tx.frames(channel, payload, mtu):
+            self._send_frame(frame)
+
+    def _send_control_be(self, msg: ControlMessage) -> None:
+        self._send_best_effort(CONTROL_CHANNEL, msg.encode())
+
+    # ---- reliability glue: queueing, pumping the window, holding ACKs ----------------------
+    def _send_reliable(self, channel: int, payload: bytes, *, force: bool = False) -> bool:
+        if self._rel_tx is None:
+            self._c.tx_refused += 1
+            return False
+        if not self._rel_tx.queue(channel, payload, force=force):
+            self._c.tx_refused += 1
+            return False
+        self._pump()
+        return True
+
+    def _send_control(self, msg: ControlMessage) -> None:
+        self._send_reliable(CONTROL_CHANNEL, msg.encode(), force=True)
+
+    def _pump(self) -> None:
+        sender = self._rel_tx
+        if sender is not None and sender.has_pending:
+            for frame in sender.transmit(self._now):
+                self._send_frame(frame)
+
+    def _flush(self) -> None:
+        """Send a pending ACK (or hold it back, PROTOCOL.md 2.4) and release reliable frames the
+        window allows."""
+        receiver = self._rel_rx
+        if receiver is not None and receiver.ack_needed:
+            if receiver.ack_urgent or self._out or self._rel_tx is None or self._rel_tx.has_pending:
+                self._send_ack()
+            elif self._ack_due is None:
+                self._ack_due = self._now + self._cfg.ack_delay
+        self._pump()
+
+    def _send_ack(self) -> None:
+        self._ack_due = None
+        receiver = self._rel_rx
+        if receiver is not None:
+            self._send_frame(receiver.ack_frame())
+
+    def _check_size(self, size: int, what: str, *args: object) -> None:
+        """Raise if ``size`` is above the peer's max_message; ``what % args`` names the
+        message (formatted only then: this runs for every message sent)."""
+        limit = self._peer_max
+        if size > limit:
+            peer = "board" if self._ROLE == Role.HOST else "host"
+            raise SessionError(
+                f"{what % args} is {size} bytes but the {peer} accepts messages of at most {limit} "
+                f"bytes (its max_message): send less, or raise max_message on the {peer}"
+            )
+
+    def _new_request_id(self) -> int:
+        for _ in range(0x10000):
+            request_id = self._next_request_id
+            self._next_request_id = request_id % 0xFFFF + 1
+            if request_id not in self._calls and not self._request_id_in_use(request_id):
+                return request_id
+        raise SessionError("65535 requests are pending: no request id is free")
+
+    def _random_session_id(self) -> int:
+        return self._rng.randrange(1, _U32)
+
+    def _error(self, error: HwBridgeError, key: str | None = None) -> None:
+        """Report an error, once per session for a given ``key``."""
+        if key is not None:
+            if key in self._reported:
+                return
+            self._reported.add(key)
+        self._events.append(Error(error))
+
+    def _protocol_error(self, text: str, key: str | None = None) -> None:
+        self._c.protocol_errors += 1
+        self._error(ProtocolError(text), key)
+
+    def _wrong_channel(self, channel: int, entry: TopicEntry | None, action: str) -> str:
+        if entry is None:
+            return f"cannot {action} channel {channel}: no accepted entry has that channel"
+        return f"cannot {action} channel {channel}: it is {entry.name}, a {entry.kind.name.lower()}"

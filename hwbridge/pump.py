@@ -151,10 +151,11 @@ class SessionPump:
     def _run(self) -> None:
         error: BaseException | None = None
         session, lock, clock = self.session, self._lock, self._clock
-        deadline_of = getattr(session, "next_deadline", None)
-        if not callable(deadline_of):
-            deadline_of = None
+        found: Any = getattr(session, "next_deadline", None)
+        deadline_of: Callable[[], float | None] | None = found if callable(found) else None
         try:
+            with lock:  # what the session queued before the thread started goes out now
+                self._flush()
             while not self._stop.is_set():
                 # A session that announces its next deadline is ticked only when one is due;
                 # others are ticked after every read and at least every _IDLE_TICK.

@@ -23,6 +23,7 @@ import logging
 import math
 import threading
 import time
+from collections.abc import Callable
 from pathlib import PurePosixPath
 from typing import TYPE_CHECKING, Any
 
@@ -31,6 +32,7 @@ from hwbridge.errors import HwBridgeError, LinkError
 from hwbridge.graph import Node, resolve_name
 from hwbridge.graph.names import encode_segment
 from hwbridge.links import Link, LinkClosedError, create_link
+from hwbridge.protocols.base import BoardSession
 from hwbridge.protocols.detect import ProtocolDetector, detectable_protocols
 from hwbridge.protocols.registry import (
     ProtocolSpec,
@@ -141,7 +143,7 @@ class BoardConnection:
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name=f"board-{self.name}", daemon=True)
         self._token = bridge.graph.announce("board", self.name, spec.url, spec.protocol)
-        self._info = bridge.graph._keep(
+        self._info = bridge.graph.keep(
             bridge.graph.session.declare_queryable(
                 board_key(bridge.graph.prefix, self.name), self._on_info
             )
@@ -289,7 +291,7 @@ class BoardConnection:
         self.connects += 1
         self.set_state("negotiating")
         for chunk in early:
-            pump.call(lambda s, chunk=chunk: s.receive_data(chunk, time.monotonic()))
+            pump.call(_feed(chunk))
         pump.start()
         while not done.wait(0.2):
             if self._stop.is_set():
@@ -412,9 +414,16 @@ class _Received:
             self.kept -= len(self.chunks.pop(0))
 
 
+def _feed(data: bytes) -> Callable[[BoardSession], list[Any]]:
+    """An action that gives the session ``data`` read before it existed."""
+    return lambda session: session.receive_data(data, time.monotonic())
+
+
 def _is_datagram(link: Link) -> bool:
-    """True for links that carry whole frames (CAN, UDP) rather than a byte stream."""
-    return bool(getattr(link, "datagram", False))
+    """True for links that carry whole frames (CAN, UDP) rather than a byte stream (a wrapper
+    such as ``spy+`` is what it wraps)."""
+    inner = getattr(link, "inner", None)
+    return link.datagram or (isinstance(inner, Link) and inner.datagram)
 
 
 def board_key(prefix: str, name: str) -> str:

@@ -118,6 +118,9 @@ class Link(abc.ABC):
 
     scheme: ClassVar[str] = ""
     """The URL scheme that names this kind of link (for messages)."""
+    datagram: ClassVar[bool] = False
+    """True if each read returns one whole datagram and each write sends one (UDP, CAN): the
+    protocol then uses its datagram framing. False for byte streams (serial, TCP, pty)."""
 
     def __init__(self, url: str) -> None:
         self.url = url

@@ -52,11 +52,14 @@ BUILTIN_SCHEMES: Final[dict[str, str]] = {
     "memory": "hwbridge.links.memory:MemoryLink",
     "pty": "hwbridge.links.pseudoterminal:PtyLink",
     "spy": "hwbridge.links.spy:SpyLink",
+    "udp": "hwbridge.links.udp:UdpLink",
+    "udp-listen": "hwbridge.links.udp:UdpListenLink",
 }
 
 _EXAMPLES: Final = (
     "serial:///dev/ttyACM0?baud=115200, /dev/ttyUSB0, COM3, socket://192.168.4.1:11411, "
-    "tcp-listen://:11411, pty://, memory://NAME, spy+serial:///dev/ttyACM0"
+    "tcp-listen://:11411, pty://, memory://NAME, udp://192.168.4.1:2324, udp-listen://:2324, "
+    "spy+serial:///dev/ttyACM0"
 )
 _HINTS: Final[dict[str, str]] = {
     "tcp": "socket://HOST:PORT to connect, or tcp-listen://:PORT to wait for a board",

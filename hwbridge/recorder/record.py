@@ -225,7 +225,7 @@ class Recorder:
                 self._queue.put(_STOP)
         if state == "recording":
             if self._watch is not None:
-                self.graph._forget(self._watch)
+                self.graph.forget(self._watch)
             if self._thread is not None:
                 self._thread.join()  # the only other thread that subscribes
             with self._lock:

@@ -146,7 +146,9 @@ def test_mpu9250_magnetometer_option(magnetometer: bool) -> None:
     raws = []
     for _ in range(3):
         board.world.step(0.02)  # the AK8963 measures at 100 Hz: one is ready every reading
-        channel, payload = read()
+        reading = read()
+        assert reading is not None
+        channel, payload = reading
         assert board._channel_names[channel] == "imu_raw"
         raws.append(msg.decode(payload, "hwbridge_msgs/ImuRaw"))
     assert [bool(raw.mag_valid) for raw in raws] == [magnetometer] * 3

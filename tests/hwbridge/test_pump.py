@@ -57,11 +57,11 @@ def pair() -> Iterator[tuple[SessionPump, SessionPump, PausingLink, list[Any], l
             time_sync_interval=0, link_timeout=HOLD * 4, heartbeat_interval=HOST_HEARTBEAT
         )
     )
-    timers = {"link_timeout": LINK_TIMEOUT, "heartbeat_interval": DEVICE_HEARTBEAT}
     sketch = native_sketch()
-    device = ns.DeviceSession(
-        sketch.board, list(sketch.topics.values()), ns.DeviceConfig(time_sync_interval=0, **timers)
+    config = ns.DeviceConfig(
+        time_sync_interval=0, link_timeout=LINK_TIMEOUT, heartbeat_interval=DEVICE_HEARTBEAT
     )
+    device = ns.DeviceSession(sketch.board, list(sketch.topics.values()), config)
     pausing = PausingLink(device_link)
     host_events: list[Any] = []
     device_events: list[Any] = []
@@ -103,4 +103,4 @@ def test_a_long_hold_of_the_lock_is_not_taken_for_a_silent_peer(
     time.sleep(LINK_TIMEOUT)  # room for a (wrong) timeout to be reported
     ended = [e for e in device_events + host_events if isinstance(e, ns.Disconnected)]
     assert ended == []
-    assert device_pump.session.connected
+    assert cast(ns.DeviceSession, device_pump.session).connected

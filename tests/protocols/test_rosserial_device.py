@@ -130,6 +130,7 @@ def test_periodic_time_requests_and_sync_timeout() -> None:
     # no more replies: unconfigured once 11 s passed since the last one
     last = times[-1]
     events = []
+    step = 0
     for step in range(1, 1300):
         events += device.tick(last + step / 100)
         if events:

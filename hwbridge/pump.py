@@ -18,7 +18,7 @@ import logging
 import threading
 import time
 from collections.abc import Callable
-from typing import Any, Protocol, TypeVar
+from typing import Any, Protocol, TypeVar, cast
 
 from hwbridge.errors import HwBridgeError, LinkError
 from hwbridge.links import Link, LinkClosedError
@@ -151,8 +151,8 @@ class SessionPump:
     def _run(self) -> None:
         error: BaseException | None = None
         session, lock, clock = self.session, self._lock, self._clock
-        found: Any = getattr(session, "next_deadline", None)
-        deadline_of: Callable[[], float | None] | None = found if callable(found) else None
+        found = getattr(session, "next_deadline", None)
+        deadline_of = cast("Callable[[], float | None] | None", found if callable(found) else None)
         try:
             with lock:  # what the session queued before the thread started goes out now
                 self._flush()

@@ -400,6 +400,7 @@ class ReliableSender:
         if acked_to < (self._next_sent() - base) & 0xFF:
             # Karn's rule: no RTT sample when any newly acknowledged frame was retransmitted.
             retransmitted = False
+            last = in_flight[base]  # acked_to >= 0: the loop below pops at least this one
             for i in range(acked_to + 1):
                 last = in_flight.pop((base + i) & 0xFF)
                 if last.retries:

@@ -463,6 +463,7 @@ def test_version_mismatch_is_reported_distinctly() -> None:
     decoder = FrameDecoder()
     [event] = decoder.feed(wire)
     assert event == BadFrame(BadFrameReason.VERSION, wire[:-1])
+    assert isinstance(event, BadFrame)
     assert cobs.decode(event.data)[0] >> 6 == 2
     assert decoder.stats.version_errors == 1
     assert decoder.stats.crc_errors == 0

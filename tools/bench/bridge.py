@@ -249,6 +249,10 @@ class _BoardTimer:
         result: list[Any] = self.inner.receive_data(data, now)
         return result
 
+    def tick(self, now: float) -> list[Any]:
+        result: list[Any] = self.inner.tick(now)
+        return result
+
     def chunks_to_send(self) -> list[bytes]:
         chunks: list[bytes] = self.inner.chunks_to_send()
         if chunks and self.answered and self._received_at is not None:
@@ -570,7 +574,7 @@ def pty_echo_rtt(tmp: Path, rounds: int, pause: float = 0.0) -> float:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     parser.add_argument("--board", nargs=2, metavar=("PROTOCOL", "PATH"))
     parser.add_argument("--echo", metavar="PATH")
     parser.add_argument("--echo-client", nargs=2, metavar=("PATH", "ROUNDS"))

@@ -15,9 +15,10 @@ from pathlib import Path
 import pytest
 import yaml
 
+from hwbridge import msg
 from hwbridge.bridge import BoardSpec
 from hwbridge.links import open_link
-from hwbridge.protocols.rosserial import REQUEST_TOPICS
+from hwbridge.protocols.rosserial import REQUEST_TOPICS, RosserialDevice
 from tests.boards import (
     PtyBoard,
     answer_services,
@@ -191,3 +192,42 @@ def test_native_board_through_bridge_and_cli_with_reset(
 )
 def test_a_board_is_named_after_its_url(url: str, name: str) -> None:
     assert BoardSpec(url).name == name
+
+
+ODD_MD5 = "0123456789abcdef0123456789abcdef"
+
+
+def test_rosserial_arduino_test_service_and_an_unknown_type_work_from_the_cli(
+    board_path: Path, bridge: BridgeProcess
+) -> None:
+    """Issue 12's rosserial completeness: a rosserial_arduino/Test server (a type from
+    rosserial_arduino) and a publisher of a type the host has never heard of both appear on the
+    graph; the service is called from the CLI and the unknown topic is echoed as raw bytes."""
+    device = RosserialDevice(msg.registry())
+    device.advertise("odd", "acme_msgs/Odd", ODD_MD5)
+
+    def shout(request: bytes) -> bytes:
+        text = msg.decode(request, "rosserial_arduino/TestRequest").input
+        return msg.encode(msg.new("rosserial_arduino/TestResponse", output=text.upper()))
+
+    device.advertise_service("test_srv", "rosserial_arduino/Test", shout)
+    board = PtyBoard(board_path, device).start()
+    board.every(0.05, lambda d: d.publish("odd", b"\x01\x02\xff"))
+    try:
+        assert wait_for(lambda: "/rs/test_srv" in bridge.cli("service", "list").stdout, 30), (
+            bridge.output()
+        )
+        call = bridge.cli("service", "call", "/rs/test_srv", "{input: hello}", "--json")
+        assert call.returncode == 0, call.stderr + bridge.output()
+        assert json.loads(call.stdout) == {"output": "HELLO"}
+
+        echo = bridge.cli("topic", "echo", "/rs/odd", "-n", "1", "--json", "--timeout", "30")
+        assert echo.returncode == 0, echo.stderr + bridge.output()
+        shown = json.loads(echo.stdout.splitlines()[0])
+        assert shown == {"type": "acme_msgs/Odd", "md5": ODD_MD5, "raw": "0102ff"}
+        assert "no definition of acme_msgs/Odd" in echo.stderr
+        listing = bridge.cli("topic", "list", "-v")
+        assert "acme_msgs/Odd" in listing.stdout
+        assert bridge.output().count("acme_msgs/Odd") >= 1  # the bridge said it passes it raw
+    finally:
+        board.stop()

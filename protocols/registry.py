@@ -70,6 +70,10 @@ class SessionContext:
     """Wall-clock time minus monotonic time (for time sync answers), seconds."""
     board_spoke: bool = False
     """The board already sent something (no start-up wait is needed)."""
+    start_delay: float = 0.0
+    """Seconds the user wants the board left alone after the link opens (a board whose
+    bootloader dislikes bytes); a protocol that writes first waits this long, unless
+    ``board_spoke``."""
     options: dict[str, Any] = field(default_factory=dict)
     """Protocol options from the board's configuration."""
 

@@ -268,6 +268,7 @@ class BoardConnection:
                 now=time.monotonic(),
                 wall_offset=time.time() - time.monotonic(),
                 board_spoke=bool(early),
+                start_delay=self.spec.start_delay,
             )
         )
         adapter = SessionAdapter(self, spec, session)

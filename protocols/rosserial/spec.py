@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from typing import Any, Final
 
+from hwbridge.protocols.errors import HwBridgeError
 from hwbridge.protocols.registry import ProtocolSpec, SessionContext
 from hwbridge.protocols.rosserial.framing import FrameParser, RosFrame
 from hwbridge.protocols.rosserial.host import REQUEST_TOPICS, RosserialHost
@@ -44,13 +45,15 @@ class RosserialDetector:
 def new_session(ctx: SessionContext) -> RosserialHost:
     """A host session for one board (rosserial runs on stream links only)."""
     if ctx.datagram:
-        raise ValueError("rosserial runs on stream links only (serial, TCP, pty)")
+        raise HwBridgeError(
+            "rosserial runs on stream links only (serial, TCP, pty), not on datagram links"
+        )
     unknown = sorted(set(ctx.options) - OPTIONS)
     if unknown:
-        raise ValueError(
+        raise HwBridgeError(
             f"unknown rosserial option(s) {', '.join(unknown)}; known: {', '.join(sorted(OPTIONS))}"
         )
-    options: dict[str, Any] = dict(ctx.options)
+    options: dict[str, Any] = {"start_delay": ctx.start_delay, **ctx.options}
     if ctx.board_spoke:
         options["start_delay"] = 0.0  # it is running: no bootloader to wait for
     return RosserialHost(ctx.registry, now=ctx.now, wall_offset=ctx.wall_offset, **options)

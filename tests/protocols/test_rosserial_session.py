@@ -358,9 +358,9 @@ def test_new_session() -> None:
         )
     )
     assert spoke.chunks_to_send() == [REQUEST_TOPICS]
-    with pytest.raises(ValueError, match="stream"):
+    with pytest.raises(HwBridgeError, match="stream"):
         PROTOCOL.new_session(SessionContext(REG, datagram=True, now=0.0, wall_offset=0.0))
-    with pytest.raises(ValueError, match="baud"):
+    with pytest.raises(HwBridgeError, match="baud"):
         PROTOCOL.new_session(
             SessionContext(REG, datagram=False, now=0.0, wall_offset=0.0, options={"baud": 1})
         )

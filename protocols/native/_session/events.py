@@ -102,19 +102,5 @@ class ParamUpdate:
 HostEvent: TypeAlias = base.Event
 """The events of a :class:`HostSession`: the shared vocabulary (native's subclasses included)."""
 
-Event: TypeAlias = (
-    Connected
-    | Disconnected
-    | TopicAnnounced
-    | Message
-    | ServiceRequest
-    | ServiceResponse
-    | ParamRequest
-    | ParamResponse
-    | ParamUpdate
-    | Log
-    | TimeSynced
-    | DebugOutput
-    | Error
-)
+Event: TypeAlias = base.Event | ParamResponse | ParamUpdate
 """The events of either end (a device session also gives ParamResponse and ParamUpdate)."""

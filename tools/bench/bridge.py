@@ -47,7 +47,7 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -131,8 +131,8 @@ def board_main(protocol: str, url: str) -> None:
         def send_all(count: int) -> None:
             """Publish through the session in batches, each encoded and written under the
             pump's lock (nothing of the session's own comes in between)."""
-            for start in range(0, count, 4096):
-                size = min(4096, count - start)
+            for start in range(0, count, 4097):  # one publish() and 16 replayed cycles
+                size = min(4097, count - start)
                 pump.call(lambda s, size=size: s.publish_repeated(1, payload, size))
 
     else:
@@ -182,51 +182,60 @@ def board_main(protocol: str, url: str) -> None:
 
 def _fast_publisher_class() -> type:
     from hwbridge.protocols.native import session as ns
-    from hwbridge.protocols.native.framing import Frame, NativeStreamFraming, encode_frame
-
-    class CachedFraming(NativeStreamFraming):
-        """The stream framing, with the encodings of frames seen before kept (as a C firmware
-        would be fast enough to encode them): the same bytes, a dictionary lookup each."""
-
-        __slots__ = ("_cache",)
-
-        def __init__(self) -> None:
-            super().__init__()
-            self._cache: dict[tuple[object, ...], bytes] = {}
-
-        def encode(self, frames: Sequence[Frame], now: float, /) -> list[bytes]:
-            if not frames:
-                return []
-            head = super().encode(frames[:1], now)  # the first frame, led by 0x00 if due
-            cache = self._cache
-            wire = [head[0]]
-            for frame in frames[1:]:
-                key = (frame.type, frame.channel, frame.seq, frame.payload, frame.frag)
-                encoded = cache.get(key)
-                if encoded is None:
-                    encoded = encode_frame(frame)
-                    if len(cache) < 4096:
-                        cache[key] = encoded
-                wire.append(encoded)
-            return [b"".join(wire)]
+    from hwbridge.protocols.native.framing import Frame, FrameType, NativeStreamFraming
 
     class FastPublisher(ns.DeviceSession):
         """A device session that publishes like a C firmware: fast enough that the bridge, not
-        this Python process, limits the throughput bench.
+        this Python process, limits the throughput bench. Public API only.
 
-        It is an ordinary session (public API only) on a framing that keeps the encodings of the
-        frames it sent: ``publish_repeated`` calls ``publish(channel, payload)`` ``count``
-        times, and the 256 encodings of a best-effort message (one per sequence number) are
-        made once.
+        ``publish_repeated(channel, payload, count)`` puts on the wire the bytes that ``count``
+        calls of ``publish(channel, payload)`` would. The encoding of the message under each
+        of the 256 best-effort sequence numbers is kept from ``publish``'s own output; since
+        the number wraps at 256, whole cycles of 256 are those bytes again, starting after the
+        number that the latest ``publish`` used (the session's other best-effort frames, such
+        as heartbeats, move it too). The rest goes through ``publish``. Replayed frames skip
+        the session, so its own counters do not count them (the host's do).
         """
 
         def __init__(self, *args: Any, **kwargs: Any) -> None:
-            super().__init__(*args, framing=CachedFraming(), **kwargs)
+            super().__init__(*args, **kwargs)
+            self._tables: dict[tuple[int, bytes], list[bytes | None]] = {}
+            self._replayed: list[bytes] = []
+
+        def chunks_to_send(self) -> list[bytes]:
+            own = super().chunks_to_send()
+            if not self._replayed:
+                return own
+            chunks, self._replayed = [*self._replayed, *own], []
+            return chunks
+
+        def _publish_one(self, channel: int, payload: bytes, table: list[bytes | None]) -> int:
+            """``publish`` once, keep its frame's encoding; returns its sequence number (-1 if
+            its output was not that one frame alone)."""
+            self.publish(channel, payload)
+            chunk = b"".join(super().chunks_to_send())
+            self._replayed.append(chunk)
+            frames = NativeStreamFraming().decode(chunk)
+            if len(frames) != 1:
+                return -1
+            (frame,) = frames
+            if not isinstance(frame, Frame) or frame.type is not FrameType.BEST_EFFORT:
+                return -1
+            table[frame.seq] = chunk.lstrip(b"\x00")
+            return frame.seq
 
         def publish_repeated(self, channel: int, payload: bytes, count: int) -> None:
-            publish = self.publish
-            for _ in range(count):
-                publish(channel, payload)
+            table = self._tables.setdefault((channel, payload), [None] * 256)
+            while count > 0:
+                seq = self._publish_one(channel, payload, table)
+                count -= 1
+                cycles = count // 256
+                if seq >= 0 and cycles and None not in table:
+                    rotated = table[seq + 1 :] + table[: seq + 1]
+                    self._replayed.append(b"".join(rotated) * cycles)  # type: ignore[arg-type]
+                    for _ in range(count - cycles * 256):
+                        self.publish(channel, payload)
+                    return
 
     return FastPublisher
 

@@ -1,0 +1,104 @@
+"""What a robot file describes, once read and checked (:func:`hwbridge.robot.config.load_robot`).
+
+A robot is boards on links, each with the devices on its pins, plus devices on the host's own
+adapters; the ``world`` section describes the room and the robot's body for the emulator. Every
+item remembers where it was written (``FILE:LINE``) so that later errors can say so too.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from hwbridge.errors import HwBridgeError
+
+__all__ = ["DeviceConfig", "HostDeviceConfig", "Robot", "RobotBoardConfig", "RobotFileError"]
+
+
+class RobotFileError(HwBridgeError):
+    """A robot file is wrong; ``problems`` holds one ``FILE:LINE: what is wrong`` line each."""
+
+    def __init__(self, problems: list[str]) -> None:
+        self.problems = problems
+        super().__init__("\n".join(problems))
+
+
+@dataclass(frozen=True)
+class DeviceConfig:
+    """One device: its plugin's type and its settings (checked, with defaults filled in)."""
+
+    type: str
+    name: str
+    """Unique on its board (default: the type, numbered when repeated)."""
+    settings: Mapping[str, Any]
+    source: str = ""
+    """``FILE:LINE`` of the device's entry."""
+
+
+@dataclass(frozen=True)
+class RobotBoardConfig:
+    """One board: how to reach it and the devices on it."""
+
+    name: str
+    link: str
+    protocol: str = "auto"
+    namespace: str = "/"
+    baud: int | None = None
+    service_timeout: float = 5.0
+    start_delay: float = 0.0
+    devices: tuple[DeviceConfig, ...] = ()
+    source: str = ""
+
+
+@dataclass(frozen=True)
+class HostDeviceConfig:
+    """A device on an adapter of the host's own (a Dynamixel bus on a U2D2), with its link."""
+
+    device: DeviceConfig
+    link: str
+    namespace: str = "/"
+    baud: int | None = None
+    source: str = ""
+
+
+@dataclass(frozen=True)
+class Robot:
+    """A whole robot file."""
+
+    name: str
+    path: Path
+    boards: tuple[RobotBoardConfig, ...] = ()
+    host_devices: tuple[HostDeviceConfig, ...] = ()
+    world: Mapping[str, Any] = field(default_factory=dict)
+    """The emulator's world (room, obstacles, wheel geometry); see
+    :class:`hwbridge.emulator.world.WorldConfig`."""
+
+    def board(self, name: str) -> RobotBoardConfig:
+        for board in self.boards:
+            if board.name == name:
+                return board
+        known = ", ".join(b.name for b in self.boards) or "none"
+        raise HwBridgeError(f"{self.path}: no board named {name!r} (boards: {known})")
+
+    def with_links(self, links: Mapping[str, str]) -> Robot:
+        """The same robot with some boards' (or host devices') links replaced, by name
+        (``hwbridge up --link base=socket://...``)."""
+        names = {b.name for b in self.boards} | {h.device.name for h in self.host_devices}
+        unknown = sorted(set(links) - names)
+        if unknown:
+            raise HwBridgeError(
+                f"{self.path}: --link names {', '.join(unknown)}, but the robot has "
+                f"{', '.join(sorted(names)) or 'no boards'}"
+            )
+        boards = tuple(
+            dataclasses.replace(b, link=links[b.name]) if b.name in links else b
+            for b in self.boards
+        )
+        hosts = tuple(
+            dataclasses.replace(h, link=links[h.device.name]) if h.device.name in links else h
+            for h in self.host_devices
+        )
+        return dataclasses.replace(self, boards=boards, host_devices=hosts)

@@ -1,0 +1,161 @@
+"""The device-plugin contract: what a device (a sonar, an IMU, wheel encoders, a servo bus) gives
+hwbridge in one place.
+
+A robot file (:mod:`hwbridge.robot.config`) lists devices by ``type``; each type is a
+:class:`DevicePlugin` found in the registry (:mod:`hwbridge.robot.registry`: built-ins and the
+``hwbridge.devices`` entry-point group). A plugin declares:
+
+* its **settings** (:class:`Field`): names, types, defaults and limits, so a robot file is
+  checked before anything starts and each problem names the file and line;
+* its **emulated model** (:meth:`DevicePlugin.emulate`): how a virtual board carries the device
+  (the topics the firmware would publish and subscribe, read from the emulator's world);
+* its **host node** (:meth:`DevicePlugin.host_node`): the graph node that turns the board's raw
+  topics into the messages users want (odometry, Range, Imu, joint states);
+* the **firmware driver** it pairs with (:attr:`DevicePlugin.firmware`, a name in the Arduino
+  library; None until the firmware has one).
+
+Where a device lives: ``board`` devices sit on a board's pins and reach the host through the
+board's link (their host node talks to the board's raw topics in the board's namespace); ``host``
+devices sit on an adapter of the host's own (a U2D2 for Dynamixel servos) and have a link of
+their own in the robot file.
+
+``hwbridge up``, the emulator and the demo call plugins only through this contract: none of
+them names a device type.
+"""
+
+from __future__ import annotations
+
+import abc
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import Any, ClassVar, Final, Literal, Protocol
+
+__all__ = [
+    "REQUIRED",
+    "Closeable",
+    "DevicePlugin",
+    "EmulatedBoard",
+    "Field",
+    "HostContext",
+    "Where",
+]
+
+Where = Literal["board", "host"]
+
+
+class _Required:
+    def __repr__(self) -> str:
+        return "REQUIRED"
+
+
+REQUIRED: Final[Any] = _Required()
+"""The default of a :class:`Field` that a robot file must give."""
+
+
+@dataclass(frozen=True)
+class Field:
+    """One setting of a device plugin, as a robot file gives it."""
+
+    name: str
+    kind: type | tuple[type, ...]
+    """The YAML value's type: ``float`` also takes an int; ``list``/``dict`` for structures."""
+    default: Any = REQUIRED
+    doc: str = ""
+    choices: tuple[Any, ...] = ()
+    """The allowed values (empty: any value of ``kind``)."""
+    minimum: float | None = None
+    maximum: float | None = None
+
+    @property
+    def required(self) -> bool:
+        return self.default is REQUIRED
+
+
+class Closeable(Protocol):
+    """What a host node returns: something to stop when the robot goes down."""
+
+    def close(self) -> None: ...
+
+
+class EmulatedBoard(Protocol):
+    """What a virtual board offers the emulated models of its devices (see
+    :class:`hwbridge.emulator.board.VirtualBoard`)."""
+
+    @property
+    def world(self) -> Any:
+        """The simulated world (:class:`hwbridge.emulator.world.World`): robot base, room,
+        IMU truth."""
+        ...
+
+    @property
+    def seed(self) -> int:
+        """The board's random seed (a device adds its own offset for its noise)."""
+        ...
+
+    @property
+    def registry(self) -> Any:
+        """The message type registry."""
+        ...
+
+    def publisher(
+        self, topic: str, type_name: str, rate: float, read: Callable[[], bytes | None]
+    ) -> int:
+        """Declare a board publisher; ``read()`` is called ``rate`` times a (simulated) second
+        and its bytes (ROS 1 serialized ``type_name``) published; None skips a reading."""
+        ...
+
+    def subscriber(self, topic: str, type_name: str, handle: Callable[[bytes], None]) -> int:
+        """Declare a board subscriber; ``handle(payload)`` gets each message."""
+        ...
+
+    def header(self, frame_id: str) -> dict[str, Any]:
+        """A ``std_msgs/Header`` mapping stamped now, in host time (as firmware with time sync
+        stamps its readings)."""
+        ...
+
+    def on_step(self, step: Callable[[float], None]) -> None:
+        """Run ``step(world_time)`` after each physics step (under the board's lock)."""
+        ...
+
+    def on_reset(self, reset: Callable[[], None]) -> None:
+        """Run ``reset()`` when the board reboots (counters and state back to power-on)."""
+        ...
+
+
+@dataclass
+class HostContext:
+    """What a host node gets: where it runs and what it is attached to."""
+
+    graph: Any
+    """The robot's graph (:class:`hwbridge.graph.Graph`)."""
+    node: Any
+    """A graph node in the device's namespace (:class:`hwbridge.graph.Node`)."""
+    namespace: str
+    board: str | None
+    """The board the device is on (None for a host device)."""
+    link: str | None
+    """The host adapter's link URL (host devices only)."""
+    source: str = ""
+    """Where the device was configured (``FILE:LINE``), for messages."""
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+class DevicePlugin(abc.ABC):
+    """One kind of device. Subclasses set the class attributes and implement the methods their
+    ``where`` needs (a board device may have no host node, e.g. a servo the board drives
+    itself; a host device has no emulated model on a board)."""
+
+    type: ClassVar[str]
+    """The name robot files use (``hcsr04``)."""
+    summary: ClassVar[str]
+    where: ClassVar[Where] = "board"
+    fields: ClassVar[tuple[Field, ...]] = ()
+    firmware: ClassVar[str | None] = None
+    """The Arduino library's driver for this device (a class name), once there is one."""
+
+    def emulate(self, settings: Mapping[str, Any], board: EmulatedBoard) -> None:  # noqa: B027
+        """Add the device's model to a virtual board (board devices)."""
+
+    def host_node(self, settings: Mapping[str, Any], context: HostContext) -> Closeable | None:
+        """Start the host node for the device; None if it needs none."""
+        return None

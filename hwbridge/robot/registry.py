@@ -30,7 +30,7 @@ BUILTIN_DEVICES: Final[dict[str, str]] = {
     "hcsr04": "hwbridge.devices.plugins:HcSr04Plugin",
     "mpu6050": "hwbridge.devices.plugins:Mpu6050Plugin",
     "mpu9250": "hwbridge.devices.plugins:Mpu9250Plugin",
-    "dynamixel": "hwbridge.devices.dynamixel.plugin:BoardServoPlugin",
+    "dynamixel": "hwbridge.devices.plugins:BoardServoPlugin",
     "dynamixel_bus": "hwbridge.devices.dynamixel.plugin:DynamixelBusPlugin",
 }
 """Built-in device types (``module:attr``)."""

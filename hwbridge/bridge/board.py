@@ -141,6 +141,9 @@ class BoardConnection:
         self.adapter: SessionAdapter | None = None
         self._pump: SessionPump | None = None
         self._stop = threading.Event()
+        self._opened_once = threading.Event()
+        self.first_open_problem: str | None = None
+        """Why the first attempt to open the link failed (None: it opened, or not tried yet)."""
         self._thread = threading.Thread(target=self._run, name=f"board-{self.name}", daemon=True)
         self._token = bridge.graph.announce("board", self.name, spec.url, spec.protocol)
         self._info = bridge.graph.keep(
@@ -211,12 +214,23 @@ class BoardConnection:
             link.close()
         self._thread.join(timeout)
 
+    def wait_first_open(self, timeout: float | None = None) -> str | None:
+        """Wait for the first attempt to open the link; its problem, or None if it opened (or
+        the wait timed out)."""
+        self._opened_once.wait(timeout)
+        return self.first_open_problem
+
+    def _first_open(self, problem: str | None) -> None:
+        if not self._opened_once.is_set():
+            self.first_open_problem = problem
+            self._opened_once.set()
+
     def _run(self) -> None:
         backoff = 0.2
         last_problem = ""
         while not self._stop.is_set():
-            link = create_link(self.spec.url, **self.spec.link_options())
             try:
+                link = create_link(self.spec.url, **self.spec.link_options())
                 link.open()
             except LinkError as exc:
                 problem = str(exc)
@@ -224,9 +238,11 @@ class BoardConnection:
                     self.log.warning("%s: waiting for %s: %s", self.name, self.spec.url, problem)
                     last_problem = problem
                 self.set_state("waiting", problem=problem)
+                self._first_open(problem)
                 self._stop.wait(backoff)
                 backoff = min(backoff * 2, 2.0)
                 continue
+            self._first_open(None)
             backoff, last_problem = 0.2, ""
             self.link = link
             try:

@@ -70,6 +70,10 @@ COMMANDS: dict[str, LazyCommand] = {
         _CLI + "bridgecmd:connect",
         "Connect boards to the graph and keep them connected until Ctrl-C.",
     ),
+    "up": LazyCommand(
+        _CLI + "upcmd:up",
+        "Bring a robot up: its boards and every host node its devices need, until Ctrl-C.",
+    ),
     "board": LazyCommand(
         _CLI + "bridgecmd:board_app", "Boards of the running bridge: list, info, stats."
     ),
@@ -207,7 +211,8 @@ def _error(text: str) -> None:
     """``error: text`` on stderr (``error:`` in bold red on a terminal, unless NO_COLOR)."""
     color = sys.stderr.isatty() and not os.environ.get("NO_COLOR")
     label = "\x1b[1;31merror:\x1b[0m" if color else "error:"
-    sys.stderr.write(f"{label} {text}\n")
+    for line in text.splitlines() or [""]:  # several problems: one error line each
+        sys.stderr.write(f"{label} {line}\n")
     sys.stderr.flush()
 
 

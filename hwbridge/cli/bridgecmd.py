@@ -9,14 +9,17 @@ import sys
 import threading
 from pathlib import Path
 from types import FrameType
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
 from hwbridge.cli.common import Context, emit_json, get_registry, open_graph
 from hwbridge.errors import HwBridgeError, HwBridgeTimeoutError
 
-__all__ = ["board_app", "connect"]
+if TYPE_CHECKING:
+    from hwbridge.graph import GraphConfig
+
+__all__ = ["board_app", "connect", "owner_config", "read_params", "wait_for_signal"]
 
 board_app = typer.Typer(
     help="Boards of the running bridge: list, info, stats.", no_args_is_help=True
@@ -78,7 +81,7 @@ def connect(
 ) -> None:
     """Connect boards to the graph and keep them connected until Ctrl-C."""
     from hwbridge.bridge import BoardSpec, Bridge, check_service_timeout
-    from hwbridge.graph import Graph, GraphConfig
+    from hwbridge.graph import Graph
     from hwbridge.protocols.registry import get_protocol
 
     if protocol != "auto":
@@ -93,35 +96,11 @@ def connect(
     names = name or []
     if len(names) > len(urls):
         raise typer.BadParameter("more --name options than URLs", param_hint="--name")
-    initial: dict[str, Any] = {}
-    if params is not None:
-        import yaml
-
-        loaded = yaml.safe_load(params.read_text()) or {}
-        if not isinstance(loaded, dict):
-            raise HwBridgeError(f"{params}: expected a mapping of parameter names to values")
-        initial = {("/" + str(k).lstrip("/")): v for k, v in loaded.items()}
-    options = ctx.find_root().obj
-    endpoint = listen or (options.endpoint if isinstance(options, Context) else None)
-    config = GraphConfig.embedded([endpoint] if endpoint else None, _domain(ctx))
-    if isinstance(options, Context) and options.zenoh_config is not None:
-        config = GraphConfig(
-            mode="router",
-            listen=(endpoint,) if endpoint else (),
-            domain=config.domain,
-            config_file=options.zenoh_config,
-        )
+    initial = read_params(params)
+    config = owner_config(ctx, listen)
     graph = Graph(config)
     graph.registry = get_registry(ctx)
     bridge = Bridge(graph, params=initial)
-    stop = threading.Event()
-
-    def on_signal(signum: int, _frame: FrameType | None) -> None:
-        log.info("signal %d: stopping", signum)
-        stop.set()
-
-    signal.signal(signal.SIGTERM, on_signal)
-    signal.signal(signal.SIGINT, on_signal)
     try:
         for index, url in enumerate(urls):
             spec = BoardSpec(
@@ -138,11 +117,57 @@ def connect(
             f"hwbridge: bridging {', '.join(urls)} on {config.describe()}; Ctrl-C stops\n"
         )
         sys.stderr.flush()
-        while not stop.wait(0.5):
-            pass
+        wait_for_signal()
     finally:
         bridge.stop()
         graph.close()
+
+
+def owner_config(ctx: typer.Context, listen: str | None) -> GraphConfig:
+    """The graph configuration of a process that owns the graph (``connect``, ``up``): the
+    endpoint from ``--listen`` or the global options, the domain and any Zenoh config file."""
+    from hwbridge.graph import GraphConfig
+
+    options = ctx.find_root().obj
+    endpoint = listen or (options.endpoint if isinstance(options, Context) else None)
+    config = GraphConfig.embedded([endpoint] if endpoint else None, _domain(ctx))
+    if isinstance(options, Context) and options.zenoh_config is not None:
+        config = GraphConfig(
+            mode="router",
+            listen=(endpoint,) if endpoint else (),
+            domain=config.domain,
+            config_file=options.zenoh_config,
+        )
+    return config
+
+
+def read_params(path: Path | None) -> dict[str, Any]:
+    """Initial parameters from a YAML file of names and values (``--params``)."""
+    if path is None:
+        return {}
+    import yaml
+
+    try:
+        loaded = yaml.safe_load(path.read_text()) or {}
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
+        raise HwBridgeError(f"{path}: cannot read parameters: {exc}") from exc
+    if not isinstance(loaded, dict):
+        raise HwBridgeError(f"{path}: expected a mapping of parameter names to values")
+    return {("/" + str(k).lstrip("/")): v for k, v in loaded.items()}
+
+
+def wait_for_signal() -> None:
+    """Block until SIGINT or SIGTERM."""
+    stop = threading.Event()
+
+    def on_signal(signum: int, _frame: FrameType | None) -> None:
+        log.info("signal %d: stopping", signum)
+        stop.set()
+
+    signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGINT, on_signal)
+    while not stop.wait(0.5):
+        pass
 
 
 def _domain(ctx: typer.Context) -> str | None:

@@ -135,6 +135,8 @@ class HostContext:
     """The board the device is on (None for a host device)."""
     link: str | None
     """The host adapter's link URL (host devices only)."""
+    baud: int | None = None
+    """The host adapter's baud rate, where the robot file gives one (host devices only)."""
     source: str = ""
     """Where the device was configured (``FILE:LINE``), for messages."""
     extra: dict[str, Any] = field(default_factory=dict)

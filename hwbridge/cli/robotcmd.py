@@ -1,0 +1,90 @@
+"""``hwbridge robot``: check a robot file, show it as hwbridge reads it, list device types."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+
+__all__ = ["robot_app"]
+
+robot_app = typer.Typer(help="Robot files: check, show, devices.", no_args_is_help=True)
+
+_FILE = Annotated[Path, typer.Argument(metavar="ROBOT.yaml", help="The robot file.")]
+
+
+@robot_app.command("check")
+def check(robot_file: _FILE) -> None:
+    """Check a robot file: every problem as FILE:LINE: what is wrong (exit status 1)."""
+    from hwbridge.robot.config import load_robot
+
+    robot = load_robot(robot_file)
+    boards = ", ".join(f"{b.name}: {len(b.devices)} devices" for b in robot.boards)
+    sys.stdout.write(
+        f"{robot_file}: robot {robot.name}: {len(robot.boards)} board(s)"
+        f"{f' ({boards})' if boards else ''}, {len(robot.host_devices)} host device(s)\n"
+    )
+
+
+@robot_app.command("show")
+def show(robot_file: _FILE) -> None:
+    """Print a robot file as hwbridge reads it (YAML, every default filled in)."""
+    import yaml
+
+    from hwbridge.robot.config import load_robot
+
+    robot = load_robot(robot_file)
+
+    def device(d: Any) -> dict[str, Any]:
+        return {"type": d.type, "name": d.name, **dict(d.settings)}
+
+    data: dict[str, Any] = {
+        "robot": robot.name,
+        "boards": [
+            {
+                "name": b.name,
+                "link": b.link,
+                "protocol": b.protocol,
+                "namespace": b.namespace,
+                "baud": b.baud,
+                "service_timeout": b.service_timeout,
+                "start_delay": b.start_delay,
+                "devices": [device(d) for d in b.devices],
+            }
+            for b in robot.boards
+        ],
+        "host_devices": [
+            {
+                **device(h.device),
+                "link": h.link,
+                "namespace": h.namespace,
+                "baud": h.baud,
+            }
+            for h in robot.host_devices
+        ],
+    }
+    if robot.world:
+        data["world"] = dict(robot.world)
+    sys.stdout.write(yaml.safe_dump(data, sort_keys=False))
+
+
+@robot_app.command("devices")
+def devices() -> None:
+    """List the device types robot files can use, with their settings."""
+    from hwbridge.errors import HwBridgeError
+    from hwbridge.robot.plugin import REQUIRED
+    from hwbridge.robot.registry import device_types, get_device
+
+    for name in device_types():
+        try:
+            plugin = get_device(name)
+        except HwBridgeError as exc:
+            sys.stdout.write(f"{name}: cannot be loaded: {exc}\n")
+            continue
+        sys.stdout.write(f"{name} ({plugin.where}): {plugin.summary}\n")
+        for field in plugin.fields:
+            default = "required" if field.default is REQUIRED else f"default {field.default!r}"
+            doc = f": {field.doc}" if field.doc else ""
+            sys.stdout.write(f"    {field.name} ({default}){doc}\n")

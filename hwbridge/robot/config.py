@@ -1,0 +1,469 @@
+"""Robot files: one YAML file describes a robot, read and checked here before anything starts.
+
+::
+
+    robot: diffbot                     # the robot's name
+    world: {...}                       # the emulator's world (room, obstacles, wheel geometry)
+    boards:
+      - name: base                     # what --link base=URL and the logs call it
+        link: /dev/ttyACM0             # a link URL (serial path, socket://, tcp-listen://, ...)
+        protocol: auto                 # auto, native, rosserial or a plugin's protocol
+        namespace: /diffbot            # where its topics (and its devices' nodes) appear
+        baud: 115200                   # optional; also start_delay, service_timeout
+        devices:                       # devices on the board's pins (plugins with where: board)
+          - type: hcsr04               # a device type (hwbridge.robot.registry)
+            name: front_sonar          # optional: default the type (numbered when repeated)
+            topic: sonar_echo          # ...the plugin's settings
+    host_devices:                      # devices on the host's own adapters (where: host)
+      - type: dynamixel_bus
+        name: arm                      # required: --link arm=URL
+        link: /dev/ttyUSB0
+        namespace: /arm
+        baud: 57600
+        joints: {shoulder: 1, elbow: 2}
+
+:func:`load_robot` checks every key, link URL, protocol, namespace and device setting (against
+the plugin's :class:`~hwbridge.robot.plugin.Field` list, filling in defaults) and reports every
+problem at once, each as ``FILE:LINE: what is wrong``, in one
+:class:`~hwbridge.robot.model.RobotFileError`.
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+import re
+from collections.abc import Callable, Iterable
+from pathlib import Path
+from typing import Any, Final
+
+import yaml
+
+from hwbridge.errors import HwBridgeError
+from hwbridge.robot.model import (
+    DeviceConfig,
+    HostDeviceConfig,
+    Robot,
+    RobotBoardConfig,
+    RobotFileError,
+)
+from hwbridge.robot.plugin import DevicePlugin, Field
+
+__all__ = ["load_robot", "parse_robot"]
+
+_TOP_KEYS: Final = ("robot", "world", "boards", "host_devices")
+_BOARD_KEYS: Final = (
+    "name",
+    "link",
+    "protocol",
+    "namespace",
+    "baud",
+    "service_timeout",
+    "start_delay",
+    "devices",
+)
+_HOST_KEYS: Final = ("type", "name", "link", "namespace", "baud")
+_NAME: Final = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+_KIND_NAMES: Final = {
+    float: "a number",
+    int: "a whole number",
+    str: "a string",
+    bool: "true or false",
+    list: "a list",
+    dict: "a mapping",
+}
+
+
+class _Problems:
+    """The problems found so far, each with its line."""
+
+    def __init__(self, path: str) -> None:
+        self.path = path
+        self.lines: list[str] = []
+
+    def at(self, node: yaml.Node | None, text: str) -> None:
+        line = node.start_mark.line + 1 if node is not None else 1
+        self.lines.append(f"{self.path}:{line}: {text}")
+
+    def where(self, node: yaml.Node) -> str:
+        return f"{self.path}:{node.start_mark.line + 1}"
+
+
+def _value(node: yaml.Node) -> Any:
+    """The plain Python value of a node (safe YAML types only)."""
+    return yaml.SafeLoader("").construct_object(node, deep=True)
+
+
+def _mapping(
+    node: yaml.Node, what: str, problems: _Problems
+) -> dict[str, tuple[yaml.Node, yaml.Node]] | None:
+    """``key -> (key node, value node)`` of a mapping node; None (and a problem) otherwise."""
+    if not isinstance(node, yaml.MappingNode):
+        problems.at(node, f"{what} must be a mapping (key: value lines)")
+        return None
+    out: dict[str, tuple[yaml.Node, yaml.Node]] = {}
+    for key_node, value_node in node.value:
+        key = str(_value(key_node))
+        if key in out:
+            problems.at(key_node, f"{what}: {key!r} is given twice")
+        out[key] = (key_node, value_node)
+    return out
+
+
+def _sequence(node: yaml.Node, what: str, problems: _Problems) -> list[yaml.Node]:
+    if isinstance(node, yaml.ScalarNode) and _value(node) is None:
+        return []
+    if not isinstance(node, yaml.SequenceNode):
+        problems.at(node, f"{what} must be a list (lines starting with '- ')")
+        return []
+    return list(node.value)
+
+
+def _unknown_keys(
+    items: dict[str, tuple[yaml.Node, yaml.Node]],
+    known: Iterable[str],
+    what: str,
+    problems: _Problems,
+) -> None:
+    choices = list(known)
+    for key, (key_node, _value_node) in items.items():
+        if key not in choices:
+            close = difflib.get_close_matches(key, choices, n=1)
+            hint = f" (did you mean {close[0]!r}?)" if close else ""
+            problems.at(key_node, f"{what}: unknown key {key!r}{hint}; known: {', '.join(choices)}")
+
+
+def _kind_name(kind: type | tuple[type, ...]) -> str:
+    kinds = kind if isinstance(kind, tuple) else (kind,)
+    return " or ".join(_KIND_NAMES.get(k, k.__name__) for k in kinds)
+
+
+def check_value(field: Field, value: Any) -> tuple[Any, str | None]:
+    """``value`` as ``field`` takes it (an int for a float), or the reason it does not fit."""
+    kinds = field.kind if isinstance(field.kind, tuple) else (field.kind,)
+    fits = False
+    for kind in kinds:
+        if kind is float and isinstance(value, int | float) and not isinstance(value, bool):
+            value, fits = float(value), True
+            break
+        if kind is int and isinstance(value, int) and not isinstance(value, bool):
+            fits = True
+            break
+        if kind not in (float, int) and isinstance(value, kind):
+            fits = True
+            break
+    if not fits:
+        return value, f"expected {_kind_name(field.kind)}, got {value!r}"
+    if isinstance(value, float) and not math.isfinite(value):
+        return value, f"expected a finite number, got {value!r}"
+    if field.choices and value not in field.choices:
+        return value, f"must be one of {', '.join(map(repr, field.choices))}, not {value!r}"
+    if isinstance(value, int | float) and not isinstance(value, bool):
+        if field.minimum is not None and value < field.minimum:
+            return value, f"must be at least {field.minimum:g}, not {value!r}"
+        if field.maximum is not None and value > field.maximum:
+            return value, f"must be at most {field.maximum:g}, not {value!r}"
+    return value, None
+
+
+def _settings(
+    plugin: DevicePlugin,
+    items: dict[str, tuple[yaml.Node, yaml.Node]],
+    skip: Iterable[str],
+    entry: yaml.Node,
+    what: str,
+    problems: _Problems,
+) -> dict[str, Any]:
+    """The device's settings checked against its plugin's fields, defaults filled in."""
+    fields = {f.name: f for f in plugin.fields}
+    given = {k: v for k, v in items.items() if k not in set(skip)}
+    _unknown_keys(given, [*skip, *fields], what, problems)
+    settings: dict[str, Any] = {}
+    for name, field in fields.items():
+        if name not in given:
+            if field.required:
+                doc = f" ({field.doc})" if field.doc else ""
+                problems.at(entry, f"{what}: missing setting {name!r}{doc}")
+            else:
+                settings[name] = field.default
+            continue
+        _key_node, value_node = given[name]
+        value, why = check_value(field, _value(value_node))
+        if why is not None:
+            problems.at(value_node, f"{what}: {name}: {why}")
+        settings[name] = value
+    return settings
+
+
+def _string(
+    items: dict[str, tuple[yaml.Node, yaml.Node]],
+    key: str,
+    what: str,
+    problems: _Problems,
+    node: yaml.Node,
+    default: str | None = None,
+) -> str | None:
+    if key not in items:
+        if default is None:
+            problems.at(node, f"{what}: missing {key!r}")
+        return default
+    value = _value(items[key][1])
+    if not isinstance(value, str) or not value:
+        problems.at(items[key][1], f"{what}: {key} must be a non-empty string, not {value!r}")
+        return default
+    return value
+
+
+def _checked(
+    items: dict[str, tuple[yaml.Node, yaml.Node]],
+    key: str,
+    check: Callable[[Any], Any],
+    what: str,
+    problems: _Problems,
+    default: Any,
+) -> Any:
+    """``check(value)`` of ``key`` (its HwBridgeError or ValueError becomes a problem)."""
+    if key not in items:
+        return default
+    node = items[key][1]
+    try:
+        return check(_value(node))
+    except (HwBridgeError, ValueError, TypeError) as exc:
+        problems.at(node, f"{what}: {key}: {exc}")
+        return default
+
+
+def _check_link(url: Any, baud: int | None) -> str:
+    from hwbridge.links import create_link
+
+    if not isinstance(url, str) or not url:
+        raise ValueError(f"expected a link URL, got {url!r}")
+    create_link(url, **({"baud": baud} if baud is not None else {}))  # parses, does not open
+    return url
+
+
+def _check_protocol(name: Any) -> str:
+    from hwbridge.protocols.registry import get_protocol
+
+    if not isinstance(name, str):
+        raise ValueError(f"expected a protocol name, got {name!r}")
+    if name != "auto":
+        get_protocol(name)
+    return name
+
+
+def _check_namespace(name: Any) -> str:
+    from hwbridge.graph import resolve_name
+
+    if not isinstance(name, str) or not name:
+        raise ValueError(f"expected a graph name such as /robot, got {name!r}")
+    return resolve_name(name) if name != "/" else "/"
+
+
+def _check_baud(value: Any) -> int:
+    if not isinstance(value, int) or isinstance(value, bool) or value <= 0:
+        raise ValueError(f"expected a whole number above 0, got {value!r}")
+    return value
+
+
+def _check_seconds(value: Any) -> float:
+    if not isinstance(value, int | float) or isinstance(value, bool) or not value >= 0:
+        raise ValueError(f"expected seconds (a number, 0 or more), got {value!r}")
+    return float(value)
+
+
+def _check_timeout(value: Any) -> float:
+    from hwbridge.bridge.board import check_service_timeout
+
+    return check_service_timeout(value)
+
+
+def _plugin(type_node: yaml.Node, what: str, problems: _Problems) -> DevicePlugin | None:
+    from hwbridge.robot.registry import get_device
+
+    name = _value(type_node)
+    if not isinstance(name, str):
+        problems.at(type_node, f"{what}: type must be a device type name, not {name!r}")
+        return None
+    try:
+        return get_device(name)
+    except HwBridgeError as exc:
+        problems.at(type_node, f"{what}: {exc}")
+    except Exception as exc:  # noqa: BLE001 - a plugin that fails to import is a user's problem
+        problems.at(type_node, f"{what}: type {name} cannot be loaded: {type(exc).__name__}: {exc}")
+    return None
+
+
+def _devices(node: yaml.Node, board: str, problems: _Problems) -> tuple[DeviceConfig, ...]:
+    devices: list[DeviceConfig] = []
+    counts: dict[str, int] = {}
+    names: set[str] = set()
+    for index, entry in enumerate(_sequence(node, f"board {board}: devices", problems)):
+        what = f"board {board}: device {index + 1}"
+        items = _mapping(entry, what, problems)
+        if items is None:
+            continue
+        if "type" not in items:
+            problems.at(entry, f"{what}: missing 'type' (the device type, e.g. hcsr04)")
+            continue
+        plugin = _plugin(items["type"][1], what, problems)
+        if plugin is None:
+            continue
+        what = f"board {board}: {plugin.type}"
+        if plugin.where != "board":
+            problems.at(
+                items["type"][1],
+                f"{what}: a {plugin.where} device: list it under host_devices with a link of its "
+                "own, not on a board",
+            )
+            continue
+        counts[plugin.type] = counts.get(plugin.type, 0) + 1
+        default_name = (
+            plugin.type if counts[plugin.type] == 1 else f"{plugin.type}_{counts[plugin.type]}"
+        )
+        name = _string(items, "name", what, problems, entry, default_name) or default_name
+        if name in names:
+            problems.at(
+                items.get("name", (entry, entry))[1],
+                f"{what}: two devices named {name!r} on board {board}",
+            )
+        names.add(name)
+        settings = _settings(plugin, items, ("type", "name"), entry, what, problems)
+        devices.append(DeviceConfig(plugin.type, name, settings, problems.where(entry)))
+    return tuple(devices)
+
+
+def _board(entry: yaml.Node, index: int, problems: _Problems) -> RobotBoardConfig | None:
+    what = f"board {index + 1}"
+    items = _mapping(entry, what, problems)
+    if items is None:
+        return None
+    _unknown_keys(items, _BOARD_KEYS, what, problems)
+    name = _string(items, "name", what, problems, entry)
+    if name is not None and not _NAME.match(name):
+        problems.at(items["name"][1], f"{what}: name {name!r} must be letters, digits and _")
+    what = f"board {name or index + 1}"
+    baud = _checked(items, "baud", _check_baud, what, problems, None)
+    link = _checked(items, "link", lambda url: _check_link(url, baud), what, problems, None)
+    if "link" not in items:
+        problems.at(entry, f"{what}: missing 'link' (e.g. /dev/ttyACM0 or socket://HOST:PORT)")
+    board = RobotBoardConfig(
+        name=name or "",
+        link=link or "",
+        protocol=_checked(items, "protocol", _check_protocol, what, problems, "auto"),
+        namespace=_checked(items, "namespace", _check_namespace, what, problems, "/"),
+        baud=baud,
+        service_timeout=_checked(items, "service_timeout", _check_timeout, what, problems, 5.0),
+        start_delay=_checked(items, "start_delay", _check_seconds, what, problems, 0.0),
+        devices=_devices(items["devices"][1], name or str(index + 1), problems)
+        if "devices" in items
+        else (),
+        source=problems.where(entry),
+    )
+    return board if name and link else None
+
+
+def _host_device(entry: yaml.Node, index: int, problems: _Problems) -> HostDeviceConfig | None:
+    what = f"host device {index + 1}"
+    items = _mapping(entry, what, problems)
+    if items is None:
+        return None
+    if "type" not in items:
+        problems.at(entry, f"{what}: missing 'type' (the device type, e.g. dynamixel_bus)")
+        return None
+    plugin = _plugin(items["type"][1], what, problems)
+    if plugin is None:
+        return None
+    name = _string(items, "name", what, problems, entry)
+    if name is not None and not _NAME.match(name):
+        problems.at(items["name"][1], f"{what}: name {name!r} must be letters, digits and _")
+    what = f"host device {name or index + 1} ({plugin.type})"
+    if plugin.where != "host":
+        problems.at(
+            items["type"][1],
+            f"{what}: a {plugin.where} device: list it under a board's devices, not host_devices",
+        )
+        return None
+    baud = _checked(items, "baud", _check_baud, what, problems, None)
+    link = _checked(items, "link", lambda url: _check_link(url, baud), what, problems, None)
+    if "link" not in items:
+        problems.at(entry, f"{what}: missing 'link' (e.g. /dev/ttyUSB0)")
+    namespace = _checked(items, "namespace", _check_namespace, what, problems, "/")
+    settings = _settings(plugin, items, _HOST_KEYS, entry, what, problems)
+    if not (name and link):
+        return None
+    device = DeviceConfig(plugin.type, name, settings, problems.where(entry))
+    return HostDeviceConfig(device, link, namespace, baud, problems.where(entry))
+
+
+def parse_robot(text: str, path: str = "<robot>") -> Robot:
+    """A robot from the text of a robot file (``path`` names it in errors)."""
+    problems = _Problems(path)
+    try:
+        root = yaml.compose(text, Loader=yaml.SafeLoader)
+    except yaml.MarkedYAMLError as exc:
+        mark = exc.problem_mark or exc.context_mark
+        line = mark.line + 1 if mark is not None else 1
+        raise RobotFileError([f"{path}:{line}: not valid YAML: {exc.problem or exc}"]) from exc
+    if root is None:
+        raise RobotFileError(
+            [f"{path}:1: the file is empty: a robot file starts with 'robot: NAME'"]
+        )
+    top = _mapping(root, "the robot file", problems)
+    if top is None:
+        raise RobotFileError(problems.lines)
+    _unknown_keys(top, _TOP_KEYS, "the robot file", problems)
+    name = _string(top, "robot", "the robot file", problems, root) or ""
+    world: dict[str, Any] = {}
+    if "world" in top:
+        value = _value(top["world"][1])
+        if isinstance(value, dict):
+            world = value
+        elif value is not None:
+            problems.at(top["world"][1], "world must be a mapping (the emulator's world)")
+    boards = [
+        board
+        for index, entry in enumerate(
+            _sequence(top["boards"][1], "boards", problems) if "boards" in top else []
+        )
+        if (board := _board(entry, index, problems)) is not None
+    ]
+    hosts = [
+        host
+        for index, entry in enumerate(
+            _sequence(top["host_devices"][1], "host_devices", problems)
+            if "host_devices" in top
+            else []
+        )
+        if (host := _host_device(entry, index, problems)) is not None
+    ]
+    seen: dict[str, str] = {}
+    for source, item in [(b.source, b.name) for b in boards] + [
+        (h.source, h.device.name) for h in hosts
+    ]:
+        if item in seen:
+            line = int(source.rsplit(":", 1)[1])
+            problems.lines.append(
+                f"{path}:{line}: two boards or host devices named {item!r} "
+                f"(the other is at line {seen[item].rsplit(':', 1)[1]})"
+            )
+        seen[item] = source
+    if not boards and not hosts and not problems.lines:
+        problems.at(root, "the robot has no boards and no host_devices")
+    if problems.lines:
+        raise RobotFileError(problems.lines)
+    return Robot(name, Path(path), tuple(boards), tuple(hosts), world)
+
+
+def load_robot(path: str | Path) -> Robot:
+    """Read and check a robot file; :class:`RobotFileError` lists every problem found."""
+    file = Path(path)
+    try:
+        text = file.read_text(encoding="utf-8")
+    except FileNotFoundError as exc:
+        raise RobotFileError([f"{file}: no such robot file"]) from exc
+    except UnicodeDecodeError as exc:
+        raise RobotFileError([f"{file}: not a text file (UTF-8): {exc.reason}"]) from exc
+    except OSError as exc:
+        raise RobotFileError([f"{file}: cannot read: {exc.strerror or exc}"]) from exc
+    return parse_robot(text, str(file))

@@ -52,6 +52,8 @@ class DiffDriveNode:
         *,
         max_wheel_speed: float = 50.0,
         clock: Callable[[], float] = time.monotonic,
+        ticks_topic: str = "wheel_ticks",
+        targets_topic: str = "wheel_targets",
     ) -> None:
         self.node = node
         self.params = params
@@ -71,9 +73,11 @@ class DiffDriveNode:
         """The last nav_msgs/Odometry published."""
         self._odom = node.publisher("odom", "nav_msgs/Odometry")
         self._tf = node.publisher("/tf", "tf2_msgs/TFMessage")
-        self._targets = node.publisher("wheel_targets", "hwbridge_msgs/WheelTargets")
-        node.subscriber("wheel_ticks", "hwbridge_msgs/WheelTicks", self._on_ticks)
-        node.subscriber("cmd_vel", "geometry_msgs/Twist", self._on_cmd_vel)
+        self._targets = node.publisher(targets_topic, "hwbridge_msgs/WheelTargets")
+        self._inputs = (
+            node.subscriber(ticks_topic, "hwbridge_msgs/WheelTicks", self._on_ticks),
+            node.subscriber("cmd_vel", "geometry_msgs/Twist", self._on_cmd_vel),
+        )
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._drive, name="diffdrive", daemon=True)
         self._thread.start()
@@ -136,16 +140,30 @@ class DiffDriveNode:
     def close(self) -> None:
         self._stop.set()
         self._thread.join(1)
+        for endpoint in (*self._inputs, self._odom, self._tf, self._targets):
+            endpoint.close()
 
 
 class SonarNode:
     """HC-SR04 echo widths -> sensor_msgs/Range (REP-117 values for no echo, too close, error)."""
 
-    def __init__(self, node: Node, frame_id: str = "sonar_link") -> None:
-        self.ranger = UltrasonicRanger(frame_id=frame_id)
+    def __init__(
+        self,
+        node: Node,
+        frame_id: str = "sonar_link",
+        *,
+        echo_topic: str = "sonar_echo",
+        range_topic: str = "range",
+        ranger: UltrasonicRanger | None = None,
+    ) -> None:
+        self.ranger = ranger if ranger is not None else UltrasonicRanger(frame_id=frame_id)
         self.latest: Any = None
-        self._range = node.publisher("range", "sensor_msgs/Range")
-        node.subscriber("sonar_echo", "hwbridge_msgs/SonarEcho", self._on_echo)
+        self._range = node.publisher(range_topic, "sensor_msgs/Range")
+        self._echo = node.subscriber(echo_topic, "hwbridge_msgs/SonarEcho", self._on_echo)
+
+    def close(self) -> None:
+        self._echo.close()
+        self._range.close()
 
     def _on_echo(self, echo: Any) -> None:
         temperature = float(echo.temperature)
@@ -167,7 +185,14 @@ class ImuNode:
     noise) of the chip the board names; readings naming an unknown chip are dropped (counted in
     :attr:`dropped`, logged once)."""
 
-    def __init__(self, node: Node) -> None:
+    def __init__(
+        self,
+        node: Node,
+        *,
+        raw_topic: str = "imu_raw",
+        imu_topic: str = "imu",
+        mag_topic: str = "mag",
+    ) -> None:
         self.latest: Any = None
         self.latest_field: Any = None
         self.temperature_c: float | None = None
@@ -176,9 +201,16 @@ class ImuNode:
         """Readings dropped because they name a chip this node does not know."""
         self._node = node
         self._converters: dict[tuple[str, int, int], MpuImu] = {}
-        self._imu = node.publisher("imu", "sensor_msgs/Imu")
+        self._imu = node.publisher(imu_topic, "sensor_msgs/Imu")
         self._mag: Any = None
-        node.subscriber("imu_raw", "hwbridge_msgs/ImuRaw", self._on_raw)
+        self._mag_topic = mag_topic
+        self._raw = node.subscriber(raw_topic, "hwbridge_msgs/ImuRaw", self._on_raw)
+
+    def close(self) -> None:
+        self._raw.close()
+        self._imu.close()
+        if self._mag is not None:
+            self._mag.close()
 
     def _converter(self, chip: ChipSpec, accel_config: int, gyro_config: int) -> MpuImu:
         accel_fs, gyro_fs = (accel_config >> 3) & 3, (gyro_config >> 3) & 3
@@ -223,7 +255,7 @@ class ImuNode:
             field = converter.magnetometer_field((mx, my, mz), int(raw.mag_st2))
             self.latest_field = converter.magnetic_field_msg(field, stamp)
             if self._mag is None:
-                self._mag = self._node.publisher("mag", "sensor_msgs/MagneticField")
+                self._mag = self._node.publisher(self._mag_topic, "sensor_msgs/MagneticField")
             self._mag.publish(self.latest_field)
 
 

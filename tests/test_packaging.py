@@ -43,7 +43,7 @@ def test_wheel_layout_and_data(tmp_path: Path) -> None:
         "hwbridge/protocols/PROTOCOL.md",
         "hwbridge/devices/__init__.py",
         "hwbridge/devices/dynamixel/buses.yaml",
-        "hwbridge/emulator/boards/diffbot.yaml",
+        "hwbridge/emulator/robots/diffbot.yaml",
         "hwbridge/protocols/msg/hwbridge_msgs/msg/WheelTicks.msg",
         "hwbridge/protocols/vectors/native_frames.json",
     ):

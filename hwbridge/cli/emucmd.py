@@ -19,10 +19,15 @@ def emulate(
     board: Annotated[
         str,
         typer.Argument(
-            metavar="BOARD",
-            help="A ready board (diffbot), a Dynamixel bus (dxl-bus, dxl-bus-p1) or a YAML file.",
+            metavar="ROBOT",
+            help="A ready robot (diffbot), a robot file (ROBOT.yaml) or a Dynamixel bus "
+            "(dxl-bus, dxl-bus-p1).",
         ),
     ],
+    board_name: Annotated[
+        str | None,
+        typer.Option("--board", help="Which board of the robot file (default: the first)."),
+    ] = None,
     pty: Annotated[
         bool, typer.Option("--pty", help="Serve on a new pseudo-terminal (the default).")
     ] = False,
@@ -37,9 +42,10 @@ def emulate(
 ) -> None:
     """Start a virtual board; the first line printed is the URL to connect to. Ctrl-C stops.
 
-    Dynamixel buses answer raw Dynamixel packets, as servos behind a USB adapter do
-    (try ``hwbridge dxl scan URL``); other boards speak the native protocol
-    (``hwbridge connect URL``).
+    A robot's board runs its devices' emulated models in a simulated world and speaks the native
+    protocol (``hwbridge up ROBOT.yaml --link BOARD=URL``, or ``hwbridge connect URL``).
+    Dynamixel buses answer raw Dynamixel packets, as servos behind a USB adapter do (try
+    ``hwbridge dxl scan URL``).
     """
     from hwbridge.devices.dynamixel import EmulatedBusRunner, bus_configs, emulated_bus
 
@@ -67,7 +73,7 @@ def emulate(
     from hwbridge.emulator import VirtualBoard, load_board
     from hwbridge.links import open_link
 
-    config = load_board(board)
+    config = load_board(board, board_name)
     virtual = VirtualBoard(config, seed=seed, speed=speed)
     link = open_link(listen)
     url = _url_of(link)

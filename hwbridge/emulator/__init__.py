@@ -4,7 +4,7 @@
 a board, the bridge and the device nodes together.
 """
 
-from hwbridge.emulator.board import BOARDS_DIR, BoardConfig, VirtualBoard, load_board
+from hwbridge.emulator.board import ROBOTS_DIR, BoardConfig, VirtualBoard, load_board
 from hwbridge.emulator.world import World, WorldConfig
 
-__all__ = ["BOARDS_DIR", "BoardConfig", "VirtualBoard", "World", "WorldConfig", "load_board"]
+__all__ = ["ROBOTS_DIR", "BoardConfig", "VirtualBoard", "World", "WorldConfig", "load_board"]

@@ -1,13 +1,15 @@
 """Virtual boards: the native protocol's device side plus emulated devices in a world.
 
 A :class:`VirtualBoard` behaves like firmware on a real board: it speaks the native protocol
-(:class:`~hwbridge.protocols.native.session.DeviceSession`) on a link, reads its emulated
-devices (encoder counters, an HC-SR04, an MPU-6050 on I2C) and publishes their raw readings
-(``hwbridge_msgs/*``), and drives its motors from ``hwbridge_msgs/WheelTargets``, stopping them
-when no target arrived for 0.5 s. Host-side plugins (:mod:`hwbridge.emulator.plugins`) turn the
-raw readings into odometry, Range and Imu, as they would for a real board.
+(:class:`~hwbridge.protocols.native.session.DeviceSession`) on a link and publishes what its
+devices read from the simulated world. It knows no device: each device of its robot-file board
+is built by its plugin (:meth:`hwbridge.robot.plugin.DevicePlugin.emulate`) through the
+:class:`~hwbridge.robot.plugin.EmulatedBoard` methods the board offers (publishers read at a
+rate, subscribers, host-time headers, per-step and reset hooks). The host side of the same
+plugins turns the raw readings into odometry, Range and Imu, as for a real board.
 
-A board is described by a small mapping (YAML), see ``boards/diffbot.yaml``.
+Boards come from robot files (:mod:`hwbridge.robot.config`); ``diffbot`` names the robot file
+packaged in ``robots/`` (``examples/robots/diffbot.yaml``).
 """
 
 from __future__ import annotations
@@ -20,27 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from hwbridge import msg
-from hwbridge.devices.encoders import wrap_counter
-from hwbridge.devices.imu.mpu import (
-    ACCEL_CONFIG,
-    ACCEL_RANGES_G,
-    ACCEL_XOUT_H,
-    AK8963_ADDRESS,
-    AK8963_HXL,
-    AK8963_ST1,
-    GYRO_CONFIG,
-    GYRO_RANGES_DPS,
-    PWR_MGMT_1,
-    I2CBus,
-    Mpu6050,
-    Mpu9250,
-    MpuChip,
-)
-from hwbridge.devices.imu.plugin import configure_ak8963, decode_burst, decode_magnetometer
-from hwbridge.devices.ultrasonic import HcSr04Model
 from hwbridge.emulator.faults import FaultySession, LinkFaults
 from hwbridge.emulator.world import World, WorldConfig
 from hwbridge.errors import HwBridgeError
@@ -48,53 +30,61 @@ from hwbridge.links import Link, open_link
 from hwbridge.protocols.native import session as ns
 from hwbridge.protocols.native.control import EntryKind
 from hwbridge.pump import SessionPump
+from hwbridge.robot.model import DeviceConfig
 
-__all__ = ["BOARDS_DIR", "BoardConfig", "VirtualBoard", "load_board"]
+__all__ = ["ROBOTS_DIR", "BoardConfig", "VirtualBoard", "load_board"]
 
 log = logging.getLogger("hwbridge.emulator")
 
-BOARDS_DIR = Path(__file__).with_name("boards")
+ROBOTS_DIR = Path(__file__).with_name("robots")
 PHYSICS_HZ = 200.0
-TARGET_TIMEOUT = 0.5
 
 
 @dataclass(frozen=True)
 class BoardConfig:
-    """What a virtual board carries: its name, world and devices."""
+    """What a virtual board carries: its name, its world and its devices (checked settings)."""
 
     name: str
     world: WorldConfig
-    devices: tuple[dict[str, Any], ...]
-    host: dict[str, Any]
-    """Parameters for the host-side device nodes (e.g. ``diffdrive``)."""
+    devices: tuple[DeviceConfig, ...]
     source: str = ""
 
 
-def load_board(name_or_path: str) -> BoardConfig:
-    """A ready board by name (``diffbot``) or a YAML file describing one."""
+def ready_robots() -> list[str]:
+    """Names of the robot files packaged with hwbridge (``hwbridge emulate NAME``)."""
+    return sorted(p.stem for p in ROBOTS_DIR.glob("*.yaml"))
+
+
+def load_board(name_or_path: str, board: str | None = None) -> BoardConfig:
+    """A board of a robot file (``board``: by name; default the first), the file given by its
+    path or as the name of a packaged one (``diffbot``)."""
+    from hwbridge.robot.config import load_robot
+
     path = Path(name_or_path)
-    if not path.suffix:
-        path = BOARDS_DIR / f"{name_or_path}.yaml"
-    if not path.exists():
-        ready = sorted(p.stem for p in BOARDS_DIR.glob("*.yaml"))
-        raise HwBridgeError(f"no board {name_or_path!r}: ready boards are {', '.join(ready)}")
-    data = yaml.safe_load(path.read_text()) or {}
+    if not path.suffix and not path.exists():
+        path = ROBOTS_DIR / f"{name_or_path}.yaml"
+        if not path.exists():
+            raise HwBridgeError(
+                f"no robot {name_or_path!r}: ready robots are {', '.join(ready_robots())} "
+                "(or give a robot file's path)"
+            )
+    robot = load_robot(path)
+    if not robot.boards:
+        raise HwBridgeError(f"{path}: the robot has no boards to emulate")
+    chosen = robot.board(board) if board is not None else robot.boards[0]
     try:
-        return BoardConfig(
-            name=str(data["name"]),
-            world=WorldConfig.from_dict(data.get("world", {})),
-            devices=tuple(data.get("devices", ())),
-            host=dict(data.get("host", {})),
-            source=str(path),
-        )
-    except (KeyError, TypeError) as exc:
-        raise HwBridgeError(f"{path}: not a board description ({exc})") from exc
+        world = WorldConfig.from_dict(dict(robot.world))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise HwBridgeError(f"{path}: world: {exc}") from exc
+    return BoardConfig(robot.name, world, chosen.devices, str(path))
 
 
 class VirtualBoard:
     """A board with a world, run on a link. ``speed`` > 1 runs faster than real time."""
 
     def __init__(self, config: BoardConfig, *, seed: int = 0, speed: float = 1.0) -> None:
+        from hwbridge.robot.registry import get_device
+
         self.config = config
         self.seed = seed
         self.speed = speed
@@ -102,24 +92,22 @@ class VirtualBoard:
         self.registry = msg.registry()
         self._topics: list[ns.TopicEntry] = []
         self._readers: list[tuple[float, Callable[[], tuple[int, bytes] | None]]] = []
-        self._targets = (0.0, 0.0)
-        self._last_target = -1e9
+        self._steps: list[Callable[[float], None]] = []
+        self._resets: list[Callable[[], None]] = []
         self._channel_names: dict[int, str] = {}
         self._inputs: dict[int, Callable[[bytes], None]] = {}
-        self.dynamixel_bus: Any = None
-        for index, device in enumerate(config.devices):
+        for device in config.devices:
             try:
-                self._add_device(device)
+                get_device(device.type).emulate(device.settings, self)
             except HwBridgeError:
                 raise
-            except (TypeError, ValueError) as exc:  # a setting that is not a number, say
-                kind = device.get("type", "?") if isinstance(device, dict) else "?"
+            except (TypeError, ValueError, KeyError) as exc:  # a setting the model refuses
                 raise HwBridgeError(
-                    f"{config.source}: device {index + 1} ({kind}): bad setting: {exc}"
+                    f"{device.source or config.source}: {device.type} {device.name}: "
+                    f"bad setting: {exc}"
                 ) from exc
         self.session = FaultySession(self._new_session(), seed)
         self.resets = 0
-        self._count_offset = (0, 0)
         self._host_offset = 0.0  # host minus board time, as of the reading being taken
         self.read_errors = 0
         """Device readings that raised (the first is logged with its traceback)."""
@@ -136,6 +124,46 @@ class VirtualBoard:
             self._topics,
         )
 
+    # ------------------------------------------------------------------ devices (EmulatedBoard)
+    def _entry(self, kind: EntryKind, name: str, type_name: str) -> int:
+        channel = len(self._topics) + 1
+        self._topics.append(
+            ns.TopicEntry(channel, kind, name, type_name, self.registry.md5(type_name))
+        )
+        self._channel_names[channel] = name
+        return channel
+
+    def publisher(
+        self, topic: str, type_name: str, rate: float, read: Callable[[], bytes | None]
+    ) -> int:
+        """A board publisher whose ``read()`` runs ``rate`` times a simulated second."""
+        channel = self._entry(EntryKind.PUBLISHER, topic, type_name)
+
+        def reading() -> tuple[int, bytes] | None:
+            payload = read()
+            return None if payload is None else (channel, payload)
+
+        self._readers.append((float(rate), reading))
+        return channel
+
+    def subscriber(self, topic: str, type_name: str, handle: Callable[[bytes], None]) -> int:
+        """A board subscriber; ``handle(payload)`` runs on the protocol's thread."""
+        channel = self._entry(EntryKind.SUBSCRIBER, topic, type_name)
+        self._inputs[channel] = handle
+        return channel
+
+    def header(self, frame_id: str) -> dict[str, Any]:
+        """A header stamped with the host time of now (as firmware with time sync stamps)."""
+        # The session's clock is the pump's (monotonic) clock; the offset was read under the
+        # pump's lock by _publish: the session itself may be resetting.
+        return {"stamp": time.monotonic() + self._host_offset, "frame_id": frame_id}
+
+    def on_step(self, step: Callable[[float], None]) -> None:
+        self._steps.append(step)
+
+    def on_reset(self, reset: Callable[[], None]) -> None:
+        self._resets.append(reset)
+
     # ------------------------------------------------------------------ faults
     def inject(self, faults: LinkFaults) -> None:
         """Lose and corrupt bytes on the board's link from now on (LinkFaults() stops it)."""
@@ -146,190 +174,15 @@ class VirtualBoard:
         self.session.stall(time.monotonic() + seconds)
 
     def reset(self) -> None:
-        """Reboot the board: a new protocol session, counters back to zero, motors stopped."""
+        """Reboot the board: a new protocol session, its devices back to power-on."""
         with self._lock:
-            left, right = self.world.base.counts()
-            self._count_offset = (left, right)
-            self._targets = (0.0, 0.0)
-            self._last_target = -1e9
+            for reset in self._resets:
+                reset()
             self.resets += 1
         pump = self.pump
         if pump is not None:
             pump.call(lambda _s: setattr(self.session, "inner", self._new_session()))
         log.info("%s: reset", self.config.name)
-
-    # ------------------------------------------------------------------ devices
-    def _entry(self, kind: EntryKind, name: str, type_name: str) -> int:
-        channel = len(self._topics) + 1
-        self._topics.append(
-            ns.TopicEntry(channel, kind, name, type_name, self.registry.md5(type_name))
-        )
-        self._channel_names[channel] = name
-        return channel
-
-    def _add_device(self, device: dict[str, Any]) -> None:
-        kind = device.get("type")
-        rate = float(device.get("rate", 50.0))
-        if kind == "diffdrive":
-            channel = self._entry(
-                EntryKind.PUBLISHER,
-                device.get("ticks_topic", "wheel_ticks"),
-                "hwbridge_msgs/WheelTicks",
-            )
-            targets_channel = self._entry(
-                EntryKind.SUBSCRIBER,
-                device.get("targets_topic", "wheel_targets"),
-                "hwbridge_msgs/WheelTargets",
-            )
-            self._inputs[targets_channel] = self._on_targets
-            self._readers.append((rate, lambda: (channel, self._read_ticks())))
-        elif kind == "hcsr04":
-            sonar = HcSr04Model(
-                temperature_c=float(device.get("temperature", 20.0)),
-                noise_std=float(device.get("noise_std", 0.002)),
-                seed=self.seed + 2,
-            )
-            channel = self._entry(
-                EntryKind.PUBLISHER, device.get("topic", "sonar_echo"), "hwbridge_msgs/SonarEcho"
-            )
-            self._readers.append((rate, lambda: (channel, self._read_sonar(sonar))))
-        elif kind in ("mpu6050", "mpu9250"):
-            chip: MpuChip = (Mpu6050 if kind == "mpu6050" else Mpu9250)(seed=self.seed + 3)
-            accel_fs = ACCEL_RANGES_G.index(int(device.get("accel_range_g", 2)))
-            gyro_fs = GYRO_RANGES_DPS.index(int(device.get("gyro_range_dps", 250)))
-            chip.write(PWR_MGMT_1, bytes([0x00]))  # wake (the 6050 starts asleep)
-            chip.write(GYRO_CONFIG, bytes([gyro_fs << 3]))
-            chip.write(ACCEL_CONFIG, bytes([accel_fs << 3]))
-            mag = None
-            if isinstance(chip, Mpu9250) and device.get("magnetometer", True):
-                mag = _Magnetometer.set_up(chip, self.world.time)
-            channel = self._entry(
-                EntryKind.PUBLISHER, device.get("topic", "imu_raw"), "hwbridge_msgs/ImuRaw"
-            )
-            self._readers.append((rate, lambda: (channel, self._read_imu(chip, kind, mag))))
-        elif kind == "dynamixel":
-            self._add_dynamixel(device, rate)
-        else:
-            raise HwBridgeError(f"{self.config.source}: unknown device type {kind!r}")
-
-    def _add_dynamixel(self, device: dict[str, Any], rate: float) -> None:
-        """A servo on the board's own Dynamixel bus (its second UART), driven by the board."""
-        from hwbridge.devices.dynamixel import EmulatedDynamixelBus, find_model, packets
-
-        bus = EmulatedDynamixelBus.from_config(device["bus"])
-        servo_id = int(device.get("id", 1))
-        joint = str(device.get("joint", "pan"))
-        protocol = int(device["bus"].get("protocol", 2))
-        model = find_model(bus.servo(servo_id).model.name)
-        table = model.table
-        self.dynamixel_bus = bus
-        bus_time = [0.0]
-
-        def transact(packet: Any) -> Any:
-            now = max(bus_time[0], self.world.time)
-            reply = bus.feed(packets.encode(packet), now) + bus.advance(now + 0.005)
-            bus_time[0] = now + 0.005
-            return packets.decode(reply, protocol, "status") if reply else None
-
-        def register(name: str) -> tuple[int, int]:
-            found = table[name]
-            return found.address, found.size
-
-        address, _ = register("Torque Enable")
-        transact(packets.write_packet(protocol, servo_id, address, bytes([1])))
-
-        def read_state() -> bytes:
-            with self._lock:
-                addr, length = register("Present Position")
-                status = transact(packets.read_packet(protocol, servo_id, addr, length))
-            ticks = int.from_bytes(status.params, "little", signed=True) if status else 0
-            return msg.encode(
-                msg.from_dict(
-                    "sensor_msgs/JointState",
-                    {
-                        "header": self._stamp(),
-                        "name": [joint],
-                        "position": [model.ticks_to_radians(ticks)],
-                    },
-                )
-            )
-
-        def on_goal(payload: bytes) -> None:
-            goal = msg.decode(payload, "std_msgs/Float64", self.registry)
-            addr, length = register("Goal Position")
-            ticks = model.radians_to_ticks(float(goal.data))
-            with self._lock:
-                transact(
-                    packets.write_packet(
-                        protocol, servo_id, addr, ticks.to_bytes(length, "little", signed=True)
-                    )
-                )
-
-        channel = self._entry(
-            EntryKind.PUBLISHER, device.get("state_topic", "joint_states"), "sensor_msgs/JointState"
-        )
-        goal_channel = self._entry(
-            EntryKind.SUBSCRIBER, f"{joint}/goal_position", "std_msgs/Float64"
-        )
-        self._inputs[goal_channel] = on_goal
-        self._readers.append((rate, lambda: (channel, read_state())))
-
-    def _stamp(self) -> dict[str, Any]:
-        # The session's clock is the pump's (monotonic) clock: stamp readings with the host
-        # time of the moment they are taken, as firmware with time sync does. The offset was
-        # read under the pump's lock by _publish: the session itself may be resetting.
-        return {"stamp": time.monotonic() + self._host_offset}
-
-    def _read_ticks(self) -> bytes:
-        left, right = self.world.base.counts()
-        bits = self.config.world.counter_bits
-        left = wrap_counter(left - self._count_offset[0], bits)
-        right = wrap_counter(right - self._count_offset[1], bits)
-        return msg.encode(
-            msg.from_dict(
-                "hwbridge_msgs/WheelTicks",
-                {
-                    "header": {**self._stamp(), "frame_id": "base_link"},
-                    "left": _as_int32(left),
-                    "right": _as_int32(right),
-                    "counter_bits": bits,
-                },
-            )
-        )
-
-    def _read_sonar(self, sonar: HcSr04Model) -> bytes:
-        echo = sonar.measure(self.world.sonar_distance())
-        return msg.encode(
-            msg.from_dict(
-                "hwbridge_msgs/SonarEcho",
-                {
-                    "header": {**self._stamp(), "frame_id": "sonar_link"},
-                    "echo_us": int(echo),
-                    "temperature": sonar.temperature_c,
-                },
-            )
-        )
-
-    def _read_imu(self, chip: MpuChip, kind: str, mag: _Magnetometer | None) -> bytes:
-        chip.set_truth(self.world.imu_truth())
-        chip.sample()
-        raw = decode_burst(chip.read(ACCEL_XOUT_H, 14))
-        reading = mag.read(self.world.time) if mag is not None else None
-        fields = reading or {"mag": [0, 0, 0], "mag_st2": 0, "mag_asa": [0, 0, 0]}
-        return msg.encode(
-            msg.from_dict(
-                "hwbridge_msgs/ImuRaw",
-                {
-                    "header": {**self._stamp(), "frame_id": "imu_link"},
-                    "chip": 0 if kind == "mpu6050" else 1,
-                    "accel_config": chip.read(ACCEL_CONFIG, 1)[0],
-                    "gyro_config": chip.read(GYRO_CONFIG, 1)[0],
-                    "burst": [*raw.accel, raw.temperature, *raw.gyro],
-                    **fields,
-                    "mag_valid": reading is not None,
-                },
-            )
-        )
 
     # ------------------------------------------------------------------ running
     def _on_event(self, event: Any) -> None:
@@ -341,12 +194,6 @@ class VirtualBoard:
             log.info("%s: connected to the host", self.config.name)
         elif isinstance(event, ns.Disconnected):
             log.info("%s: host session ended (%s)", self.config.name, event.reason)
-
-    def _on_targets(self, payload: bytes) -> None:
-        targets = msg.decode(payload, "hwbridge_msgs/WheelTargets", self.registry)
-        with self._lock:
-            self._targets = (float(targets.left), float(targets.right))
-            self._last_target = self.world.time
 
     def start(self, link: Link) -> VirtualBoard:
         """Run on ``link`` (opened): the protocol pump and the physics thread."""
@@ -384,10 +231,9 @@ class VirtualBoard:
         steps = 0
         while not self._stop.is_set():
             with self._lock:
-                if self.world.time - self._last_target > TARGET_TIMEOUT:
-                    self._targets = (0.0, 0.0)
-                self.world.base.set_wheel_targets(*self._targets)
                 self.world.step(dt)
+                for step in self._steps:
+                    step(self.world.time)
             steps += 1
             for index, (rate, read) in enumerate(self._readers):
                 if self.world.time + 1e-9 >= next_read[index]:
@@ -432,32 +278,3 @@ class VirtualBoard:
             self.pump.stop()
         if self.link is not None:
             self.link.close()
-
-
-class _Magnetometer:
-    """The MPU-9250's AK8963 as firmware drives it: reached through the bypass switch, its
-    sensitivity adjustment read once from fuse ROM, then measuring continuously at 100 Hz with
-    16-bit output; each reading takes the newest measurement, if there is one."""
-
-    def __init__(self, chip: Mpu9250, bus: I2CBus, asa: bytes, now: float) -> None:
-        self.chip, self.bus, self.asa, self.last = chip, bus, list(asa), now
-
-    @classmethod
-    def set_up(cls, chip: Mpu9250, now: float) -> _Magnetometer:
-        bus = I2CBus(chip)
-        return cls(chip, bus, configure_ak8963(bus, chip.address), now)
-
-    def read(self, now: float) -> dict[str, Any] | None:
-        """The ImuRaw magnetometer fields of a new measurement, None if none is ready."""
-        self.chip.magnetometer.advance(max(0.0, now - self.last))
-        self.last = now
-        if not self.bus.read(AK8963_ADDRESS, AK8963_ST1, 1)[0] & 0x01:  # DRDY
-            return None
-        counts, st2 = decode_magnetometer(self.bus.read(AK8963_ADDRESS, AK8963_HXL, 7))
-        return {"mag": list(counts), "mag_st2": st2, "mag_asa": self.asa}
-
-
-def _as_int32(value: int) -> int:
-    """A counter register value as the int32 field carries it (two's complement)."""
-    value &= 0xFFFFFFFF
-    return value - (1 << 32) if value >= 1 << 31 else value

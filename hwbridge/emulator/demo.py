@@ -1,10 +1,12 @@
 """``hwbridge demo``: the whole path on one machine with nothing plugged in.
 
-A virtual ``diffbot`` board runs on a pseudo-terminal; the bridge opens it like a serial port and
-speaks the native protocol to it; host device nodes turn its raw readings into odometry, Range and
-Imu; a small driver steers it around its room with ``cmd_vel`` (turning away when the sonar sees a
-wall). The screen shows what the graph sees, and the run ends with how far odometry drifted from
-the emulator's ground truth.
+The demo robot's file (``examples/robots/diffbot.yaml``) is brought up exactly as ``hwbridge up``
+brings up a real robot (:class:`~hwbridge.robot.runtime.RobotRuntime`), with its board's link
+pointed at a virtual board on a pseudo-terminal: the bridge speaks the native protocol to it and
+the device plugins' host nodes turn its raw readings into odometry, Range and Imu. A small driver
+steers it around its room with ``cmd_vel`` (turning away when the sonar sees a wall), reading the
+graph as any node would. The screen shows what the graph sees next to the emulator's ground
+truth, and the run ends with how far odometry drifted.
 """
 
 from __future__ import annotations
@@ -18,17 +20,17 @@ from rich.console import Console
 from rich.live import Live
 from rich.table import Table
 
-from hwbridge.bridge import BoardSpec, Bridge
-from hwbridge.devices.encoders import DiffDriveParams
-from hwbridge.devices.nodes import DiffDriveNode, ImuNode, SonarNode
-from hwbridge.emulator.board import VirtualBoard, load_board
+from hwbridge.emulator.board import ROBOTS_DIR, VirtualBoard, load_board
 from hwbridge.errors import HwBridgeError
 from hwbridge.graph import Graph, GraphConfig
 from hwbridge.links import open_link
+from hwbridge.robot.config import load_robot
+from hwbridge.robot.runtime import RobotRuntime
 
 __all__ = ["DemoResult", "run_demo"]
 
-NAMESPACE = "/diffbot"
+ROBOT_FILE = ROBOTS_DIR / "diffbot.yaml"
+BOARD = "base"
 
 
 @dataclass(frozen=True)
@@ -42,6 +44,18 @@ class DemoResult:
     @property
     def error_percent(self) -> float:
         return 100.0 * self.error / self.distance if self.distance > 0 else 0.0
+
+
+class _Latest:
+    """The latest message of each topic the demo watches, by relative name."""
+
+    def __init__(self, node: Any, topics: dict[str, str]) -> None:
+        self.values: dict[str, Any] = dict.fromkeys(topics)
+        for topic, type_name in topics.items():
+            node.subscriber(topic, type_name, lambda m, t=topic: self.values.__setitem__(t, m))
+
+    def __getitem__(self, topic: str) -> Any:
+        return self.values[topic]
 
 
 class _Driver:
@@ -70,48 +84,48 @@ def run_demo(
 ) -> DemoResult:
     """Run the demo; returns its result (after Ctrl-C too)."""
     out = console or Console(stderr=False)
-    config = load_board("diffbot")
-    board = VirtualBoard(config, seed=seed)
+    robot = load_robot(ROBOT_FILE)
+    namespace = robot.board(BOARD).namespace
+    board = VirtualBoard(load_board(str(ROBOT_FILE), BOARD), seed=seed)
     link = open_link("pty://")
     board.start(link)
     graph = Graph(GraphConfig.embedded([endpoint] if endpoint else None))
-    bridge = Bridge(graph)
-    nodes: list[Any] = []
+    runtime: RobotRuntime | None = None
     try:
         path = link.slave_path  # type: ignore[attr-defined]
-        bridge.add_board(
-            BoardSpec(path, protocol="native", namespace=NAMESPACE, name="diffbot", start_delay=0.2)
+        runtime = RobotRuntime(robot.with_links({BOARD: path}), graph).start()
+        view = graph.node("demo_driver", namespace=namespace)
+        seen = _Latest(
+            view,
+            {
+                "odom": "nav_msgs/Odometry",
+                "range": "sensor_msgs/Range",
+                "imu": "sensor_msgs/Imu",
+                "joint_states": "sensor_msgs/JointState",
+            },
         )
-        node = graph.node("diffbot_devices", namespace=NAMESPACE)
-        drive = DiffDriveNode(node, DiffDriveParams.from_dict(config.host.get("diffdrive", {})))
-        sonar, imu = SonarNode(node), ImuNode(node)
-        nodes.append(drive)
-        driver_node = graph.node("demo_driver", namespace=NAMESPACE)
-        cmd_vel = driver_node.publisher("cmd_vel", "geometry_msgs/Twist")
-        pan_goal = driver_node.publisher("pan/goal_position", "std_msgs/Float64")
-        joints: list[Any] = [None]
-        driver_node.subscriber(
-            "joint_states", "sensor_msgs/JointState", lambda m: joints.__setitem__(0, m)
-        )
+        cmd_vel = view.publisher("cmd_vel", "geometry_msgs/Twist")
+        pan_goal = view.publisher("pan/goal_position", "std_msgs/Float64")
         out.print(
-            f"[bold]hwbridge demo[/]: virtual diffbot on {path}, graph on "
-            f"{graph.config.describe()}; topics under {NAMESPACE}"
+            f"[bold]hwbridge demo[/]: robot {robot.name} ({ROBOT_FILE.name}) up with board "
+            f"{BOARD} on a virtual board at {path}; graph on {graph.config.describe()}; "
+            f"topics under {namespace}"
         )
-        _wait_connected(bridge, 20.0)
+        _wait_connected(runtime, 20.0)
         driver = _Driver()
         started = time.monotonic()
         try:
             with Live(
-                _table(board, drive, sonar, imu, 0.0, None), console=out, refresh_per_second=4
+                _table(board, seen, namespace, 0.0), console=out, refresh_per_second=4
             ) as live:
                 while True:
                     elapsed = time.monotonic() - started
                     if elapsed >= duration:
                         break
-                    v, w = driver.command(elapsed, sonar.latest)
+                    v, w = driver.command(elapsed, seen["range"])
                     cmd_vel.publish({"linear": {"x": v}, "angular": {"z": w}})
                     pan_goal.publish({"data": 0.8 * math.sin(elapsed * 0.5)})
-                    live.update(_table(board, drive, sonar, imu, elapsed, joints[0]))
+                    live.update(_table(board, seen, namespace, elapsed))
                     time.sleep(0.1)
             out.print()
             cmd_vel.publish({})
@@ -125,34 +139,32 @@ def run_demo(
                     time.sleep(1.0)
         except KeyboardInterrupt:
             out.print("interrupted")
-        result = _result(board, drive)
+        result = _result(board, seen["odom"])
         out.print(
             f"drove {result.distance:.2f} m in {board.world.time:.1f} s of board time; "
-            f"{board.published} board messages; link: {_link_summary(bridge)}"
+            f"{board.published} board messages; link: {_link_summary(runtime)}"
         )
         out.print(f"odometry error: {result.error_percent:.3f}% of {result.distance:.2f} m")
         return result
     finally:
-        for item in nodes:
-            item.close()
-        bridge.stop()
+        if runtime is not None:
+            runtime.stop()
         graph.close()
         board.stop()
         link.close()
 
 
-def _wait_connected(bridge: Bridge, timeout: float) -> None:
+def _wait_connected(runtime: RobotRuntime, timeout: float) -> None:
     deadline = time.monotonic() + timeout
-    board = bridge.boards["diffbot"]
+    board = runtime.bridge.boards[BOARD]
     while board.state != "connected":
         if time.monotonic() > deadline:
             raise HwBridgeError(f"the virtual board did not connect (state {board.state})")
         time.sleep(0.05)
 
 
-def _result(board: VirtualBoard, drive: DiffDriveNode) -> DemoResult:
+def _result(board: VirtualBoard, odom: Any) -> DemoResult:
     truth = board.world.pose
-    odom = drive.latest
     if odom is None:
         raise HwBridgeError("no odometry arrived: the board's ticks did not reach the host")
     position = odom.pose.pose.position
@@ -160,8 +172,8 @@ def _result(board: VirtualBoard, drive: DiffDriveNode) -> DemoResult:
     return DemoResult(board.world.base.distance, error, board.published)
 
 
-def _link_summary(bridge: Bridge) -> str:
-    stats = bridge.boards["diffbot"].info().get("stats", {})
+def _link_summary(runtime: RobotRuntime) -> str:
+    stats = runtime.bridge.boards[BOARD].info().get("stats", {})
     keys = ("frames_received", "crc_errors", "be_frames_lost", "retransmits", "rtt")
     return ", ".join(
         f"{k} {stats[k]:.4f}" if isinstance(stats.get(k), float) else f"{k} {stats.get(k)}"
@@ -170,51 +182,43 @@ def _link_summary(bridge: Bridge) -> str:
     )
 
 
-def _table(
-    board: VirtualBoard,
-    drive: DiffDriveNode,
-    sonar: SonarNode,
-    imu: ImuNode,
-    t: float,
-    joints: Any,
-) -> Table:
+def _table(board: VirtualBoard, seen: _Latest, namespace: str, t: float) -> Table:
     table = Table(title=f"diffbot, {t:5.1f} s", show_header=True, header_style="bold")
     table.add_column("what")
     table.add_column("graph sees")
     table.add_column("ground truth")
     truth = board.world.pose
-    odom = drive.latest
+    odom = seen["odom"]
     if odom is not None:
         p = odom.pose.pose.position
         table.add_row(
-            "/diffbot/odom x, y",
+            f"{namespace}/odom x, y",
             f"{float(p.x):+.3f}, {float(p.y):+.3f} m",
             f"{truth.x:+.3f}, {truth.y:+.3f} m",
         )
         table.add_row("speed", f"{float(odom.twist.twist.linear.x):+.2f} m/s", "")
-    rng = sonar.latest
+    rng = seen["range"]
     if rng is not None:
         truth_range = board.world.sonar_distance()
         table.add_row(
-            "/diffbot/range",
+            f"{namespace}/range",
             f"{float(rng.range):.3f} m",
             f"{truth_range:.3f} m" if truth_range is not None else "nothing",
         )
-    reading = imu.latest
+    reading = seen["imu"]
     if reading is not None:
         a, g = reading.linear_acceleration, reading.angular_velocity
         table.add_row(
-            "/diffbot/imu accel z, gyro z",
+            f"{namespace}/imu accel z, gyro z",
             f"{float(a.z):.2f} m/s², {float(g.z):+.2f} rad/s",
             "",
         )
+    joints = seen["joint_states"]
     if joints is not None and len(joints.position):
-        servo = board.dynamixel_bus.servo(1) if board.dynamixel_bus is not None else None
-        truth_pan = servo.model.ticks_to_radians(servo.get("Present Position")) if servo else None
         table.add_row(
-            "/diffbot/joint_states pan",
+            f"{namespace}/joint_states {joints.name[0]}",
             f"{float(joints.position[0]):+.3f} rad",
-            f"{truth_pan:+.3f} rad" if truth_pan is not None else "",
+            "",
         )
     table.add_row("distance driven", "", f"{board.world.base.distance:.2f} m")
     return table

@@ -49,7 +49,7 @@ from hwbridge.robot.model import (
 )
 from hwbridge.robot.plugin import DevicePlugin, Field
 
-__all__ = ["load_robot", "parse_robot"]
+__all__ = ["check_value", "device_config", "load_robot", "parse_robot"]
 
 _TOP_KEYS: Final = ("robot", "world", "boards", "host_devices")
 _BOARD_KEYS: Final = (
@@ -453,6 +453,34 @@ def parse_robot(text: str, path: str = "<robot>") -> Robot:
     if problems.lines:
         raise RobotFileError(problems.lines)
     return Robot(name, Path(path), tuple(boards), tuple(hosts), world)
+
+
+def device_config(entry: dict[str, Any], source: str = "<device>") -> DeviceConfig:
+    """One device from a mapping (``{"type": "hcsr04", "rate": 10}``), checked against its
+    plugin's fields with defaults filled in, as a robot file's device entry is."""
+    from hwbridge.robot.registry import get_device
+
+    settings = dict(entry)
+    plugin = get_device(str(settings.pop("type", "")))
+    name = str(settings.pop("name", plugin.type))
+    problems: list[str] = []
+    fields = {f.name: f for f in plugin.fields}
+    for key in sorted(set(settings) - set(fields)):
+        problems.append(f"{source}: {plugin.type}: unknown setting {key!r}")
+    checked: dict[str, Any] = {}
+    for field in plugin.fields:
+        if field.name not in settings:
+            if field.required:
+                problems.append(f"{source}: {plugin.type}: missing setting {field.name!r}")
+            checked[field.name] = field.default
+            continue
+        value, why = check_value(field, settings[field.name])
+        if why is not None:
+            problems.append(f"{source}: {plugin.type}: {field.name}: {why}")
+        checked[field.name] = value
+    if problems:
+        raise RobotFileError(problems)
+    return DeviceConfig(plugin.type, name, checked, source)
 
 
 def load_robot(path: str | Path) -> Robot:

@@ -55,7 +55,7 @@ from hwbridge.devices.imu.plugin import (
     sensitivity_adjustment,
 )
 from hwbridge.devices.world import STANDARD_GRAVITY
-from hwbridge.emulator.board import VirtualBoard, load_board
+from hwbridge.emulator.board import load_board
 from hwbridge.errors import HwBridgeError
 
 G = STANDARD_GRAVITY
@@ -256,19 +256,22 @@ def test_an_unsupported_range_in_a_board_yaml_names_the_setting_value_and_choice
 ) -> None:
     path = tmp_path / "imubot.yaml"
     path.write_text(
-        f"name: imubot\ndevices:\n  - type: {kind}\n    rate: 50\n    {setting}: {value}\n"
+        "robot: imubot\nboards:\n  - name: base\n    link: pty://\n    devices:\n"
+        f"      - type: {kind}\n        rate: 50\n        {setting}: {value}\n"
     )
-    config = load_board(str(path))
-    with pytest.raises(ImuConfigError) as info:
-        VirtualBoard(config)
-    assert isinstance(info.value, HwBridgeError)
+    with pytest.raises(HwBridgeError) as info:
+        load_board(str(path))
     text = str(info.value)
-    assert setting in text and f"got {value}" in text and choices in text
+    assert text.startswith(f"{path}:8: ")
+    assert setting in text and f"not {value}" in text and choices in text
 
 
 def test_an_unsupported_range_reaches_the_user_as_an_error_line(tmp_path: Path) -> None:
     path = tmp_path / "imubot.yaml"
-    path.write_text("name: imubot\ndevices:\n  - type: mpu6050\n    accel_range_g: 32\n")
+    path.write_text(
+        "robot: imubot\nboards:\n  - name: base\n    link: pty://\n    devices:\n"
+        "      - {type: mpu6050, accel_range_g: 32}\n"
+    )
     done = subprocess.run(
         [sys.executable, "-m", "hwbridge", "emulate", str(path)],
         capture_output=True,
@@ -277,8 +280,10 @@ def test_an_unsupported_range_reaches_the_user_as_an_error_line(tmp_path: Path) 
         check=False,
     )
     assert done.returncode == 1, done.stderr
-    assert done.stderr.startswith("error: accel_range_g must be one of 2, 4, 8, 16"), done.stderr
-    assert "got 32" in done.stderr and "Traceback" not in done.stderr
+    assert done.stderr.startswith(
+        f"error: {path}:6: board base: mpu6050: accel_range_g: must be one of 2, 4, 8, 16"
+    ), done.stderr
+    assert "not 32" in done.stderr and "Traceback" not in done.stderr
 
 
 class _FakeChipBus:

@@ -17,12 +17,14 @@ import yaml
 
 from hwbridge import msg
 from hwbridge.bridge import BoardSpec, Bridge
-from hwbridge.devices.encoders import DiffDriveParams
-from hwbridge.devices.nodes import DiffDriveNode, ImuNode, SonarNode
-from hwbridge.emulator import VirtualBoard, World, WorldConfig, load_board
+from hwbridge.devices.nodes import ImuNode
+from hwbridge.emulator import BoardConfig, VirtualBoard, World, WorldConfig, load_board
 from hwbridge.errors import HwBridgeError
 from hwbridge.graph import Graph
 from hwbridge.links import open_link
+from hwbridge.robot.config import device_config
+from hwbridge.robot.plugin import HostContext
+from hwbridge.robot.registry import get_device
 from tests.bridgeproc import BridgeProcess
 from tests.netutil import free_port, wait_until
 
@@ -40,8 +42,21 @@ def test_world_sonar_and_imu_ground_truth() -> None:
     assert world.sonar_distance(rays=1) == pytest.approx(2.9 - world.pose.x, abs=1e-6)
 
 
+def host_nodes(graph: Graph, config: BoardConfig, namespace: str) -> dict[str, Any]:
+    """Each device's host node, started by its plugin (as ``hwbridge up`` does)."""
+    started: dict[str, Any] = {}
+    for device in config.devices:
+        context = HostContext(
+            graph, graph.node(f"dev_{device.name}", namespace=namespace), namespace, "base", None
+        )
+        node = get_device(device.type).host_node(device.settings, context)
+        if node is not None:
+            started[device.type] = node
+    return started
+
+
 def test_unknown_board_lists_the_ready_ones() -> None:
-    with pytest.raises(HwBridgeError, match=r"ready boards are .*diffbot"):
+    with pytest.raises(HwBridgeError, match=r"ready robots are .*diffbot"):
         load_board("nosuchbot")
 
 
@@ -57,9 +72,9 @@ def test_virtual_board_through_bridge_and_device_nodes(tmp_path: Path) -> None:
         bridge.add_board(
             BoardSpec(str(tmp_path / "diffbot"), protocol="auto", namespace="/bot", start_delay=0.1)
         )
+        nodes = host_nodes(graph, config, "/bot")  # the device plugins' host side
         node = graph.node("devices", namespace="/bot")
-        drive = DiffDriveNode(node, DiffDriveParams.from_dict(config.host["diffdrive"]))
-        sonar, imu = SonarNode(node), ImuNode(node)
+        drive, sonar, imu = nodes["diffdrive"], nodes["hcsr04"], nodes["mpu6050"]
         cmd = graph.node("driver", namespace="/bot").publisher("cmd_vel", "geometry_msgs/Twist")
         assert wait_until(lambda: None not in (drive.latest, imu.latest, sonar.latest), 30)
         assert imu.latest.linear_acceleration.z == pytest.approx(9.81, abs=1.2)
@@ -94,7 +109,8 @@ def test_virtual_board_through_bridge_and_device_nodes(tmp_path: Path) -> None:
 
         assert wait_until(pan_reached, 20)
         assert joints[-1].name == ["pan"]
-        drive.close()
+        for started in nodes.values():
+            started.close()
     finally:
         bridge.stop()
         graph.close()
@@ -107,9 +123,11 @@ def test_mpu9250_board_gives_imu_and_magnetic_field_through_the_bridge(tmp_path:
     fuse ROM, continuous 16-bit), ImuRaw carries it, and ImuNode publishes the field in tesla."""
     diffbot = load_board("diffbot")
     devices = tuple(
-        {**device, "type": "mpu9250"} if device["type"] == "mpu6050" else device
+        device_config({**device.settings, "type": "mpu9250"})
+        if device.type == "mpu6050"
+        else device
         for device in diffbot.devices
-        if device["type"] in ("diffdrive", "mpu6050")
+        if device.type in ("diffdrive", "mpu6050")
     )
     board = VirtualBoard(dataclasses.replace(diffbot, devices=devices), seed=9, speed=2.0)
     link = open_link(f"pty://?symlink={tmp_path / 'imubot'}")
@@ -139,7 +157,9 @@ def test_mpu9250_board_gives_imu_and_magnetic_field_through_the_bridge(tmp_path:
 
 @pytest.mark.parametrize("magnetometer", [True, False])
 def test_mpu9250_magnetometer_option(magnetometer: bool) -> None:
-    device = {"type": "mpu9250", "topic": "imu_raw", "rate": 50, "magnetometer": magnetometer}
+    device = device_config(
+        {"type": "mpu9250", "topic": "imu_raw", "rate": 50, "magnetometer": magnetometer}
+    )
     config = dataclasses.replace(load_board("diffbot"), devices=(device,))
     board = VirtualBoard(config, seed=1)
     ((_, read),) = board._readers
@@ -281,15 +301,18 @@ def test_emulate_dynamixel_bus_answers_a_scan(bus: str, protocol: str, model: st
 @pytest.mark.parametrize(
     ("device", "said"),
     [
-        ("type: mpu6050\n    accel_range_g: 2g", "device 2 (mpu6050): bad setting: "),
-        ("type: hcsr04\n    rate: fast", "device 2 (hcsr04): bad setting: "),
+        ("{type: mpu6050, accel_range_g: 2g}", "board base: mpu6050: accel_range_g: expected"),
+        ("{type: hcsr04, rate: fast}", "board base: hcsr04: rate: expected a number"),
     ],
 )
 def test_a_setting_that_is_not_a_number_names_the_device(
     device: str, said: str, tmp_path: Path
 ) -> None:
     path = tmp_path / "bot.yaml"
-    path.write_text(f"name: bot\ndevices:\n  - type: hcsr04\n  - {device}\n")
+    path.write_text(
+        "robot: bot\nboards:\n  - name: base\n    link: pty://\n    devices:\n"
+        f"      - type: hcsr04\n      - {device}\n"
+    )
     with pytest.raises(HwBridgeError) as info:
         VirtualBoard(load_board(str(path)))
-    assert f"{path}: {said}" in str(info.value)
+    assert f"{path}:7: {said}" in str(info.value)

@@ -15,12 +15,13 @@ import time
 from pathlib import Path
 from typing import Any
 
-from hwbridge.devices.encoders import DiffDriveParams
 from hwbridge.devices.nodes import DiffDriveNode
 from hwbridge.emulator import VirtualBoard, load_board
 from hwbridge.emulator.faults import LinkFaults
 from hwbridge.graph import Graph
 from hwbridge.links import open_link
+from hwbridge.robot.plugin import HostContext
+from hwbridge.robot.registry import get_device
 from tests.bridgeproc import BridgeProcess
 from tests.netutil import wait_until
 
@@ -38,7 +39,10 @@ def test_bridge_recovers_and_odometry_stays_continuous(tmp_path: Path) -> None:
         bridge.wait_ready()
         graph = Graph.attached(connect=[endpoint], domain="faults")
         node = graph.node("devices", namespace="/bot")
-        drive = DiffDriveNode(node, DiffDriveParams.from_dict(config.host["diffdrive"]))
+        (diffdrive,) = [d for d in config.devices if d.type == "diffdrive"]
+        context = HostContext(graph, node, "/bot", "diffbot", None)
+        drive = get_device("diffdrive").host_node(diffdrive.settings, context)
+        assert isinstance(drive, DiffDriveNode)
         poses: list[tuple[float, float]] = []
         stamps: list[float] = []
 

@@ -1,8 +1,14 @@
 """A graph node for a Dynamixel bus: what ROS users expect from one (DEVICES.md).
 
-* ``joint_states`` (sensor_msgs/JointState): positions in rad, velocities in rad/s, at
-  ``rate_hz``; read with one SYNC_READ of Present Velocity + Present Position (Protocol 2.0)
-  or a READ per servo (1.0, whose servos have no SYNC_READ).
+* ``joint_states`` (sensor_msgs/JointState): positions in rad, velocities in rad/s and efforts
+  at ``rate_hz``; read with one SYNC_READ of Present Load/Current, Velocity and Position
+  (Protocol 2.0) or a READ per servo (1.0, whose servos have no SYNC_READ). The effort is what
+  the servo measures, not a torque (no torque constant is published for these servos): the
+  Present Load as a signed fraction of the maximum torque (-1..1) on servos that report load
+  (XL430, AX-12A), the Present Current in amperes on those that measure current (XM430).
+* ``joint_command`` (sensor_msgs/JointState): goals for several joints in one message, by name:
+  ``position`` (rad) and/or ``velocity`` (rad/s), each list empty or as long as ``name``; a
+  name that is not a joint of the bus is reported once (WARNING) and its entries skipped.
 * ``<joint>/goal_position`` (std_msgs/Float64, rad) and ``<joint>/goal_velocity``
   (std_msgs/Float64, rad/s): the latest command per joint goes out with the next cycle, in one
   SYNC_WRITE per register. A goal velocity is the Goal Velocity of an X servo in velocity mode
@@ -10,6 +16,12 @@
   AX-12A, which in wheel mode is the signed wheel speed).
 * ``torque_enable`` (std_srvs/SetBool): torque on or off for every joint, each write
   acknowledged.
+* ``/diagnostics`` (diagnostic_msgs/DiagnosticArray), about once a second: one status per
+  servo, named ``dynamixel/<joint>``, with the servo id and model as ``hardware_id``: OK, ERROR
+  with the hardware error bits it reports (Hardware Error Status on X series, the status
+  packet's error bits on Protocol 1.0: overload, overheating, input voltage, electrical shock,
+  motor encoder), or ERROR "no status" while it does not answer. A new hardware error, a servo
+  that stops answering and one that recovers are also logged (WARNING, then INFO).
 """
 
 from __future__ import annotations
@@ -29,6 +41,20 @@ from hwbridge.graph import Graph, Publisher, ServiceServer, Subscriber
 __all__ = ["DynamixelNode"]
 
 log = logging.getLogger("hwbridge.devices.dynamixel")
+
+X_HARDWARE_ERRORS = {
+    0x01: "input voltage",
+    0x04: "overheating",
+    0x08: "motor encoder",
+    0x10: "electrical shock",
+    0x20: "overload",
+}
+"""Bits of the X series' Hardware Error Status register (e-manual)."""
+P1_HARDWARE_ERRORS = {0x01: "input voltage", 0x04: "overheating", 0x20: "overload"}
+"""The hardware bits of a Protocol 1.0 status packet's error byte (DEVICES.md)."""
+_OK, _ERROR = 0, 2
+"""diagnostic_msgs/DiagnosticStatus levels."""
+DIAGNOSTICS_PERIOD = 1.0
 
 
 class DynamixelNode:
@@ -75,6 +101,11 @@ class DynamixelNode:
             and bus.read_register(self.joints[n], "CCW Angle Limit") == 0
             for n, m in self.models.items()
         }
+        self._current = {
+            n: "Present Current" in [r.name for r in m.table.registers]
+            for n, m in self.models.items()
+        }
+        """Joints whose servo measures current (2.69 mA units) rather than load (0.1 %)."""
         self.published = 0
         self.read_errors = 0
         self.write_errors = 0
@@ -96,9 +127,19 @@ class DynamixelNode:
                     f"{joint}/goal_velocity", "std_msgs/Float64", self._on_velocity(joint)
                 )
             )
+        self._subscribers.append(
+            self.node.subscriber("joint_command", "sensor_msgs/JointState", self._on_command)
+        )
         self._service: ServiceServer = self.node.service(
             "torque_enable", "std_srvs/SetBool", self._torque_service
         )
+        self._diagnostics: Publisher = self.node.publisher(
+            "/diagnostics", "diagnostic_msgs/DiagnosticArray"
+        )
+        self._next_diagnostics = 0.0
+        self.health: dict[str, str] = dict.fromkeys(self._names, "")
+        """Per joint: "" when fine, else what is wrong ("no status", hardware errors)."""
+        self._unknown_names: set[str] = set()
         self._thread = threading.Thread(target=self._run, name=f"dxl-node-{name}", daemon=True)
         self._thread.start()
 
@@ -134,6 +175,35 @@ class DynamixelNode:
 
         return take
 
+    def _on_command(self, message: Any) -> None:
+        names = list(message.name)
+        positions, velocities = list(message.position), list(message.velocity)
+        for what, values in (("position", positions), ("velocity", velocities)):
+            if values and len(values) != len(names):
+                log.warning(
+                    "%s: joint_command has %d names but %d %ss: ignored",
+                    self.node.name,
+                    len(names),
+                    len(values),
+                    what,
+                )
+                return
+        for index, joint in enumerate(names):
+            if joint not in self.joints:
+                if joint not in self._unknown_names:
+                    self._unknown_names.add(joint)
+                    log.warning(
+                        "%s: joint_command names %r, which is not a joint of this bus (%s)",
+                        self.node.name,
+                        joint,
+                        ", ".join(self._names),
+                    )
+                continue
+            if positions:
+                self._on_position(joint)(_Value(float(positions[index])))
+            if velocities:
+                self._on_velocity(joint)(_Value(float(velocities[index])))
+
     def _set_goal(self, joint: str, register: str, value: int) -> None:
         with self._goals_lock:
             self._goals[(joint, register)] = value
@@ -158,6 +228,9 @@ class DynamixelNode:
         while not self._stop.is_set():
             self._write_goals()
             self._publish_state()
+            if time.monotonic() >= self._next_diagnostics:
+                self._next_diagnostics = time.monotonic() + DIAGNOSTICS_PERIOD
+                self._publish_diagnostics()
             next_time += period
             delay = next_time - time.monotonic()
             if delay < -period:  # fell behind (slow bus): do not try to catch up
@@ -179,7 +252,7 @@ class DynamixelNode:
 
     def _publish_state(self) -> None:
         try:
-            positions, velocities = self._read_state()
+            positions, velocities, efforts = self._read_state()
         except HwBridgeError as exc:
             self._failed("read", exc)
             return
@@ -189,32 +262,87 @@ class DynamixelNode:
                 "name": self._names,
                 "position": positions,
                 "velocity": velocities,
-                "effort": [],
+                "effort": efforts,
             }
         )
         self.published += 1
 
-    def _read_state(self) -> tuple[list[float], list[float]]:
+    def _read_state(self) -> tuple[list[float], list[float], list[float]]:
         positions: list[float] = []
         velocities: list[float] = []
+        efforts: list[float] = []
         if self.bus.protocol == 2:
-            raw = self.bus.sync_read(128, 8, self._ids)  # Present Velocity 128, Position 132
+            # Present Load/Current 126 (2), Present Velocity 128 (4), Present Position 132 (4)
+            raw = self.bus.sync_read(126, 10, self._ids)
             for name, id_ in zip(self._names, self._ids, strict=True):
                 model = self.models[name]
                 data = raw[id_]
+                effort = int.from_bytes(data[:2], "little", signed=True)
+                efforts.append(effort * 2.69e-3 if self._current[name] else effort / 1000.0)
                 velocities.append(
-                    model.velocity_to_rad_s(int.from_bytes(data[:4], "little", signed=True))
+                    model.velocity_to_rad_s(int.from_bytes(data[2:6], "little", signed=True))
                 )
                 positions.append(
-                    model.ticks_to_radians(int.from_bytes(data[4:], "little", signed=True))
+                    model.ticks_to_radians(int.from_bytes(data[6:], "little", signed=True))
                 )
-            return positions, velocities
+            return positions, velocities, efforts
         for name, id_ in zip(self._names, self._ids, strict=True):
             model = self.models[name]
-            data = self.bus.read(id_, 36, 4)  # AX-12A Present Position 36, Present Speed 38
+            # AX-12A: Present Position 36, Present Speed 38, Present Load 40 (bit 10: direction)
+            data = self.bus.read(id_, 36, 6)
             positions.append(model.ticks_to_radians(int.from_bytes(data[:2], "little")))
-            velocities.append(model.velocity_to_rad_s(int.from_bytes(data[2:], "little")))
-        return positions, velocities
+            velocities.append(model.velocity_to_rad_s(int.from_bytes(data[2:4], "little")))
+            load = int.from_bytes(data[4:], "little")
+            efforts.append((-1 if load & 0x400 else 1) * (load & 0x3FF) / 1023.0)
+        return positions, velocities, efforts
+
+    def _servo_health(self, joint: str) -> str:
+        """ "" if the servo answers and reports no hardware error, else what is wrong."""
+        id_ = self.joints[joint]
+        try:
+            if self.models[joint].series == "X":
+                bits = self.bus.read_register(id_, "Hardware Error Status")
+                names = X_HARDWARE_ERRORS
+            else:
+                self.bus.ping(id_, identify=False)
+                bits = self.bus.alerts.get(id_, 0)
+                names = P1_HARDWARE_ERRORS
+        except HwBridgeError:
+            return "no status"
+        found = [name for bit, name in names.items() if bits & bit]
+        unknown = bits & ~sum(names)
+        if unknown:
+            found.append(f"bits 0x{unknown:02X}")
+        return ", ".join(found)
+
+    def _publish_diagnostics(self) -> None:
+        statuses = []
+        for joint in self._names:
+            problem = self._servo_health(joint)
+            before = self.health[joint]
+            if problem != before:
+                if problem:
+                    log.warning(
+                        "%s: servo %d (%s): %s", self.node.name, self.joints[joint], joint, problem
+                    )
+                else:
+                    log.info(
+                        "%s: servo %d (%s) is fine again", self.node.name, self.joints[joint], joint
+                    )
+                self.health[joint] = problem
+            statuses.append(
+                {
+                    "level": _ERROR if problem else _OK,
+                    "name": f"dynamixel/{joint}",
+                    "message": problem or "OK",
+                    "hardware_id": f"id {self.joints[joint]} {self.models[joint].name}",
+                    "values": [
+                        {"key": "id", "value": str(self.joints[joint])},
+                        {"key": "model", "value": self.models[joint].name},
+                    ],
+                }
+            )
+        self._diagnostics.publish({"header": {"stamp": self._stamp()}, "status": statuses})
 
     def _failed(self, what: str, exc: Exception) -> None:
         first = (self.read_errors if what == "read" else self.write_errors) == 0
@@ -237,9 +365,17 @@ class DynamixelNode:
             sub.close()
         self._service.close()
         self._publisher.close()
+        self._diagnostics.close()
 
     def __enter__(self) -> DynamixelNode:
         return self
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+class _Value:
+    """A std_msgs/Float64-shaped value (``data``), to share the per-joint goal handlers."""
+
+    def __init__(self, data: float) -> None:
+        self.data = data

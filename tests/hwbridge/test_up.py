@@ -145,6 +145,9 @@ def test_dxl_arm_up_against_the_emulated_bus(procs: Processes) -> None:
     first = _echo(procs, f"{namespace}/joint_states")
     joint = first["name"][0]  # type: ignore[index]
     goal = 1.0 if abs(first["position"][0] - 1.0) > 0.3 else -1.0  # type: ignore[index]
+    torque = procs.cli("service", "call", f"{namespace}/torque_enable", "{data: true}")
+    assert torque.returncode == 0, torque.stderr
+    assert yaml.safe_load(torque.stdout)["success"] is True
     command = json.dumps({"name": [joint], "position": [goal]})
     pub = procs.start(
         "pub",

@@ -1,0 +1,94 @@
+"""``dynamixel_bus``: a chain of Dynamixel servos on the host's own serial adapter (a U2D2 or
+any USB-TTL/RS-485 adapter), as a device plugin (:mod:`hwbridge.robot.plugin`).
+
+In a robot file it is a host device with a link of its own::
+
+    host_devices:
+      - type: dynamixel_bus
+        name: arm
+        link: /dev/ttyUSB0
+        baud: 57600
+        namespace: /arm
+        protocol: 2
+        joints: {shoulder: 1, elbow: 2}     # joint name: servo id
+
+Its host node is a :class:`~hwbridge.devices.dynamixel.node.DynamixelNode` in the device's
+namespace: ``joint_states``, ``joint_command``, per-joint goal topics, ``torque_enable`` and
+``/diagnostics``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any, ClassVar
+
+from hwbridge.devices.dynamixel.bus import DynamixelBus
+from hwbridge.devices.dynamixel.node import DynamixelNode
+from hwbridge.errors import HwBridgeError
+from hwbridge.robot.plugin import Closeable, DevicePlugin, Field, HostContext
+
+__all__ = ["DynamixelBusPlugin"]
+
+
+class DynamixelBusPlugin(DevicePlugin):
+    """Servos on a host adapter: joint states, joint commands, torque, diagnostics."""
+
+    type = "dynamixel_bus"
+    summary = "Dynamixel servos on a host serial adapter (U2D2): joint_states, joint_command"
+    where = "host"
+    fields: ClassVar[tuple[Field, ...]] = (
+        Field("joints", dict, doc="joint name: servo id, e.g. {shoulder: 1, elbow: 2}"),
+        Field("protocol", int, 2, "Dynamixel protocol", choices=(1, 2)),
+        Field("rate", float, 50.0, "joint state readings per second", minimum=0.1, maximum=1000),
+        Field("frame_id", str, "", "header frame of joint_states"),
+        Field("timeout", float, 0.05, "s to wait for a status beyond its bytes' time", minimum=0),
+        Field("retries", int, 1, "resends after a timeout or corrupt status", minimum=0),
+    )
+
+    def host_node(self, settings: Mapping[str, Any], context: HostContext) -> Closeable:
+        joints = _joints(settings["joints"])
+        if context.link is None:
+            raise HwBridgeError("a dynamixel_bus needs a link (its adapter's port)")
+        bus = DynamixelBus(
+            context.link,
+            settings["protocol"],
+            timeout=settings["timeout"],
+            retries=settings["retries"],
+            baud=context.baud,
+        )
+        try:
+            node = DynamixelNode(
+                context.graph,
+                bus,
+                joints,
+                rate_hz=settings["rate"],
+                name=context.node.name,
+                namespace=context.namespace,
+                frame_id=settings["frame_id"],
+            )
+        except (HwBridgeError, ValueError) as exc:
+            bus.close()
+            raise HwBridgeError(f"servos {dict(joints)} on {context.link}: {exc}") from exc
+        return _Running(node, bus)
+
+
+def _joints(value: Mapping[str, Any]) -> dict[str, int]:
+    joints: dict[str, int] = {}
+    for name, servo in value.items():
+        if not isinstance(servo, int) or isinstance(servo, bool) or not 0 <= servo <= 252:
+            raise HwBridgeError(f"joints: {name}: expected a servo id 0-252, got {servo!r}")
+        joints[str(name)] = servo
+    if not joints:
+        raise HwBridgeError("joints: give at least one, e.g. {shoulder: 1}")
+    return joints
+
+
+class _Running:
+    """The node and the bus it opened: closing stops the node, then closes the port."""
+
+    def __init__(self, node: DynamixelNode, bus: DynamixelBus) -> None:
+        self.node, self.bus = node, bus
+
+    def close(self) -> None:
+        self.node.close()
+        self.bus.close()

@@ -95,3 +95,31 @@ def test_bridge_bench_runs_small_and_prints_the_documented_fields() -> None:
             ):
                 assert isinstance(line[field], float), field
             assert line["rtt_p50_us"] > line["board_us"] > 0
+
+
+def test_hotpath_bench_prints_each_trick_against_its_plain_code() -> None:
+    """``tools/bench/framing.py --hotpath`` (the figures _hotpath's docstring cites): one line
+    per trick with both rates and their ratio. No timing checks."""
+    import json
+    import subprocess
+
+    script = BENCH.with_name("framing.py")
+    done = subprocess.run(
+        [sys.executable, str(script), "--hotpath", "--calls", "200", "--repeats", "1"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=True,
+    )
+    lines = [json.loads(line) for line in done.stdout.splitlines()]
+    assert [line["bench"] for line in lines] == [
+        "hotpath_make_frame",
+        "hotpath_message_event",
+        "hotpath_enum_global",
+    ]
+    for line in lines:
+        assert line["hwbridge_per_s"] > 0 and line["peer_per_s"] > 0
+        assert (
+            line["ratio"] == round(line["hwbridge_per_s"] / line["peer_per_s"], 2)
+            or abs(line["ratio"] - line["hwbridge_per_s"] / line["peer_per_s"]) < 0.01
+        )

@@ -8,6 +8,10 @@ Run with no arguments; prints one JSON object per line:
 - ``framing_encode``: frames per second encoded (``encode_frame`` against ``msg.pack``);
 - ``framing_overhead``: wire bytes per payload byte of hwbridge, rosserial and MAVLink 2.
 
+With ``--hotpath`` it measures instead each speed trick of ``protocols/native/_hotpath.py``
+against the plain code it replaces, in one run (``hotpath_*`` lines: ``hwbridge_per_s`` the
+trick, ``peer_per_s`` the plain code, ``ratio`` how many times faster the trick is).
+
 The two sides do the job their protocol defines: hwbridge returns frames with the payload as
 bytes (its bridge never decodes payloads), pymavlink returns message objects with decoded fields
 (its only parse API). pymavlink runs as installed: its parser is Python, and its CRC uses the
@@ -165,11 +169,74 @@ def bench_size(payload: int, count: int, repeats: int) -> list[dict[str, Any]]:
     return lines
 
 
+def bench_hotpath(number: int, repeats: int) -> list[dict[str, Any]]:
+    """Each hot-path trick against the plain code it stands for, calls per second."""
+    from hwbridge.protocols import base
+    from hwbridge.protocols.native import _hotpath
+    from hwbridge.protocols.native.session import SessionState
+
+    payload = b"\x0c\x00\x00\x000123456789ab"
+    state = _hotpath.CONNECTED
+    whole = _hotpath.WHOLE
+    cases: list[tuple[str, str, Callable[[], object], Callable[[], object]]] = [
+        (
+            "hotpath_make_frame",
+            "Frame_constructor",
+            lambda: _hotpath.make_frame(FrameType.BEST_EFFORT, 3, 7, payload, whole),
+            lambda: Frame(FrameType.BEST_EFFORT, 3, 7, payload, whole),
+        ),
+        (
+            "hotpath_message_event",
+            "Message_constructor",
+            lambda: _hotpath.message(3, payload, 7),
+            lambda: base.Message(3, payload, 7),
+        ),
+        (
+            "hotpath_enum_global",
+            "enum_class_attribute",
+            lambda: state is _hotpath.CONNECTED,
+            lambda: state is SessionState.CONNECTED,
+        ),
+    ]
+    lines = []
+    for name, peer, trick, plain in cases:
+
+        def loop(call: Callable[[], object]) -> Callable[[], None]:
+            def run() -> None:
+                for _ in range(number):
+                    call()
+
+            return run
+
+        fast = best_rate(number, loop(trick), repeats)
+        slow = best_rate(number, loop(plain), repeats)
+        lines.append(
+            {
+                "bench": name,
+                "calls": number,
+                "hwbridge_per_s": round(fast),
+                "peer": peer,
+                "peer_per_s": round(slow),
+                "ratio": round(fast / slow, 2),
+                "python": sys.version.split()[0],
+            }
+        )
+    return lines
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0] if __doc__ else None)
     parser.add_argument("--frames", type=int, default=20_000, help="frames per run")
     parser.add_argument("--repeats", type=int, default=5, help="runs per measurement (best)")
+    parser.add_argument(
+        "--hotpath", action="store_true", help="measure the hot-path tricks instead"
+    )
+    parser.add_argument("--calls", type=int, default=200_000, help="calls per --hotpath run")
     args = parser.parse_args(argv)
+    if args.hotpath:
+        for line in bench_hotpath(args.calls, args.repeats):
+            print(json.dumps(line), flush=True)
+        return 0
     for payload in (16, 200):
         for line in bench_size(payload, args.frames, args.repeats):
             print(json.dumps(line), flush=True)

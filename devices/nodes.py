@@ -137,9 +137,14 @@ class DiffDriveNode:
         while not self._stop.wait(0.1):
             self.tick()
 
-    def close(self) -> None:
+    def stop(self) -> None:
+        """Stop the control thread (the node's topics stay; :meth:`tick` still works)."""
         self._stop.set()
         self._thread.join(1)
+
+    def close(self) -> None:
+        """Stop the control thread and take the node's topics off the graph."""
+        self.stop()
         for endpoint in (*self._inputs, self._odom, self._tf, self._targets):
             endpoint.close()
 

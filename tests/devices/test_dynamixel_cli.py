@@ -192,16 +192,10 @@ def test_parse_ids() -> None:
 
 
 def test_the_real_entry_point_once_build_app_has_the_group() -> None:
-    """``python -m hwbridge dxl`` works once hwbridge/cli/__init__.py attaches the group."""
-    probe = (
-        "from hwbridge.cli import build_app; "
-        "print(any(g.name == 'dxl' for g in build_app().registered_groups))"
-    )
-    done = subprocess.run(
-        [sys.executable, "-c", probe], capture_output=True, text=True, timeout=60, check=True
-    )
-    if done.stdout.strip() != "True":
-        pytest.skip("build_app() does not add the dxl group yet (the lead adds the line)")
+    """``python -m hwbridge dxl`` is a registered command and its help lists its subcommands."""
+    from hwbridge.cli import COMMANDS
+
+    assert "dxl" in COMMANDS
     done = subprocess.run(
         [sys.executable, "-m", "hwbridge", "dxl", "--help"],
         capture_output=True,

@@ -149,7 +149,7 @@ def test_the_watchdog_stops_the_wheels_once_and_a_later_command_restarts_them(
     clock = ManualClock(0.0)
     received = _listen(client, "/watchdog")
     drive = DiffDriveNode(router.node("devices", namespace="/watchdog"), PARAMS, clock=clock)
-    drive.close()  # the test runs the control cycles itself, at the times it chooses
+    drive.stop()  # the test runs the control cycles itself, at the times it chooses
     marker = _wire(drive.odometry.wheel_targets(0.05, 0.0))
     go = _wire(drive.odometry.wheel_targets(0.2, 0.0))
     turn = _wire(drive.odometry.wheel_targets(0.0, 1.0))

@@ -13,15 +13,13 @@ a silent stream board to make it speak (the probe).
 
 from __future__ import annotations
 
-import importlib
-import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from importlib.metadata import EntryPoint, entry_points
 from typing import Any, Final, Protocol
 
 from hwbridge.protocols.base import BoardSession
 from hwbridge.protocols.errors import HwBridgeError
+from hwbridge.protocols.plugins import NamedRegistry
 
 __all__ = [
     "BUILTIN_PROTOCOLS",
@@ -97,10 +95,17 @@ class ProtocolSpec:
     """A listening link (tcp-listen://, pty://) gives each new peer a new session."""
 
 
-_lock = threading.RLock()
-_registered: dict[str, ProtocolSpec | str] = {}
-_resolved: dict[str, ProtocolSpec] = {}
-_entry_points: dict[str, EntryPoint] | None = None
+def _spec(loaded: object, name: str) -> ProtocolSpec:
+    if not isinstance(loaded, ProtocolSpec):
+        raise UnknownProtocolError(
+            f"protocol {name!r} is registered as {loaded!r}, which is not a ProtocolSpec"
+        )
+    return loaded
+
+
+_REGISTRY: Final = NamedRegistry(
+    "protocol", ENTRY_POINT_GROUP, BUILTIN_PROTOCOLS, _spec, UnknownProtocolError
+)
 
 
 def register_protocol(spec: ProtocolSpec | str, name: str | None = None) -> None:
@@ -108,62 +113,19 @@ def register_protocol(spec: ProtocolSpec | str, name: str | None = None) -> None
     key = name if name is not None else spec.name if isinstance(spec, ProtocolSpec) else None
     if not key:
         raise ValueError("a protocol given as 'module:attr' needs a name")
-    with _lock:
-        _registered[key] = spec
-        _resolved.pop(key, None)
-
-
-def _load_entry_points(refresh: bool = False) -> dict[str, EntryPoint]:
-    global _entry_points  # noqa: PLW0603 - a lazily filled module cache
-    with _lock:
-        if _entry_points is None or refresh:
-            _entry_points = {ep.name: ep for ep in entry_points(group=ENTRY_POINT_GROUP)}
-        return _entry_points
+    _REGISTRY.register(key, spec)
 
 
 def refresh() -> None:
     """Read the entry points again and forget loaded specs (after ``sys.path`` changed)."""
-    with _lock:
-        _resolved.clear()
-        _load_entry_points(refresh=True)
+    _REGISTRY.refresh()
 
 
 def protocol_names() -> list[str]:
     """Every protocol name known now, built-in first."""
-    with _lock:
-        names = [*BUILTIN_PROTOCOLS, *_registered, *_load_entry_points()]
-    return list(dict.fromkeys(names))
-
-
-def _load(target: ProtocolSpec | str | EntryPoint, name: str) -> ProtocolSpec:
-    if isinstance(target, ProtocolSpec):
-        return target
-    if isinstance(target, EntryPoint):
-        loaded = target.load()
-    else:
-        module, _, attr = target.partition(":")
-        loaded = getattr(importlib.import_module(module), attr)
-    if not isinstance(loaded, ProtocolSpec):
-        raise UnknownProtocolError(
-            f"protocol {name!r} is registered as {target!r}, which is not a ProtocolSpec"
-        )
-    return loaded
+    return _REGISTRY.names()
 
 
 def get_protocol(name: str) -> ProtocolSpec:
     """The spec registered as ``name``; :class:`UnknownProtocolError` listing the known ones."""
-    with _lock:
-        found = _resolved.get(name)
-        if found is not None:
-            return found
-        target: ProtocolSpec | str | EntryPoint | None = _registered.get(name)
-        if target is None:
-            target = BUILTIN_PROTOCOLS.get(name)
-        if target is None:
-            target = _load_entry_points().get(name) or _load_entry_points(refresh=True).get(name)
-        if target is None:
-            known = ", ".join(["auto", *protocol_names()])
-            raise UnknownProtocolError(f"unknown protocol {name!r}; use one of {known}")
-        spec = _load(target, name)
-        _resolved[name] = spec
-        return spec
+    return _REGISTRY.get(name, choices="auto")

@@ -19,12 +19,33 @@ from hwbridge.errors import HwBridgeError, HwBridgeTimeoutError
 if TYPE_CHECKING:
     from hwbridge.graph import GraphConfig
 
-__all__ = ["board_app", "connect", "owner_config", "read_params", "wait_for_signal"]
+__all__ = [
+    "ListenOption",
+    "ParamsOption",
+    "board_app",
+    "connect",
+    "owner_config",
+    "read_params",
+    "wait_for_signal",
+]
 
 board_app = typer.Typer(
     help="Boards of the running bridge: list, info, stats.", no_args_is_help=True
 )
 log = logging.getLogger("hwbridge.cli")
+
+ParamsOption = Annotated[
+    Path | None,
+    typer.Option("--params", exists=True, dir_okay=False, help="YAML file of initial parameters."),
+]
+"""``--params`` of the commands that own the graph (``connect``, ``up``)."""
+ListenOption = Annotated[
+    str | None,
+    typer.Option(
+        "--listen", help="Zenoh endpoint for CLI tools and nodes (default tcp/127.0.0.1:7447)."
+    ),
+]
+"""``--listen`` of the commands that own the graph."""
 
 
 def connect(
@@ -67,17 +88,8 @@ def connect(
             "services and board calls of graph services (above 0, at most 86400).",
         ),
     ] = 5.0,
-    params: Annotated[
-        Path | None,
-        typer.Option("--params", exists=True, dir_okay=False, help="YAML file of parameters."),
-    ] = None,
-    listen: Annotated[
-        str | None,
-        typer.Option(
-            "--listen",
-            help="Zenoh endpoint for CLI tools and nodes (default tcp/127.0.0.1:7447).",
-        ),
-    ] = None,
+    params: ParamsOption = None,
+    listen: ListenOption = None,
 ) -> None:
     """Connect boards to the graph and keep them connected until Ctrl-C."""
     from hwbridge.bridge import BoardSpec, Bridge, check_service_timeout

@@ -8,7 +8,13 @@ from typing import Annotated
 
 import typer
 
-from hwbridge.cli.bridgecmd import owner_config, read_params, wait_for_signal
+from hwbridge.cli.bridgecmd import (
+    ListenOption,
+    ParamsOption,
+    owner_config,
+    read_params,
+    wait_for_signal,
+)
 from hwbridge.cli.common import get_registry
 
 __all__ = ["up"]
@@ -45,17 +51,8 @@ def up(
         bool,
         typer.Option("--wait", help="Keep waiting for boards whose link does not open yet."),
     ] = False,
-    params: Annotated[
-        Path | None,
-        typer.Option("--params", help="YAML file of initial parameters (name: value)."),
-    ] = None,
-    listen: Annotated[
-        str | None,
-        typer.Option(
-            "--listen",
-            help="Zenoh endpoint for CLI tools and nodes (default tcp/127.0.0.1:7447).",
-        ),
-    ] = None,
+    params: ParamsOption = None,
+    listen: ListenOption = None,
 ) -> None:
     """Bring a robot up: its boards and every host node its devices need, until Ctrl-C."""
     from hwbridge.graph import Graph

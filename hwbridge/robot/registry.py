@@ -5,12 +5,10 @@ subclass or instance), imported on first use.
 
 from __future__ import annotations
 
-import importlib
-import threading
-from importlib.metadata import EntryPoint, entry_points
 from typing import Final
 
 from hwbridge.errors import HwBridgeError
+from hwbridge.protocols.plugins import NamedRegistry
 from hwbridge.robot.plugin import DevicePlugin
 
 __all__ = [
@@ -40,10 +38,19 @@ class UnknownDeviceError(HwBridgeError):
     """No device plugin of that type is registered."""
 
 
-_lock = threading.RLock()
-_registered: dict[str, DevicePlugin | type[DevicePlugin] | str] = {}
-_resolved: dict[str, DevicePlugin] = {}
-_entry_points: dict[str, EntryPoint] | None = None
+def _plugin(loaded: object, name: str) -> DevicePlugin:
+    if isinstance(loaded, type) and issubclass(loaded, DevicePlugin):
+        return loaded()
+    if isinstance(loaded, DevicePlugin):
+        return loaded
+    raise UnknownDeviceError(
+        f"device type {name!r} is registered as {loaded!r}, not a DevicePlugin"
+    )
+
+
+_REGISTRY: Final = NamedRegistry(
+    "device type", ENTRY_POINT_GROUP, BUILTIN_DEVICES, _plugin, UnknownDeviceError
+)
 
 
 def register_device(
@@ -54,61 +61,19 @@ def register_device(
     key = name if name is not None else None if isinstance(plugin, str) else plugin.type
     if not key:
         raise ValueError("a device given as 'module:attr' needs a name")
-    with _lock:
-        _registered[key] = plugin
-        _resolved.pop(key, None)
-
-
-def _load_entry_points(refresh: bool = False) -> dict[str, EntryPoint]:
-    global _entry_points  # noqa: PLW0603 - a lazily filled module cache
-    with _lock:
-        if _entry_points is None or refresh:
-            _entry_points = {ep.name: ep for ep in entry_points(group=ENTRY_POINT_GROUP)}
-        return _entry_points
+    _REGISTRY.register(key, plugin)
 
 
 def refresh() -> None:
     """Read the entry points again and forget loaded plugins (after ``sys.path`` changed)."""
-    with _lock:
-        _resolved.clear()
-        _load_entry_points(refresh=True)
+    _REGISTRY.refresh()
 
 
 def device_types() -> list[str]:
     """Every device type known now, built-in first."""
-    with _lock:
-        names = [*BUILTIN_DEVICES, *_registered, *_load_entry_points()]
-    return list(dict.fromkeys(names))
-
-
-def _instance(loaded: object, name: str) -> DevicePlugin:
-    if isinstance(loaded, type) and issubclass(loaded, DevicePlugin):
-        return loaded()
-    if isinstance(loaded, DevicePlugin):
-        return loaded
-    raise UnknownDeviceError(
-        f"device type {name!r} is registered as {loaded!r}, not a DevicePlugin"
-    )
+    return _REGISTRY.names()
 
 
 def get_device(name: str) -> DevicePlugin:
     """The plugin of device type ``name``; :class:`UnknownDeviceError` listing the known ones."""
-    with _lock:
-        found = _resolved.get(name)
-        if found is not None:
-            return found
-        target: object = _registered.get(name) or BUILTIN_DEVICES.get(name)
-        if target is None:
-            target = _load_entry_points().get(name) or _load_entry_points(refresh=True).get(name)
-        if target is None:
-            raise UnknownDeviceError(
-                f"unknown device type {name!r}; known types: {', '.join(device_types())}"
-            )
-        if isinstance(target, EntryPoint):
-            target = target.load()
-        elif isinstance(target, str):
-            module, _, attr = target.partition(":")
-            target = getattr(importlib.import_module(module), attr)
-        plugin = _instance(target, name)
-        _resolved[name] = plugin
-        return plugin
+    return _REGISTRY.get(name)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib.util
+import platform
 import random
 import sys
 from pathlib import Path
@@ -99,27 +100,28 @@ def test_bridge_bench_runs_small_and_prints_the_documented_fields() -> None:
 
 def test_hotpath_bench_prints_each_trick_against_its_plain_code() -> None:
     """``tools/bench/framing.py --hotpath`` (the figures _hotpath's docstring cites): one line
-    per trick with both rates and their ratio. No timing checks."""
+    per trick with both rates and their ratio. Fields only, no timing checks."""
     import json
     import subprocess
 
     script = BENCH.with_name("framing.py")
     done = subprocess.run(
-        [sys.executable, str(script), "--hotpath", "--calls", "200", "--repeats", "1"],
+        [sys.executable, str(script), "--hotpath", "--number", "50", "--repeats", "1"],
         capture_output=True,
         text=True,
         timeout=120,
         check=True,
     )
     lines = [json.loads(line) for line in done.stdout.splitlines()]
-    assert [line["bench"] for line in lines] == [
-        "hotpath_make_frame",
-        "hotpath_message_event",
-        "hotpath_enum_global",
+    assert [(line["bench"], line["peer"]) for line in lines] == [
+        ("hotpath_make_frame", "Frame_constructor"),
+        ("hotpath_message_event", "Message_constructor"),
+        ("hotpath_enum_global", "enum_class_attribute"),
     ]
     for line in lines:
-        assert line["hwbridge_per_s"] > 0 and line["peer_per_s"] > 0
-        assert (
-            line["ratio"] == round(line["hwbridge_per_s"] / line["peer_per_s"], 2)
-            or abs(line["ratio"] - line["hwbridge_per_s"] / line["peer_per_s"]) < 0.01
-        )
+        for field in ("hwbridge_per_s", "peer_per_s"):
+            assert isinstance(line[field], int) and line[field] > 0, field
+        for field in ("hwbridge_ns", "peer_ns", "ratio"):
+            assert isinstance(line[field], float) and line[field] > 0, field
+        assert line["number"] == 50 and line["repeats"] == 1
+        assert line["python"] == platform.python_version()

@@ -191,7 +191,7 @@ def test_parse_ids() -> None:
         parse_ids("1-x")
 
 
-def test_the_real_entry_point_once_build_app_has_the_group() -> None:
+def test_dxl_is_a_registered_command_and_its_help_runs() -> None:
     """``python -m hwbridge dxl`` is a registered command and its help lists its subcommands."""
     from hwbridge.cli import COMMANDS
 

@@ -94,6 +94,10 @@ COMMANDS: dict[str, LazyCommand] = {
         _CLI + "emucmd:demo",
         "Drive an emulated diffbot through the real bridge and show what the graph sees.",
     ),
+    "firmware": LazyCommand(
+        _CLI + "firmwarecmd:firmware_app",
+        "Firmware: build sketches, measure them, generate headers.",
+    ),
     "dxl": LazyCommand(
         _CLI + "dxlcmd:dxl_app", "Dynamixel servos on a serial bus: scan, ping, read, write."
     ),

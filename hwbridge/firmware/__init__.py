@@ -1,0 +1,1 @@
+"""Firmware tools: build Arduino sketches for AVR boards and measure them; generate C++ headers."""

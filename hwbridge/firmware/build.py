@@ -1,0 +1,259 @@
+"""Build Arduino sketches for AVR boards the way the Arduino IDE does, and measure them.
+
+``hwbridge firmware build SKETCH --board uno|mega`` compiles a sketch (a folder with
+``NAME.ino``, or the ``.ino`` itself) with the HwBridge library (``firmware/HwBridge``) and the
+Debian Arduino AVR core (``arduino-core-avr``), with the compiler flags of the core's
+``platform.txt`` (``-Os``, LTO, sections garbage-collected): the sketch and the library are built
+with ``-Wall -Wextra -Werror``; the Arduino core with the warnings it always has. The core is
+compiled once per board and kept in a cache. ``hwbridge firmware size ELF`` reports flash and
+SRAM as ``avr-size`` counts them, and the static RAM of the HwBridge library's own objects.
+
+A sketch is compiled as the IDE compiles one: ``#include <Arduino.h>`` is put before it; unlike
+the IDE, no function prototypes are generated, so a sketch declares a function before it uses it.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+import os
+import re
+import shutil
+import subprocess
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Final
+
+from hwbridge.errors import HwBridgeError
+
+__all__ = [
+    "BOARDS",
+    "CORE_DIR",
+    "LIBRARY_DIR",
+    "Board",
+    "FirmwareSize",
+    "ToolchainMissingError",
+    "build_sketch",
+    "firmware_size",
+]
+
+log = logging.getLogger("hwbridge.firmware")
+
+CORE_DIR: Final = Path(
+    os.environ.get("HWBRIDGE_ARDUINO_AVR", "/usr/share/arduino/hardware/arduino/avr")
+)
+"""Debian's Arduino AVR core (package arduino-core-avr)."""
+LIBRARY_DIR: Final = Path(__file__).resolve().parents[2] / "firmware" / "HwBridge"
+"""The HwBridge Arduino library in this checkout."""
+ARDUINO_VERSION: Final = "10819"
+_WARNINGS: Final = ("-Wall", "-Wextra", "-Werror")
+_DEBIAN_PACKAGES: Final = "gcc-avr avr-libc binutils-avr arduino-core-avr"
+
+
+class ToolchainMissingError(HwBridgeError):
+    """The AVR compiler or the Arduino core is not installed."""
+
+
+@dataclass(frozen=True)
+class Board:
+    """An AVR board as ``boards.txt`` describes it."""
+
+    name: str
+    mcu: str
+    f_cpu: str
+    board_define: str
+    variant: str
+    flash: int
+    """Bytes of flash a sketch may use (the bootloader's excluded)."""
+    sram: int
+
+
+BOARDS: Final = {
+    "uno": Board("uno", "atmega328p", "16000000L", "AVR_UNO", "standard", 32256, 2048),
+    "mega": Board("mega", "atmega2560", "16000000L", "AVR_MEGA2560", "mega", 253952, 8192),
+}
+
+
+@dataclass(frozen=True)
+class FirmwareSize:
+    """What an ELF takes, as ``avr-size`` counts it."""
+
+    flash: int
+    """.text + .data (the data's initial values live in flash)."""
+    sram: int
+    """.data + .bss (static RAM; the stack and heap come on top)."""
+    library_sram: int
+    """Static RAM of objects from the HwBridge library (symbols in namespace hwbridge)."""
+
+    def as_dict(self) -> dict[str, int]:
+        return {"flash": self.flash, "sram": self.sram, "library_sram": self.library_sram}
+
+
+def _tool(name: str) -> str:
+    found = shutil.which(name)
+    if found is None:
+        raise ToolchainMissingError(
+            f"{name} is not installed: install the Debian packages {_DEBIAN_PACKAGES} "
+            "(sudo apt-get install ...)"
+        )
+    return found
+
+
+def _run(command: list[str], what: str) -> None:
+    done = subprocess.run(command, capture_output=True, text=True, check=False)
+    if done.returncode != 0:
+        raise HwBridgeError(f"{what} failed:\n{done.stderr.strip() or done.stdout.strip()}")
+
+
+def _flags(board: Board) -> list[str]:
+    return [
+        f"-mmcu={board.mcu}",
+        f"-DF_CPU={board.f_cpu}",
+        f"-DARDUINO={ARDUINO_VERSION}",
+        f"-DARDUINO_{board.board_define}",
+        "-DARDUINO_ARCH_AVR",
+        "-DDECIMAL_DIG=__DECIMAL_DIG__",  # gcc-avr 5.4 lacks it; the core's WString needs it
+        f"-I{CORE_DIR / 'cores' / 'arduino'}",
+        f"-I{CORE_DIR / 'variants' / board.variant}",
+    ]
+
+
+_C_FLAGS: Final = ["-c", "-Os", "-std=gnu11", "-ffunction-sections", "-fdata-sections", "-flto"]
+_CPP_FLAGS: Final = [
+    "-c",
+    "-Os",
+    "-std=gnu++11",
+    "-fno-exceptions",
+    "-fno-rtti",
+    "-ffunction-sections",
+    "-fdata-sections",
+    "-fno-threadsafe-statics",
+    "-flto",
+]
+_S_FLAGS: Final = ["-c", "-x", "assembler-with-cpp", "-flto"]
+
+
+def _cache_dir() -> Path:
+    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(base) / "hwbridge" / "arduino-core"
+
+
+def _core_archive(board: Board) -> Path:
+    """The Arduino core compiled for ``board``, built on first use and cached."""
+    gcc, gpp, ar = _tool("avr-gcc"), _tool("avr-g++"), _tool("avr-gcc-ar")
+    sources = sorted(
+        p for p in (CORE_DIR / "cores" / "arduino").iterdir() if p.suffix in (".c", ".cpp", ".S")
+    )
+    if not sources:
+        raise ToolchainMissingError(
+            f"no Arduino AVR core at {CORE_DIR}: install the Debian package arduino-core-avr"
+        )
+    digest = hashlib.sha256(
+        "\n".join([*_flags(board), *(f"{p}:{p.stat().st_mtime_ns}" for p in sources)]).encode()
+    ).hexdigest()[:16]
+    out = _cache_dir() / f"{board.name}-{digest}"
+    archive = out / "core.a"
+    if archive.exists():
+        return archive
+    out.mkdir(parents=True, exist_ok=True)
+    log.info("compiling the Arduino core for %s (once; cached in %s)", board.name, out)
+    objects = []
+    for source in sources:
+        obj = out / (source.name + ".o")
+        if source.suffix == ".c":
+            command = [gcc, *_C_FLAGS, *_flags(board)]
+        elif source.suffix == ".cpp":
+            command = [gpp, *_CPP_FLAGS, *_flags(board)]
+        else:
+            command = [gcc, *_S_FLAGS, *_flags(board)]
+        _run([*command, str(source), "-o", str(obj)], f"compiling the core's {source.name}")
+        objects.append(str(obj))
+    partial = out / "core.a.part"
+    _run([ar, "rcs", str(partial), *objects], "archiving the core")
+    partial.replace(archive)
+    return archive
+
+
+def _sketch_source(sketch: Path) -> tuple[str, Path]:
+    """(name, .ino file) of a sketch folder or file."""
+    ino = sketch / f"{sketch.name}.ino" if sketch.is_dir() else sketch
+    if ino.suffix != ".ino" or not ino.is_file():
+        raise HwBridgeError(f"{sketch}: not a sketch (a NAME.ino file, or a folder NAME/NAME.ino)")
+    return ino.stem, ino
+
+
+def build_sketch(
+    sketch: Path,
+    board_name: str = "uno",
+    out_dir: Path | None = None,
+    *,
+    libraries: list[Path] | None = None,
+    defines: list[str] | None = None,
+) -> Path:
+    """Compile and link ``sketch`` for ``board_name``; returns the ELF (an Intel HEX is written
+    next to it). ``libraries`` are folders of Arduino libraries (their ``src/`` is on the include
+    path, and their ``.cpp`` files are compiled); default: the HwBridge library."""
+    board = BOARDS.get(board_name)
+    if board is None:
+        raise HwBridgeError(f"unknown board {board_name!r}; use one of {', '.join(BOARDS)}")
+    name, ino = _sketch_source(sketch)
+    gpp, gcc, objcopy = _tool("avr-g++"), _tool("avr-gcc"), _tool("avr-objcopy")
+    core = _core_archive(board)
+    out = out_dir or (ino.parent / "build" / board.name)
+    out.mkdir(parents=True, exist_ok=True)
+    libs = libraries if libraries is not None else [LIBRARY_DIR]
+    includes = [f"-I{lib / 'src'}" for lib in libs] + [f"-I{ino.parent}"]
+    extra = [f"-D{d}" for d in defines or []]
+    cpp = out / f"{name}.ino.cpp"
+    cpp.write_text(f'#include <Arduino.h>\n#line 1 "{ino}"\n' + ino.read_text(encoding="utf-8"))
+    objects = [out / f"{name}.ino.cpp.o"]
+    compile_cpp = [gpp, *_CPP_FLAGS, *_WARNINGS, *_flags(board), *includes, *extra]
+    _run([*compile_cpp, str(cpp), "-o", str(objects[0])], f"compiling {ino}")
+    for lib in libs:
+        for source in sorted((lib / "src").rglob("*.cpp")):
+            obj = out / f"{lib.name}-{source.name}.o"
+            _run([*compile_cpp, str(source), "-o", str(obj)], f"compiling {source}")
+            objects.append(obj)
+    elf = out / f"{name}.elf"
+    _run(
+        [
+            gcc,
+            "-Os",
+            "-flto",
+            "-fuse-linker-plugin",
+            "-Wl,--gc-sections",
+            f"-mmcu={board.mcu}",
+            "-o",
+            str(elf),
+            *map(str, objects),
+            str(core),
+            "-lm",
+        ],
+        f"linking {name}",
+    )
+    _run([objcopy, "-O", "ihex", "-R", ".eeprom", str(elf), str(elf.with_suffix(".hex"))], "hex")
+    return elf
+
+
+_SECTION: Final = re.compile(r"^\.(text|data|bss)\s+(\d+)", re.M)
+
+
+def firmware_size(elf: Path) -> FirmwareSize:
+    """Flash and static RAM of an ELF (``avr-size -A``), and the library's share of the RAM."""
+    size, nm = _tool("avr-size"), _tool("avr-nm")
+    if not elf.is_file():
+        raise HwBridgeError(f"{elf}: no such ELF file")
+    done = subprocess.run([size, "-A", str(elf)], capture_output=True, text=True, check=False)
+    if done.returncode != 0:
+        raise HwBridgeError(f"{elf}: avr-size failed: {done.stderr.strip()}")
+    sections = {name: int(value) for name, value in _SECTION.findall(done.stdout)}
+    text, data, bss = (sections.get(k, 0) for k in ("text", "data", "bss"))
+    symbols = subprocess.run(
+        [nm, "-C", "--size-sort", "-S", str(elf)], capture_output=True, text=True, check=False
+    ).stdout
+    library = 0
+    for line in symbols.splitlines():
+        parts = line.split(None, 3)
+        if len(parts) == 4 and parts[2] in "bBdD" and "hwbridge::" in parts[3]:
+            library += int(parts[1], 16)
+    return FirmwareSize(flash=text + data, sram=data + bss, library_sram=library)

@@ -1,0 +1,108 @@
+"""``hwbridge firmware build`` and ``size`` with the real AVR toolchain and Arduino core."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from hwbridge.errors import HwBridgeError
+from hwbridge.firmware.build import BOARDS, ToolchainMissingError, build_sketch, firmware_size
+
+pytestmark = pytest.mark.skipif(
+    shutil.which("avr-g++") is None or not Path("/usr/share/arduino/hardware/arduino/avr").is_dir(),
+    reason="the AVR toolchain (gcc-avr avr-libc binutils-avr arduino-core-avr) is not installed",
+)
+
+BLINK = """\
+static unsigned long last = 0;
+
+void setup() {
+  pinMode(LED_BUILTIN, OUTPUT);
+  Serial.begin(115200);
+}
+
+void loop() {
+  if (millis() - last > 500) {
+    last = millis();
+    digitalWrite(LED_BUILTIN, !digitalRead(LED_BUILTIN));
+    Serial.println(last);
+  }
+}
+"""
+
+
+def sketch(tmp_path: Path, name: str, text: str) -> Path:
+    folder = tmp_path / name
+    folder.mkdir()
+    (folder / f"{name}.ino").write_text(text)
+    return folder
+
+
+@pytest.mark.parametrize("board", ["uno", "mega"])
+def test_a_sketch_builds_and_is_measured(board: str, tmp_path: Path) -> None:
+    elf = build_sketch(sketch(tmp_path, "Blink", BLINK), board, tmp_path / "out", libraries=[])
+    assert elf.is_file() and elf.with_suffix(".hex").is_file()
+    size = firmware_size(elf)
+    assert 1000 < size.flash < BOARDS[board].flash
+    assert 0 < size.sram < BOARDS[board].sram
+    assert size.library_sram == 0  # no HwBridge objects in this sketch
+
+
+def test_warnings_in_a_sketch_are_errors(tmp_path: Path) -> None:
+    text = "void setup() { int unused = 3; }\nvoid loop() {}\n"
+    with pytest.raises(HwBridgeError, match=r"(?s)compiling .*Warn\.ino failed:.*unused"):
+        build_sketch(sketch(tmp_path, "Warn", text), "uno", tmp_path / "out", libraries=[])
+
+
+def test_not_a_sketch_and_unknown_board(tmp_path: Path) -> None:
+    with pytest.raises(HwBridgeError, match="not a sketch"):
+        build_sketch(tmp_path, "uno")
+    with pytest.raises(HwBridgeError, match="unknown board 'due'"):
+        build_sketch(sketch(tmp_path, "Blink", BLINK), "due")
+
+
+def test_a_missing_toolchain_names_the_debian_packages(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("PATH", str(tmp_path))  # no avr-g++ here
+    with pytest.raises(ToolchainMissingError, match="gcc-avr avr-libc binutils-avr"):
+        build_sketch(sketch(tmp_path, "Blink", BLINK), "uno")
+
+
+def test_the_cli_builds_and_measures(tmp_path: Path) -> None:
+    folder = sketch(tmp_path, "Blink", BLINK)
+    env = {**os.environ, "XDG_CACHE_HOME": str(tmp_path / "cache")}  # the core built afresh
+    built = subprocess.run(
+        [sys.executable, "-m", "hwbridge", "firmware", "build", str(folder), "--board", "uno"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+        env=env,
+    )
+    assert built.returncode == 0, built.stderr
+    assert "flash" in built.stdout and "SRAM" in built.stdout
+    elf = folder / "build" / "uno" / "Blink.elf"
+    measured = subprocess.run(
+        [sys.executable, "-m", "hwbridge", "firmware", "size", str(elf), "--json"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert measured.returncode == 0, measured.stderr
+    assert json.loads(measured.stdout)["flash"] == firmware_size(elf).flash
+    missing = subprocess.run(
+        [sys.executable, "-m", "hwbridge", "firmware", "size", str(tmp_path / "nope.elf")],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert missing.returncode == 1 and missing.stderr.startswith("error: ")

@@ -26,6 +26,16 @@ __all__ = ["SessionAdapter"]
 
 _Handler = Callable[[Any], None]
 
+LOSS_REPORT_INTERVAL = 10.0
+"""Least seconds between two warnings about the same kind of loss on one board."""
+_LOSSES = {
+    "bad_frames": "frames rejected (checksum, framing or size: see 'hwbridge board stats')",
+    "dropped_messages": "messages on channels that are unknown, refused or not connected",
+}
+"""Counters of every protocol whose growth is reported, with what they mean; a protocol's own
+counters named ``*oversize*``, ``*malformed*`` or ``*refused*`` are reported too."""
+_LOSS_WORDS = ("oversize", "malformed", "refused")
+
 
 def _call_on(channel: int) -> Callable[[base.BoardSession, bytes, float], int]:
     """How a graph call of the board's service on ``channel`` reaches the board (``timeout``:
@@ -56,6 +66,8 @@ class SessionAdapter:
         self.param_names: dict[str, str] = {}
         """Graph parameter name -> the board's name of it, for parameters it subscribed to."""
         self._announced = False
+        self._loss_seen: dict[str, int] = {}
+        self._loss_said: dict[str, float] = {}
         self._handlers: dict[type, _Handler] = {
             base.Message: self._on_message,
             base.Connected: self._on_connected,
@@ -80,6 +92,28 @@ class SessionAdapter:
 
     def describe(self) -> dict[str, Any]:
         return self.session.describe()
+
+    def report_losses(self, now: float) -> None:
+        """Warn (once per kind of loss and :data:`LOSS_REPORT_INTERVAL`) about data the session
+        counted as dropped since the last report, so a user whose messages vanish sees why."""
+        counters = self.board.pump.call(lambda s: s.counters().as_dict())
+        for key, value in counters.items():
+            if not isinstance(value, int) or (
+                key not in _LOSSES and not any(word in key for word in _LOSS_WORDS)
+            ):
+                continue
+            before = self._loss_seen.get(key, 0)
+            if value <= before or now - self._loss_said.get(key, -1e9) < LOSS_REPORT_INTERVAL:
+                continue
+            self._loss_seen[key], self._loss_said[key] = value, now
+            self.log.warning(
+                "%s: %d more %s (%d in all): %s",
+                self.board.name,
+                value - before,
+                key,
+                value,
+                _LOSSES.get(key, "dropped; 'hwbridge board stats' has every counter"),
+            )
 
     # ------------------------------------------------------------------ dispatch
     def on_event(self, event: Any) -> None:

@@ -313,6 +313,10 @@ class BoardConnection:
         while not done.wait(0.2):
             if self._stop.is_set():
                 return
+            try:
+                adapter.report_losses(time.monotonic())
+            except HwBridgeError as exc:  # the session is going away: its pump reports why
+                self.log.debug("%s: no loss report: %s", self.name, exc)
         error = exit_error[0] if exit_error else None
         reason = (
             error if isinstance(error, HwBridgeError) else HwBridgeError(f"link ended: {error}")

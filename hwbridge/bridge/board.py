@@ -110,6 +110,7 @@ class BoardSpec:
         self.namespace = resolve_name(namespace) if namespace != "/" else "/"
         self.name = name or _name_from_url(url)
         self.start_delay = start_delay
+        create_link(url, **self.link_options())  # a bad URL is refused here, before any thread
         """Seconds of silence after the link opens before the first probe (0: probe at once)."""
 
     def link_options(self) -> dict[str, Any]:

@@ -21,6 +21,7 @@ from __future__ import annotations
 import json
 import logging
 import math
+import random
 import threading
 import time
 from collections.abc import Callable
@@ -64,6 +65,9 @@ MAX_SERVICE_TIMEOUT = 86400.0
 DETECT_BUFFER = 65536
 """Bytes kept while detecting a protocol (handed to the session once it is known); older ones
 are dropped, so a noisy line costs bounded memory."""
+_SHORT_LINK = 2.0
+"""A link that closes sooner than this after opening counts as a short one (backoff grows)."""
+_MAX_RECONNECT_DELAY = 10.0
 _PROBE_FIRST = 0.1
 _PROBE_MAX = 1.0
 """Seconds between probes of a silent board: the first gap, doubling up to the last."""
@@ -142,6 +146,8 @@ class BoardConnection:
         self.adapter: SessionAdapter | None = None
         self._pump: SessionPump | None = None
         self._stop = threading.Event()
+        self._short_links = 0
+        """Links in a row that closed soon after they opened (see _back_off_if_short)."""
         self._opened_once = threading.Event()
         self.first_open_problem: str | None = None
         """Why the first attempt to open the link failed (None: it opened, or not tried yet)."""
@@ -246,6 +252,7 @@ class BoardConnection:
             self._first_open(None)
             backoff, last_problem = 0.2, ""
             self.link = link
+            opened_at = time.monotonic()
             try:
                 # A link that outlives its peers (tcp-listen://, pty://) stays open between
                 # them: closing it would refuse (or rename) the next board while it reopens.
@@ -268,6 +275,27 @@ class BoardConnection:
             finally:
                 link.close()
                 self.link = None
+            self._back_off_if_short(time.monotonic() - opened_at)
+
+    def _back_off_if_short(self, lasted: float) -> None:
+        """After a link that closed soon after it opened, wait longer each time (with jitter)
+        before opening it again: two clients of one TCP board that each kick the other off would
+        otherwise reconnect thousands of times a second. Say so once, naming the likely cause."""
+        if lasted >= _SHORT_LINK or self._stop.is_set():
+            self._short_links = 0
+            return
+        self._short_links += 1
+        delay = min(_PROBE_FIRST * 2**self._short_links, _MAX_RECONNECT_DELAY)
+        if self._short_links == 3:
+            self.log.warning(
+                "%s: the link to %s keeps closing right after it opens; is another program "
+                "connected to the same board (a second bridge, a serial monitor)? Reconnecting "
+                "with backoff (up to %.0f s)",
+                self.name,
+                self.spec.url,
+                _MAX_RECONNECT_DELAY,
+            )
+        self._stop.wait(delay * random.uniform(0.5, 1.5))
 
     def _serve(self, link: Link) -> None:
         early = self._wait_for_peer(link)

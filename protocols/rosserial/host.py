@@ -155,6 +155,10 @@ class RosserialHost(NegotiationMixin):
         request_retry: first interval between unanswered "request topics"; it doubles up to
             ``request_retry_max``.
         request_retry_max: the longest interval between unanswered "request topics".
+        probe_after: seconds without a time request, while connected, after which "request
+            topics" is sent (then every ``request_retry_max``) to catch a device that reset: the
+            library asks for the time every ~2.5 s and says nothing after a reset until asked.
+            A configured device answers it harmlessly (its table again). 0 turns it off.
         max_payload: largest payload the receive parser accepts until the device announced
             its buffers; then the largest output buffer it announced is the limit.
         fallback_input_buffer: input buffer assumed for parameter answers when the device
@@ -176,6 +180,7 @@ class RosserialHost(NegotiationMixin):
         sync_timeout: float = 15.0,
         request_retry: float = 0.1,
         request_retry_max: float = 1.0,
+        probe_after: float = 3.0,
         max_payload: int = DEFAULT_MAX_PAYLOAD,
         fallback_input_buffer: int = 150,
         old_protocol_threshold: int = 2,
@@ -193,6 +198,8 @@ class RosserialHost(NegotiationMixin):
         self._sync_timeout = sync_timeout
         self._retry = request_retry
         self._retry_max = request_retry_max
+        self._probe_after = probe_after
+        self._next_probe = 0.0
         self._max_payload = max_payload
         self._fallback_input_buffer = fallback_input_buffer
         self._old_threshold = max(1, old_protocol_threshold)
@@ -284,6 +291,8 @@ class RosserialHost(NegotiationMixin):
                 times.append(neg.reported_at + self._sync_timeout)
         if self._built is not None:
             times.append(self._sync_ref + self._sync_timeout)
+        if self._state is State.CONNECTED and self._probe_after > 0:
+            times.append(max(self._sync_ref + self._probe_after, self._next_probe))
         if self._state is State.CONNECTED and self._want_topics and self._requested_at is not None:
             times.append(self._requested_at + REQUEST_MIN_INTERVAL)
         call_deadline = self._calls.deadline()

@@ -26,7 +26,11 @@ nothing that marks the end, so the host uses this rule:
 A TopicInfo arriving after that (a slow link) reopens the negotiation: it is merged into the
 table and ``Connected`` is emitted again once the line is quiet. If nothing answers the requests
 for ``sync_timeout`` (15 s), the host reports an ``Error`` (again every ``sync_timeout``) and keeps
-asking. Once connected, the device asks for the time every ~2.5 s; ``sync_timeout`` without a
+asking. Once connected, the device asks for the time every ~2.5 s. After ``probe_after`` (3 s)
+without a time request the host sends "request topics" (again every ``request_retry_max``): a
+device that reset is silent until asked, and answers with its table, which is merged as above, so
+its traffic is back within about 4 s; a configured device just sends its table again (rosserial
+_python waits the whole sync timeout). ``sync_timeout`` without a
 time request means "lost sync": the host fails pending calls, emits
 :class:`~hwbridge.protocols.base.Disconnected`, drops the topic table (not connected until the
 next ``Connected``) and asks for topics again. A data frame on a topic id the host does not know
@@ -109,6 +113,8 @@ class NegotiationMixin:
     _settle_time: float
     _retry: float
     _retry_max: float
+    _probe_after: float
+    _next_probe: float
     _max_payload: int
     _opened_at: float
     _start_delay: float
@@ -127,6 +133,17 @@ class NegotiationMixin:
             self._lose_sync(now, events)  # connected, or renegotiating with a table in use
         elif state is State.NEGOTIATING:
             self._check_negotiation(now, events)
+        elif (
+            state is State.CONNECTED
+            and self._probe_after > 0
+            and now - self._sync_ref >= self._probe_after
+            and now >= self._next_probe
+        ):
+            # Silent for longer than the library's time-sync period: it may have reset (it then
+            # waits to be asked). A configured device just sends its table again.
+            self._send_request(now)
+            self.stats.silence_probes += 1
+            self._next_probe = now + self._retry_max
         elif (
             state is State.CONNECTED
             and self._want_topics

@@ -43,6 +43,8 @@ class HostStats:
     undecodable: int = 0
     """Control frames (TopicInfo, Log, parameter request) that did not decode."""
     sync_lost: int = 0
+    silence_probes: int = 0
+    """"Request topics" sent because a connected device stopped asking for the time."""
     sessions: int = 0
     """Times the host went from not connected to connected."""
 

@@ -681,14 +681,39 @@ def test_lost_sync_fails_pending_calls_first() -> None:
     assert failed.request_id == call and "lost sync" in str(failed.error)
 
 
-def test_device_reset_is_recovered() -> None:
+def test_device_reset_is_recovered_within_four_seconds() -> None:
+    """ros_lib asks for the time every ~2.5 s and falls silent after a reset until asked for
+    its topics: the host asks once the device has been silent for 3 s, long before the 15 s
+    sync timeout (issue 19 item 9)."""
     device = board()
     sim = connected_sim(device)
     device.reset()
+    reset_at = sim.t
     assert device.publish("chatter", string("x")) == 0  # dropped: not configured
-    sim.run_until(lambda: bool(sim.host_of(Connected)), limit=20)
+    sim.run_until(lambda: bool(sim.host_of(Connected)) and device.configured, limit=20)
+    assert sim.t - reset_at < 4.0
+    assert sim.host.stats.silence_probes >= 1
+    assert device.publish("chatter", string("back")) > 0
+    assert not sim.host_of(Disconnected)  # the table came back before the sync timeout
+
+
+def test_a_healthy_device_is_never_probed_or_renegotiated() -> None:
+    device = board()
+    sim = connected_sim(device)
+    sim.run(600.0)  # ten minutes of virtual time, the device asking for the time as it does
+    assert sim.host.stats.silence_probes == 0
+    assert sim.host.stats.topic_requests == 1  # the first one only
+    assert not sim.host_of(Disconnected) and not sim.host_of(Connected)
+
+
+def test_without_silence_probes_a_reset_waits_for_the_sync_timeout() -> None:
+    device = board()
+    sim = connected_sim(device, probe_after=0)
+    device.reset()
+    reset_at = sim.t
+    sim.run_until(lambda: bool(sim.host_of(Connected)), limit=30)
     assert sim.host_of(Disconnected)
-    assert device.configured
+    assert sim.t - reset_at > 10.0
 
 
 def test_close_sends_tx_stop_and_fails_pending_calls() -> None:

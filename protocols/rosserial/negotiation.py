@@ -29,9 +29,9 @@ for ``sync_timeout`` (15 s), the host reports an ``Error`` (again every ``sync_t
 asking. Once connected, the device asks for the time every ~2.5 s. After ``probe_after`` (3 s)
 without a time request the host sends "request topics" (again every ``request_retry_max``): a
 device that reset is silent until asked, and answers with its table, which is merged as above, so
-its traffic is back within about 4 s; a configured device just sends its table again (rosserial
-_python waits the whole sync timeout). ``sync_timeout`` without a
-time request means "lost sync": the host fails pending calls, emits
+its traffic is back within about 4 s; a configured device just sends its table again
+(rosserial_python waits the whole sync timeout). ``sync_timeout`` without a time request means
+"lost sync": the host fails pending calls, emits
 :class:`~hwbridge.protocols.base.Disconnected`, drops the topic table (not connected until the
 next ``Connected``) and asks for topics again. A data frame on a topic id the host does not know
 also makes it ask again (at most once a second), as rosserial_python does; meanwhile the current

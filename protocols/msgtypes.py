@@ -495,8 +495,12 @@ def _split_srv(path: str, text: str) -> tuple[str, str, int]:
     return "\n".join(lines[:cut]), "\n".join(lines[cut + 1 :]), cut + 1
 
 
+_EMPTY_PLACEHOLDER: Final = "structure_needs_at_least_one_member"
+"""The member rosbags' stores give a message without fields (std_msgs/Empty): not a field."""
+
+
 def _fields_key(definition: Any) -> list[tuple[str, Any]]:
-    return [(n.lower(), d) for n, d in definition[1]]
+    return [(n.lower(), d) for n, d in definition[1] if n != _EMPTY_PLACEHOLDER]
 
 
 def suggest(name: str, known: Iterable[str], limit: int = 3) -> list[str]:

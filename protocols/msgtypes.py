@@ -15,7 +15,7 @@ from __future__ import annotations
 import difflib
 import hashlib
 import re
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Final
@@ -241,11 +241,11 @@ class TypeRegistry:
         for root in roots:
             for path in sorted(root.glob("*/msg/*.msg")):
                 package = path.parent.parent.name
-                item = self._parse(path, path.read_text(encoding="utf-8"), package, path.stem)
+                item = self._parse(path, _read_definition(path), package, path.stem)
                 self._add_pending(pending, item)
             for path in sorted(root.glob("*/srv/*.srv")):
                 package = path.parent.parent.name
-                text = path.read_text(encoding="utf-8")
+                text = _read_definition(path)
                 request_text, response_text, offset = _split_srv(str(path), text)
                 request = self._parse(path, request_text, package, f"{path.stem}Request")
                 response = self._parse(path, response_text, package, f"{path.stem}Response", offset)
@@ -271,6 +271,7 @@ class TypeRegistry:
                         f"; did you mean {', '.join(hint)}?" if hint else ""
                     )
                 raise DefinitionError(item.path, number, problem)
+        _refuse_cycles(pending)
         typedefs: dict[str, Any] = {}
         for item in pending.values():
             try:
@@ -493,6 +494,47 @@ def _split_srv(path: str, text: str) -> tuple[str, str, int]:
         raise DefinitionError(path, marks[1] + 1, "a second '---' line; a .srv has exactly one")
     cut = marks[0]
     return "\n".join(lines[:cut]), "\n".join(lines[cut + 1 :]), cut + 1
+
+
+def _read_definition(path: Path) -> str:
+    """A .msg/.srv file's text; DefinitionError naming the line of a byte that is not UTF-8."""
+    data = path.read_bytes()
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = data[: exc.start].count(b"\n") + 1
+        raise DefinitionError(
+            str(path), line, f"not UTF-8 text (byte 0x{data[exc.start]:02x}): save it as UTF-8"
+        ) from exc
+
+
+def _refuse_cycles(pending: Mapping[str, _Pending]) -> None:
+    """DefinitionError for a type that contains itself, directly or through others (its size
+    and md5 would be infinite)."""
+    by_ros1 = {ros1_name(name): item for name, item in pending.items()}
+    state: dict[str, int] = {}  # 1: on the current path, 2: done
+
+    def visit(name: str, path: list[tuple[str, int]]) -> None:
+        state[name] = 1
+        item = by_ros1[name]
+        for number, ref, _written in item.refs:
+            if ref not in by_ros1 or state.get(ref) == 2:
+                continue
+            if state.get(ref) == 1:
+                chain = [n for n, _ in path] + [name, ref]
+                start = chain.index(ref)
+                raise DefinitionError(
+                    item.path,
+                    number,
+                    f"{ref} contains itself ({' -> '.join(chain[start:])}): a message cannot "
+                    "hold itself, not even in an array",
+                )
+            visit(ref, [*path, (name, number)])
+        state[name] = 2
+
+    for name in by_ros1:
+        if name not in state:
+            visit(name, [])
 
 
 _EMPTY_PLACEHOLDER: Final = "structure_needs_at_least_one_member"

@@ -160,7 +160,11 @@ def read_params(path: Path | None) -> dict[str, Any]:
     import yaml
 
     try:
-        loaded = yaml.safe_load(path.read_text()) or {}
+        loaded = yaml.safe_load(path.read_text(encoding="utf-8")) or {}
+    except yaml.MarkedYAMLError as exc:
+        mark = exc.problem_mark or exc.context_mark
+        where = f"{path}:{mark.line + 1}" if mark is not None else str(path)
+        raise HwBridgeError(f"{where}: not valid YAML: {exc.problem or exc.context}") from exc
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
         raise HwBridgeError(f"{path}: cannot read parameters: {exc}") from exc
     if not isinstance(loaded, dict):

@@ -1,0 +1,68 @@
+"""Bad files give one error line naming the file and line, never a traceback (issue 19 item 3)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+
+def _hwbridge(*argv: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "hwbridge", *argv],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+
+
+def _one_error(done: subprocess.CompletedProcess[str]) -> str:
+    assert done.returncode == 1, done.stdout + done.stderr
+    assert "Traceback" not in done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: "), done.stderr
+    return lines[0]
+
+
+@pytest.mark.parametrize(
+    ("files", "asked", "said"),
+    [
+        ({"Bin.msg": b"string \xff\xfe data\n"}, "bad_msgs/Bin", "Bin.msg:1: not UTF-8 text"),
+        (
+            {"Loop.msg": b"bad_msgs/Loop next\n"},
+            "bad_msgs/Loop",
+            "Loop.msg:1: bad_msgs/Loop contains itself",
+        ),
+        (
+            {"A.msg": b"int32 x\nbad_msgs/B b\n", "B.msg": b"bad_msgs/A[] a\n"},
+            "bad_msgs/A",
+            "bad_msgs/A -> bad_msgs/B -> bad_msgs/A",
+        ),
+    ],
+)
+def test_bad_message_definitions(
+    files: dict[str, bytes], asked: str, said: str, tmp_path: Path
+) -> None:
+    package = tmp_path / "bad_msgs" / "msg"
+    package.mkdir(parents=True)
+    for name, data in files.items():
+        (package / name).write_bytes(data)
+    line = _one_error(_hwbridge("--msg-path", str(tmp_path), "msg", "show", asked))
+    assert said in line
+
+
+def test_a_malformed_params_file(tmp_path: Path) -> None:
+    params = tmp_path / "params.yaml"
+    params.write_text("speed: 0.5\ngains: [1,\n")
+    line = _one_error(_hwbridge("connect", "pty://", "--params", str(params)))
+    assert line.startswith(f"error: {params}:") and "not valid YAML" in line
+
+
+def test_a_malformed_robot_file_for_the_emulator(tmp_path: Path) -> None:
+    robot = tmp_path / "robot.yaml"
+    robot.write_text("robot: x\nboards: [\n")
+    line = _one_error(_hwbridge("emulate", str(robot)))
+    assert line.startswith(f"error: {robot}:") and "not valid YAML" in line

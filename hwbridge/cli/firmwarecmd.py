@@ -55,3 +55,61 @@ def size(
         f"flash {found.flash} B, SRAM {found.sram} B (of which the HwBridge library's static "
         f"objects {found.library_sram} B)\n"
     )
+
+
+@firmware_app.command("generate")
+def generate(
+    ctx: typer.Context,
+    outdir: Annotated[Path, typer.Argument(metavar="OUTDIR", help="Folder to write into.")],
+    types: Annotated[
+        list[str] | None,
+        typer.Argument(
+            metavar="[TYPES]...",
+            help="Message or service types (pkg/Type); default: hwbridge_msgs' types, "
+            "std_msgs/String, Bool, Float64 and sensor_msgs/JointState.",
+        ),
+    ] = None,
+    msg_path: Annotated[
+        list[Path] | None,
+        typer.Option(
+            "--msg-path",
+            help="Directory of message packages (PKG/msg/*.msg, PKG/srv/*.srv); repeatable.",
+            file_okay=False,
+        ),
+    ] = None,
+    capacity: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--capacity",
+            metavar="pkg/Type.field=N",
+            help="Elements of a variable-length array or bytes of a string field (default "
+            "8 and 32); pkg/Type.field[]=N for each string of a string array. Repeatable.",
+        ),
+    ] = None,
+) -> None:
+    """Write C++ headers: hwbridge_control.h (control messages) and one per message type."""
+    from hwbridge.cli.common import Context
+    from hwbridge.firmware.gen_control import HEADER_NAME, generate_control_header
+    from hwbridge.firmware.gen_msgs import Capacities, MessageHeaders, parse_capacity
+    from hwbridge.msg import registry
+
+    root = ctx.find_root().obj  # hwbridge --msg-path DIR firmware generate ...
+    reg = registry([*(msg_path or ()), *(root.msg_path if isinstance(root, Context) else ())])
+    limits = Capacities()
+    for text in capacity or ():
+        type_name, field, n = parse_capacity(text)
+        limits.fields[(type_name, field)] = n
+    names = types or [
+        *reg.message_names("hwbridge_msgs"),
+        *reg.service_names("hwbridge_msgs"),
+        "std_msgs/String",
+        "std_msgs/Bool",
+        "std_msgs/Float64",
+        "sensor_msgs/JointState",
+    ]
+    files = {HEADER_NAME: generate_control_header(), **MessageHeaders(reg, limits).headers(names)}
+    for rel, text in files.items():
+        path = outdir / rel
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text, encoding="utf-8")
+    sys.stdout.write(f"{len(files)} headers written to {outdir}\n")

@@ -1,0 +1,548 @@
+"""The C++ codec of the native protocol's control messages, generated from the schema.
+
+``hwbridge firmware generate OUTDIR`` writes ``OUTDIR/hwbridge_control.h`` from
+``protocols/native/schema.json`` (the file the Python codec is built from too): C++11,
+header-only, no heap, no exceptions. Per message a struct and
+
+- ``bool encode(const Msg& m, uint8_t* buf, size_t cap, size_t* len)``: writes the payload
+  (opcode first) and its length; false, with nothing promised about ``buf[0..cap)``, when it does
+  not fit in ``cap`` bytes or a field is out of range (a string above its limit, an unknown enum
+  value, nanoseconds >= 1e9). Never writes at or past ``buf + cap``.
+- ``bool decode(const uint8_t* buf, size_t len, Msg* m)``: false when the payload is shorter than
+  its fields, names another opcode, holds an unknown enum value, a wrong version or malformed
+  UTF-8 where the schema wants it well-formed; never reads at or past ``buf + len``. Strings and
+  byte strings are views (:code:`Bytes`) into ``buf``: valid while ``buf`` is.
+
+Plus the frame header (``FrameHeader``, its encode/decode of the 3 header bytes) and
+``crc16()``, the enums, flags and constants. Everything is in ``namespace hwbridge { namespace
+control {``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from typing import Final
+
+from hwbridge.protocols.native._control.schema import (
+    SCALARS,
+    FieldSpec,
+    MessageSpec,
+    Schema,
+    load_schema,
+)
+
+__all__ = ["HEADER_NAME", "generate_control_header"]
+
+HEADER_NAME: Final = "hwbridge_control.h"
+
+_CTYPES: Final = {
+    "u8": "uint8_t",
+    "u16": "uint16_t",
+    "u32": "uint32_t",
+    "u64": "uint64_t",
+    "i32": "int32_t",
+    "f32": "float",
+}
+
+_PRELUDE: Final = """\
+#include <stddef.h>
+#include <stdint.h>
+#include <string.h>
+
+namespace hwbridge {
+namespace control {
+
+static_assert(sizeof(float) == 4, "f32 fields need a 4-byte IEEE-754 float");
+
+/** A run of bytes: a view into a decoded payload, or the caller's data to encode. */
+struct Bytes {
+  const uint8_t* data;
+  size_t size;
+  Bytes() : data(nullptr), size(0) {}
+  Bytes(const uint8_t* d, size_t n) : data(d), size(n) {}
+};
+
+namespace detail {
+
+/** Bounded little-endian writes: once one does not fit, nothing more is written. */
+class Writer {
+ public:
+  Writer(uint8_t* buf, size_t cap) : buf_(buf), cap_(cap), pos_(0), ok_(true) {}
+  void u8(uint8_t v) {
+    if (room(1)) buf_[pos_++] = v;
+  }
+  void u16(uint16_t v) {
+    if (!room(2)) return;
+    buf_[pos_++] = static_cast<uint8_t>(v);
+    buf_[pos_++] = static_cast<uint8_t>(v >> 8);
+  }
+  void u32(uint32_t v) {
+    if (!room(4)) return;
+    for (uint8_t i = 0; i < 4; ++i) buf_[pos_++] = static_cast<uint8_t>(v >> (8 * i));
+  }
+  void u64(uint64_t v) {
+    if (!room(8)) return;
+    for (uint8_t i = 0; i < 8; ++i) buf_[pos_++] = static_cast<uint8_t>(v >> (8 * i));
+  }
+  void i32(int32_t v) { u32(static_cast<uint32_t>(v)); }
+  void f32(float v) {
+    uint32_t u;
+    memcpy(&u, &v, 4);
+    u32(u);
+  }
+  void raw(const uint8_t* p, size_t n) {
+    if (n == 0 || !room(n)) return;
+    memcpy(buf_ + pos_, p, n);
+    pos_ += n;
+  }
+  void fail() { ok_ = false; }
+  bool finish(size_t* len) {
+    if (!ok_) return false;
+    *len = pos_;
+    return true;
+  }
+
+ private:
+  bool room(size_t n) {
+    if (!ok_ || cap_ - pos_ < n) ok_ = false;
+    return ok_;
+  }
+  uint8_t* buf_;
+  size_t cap_;
+  size_t pos_;
+  bool ok_;
+};
+
+/** Bounded little-endian reads: a read past the end yields 0 and marks the reader failed. */
+class Reader {
+ public:
+  Reader(const uint8_t* buf, size_t len) : buf_(buf), len_(len), pos_(0), ok_(true) {}
+  uint8_t u8() { return have(1) ? buf_[pos_++] : 0; }
+  uint16_t u16() {
+    if (!have(2)) return 0;
+    uint16_t v = static_cast<uint16_t>(buf_[pos_] | (buf_[pos_ + 1] << 8));
+    pos_ += 2;
+    return v;
+  }
+  uint32_t u32() {
+    if (!have(4)) return 0;
+    uint32_t v = 0;
+    for (uint8_t i = 0; i < 4; ++i) v |= static_cast<uint32_t>(buf_[pos_++]) << (8 * i);
+    return v;
+  }
+  uint64_t u64() {
+    if (!have(8)) return 0;
+    uint64_t v = 0;
+    for (uint8_t i = 0; i < 8; ++i) v |= static_cast<uint64_t>(buf_[pos_++]) << (8 * i);
+    return v;
+  }
+  int32_t i32() { return static_cast<int32_t>(u32()); }
+  float f32() {
+    uint32_t u = u32();
+    float v;
+    memcpy(&v, &u, 4);
+    return v;
+  }
+  Bytes take(size_t n) {
+    if (!have(n)) return Bytes();
+    Bytes b(buf_ + pos_, n);
+    pos_ += n;
+    return b;
+  }
+  Bytes rest() { return take(len_ - pos_); }
+  void copy(uint8_t* out, size_t n) {
+    Bytes b = take(n);
+    if (ok_ && n) memcpy(out, b.data, n);
+  }
+  void fail() { ok_ = false; }
+  bool ok() const { return ok_; }
+
+ private:
+  bool have(size_t n) {
+    if (!ok_ || len_ - pos_ < n) ok_ = false;
+    return ok_;
+  }
+  const uint8_t* buf_;
+  size_t len_;
+  size_t pos_;
+  bool ok_;
+};
+
+/** True if b is well-formed UTF-8 (no overlong forms, surrogates or code points > U+10FFFF). */
+inline bool utf8_valid(const Bytes& b) {
+  size_t i = 0;
+  while (i < b.size) {
+    uint8_t c = b.data[i];
+    if (c < 0x80) {
+      ++i;
+      continue;
+    }
+    size_t n;
+    uint8_t lo = 0x80, hi = 0xBF;
+    if (c >= 0xC2 && c <= 0xDF) {
+      n = 1;
+    } else if (c >= 0xE0 && c <= 0xEF) {
+      n = 2;
+      if (c == 0xE0) lo = 0xA0;
+      if (c == 0xED) hi = 0x9F;
+    } else if (c >= 0xF0 && c <= 0xF4) {
+      n = 3;
+      if (c == 0xF0) lo = 0x90;
+      if (c == 0xF4) hi = 0x8F;
+    } else {
+      return false;
+    }
+    if (b.size - i - 1 < n) return false;
+    for (size_t k = 1; k <= n; ++k) {
+      uint8_t d = b.data[i + k];
+      if (d < (k == 1 ? lo : 0x80) || d > (k == 1 ? hi : 0xBF)) return false;
+    }
+    i += n + 1;
+  }
+  return true;
+}
+
+}  // namespace detail
+"""
+
+_CRC: Final = """
+/** {name} of n bytes (poly {poly:#06x}, init {init:#06x}); chain calls with crc. */
+inline uint16_t crc16(const uint8_t* p, size_t n, uint16_t crc = {init:#06x}) {{
+  while (n--) {{
+    crc = static_cast<uint16_t>(crc ^ (static_cast<uint16_t>(*p++) << 8));
+    for (uint8_t b = 0; b < 8; ++b)
+      crc = (crc & 0x8000) ? static_cast<uint16_t>((crc << 1) ^ {poly:#06x})
+                           : static_cast<uint16_t>(crc << 1);
+  }}
+  return crc;
+}}
+"""
+
+
+def _ctype(typ: str) -> str:
+    return _CTYPES[typ]
+
+
+def _enum_block(name: str, values: dict[str, int], typ: str, doc: str) -> Iterator[str]:
+    yield f"/** {doc} */"
+    yield f"struct {name} {{"
+    yield f"  enum : {_ctype(typ)} {{"
+    for key, value in values.items():
+        yield f"    {key} = {value:#04x},"
+    yield "  };"
+    yield "};"
+
+
+def _valid_fn(name: str, values: dict[str, int], exclude: tuple[str, ...] = ()) -> Iterator[str]:
+    suffix = "_" + "_".join(exclude) if exclude else ""
+    yield f"inline bool valid_{name}{suffix}(uint8_t v) {{"
+    yield "  switch (v) {"
+    for key in values:
+        if key not in exclude:
+            yield f"    case {name}::{key}:"
+    yield "      return true;"
+    yield "    default:"
+    yield "      return false;"
+    yield "  }"
+    yield "}"
+
+
+def _mask(schema: Schema, flags: str) -> int:
+    mask = 0
+    for bit in schema.flags[flags].values():
+        mask |= bit
+    return mask
+
+
+def _member(schema: Schema, field: FieldSpec) -> str:
+    if field.is_scalar:
+        return f"{_ctype(field.type)} {field.name}"
+    if field.type in schema.structs:
+        return f"{field.type} {field.name}"
+    if field.size is not None:
+        return f"uint8_t {field.name}[{field.size}]"
+    return f"Bytes {field.name}"
+
+
+def _comment(schema: Schema, field: FieldSpec) -> str:
+    parts = []
+    if field.enum:
+        parts.append(f"{field.enum}::*")
+    if field.flags:
+        parts.append(f"{field.flags} bits")
+    if field.type == "string":
+        parts.append("UTF-8" + (", may be malformed" if field.lenient else ""))
+    if field.length is not None:
+        prefix = "to the end of the payload" if field.length == "rest" else f"{field.length} length"
+        parts.append(prefix)
+    if field.max is not None:
+        parts.append(f"at most {field.max} bytes")
+    if field.type == "param_value":
+        parts.append(f"the encoded elements of {field.selector} (see param_value_size)")
+    if field.when is not None:
+        name, value, equal = field.when
+        parts.append(f"only if {name} {'==' if equal else '!='} {value}")
+    return "  // " + "; ".join(parts) if parts else ""
+
+
+def _condition(spec: MessageSpec, field: FieldSpec, obj: str) -> str | None:
+    if field.when is None:
+        return None
+    name, value, equal = field.when
+    source = next(f for f in spec.fields if f.name == name)
+    return f"{obj}{name} {'==' if equal else '!='} {source.enum}::{value}"
+
+
+def _encode_field(schema: Schema, field: FieldSpec) -> Iterator[str]:
+    ref = f"m.{field.name}"
+    if field.is_scalar:
+        if field.enum is not None:
+            suffix = "_" + "_".join(field.exclude) if field.exclude else ""
+            yield f"if (!valid_{field.enum}{suffix}({ref})) return false;"
+            yield f"w.u8({ref});"
+        elif field.flags is not None:
+            mask = _mask(schema, field.flags)
+            yield f"w.u8(static_cast<uint8_t>({ref} & {mask:#04x}));"
+        else:
+            if field.min:
+                yield f"if ({ref} < {field.min}) return false;"
+            yield f"w.{field.type}({ref});"
+    elif field.type in schema.structs:
+        for sub in schema.structs[field.type]:
+            if sub.max is not None:
+                yield f"if ({ref}.{sub.name} > {sub.max}u) return false;"
+            yield f"w.{sub.type}({ref}.{sub.name});"
+    elif field.type == "param_value":
+        yield f"if (param_value_size(m.{field.selector}, {ref}) != {ref}.size) return false;"
+        yield f"w.raw({ref}.data, {ref}.size);"
+    elif field.size is not None:
+        yield f"w.raw({ref}, {field.size});"
+    else:
+        limit = field.max
+        if field.length in SCALARS:
+            limit = min(limit or 1 << 32, (1 << (8 * SCALARS_SIZE[field.length])) - 1)
+        if limit is not None:
+            yield f"if ({ref}.size > {limit}u) return false;"
+        if field.length != "rest":
+            yield f"w.{field.length}(static_cast<{_ctype(field.length or 'u8')}>({ref}.size));"
+        yield f"w.raw({ref}.data, {ref}.size);"
+
+
+SCALARS_SIZE: Final = {"u8": 1, "u16": 2, "u32": 4, "u64": 8, "i32": 4, "f32": 4}
+
+
+def _decode_field(schema: Schema, spec: MessageSpec, field: FieldSpec) -> Iterator[str]:
+    ref = f"m->{field.name}"
+    if field.is_scalar:
+        yield f"{ref} = r.{field.type}();"
+        if field.enum is not None:
+            suffix = "_" + "_".join(field.exclude) if field.exclude else ""
+            yield f"if (r.ok() && !valid_{field.enum}{suffix}({ref})) return false;"
+        elif field.flags is not None:
+            yield f"{ref} = static_cast<uint8_t>({ref} & {_mask(schema, field.flags):#04x});"
+        elif field.const is not None:
+            yield f"if (r.ok() && {ref} != {field.const}) return false;"
+    elif field.type in schema.structs:
+        for sub in schema.structs[field.type]:
+            yield f"{ref}.{sub.name} = r.{sub.type}();"
+            if sub.max is not None:
+                yield f"if ({ref}.{sub.name} > {sub.max}u) return false;"
+    elif field.type == "param_value":
+        yield "{"
+        yield "  detail::Reader rest = r;"
+        yield "  Bytes all = rest.rest();"
+        yield f"  size_t n = param_value_size(m->{field.selector}, all);"
+        yield "  if (n == 0) return false;"
+        yield f"  {ref} = r.take(n);"
+        yield "}"
+    elif field.size is not None:
+        yield f"r.copy({ref}, {field.size});"
+    else:
+        if field.length == "rest":
+            yield f"{ref} = r.rest();"
+        else:
+            yield f"{ref} = r.take(r.{field.length}());"
+        if field.type == "string" and not field.lenient:
+            yield f"if (r.ok() && !detail::utf8_valid({ref})) return false;"
+        if field.length == "rest" and field.max is not None:
+            yield f"if ({ref}.size > {field.max}u) return false;"
+
+
+def _message(schema: Schema, spec: MessageSpec) -> Iterator[str]:
+    cls = spec.class_name
+    yield ""
+    yield f"/** {spec.name} ({spec.opcode:#04x}, {spec.direction}, "
+    yield f"    {'reliable' if spec.reliable else 'best effort'}): {spec.doc} */"
+    yield f"struct {cls} {{"
+    yield f"  static const uint8_t OPCODE = Opcode::{spec.name};"
+    for field in spec.fields:
+        init = ""
+        if field.const is not None:
+            init = f" = {field.const}"
+        elif field.is_scalar:
+            init = " = 0"
+        elif field.type in schema.structs:
+            init = " = {0, 0}"
+        elif field.size is not None:
+            init = " = {0}"
+        yield f"  {_member(schema, field)}{init};{_comment(schema, field)}"
+    yield "};"
+    fields = spec.fields
+    m = "m" if fields else "/*m*/"
+    yield ""
+    yield f"inline bool encode(const {cls}& {m}, uint8_t* buf, size_t cap, size_t* len) {{"
+    yield "  detail::Writer w(buf, cap);"
+    yield f"  w.u8({cls}::OPCODE);"
+    for field in fields:
+        cond = _condition(spec, field, "m.")
+        body = list(_encode_field(schema, field))
+        if cond:
+            yield f"  if ({cond}) {{"
+            yield from ("    " + line for line in body)
+            yield "  }"
+        else:
+            yield from ("  " + line for line in body)
+    yield "  return w.finish(len);"
+    yield "}"
+    yield ""
+    yield f"inline bool decode(const uint8_t* buf, size_t len, {cls}* {m}) {{"
+    yield "  detail::Reader r(buf, len);"
+    if fields:
+        yield f"  *m = {cls}();"
+    yield f"  if (r.u8() != {cls}::OPCODE) return false;"
+    for field in fields:
+        cond = _condition(spec, field, "m->")
+        body = list(_decode_field(schema, spec, field))
+        if cond:
+            yield f"  if (r.ok() && {cond}) {{"
+            yield from ("    " + line for line in body)
+            yield "  }"
+        else:
+            yield from ("  " + line for line in body)
+    yield "  return r.ok();"
+    yield "}"
+
+
+def _param_value(schema: Schema) -> Iterator[str]:
+    pv = schema.param_value
+    enum = pv.selector_enum
+    yield ""
+    yield "/** Bytes of a well-formed value of this type at the start of v (after the type byte),"
+    yield "    or 0 when v does not start with one (a list is its count and its elements). */"
+    yield "inline size_t param_value_size(uint8_t type, const Bytes& v) {"
+    yield "  detail::Reader r(v.data, v.size);"
+    yield f"  bool is_list = (type & {pv.list_bit:#04x}) != 0;"
+    yield f"  uint32_t count = is_list ? r.{pv.count}() : 1;"
+    yield f"  uint8_t element = static_cast<uint8_t>(type & {~pv.list_bit & 0xFF:#04x});"
+    yield f"  if (!valid_{enum}(type) || element == 0) return 0;"
+    yield "  for (uint32_t i = 0; i < count && r.ok(); ++i) {"
+    yield "    switch (element) {"
+    for name, element in pv.elements.items():
+        yield f"      case {enum}::{name}:"
+        if element.type == "string":
+            yield f"        r.take(r.{element.length}());"
+        else:
+            yield f"        r.{element.type}();"
+        yield "        break;"
+    yield "      default:"
+    yield "        return 0;"
+    yield "    }"
+    yield "  }"
+    yield "  if (!r.ok()) return 0;"
+    yield "  return v.size - r.rest().size;"
+    yield "}"
+
+
+def _frame(schema: Schema) -> Iterator[str]:
+    frame = schema.frame
+    header = frame["header"]
+    bits = header[0]["bits"]
+    names = [f["name"] for f in header]
+    yield ""
+    yield f"/** The frame header (PROTOCOL.md 1.4): {', '.join(names)}; flags = "
+    yield "    " + " | ".join(f"{b['name']} << {b['shift']}" for b in bits) + ". */"
+    yield "struct FrameHeader {"
+    members = [b for b in bits if "const" not in b]
+    for b in members:
+        yield f"  uint8_t {b['name']} = 0;  // {b['enum']}::*"
+    for f in header[1:]:
+        yield f"  {_ctype(f['type'])} {f['name']} = 0;"
+    yield "};"
+    yield f"static const size_t FRAME_HEADER_SIZE = {len(header)};"
+    yield f"static const size_t FRAME_CRC_SIZE = {SCALARS_SIZE[frame['crc']['type']]};"
+    yield f"static const uint8_t FRAME_DELIMITER = {frame['delimiter']};"
+    yield ""
+    yield "inline bool encode(const FrameHeader& h, uint8_t* buf, size_t cap, size_t* len) {"
+    yield "  detail::Writer w(buf, cap);"
+    for b in members:
+        yield f"  if (!valid_{b['enum']}(h.{b['name']})) return false;"
+    parts = []
+    for b in bits:
+        value = str(b["const"]) if "const" in b else f"h.{b['name']}"
+        parts.append(f"({value} << {b['shift']})")
+    yield f"  w.u8(static_cast<uint8_t>({' | '.join(parts)}));"
+    for f in header[1:]:
+        yield f"  w.{f['type']}(h.{f['name']});"
+    yield "  return w.finish(len);"
+    yield "}"
+    yield ""
+    yield "/** false for another version or the reserved type; the reserved bits are ignored. */"
+    yield "inline bool decode(const uint8_t* buf, size_t len, FrameHeader* h) {"
+    yield "  detail::Reader r(buf, len);"
+    yield "  uint8_t flags = r.u8();"
+    for b in bits:
+        mask = (1 << b["width"]) - 1
+        value = f"static_cast<uint8_t>((flags >> {b['shift']}) & {mask:#x})"
+        if b.get("ignored"):
+            continue
+        if "const" in b:
+            yield f"  if (r.ok() && {value} != {b['const']}) return false;"
+        else:
+            yield f"  h->{b['name']} = {value};"
+            yield f"  if (r.ok() && !valid_{b['enum']}(h->{b['name']})) return false;"
+    for f in header[1:]:
+        yield f"  h->{f['name']} = r.{f['type']}();"
+    yield "  return r.ok();"
+    yield "}"
+    crc = frame["crc"]
+    yield _CRC.format(name=crc["name"], poly=crc["poly"], init=crc["init"]).rstrip("\n")
+
+
+def generate_control_header(schema: Schema | None = None) -> str:
+    """The text of ``hwbridge_control.h``."""
+    schema = schema or load_schema()
+    out = [
+        "// hwbridge_control.h: the native protocol's frame header and control messages",
+        "// (PROTOCOL.md 1.4, 2.14). Generated by `hwbridge firmware generate` from",
+        f"// protocols/native/schema.json (version {schema.version}); do not edit.",
+        "// C++11, header-only, no heap, no exceptions; every encode and decode is bounded.",
+        "#ifndef HWBRIDGE_CONTROL_H",
+        "#define HWBRIDGE_CONTROL_H",
+        "",
+        _PRELUDE,
+    ]
+    for name, value in schema.constants.items():
+        ctype = "uint32_t" if value > 0xFFFF else "uint8_t" if value <= 0xFF else "uint16_t"
+        out.append(f"static const {ctype} {name} = {value};")
+    for name, values in schema.enums.items():
+        out.append("")
+        out.extend(_enum_block(name, dict(values), "u8", f"enum {name}"))
+        out.extend(_valid_fn(name, dict(values)))
+        for spec in schema.messages:
+            for field in spec.fields:
+                if field.enum == name and field.exclude:
+                    out.extend(_valid_fn(name, dict(values), field.exclude))
+    for name, values in schema.flags.items():
+        out.append("")
+        out.extend(_enum_block(name, dict(values), "u8", f"flags {name} (bits)"))
+    for name, fields in schema.structs.items():
+        out.append("")
+        out.append(f"struct {name} {{")
+        out.extend(f"  {_member(schema, f)};" for f in fields)
+        out.append("};")
+    out.extend(_frame(schema))
+    out.extend(_param_value(schema))
+    for spec in schema.messages:
+        out.extend(_message(schema, spec))
+    out += ["", "}  // namespace control", "}  // namespace hwbridge", "", "#endif", ""]
+    return "\n".join(out)

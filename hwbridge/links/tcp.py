@@ -10,10 +10,15 @@ WiFi boards connect to the host).
 * When the client disconnects (or its connection is reset), ``read()`` raises
   :class:`~hwbridge.links.base.LinkClosedError` once for that session, and the link stays open
   (``is_open`` stays True): the next ``read()`` waits for the next client. ``open()`` is not needed.
-* With ``takeover=1`` (the default) a new connection replaces the current client: a board that
-  rebooted leaves a half-open connection behind, and its new connection must win. The old
-  session ends with ``LinkClosedError`` from ``read()``, then the next ``read()`` serves the new
-  client. With ``takeover=0`` new connections wait in the backlog until the current client goes.
+* A second connection while a client is connected is refused (closed at once) and logged, so
+  nobody on the network can replace a working board. With ``takeover=1`` a new connection
+  replaces the current client instead: for a board that reboots and leaves a half-open
+  connection behind, whose new connection must win. The old session ends with
+  ``LinkClosedError`` from ``read()``, then the next ``read()`` serves the new client.
+* ``allow=NETWORK[,NETWORK...]`` (``192.168.4.0/24``, ``10.0.0.7``, ``::1``) accepts clients
+  from those addresses only; others are refused and logged. Without it any address may connect
+  (``tcp-listen://:PORT`` listens on every interface: use ``allow`` or a host address on a
+  network you do not control).
 * ``write()`` with no client connected raises ``LinkClosedError``; writes go to the current client.
 * :attr:`TcpListenLink.connected` and :attr:`TcpListenLink.client_address` tell whether a client
   is connected now.
@@ -23,10 +28,12 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import ipaddress
 import logging
 import selectors
 import socket
 import threading
+from ipaddress import IPv4Network, IPv6Network
 from typing import Any, Final
 from urllib.parse import SplitResult, urlsplit
 
@@ -56,12 +63,17 @@ _SOCKET_OPTIONS: Final = {
     "nodelay": opt_bool,
     "keepalive": opt_bool,
 }
+def _text(value: Any) -> str:
+    return str(value)
+
+
 _LISTEN_OPTIONS: Final = {
     **COMMON_OPTIONS,
     "nodelay": opt_bool,
     "keepalive": opt_bool,
     "takeover": opt_bool,
     "backlog": opt_int,
+    "allow": _text,
 }
 
 
@@ -81,6 +93,29 @@ def _host_port(url: str, *, need_host: bool, example: str) -> tuple[str, int, Sp
     if parts.path not in ("", "/"):
         raise LinkError(f"{url!r} has a path ({parts.path!r}), which TCP links do not take")
     return host, port, parts
+
+
+def _networks(value: str | None, url: str) -> tuple[IPv4Network | IPv6Network, ...]:
+    """The ``allow`` option's networks; LinkError naming a bad one."""
+    if not value:
+        return ()
+    networks = []
+    for item in value.split(","):
+        try:
+            networks.append(ipaddress.ip_network(item.strip(), strict=False))
+        except ValueError as exc:
+            raise LinkError(
+                f"{url}: allow={value}: {item.strip()!r} is not an address or network "
+                "(e.g. 192.168.4.0/24)"
+            ) from exc
+    return tuple(networks)
+
+
+def _allowed(host: str, networks: tuple[IPv4Network | IPv6Network, ...]) -> bool:
+    address = ipaddress.ip_address(host.split("%", 1)[0])
+    if isinstance(address, ipaddress.IPv6Address) and address.ipv4_mapped is not None:
+        address = address.ipv4_mapped
+    return any(address in network for network in networks)
 
 
 def _configure(sock: socket.socket, *, nodelay: bool, keepalive: bool) -> None:
@@ -213,8 +248,9 @@ class TcpListenLink(Link):
     """A TCP listener serving one client at a time: ``tcp-listen://HOST:PORT``.
 
     ``tcp-listen://:11411`` listens on every IPv4 interface, ``tcp-listen://127.0.0.1:0`` on a free
-    loopback port. Options: ``takeover`` (default 1), ``nodelay``, ``keepalive``, ``backlog``,
-    ``write_timeout``. See the module documentation for the session semantics.
+    loopback port. Options: ``takeover`` (default 0), ``allow`` (source networks), ``nodelay``,
+    ``keepalive``, ``backlog``, ``write_timeout``. See the module documentation for the session
+    semantics.
     """
 
     scheme = "tcp-listen"
@@ -230,7 +266,9 @@ class TcpListenLink(Link):
         self.write_timeout: float | None = opts.get("write_timeout")
         self.nodelay: bool = opts.get("nodelay", True)
         self.keepalive: bool = opts.get("keepalive", True)
-        self.takeover: bool = opts.get("takeover", True)
+        self.takeover: bool = opts.get("takeover", False)
+        self.allow = _networks(opts.get("allow"), url)
+        """Source networks clients may connect from (empty: any)."""
         self.backlog: int = max(1, opts.get("backlog", 4))
         self._server: socket.socket | None = None
         self._client: socket.socket | None = None
@@ -353,6 +391,26 @@ class TcpListenLink(Link):
         except OSError as exc:  # e.g. ECONNABORTED, EMFILE: keep listening
             log.warning("%s failed to accept a connection: %s", self.url, exc)
             return
+        if self.allow and not _allowed(addr[0], self.allow):
+            log.warning(
+                "%s refused a connection from %s: not in allow=%s",
+                self.url,
+                _address(addr),
+                ",".join(map(str, self.allow)),
+            )
+            sock.close()
+            return
+        if self._client is not None and not self.takeover:
+            log.warning(
+                "%s refused a second connection from %s while %s is connected (add "
+                "?takeover=1 to the URL if a new connection should replace the board's, as "
+                "after a reboot)",
+                self.url,
+                _address(addr),
+                _address(self._client_address) if self._client_address else "a client",
+            )
+            sock.close()
+            return
         try:
             _configure(sock, nodelay=self.nodelay, keepalive=self.keepalive)
         except OSError as exc:
@@ -374,8 +432,6 @@ class TcpListenLink(Link):
             self._client = sock
             self._client_address = address
         selector.register(sock, selectors.EVENT_READ)
-        if not self.takeover and self._server is not None:
-            selector.unregister(self._server)  # new connections wait in the backlog
 
     def _drop_client(self) -> str:
         """Forget the client and close its socket (reader thread); returns its address."""
@@ -386,8 +442,6 @@ class TcpListenLink(Link):
             return "?"
         if self._selector is not None:
             self._selector.unregister(client)
-            if not self.takeover and self._server is not None:
-                self._selector.register(self._server, selectors.EVENT_READ)
         with contextlib.suppress(OSError):  # makes a writer blocked on this socket return
             client.shutdown(socket.SHUT_RDWR)
         with self._write_lock:  # no writer uses the socket once we hold this

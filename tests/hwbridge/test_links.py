@@ -516,8 +516,8 @@ def test_tcp_listen_serves_one_client_then_the_next() -> None:
         listener.close()
 
 
-def test_tcp_listen_new_client_takes_over_a_stale_one() -> None:
-    listener = listen()
+def test_tcp_listen_with_takeover_a_new_client_replaces_a_stale_one() -> None:
+    listener = open_link("tcp-listen://127.0.0.1:0?takeover=1")
     old = connect_listener(listener, client_url(listener))
     new = open_link(client_url(listener))
     try:
@@ -533,23 +533,50 @@ def test_tcp_listen_new_client_takes_over_a_stale_one() -> None:
             link.close()
 
 
-def test_tcp_listen_without_takeover_queues_the_next_client() -> None:
-    listener = open_link("tcp-listen://127.0.0.1:0?takeover=0")
-    assert isinstance(listener, TcpListenLink)
+def test_tcp_listen_refuses_a_second_client_by_default(caplog: pytest.LogCaptureFixture) -> None:
+    """Nobody on the network replaces a connected board (issue 19 item 6)."""
+    listener = listen()
     first = connect_listener(listener, client_url(listener))
     second = open_link(client_url(listener))
     try:
-        second.write(b"waiting")
-        assert listener.read(timeout=0.1) == b""  # still serving the first client
+        second.write(b"let me in")
         first.write(b"first")
-        assert transfer_in(listener, 5) == b"first"
+        assert transfer_in(listener, 5) == b"first"  # still serving the first client
+        assert listener.read(timeout=0.3) == b""  # the waiting connection is accepted, refused
+        with pytest.raises(LinkClosedError):
+            transfer_in(second, 1)  # closed by the listener
+        assert any("refused a second connection" in r.getMessage() for r in caplog.records)
+        assert transfer(listener, first, [b"still you"]) == b"still you"
         first.close()
         with pytest.raises(LinkClosedError, match="disconnected"):
             transfer_in(listener, 1)
-        assert transfer_in(listener, 7) == b"waiting"
+        third = connect_listener(listener, client_url(listener))  # once it went, the next one
+        assert transfer(third, listener, [b"next"]) == b"next"
+        third.close()
     finally:
         for link in (first, second, listener):
             link.close()
+
+
+def test_tcp_listen_allow_list(caplog: pytest.LogCaptureFixture) -> None:
+    refused = open_link("tcp-listen://127.0.0.1:0?allow=192.168.4.0/24")
+    allowed = open_link("tcp-listen://127.0.0.1:0?allow=10.0.0.0/8,127.0.0.1")
+    try:
+        outsider = open_link(client_url(refused))
+        refused.read(timeout=0.3)  # accepts, and refuses it
+        assert not refused.connected
+        assert any("not in allow=192.168.4.0/24" in r.getMessage() for r in caplog.records)
+        with pytest.raises(LinkClosedError):
+            transfer_in(outsider, 1)
+        outsider.close()
+        insider = connect_listener(allowed, client_url(allowed))
+        assert transfer(insider, allowed, [b"hi"]) == b"hi"
+        insider.close()
+    finally:
+        refused.close()
+        allowed.close()
+    with pytest.raises(LinkError, match="not an address or network"):
+        create_link("tcp-listen://:0?allow=192.168.4.0/33")
 
 
 def test_tcp_listener_gone_then_back_on_the_same_port() -> None:

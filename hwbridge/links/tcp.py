@@ -63,6 +63,8 @@ _SOCKET_OPTIONS: Final = {
     "nodelay": opt_bool,
     "keepalive": opt_bool,
 }
+
+
 def _text(value: Any) -> str:
     return str(value)
 

@@ -518,6 +518,7 @@ def test_tcp_listen_serves_one_client_then_the_next() -> None:
 
 def test_tcp_listen_with_takeover_a_new_client_replaces_a_stale_one() -> None:
     listener = open_link("tcp-listen://127.0.0.1:0?takeover=1")
+    assert isinstance(listener, TcpListenLink)
     old = connect_listener(listener, client_url(listener))
     new = open_link(client_url(listener))
     try:
@@ -561,6 +562,7 @@ def test_tcp_listen_refuses_a_second_client_by_default(caplog: pytest.LogCapture
 def test_tcp_listen_allow_list(caplog: pytest.LogCaptureFixture) -> None:
     refused = open_link("tcp-listen://127.0.0.1:0?allow=192.168.4.0/24")
     allowed = open_link("tcp-listen://127.0.0.1:0?allow=10.0.0.0/8,127.0.0.1")
+    assert isinstance(refused, TcpListenLink) and isinstance(allowed, TcpListenLink)
     try:
         outsider = open_link(client_url(refused))
         refused.read(timeout=0.3)  # accepts, and refuses it

@@ -131,7 +131,10 @@ def create_link(url: str, **options: Any) -> Link:
     url = url.strip()
     scheme = scheme_of(url)
     factory = _lookup(scheme, url)
-    link = factory(url, **options)
+    try:
+        link = factory(url, **options)
+    except ValueError as exc:  # urllib's own refusals ("Invalid IPv6 URL"...)
+        raise LinkError(f"{url!r} is not a valid link URL: {exc}") from exc
     if not isinstance(link, Link):
         raise LinkError(
             f"the factory for {scheme!r} returned {type(link).__name__}, not a Link; "

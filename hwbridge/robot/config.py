@@ -103,6 +103,9 @@ def _mapping(
         return None
     out: dict[str, tuple[yaml.Node, yaml.Node]] = {}
     for key_node, value_node in node.value:
+        if not isinstance(key_node, yaml.ScalarNode):
+            problems.at(key_node, f"{what}: a key must be a name, not a list or a mapping")
+            continue
         key = str(_value(key_node))
         if key in out:
             problems.at(key_node, f"{what}: {key!r} is given twice")
@@ -398,6 +401,15 @@ def _host_device(entry: yaml.Node, index: int, problems: _Problems) -> HostDevic
 
 def parse_robot(text: str, path: str = "<robot>") -> Robot:
     """A robot from the text of a robot file (``path`` names it in errors)."""
+    try:
+        return _parse_robot(text, path)
+    except yaml.MarkedYAMLError as exc:  # a value YAML cannot build (a tag, an odd key...)
+        mark = exc.problem_mark or exc.context_mark
+        line = mark.line + 1 if mark is not None else 1
+        raise RobotFileError([f"{path}:{line}: not valid here: {exc.problem or exc}"]) from exc
+
+
+def _parse_robot(text: str, path: str) -> Robot:
     problems = _Problems(path)
     try:
         root = yaml.compose(text, Loader=yaml.SafeLoader)

@@ -24,7 +24,13 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 
 from hwbridge.cli.common import emit_json, json_line, open_graph
-from hwbridge.errors import HwBridgeError, HwBridgeTimeoutError, MessageTypeError, UnknownTypeError
+from hwbridge.errors import (
+    HwBridgeError,
+    HwBridgeTimeoutError,
+    MessageTypeError,
+    ProtocolMismatchError,
+    UnknownTypeError,
+)
 from hwbridge.graph import ANY_TYPE, Graph, GraphSnapshot, RawMessage
 
 if TYPE_CHECKING:
@@ -159,18 +165,25 @@ def topic_echo(
 ) -> None:
     """Print messages on a topic as YAML (``---`` between them), like rostopic echo.
 
-    A message of a type with no definition here (or a different one) is shown as its type,
-    md5 and bytes in hex: ``{type, md5, raw}``.
+    A message of a type with no definition here is shown as its type, md5 and bytes in hex:
+    ``{type, md5, raw}``. One whose type is defined here differently (another md5) is refused:
+    decoding it would print wrong values (``--hex`` shows its bytes).
     """
     done = threading.Event()
     lock = threading.Lock()
     seen = [0]
+    failed: list[HwBridgeError] = []
 
     def show(message: RawMessage) -> None:
         with lock:
             if done.is_set():
                 return
-            text = renderer.render(message)
+            try:
+                text = renderer.render(message)
+            except ProtocolMismatchError as exc:
+                failed.append(exc)
+                done.set()
+                return
             if text is not None:
                 sys.stdout.write(text)
                 sys.stdout.flush()
@@ -185,6 +198,8 @@ def topic_echo(
         while not done.wait(0.1):
             if timeout is not None and not seen[0] and time.monotonic() - started > timeout:
                 raise HwBridgeTimeoutError(f"no message on {topic} within {timeout:g} s")
+    if failed:
+        raise failed[0]
 
 
 class _Renderer:
@@ -239,9 +254,11 @@ class _Renderer:
                 reason = f"no definition of {message.type} here: add its package with --msg-path"
             else:
                 if ours != message.md5:
-                    reason = (
-                        f"the definition of {message.type} here (md5 {ours}) is not the "
-                        f"publisher's (md5 {message.md5 or '?'})"
+                    raise ProtocolMismatchError(
+                        f"{message.topic}: the publisher sends {message.type} with md5 "
+                        f"{message.md5 or '?'}, but the definition of {message.type} here has md5 "
+                        f"{ours}: the two sides disagree on its fields, so its values cannot be "
+                        "shown (use the publisher's definition with --msg-path, or --hex)"
                     )
         if reason:
             sys.stderr.write(f"{reason}; showing raw bytes\n")

@@ -84,16 +84,20 @@ def test_echo_shows_the_bytes_and_names_the_missing_definition_once(
     assert json.loads(done.stdout) == {"type": UNKNOWN, "md5": UNKNOWN_MD5, "raw": PAYLOAD.hex()}
 
 
-def test_echo_of_a_known_name_with_another_md5_shows_bytes(
+def test_echo_refuses_a_known_name_with_another_md5(
     graph: Graph, endpoint: str, graph_domain: str
 ) -> None:
+    """Decoding with another definition would print wrong values (issue 19 item 4)."""
     done = cli(endpoint, graph_domain, "topic", "echo", "/odd/other", "-n", "1", "--json")
-    assert done.returncode == 0, done.stderr
-    assert json.loads(done.stdout)["md5"] == WRONG_MD5
+    assert done.returncode == 1
+    assert done.stdout == ""
     ours = msg.md5("std_msgs/String")
-    assert f"the definition of std_msgs/String here (md5 {ours}) is not the publisher's" in (
-        done.stderr
-    )
+    (line,) = done.stderr.strip().splitlines()
+    assert line.startswith("error: /odd/other: the publisher sends std_msgs/String with md5 ")
+    assert WRONG_MD5 in line and ours in line
+    shown = cli(endpoint, graph_domain, "topic", "echo", "/odd/other", "-n", "1", "--hex")
+    assert shown.returncode == 0, shown.stderr
+    assert shown.stdout.startswith(b"\x02\x00\x00\x00hi".hex())
 
 
 def test_list_info_and_hz_work_on_unknown_types(

@@ -197,6 +197,7 @@ class ImuNode:
         raw_topic: str = "imu_raw",
         imu_topic: str = "imu",
         mag_topic: str = "mag",
+        frame_id: str = "imu_link",
     ) -> None:
         self.latest: Any = None
         self.latest_field: Any = None
@@ -204,6 +205,8 @@ class ImuNode:
         """The die temperature (C) of the latest reading."""
         self.dropped = 0
         """Readings dropped because they name a chip this node does not know."""
+        self.frame_id = frame_id
+        """The frame of the Imu and MagneticField messages."""
         self._node = node
         self._converters: dict[tuple[str, int, int], MpuImu] = {}
         self._imu = node.publisher(imu_topic, "sensor_msgs/Imu")
@@ -227,6 +230,7 @@ class ImuNode:
                 accel_range_g=ACCEL_RANGES_G[accel_fs],
                 gyro_range_dps=GYRO_RANGES_DPS[gyro_fs],
                 chip=chip,
+                frame_id=self.frame_id,
             )
             self._converters[key] = found
         return found

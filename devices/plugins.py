@@ -68,6 +68,8 @@ class DiffDrivePlugin(DevicePlugin):
         Field("counter_bits", int, 32, "width of the board's counters", choices=(16, 32)),
         Field("cmd_vel_timeout", float, 0.5, "s without cmd_vel before stopping", minimum=0.05),
         Field("max_wheel_speed", float, 50.0, "rad/s; faster means a counter reset", minimum=0.1),
+        Field("odom_frame_id", str, "odom", "frame odometry is given in"),
+        Field("base_frame_id", str, "base_link", "the robot's frame (odom's child frame)"),
     )
 
     def emulate(self, settings: Mapping[str, Any], board: EmulatedBoard) -> None:
@@ -82,7 +84,7 @@ class DiffDrivePlugin(DevicePlugin):
                 board,
                 "hwbridge_msgs/WheelTicks",
                 {
-                    "header": board.header("base_link"),
+                    "header": board.header(settings["base_frame_id"]),
                     "left": _as_int32(wrap_counter(left - left0, bits)),
                     "right": _as_int32(wrap_counter(right - right0, bits)),
                     "counter_bits": bits,
@@ -118,6 +120,8 @@ class DiffDrivePlugin(DevicePlugin):
                     "counts_per_rev",
                     "counter_bits",
                     "cmd_vel_timeout",
+                    "odom_frame_id",
+                    "base_frame_id",
                 )
             }
             | {"publish_rate": settings["rate"]}
@@ -203,6 +207,7 @@ class _MpuPlugin(DevicePlugin):
         _RATE,
         Field("accel_range_g", int, 2, "accelerometer full scale, g", ACCEL_RANGES_G),
         Field("gyro_range_dps", int, 250, "gyroscope full scale, deg/s", GYRO_RANGES_DPS),
+        Field("frame_id", str, "imu_link"),
     )
 
     def _chip(self, seed: int) -> MpuChip:
@@ -236,7 +241,7 @@ class _MpuPlugin(DevicePlugin):
                 board,
                 "hwbridge_msgs/ImuRaw",
                 {
-                    "header": board.header("imu_link"),
+                    "header": board.header(settings["frame_id"]),
                     "chip": chip_value,
                     "accel_config": chip.read(ACCEL_CONFIG, 1)[0],
                     "gyro_config": chip.read(GYRO_CONFIG, 1)[0],
@@ -249,7 +254,12 @@ class _MpuPlugin(DevicePlugin):
         board.publisher(settings["topic"], "hwbridge_msgs/ImuRaw", settings["rate"], read)
 
     def host_node(self, settings: Mapping[str, Any], context: HostContext) -> Closeable:
-        return ImuNode(context.node, raw_topic=settings["topic"], imu_topic=settings["imu_topic"])
+        return ImuNode(
+            context.node,
+            raw_topic=settings["topic"],
+            imu_topic=settings["imu_topic"],
+            frame_id=settings["frame_id"],
+        )
 
 
 class Mpu6050Plugin(_MpuPlugin):
@@ -283,6 +293,7 @@ class Mpu9250Plugin(_MpuPlugin):
             raw_topic=settings["topic"],
             imu_topic=settings["imu_topic"],
             mag_topic=settings["mag_topic"],
+            frame_id=settings["frame_id"],
         )
 
 

@@ -7,9 +7,11 @@ through a real bridge is in tests/hwbridge/test_emulator.py.
 
 from __future__ import annotations
 
+import ast
 import math
 import time
 from collections.abc import Callable, Iterator
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -23,6 +25,7 @@ from hwbridge.robot.registry import BUILTIN_DEVICES, get_device
 from tests.netutil import wait_until
 
 NAMESPACE = "/t"
+ROOT = Path(__file__).resolve().parents[2]
 
 
 class RecordingBoard:
@@ -164,6 +167,19 @@ def test_every_builtin_plugin_declares_settings_a_robot_file_can_take(name: str)
         assert value == field.default
         if field.choices:
             assert field.default in field.choices
+
+
+def test_the_emulator_names_no_device_type() -> None:
+    """The virtual board, its world and its robots' loading build devices only through the
+    plugins: no string in them is a device type (the test plugin's ``thermo`` included)."""
+    types = {*BUILTIN_DEVICES, "thermo"}
+    for path in sorted((ROOT / "hwbridge" / "emulator").glob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Constant) and isinstance(node.value, str):
+                assert node.value not in types, f"{path.name}:{node.lineno}: {node.value!r}"
+    for folder in ("hwbridge", "devices"):
+        for path in (ROOT / folder).rglob("*.py"):
+            assert "thermo" not in path.read_text(), path
 
 
 DIFFDRIVE = {

@@ -60,6 +60,22 @@ def test_unknown_board_lists_the_ready_ones() -> None:
         load_board("nosuchbot")
 
 
+def test_a_board_of_a_robot_file_by_name(tmp_path: Path) -> None:
+    path = tmp_path / "two.yaml"
+    path.write_text(
+        "robot: two\nworld: {room: [3.0, 2.0]}\nboards:\n"
+        "  - {name: front, link: pty://, devices: [{type: hcsr04}]}\n"
+        "  - {name: rear, link: pty://, devices: [{type: mpu6050, rate: 20}]}\n"
+    )
+    first = load_board(str(path))  # default: the first board
+    assert [d.type for d in first.devices] == ["hcsr04"]
+    rear = load_board(str(path), "rear")
+    assert [(d.type, d.settings["rate"]) for d in rear.devices] == [("mpu6050", 20)]
+    assert rear.world.room == (3.0, 2.0)
+    with pytest.raises(HwBridgeError, match=r"no board named 'side' \(boards: front, rear\)"):
+        load_board(str(path), "side")
+
+
 def test_virtual_board_through_bridge_and_device_nodes(tmp_path: Path) -> None:
     """Drive the board through the bridge; odometry tracks ground truth, sensors look right."""
     config = load_board("diffbot")

@@ -17,11 +17,16 @@
 * ``torque_enable`` (std_srvs/SetBool): torque on or off for every joint, each write
   acknowledged.
 * ``/diagnostics`` (diagnostic_msgs/DiagnosticArray), about once a second: one status per
-  servo, named ``dynamixel/<joint>``, with the servo id and model as ``hardware_id``: OK, ERROR
-  with the hardware error bits it reports (Hardware Error Status on X series, the status
-  packet's error bits on Protocol 1.0: overload, overheating, input voltage, electrical shock,
-  motor encoder), or ERROR "no status" while it does not answer. A new hardware error, a servo
-  that stops answering and one that recovers are also logged (WARNING, then INFO).
+  servo, named ``dynamixel/<joint>``, with the servo id and model as ``hardware_id``: OK, or
+  the hardware error bits it reports (Hardware Error Status on X series, the status packet's
+  error bits on Protocol 1.0: overload, overheating, input voltage, electrical shock, motor
+  encoder) as ERROR when they meet the servo's Shutdown register (its torque went off) and
+  WARN when they do not (an AX-12A's input voltage alarm, by default), or ERROR "no status"
+  while it does not answer. A new hardware error, a servo that stops answering and one that
+  recovers are also logged (WARNING, then INFO).
+
+A servo that stops answering is left out of ``joint_states`` (the others keep being published,
+with fewer names) and asked again once a second, until it answers and is read again.
 """
 
 from __future__ import annotations
@@ -35,8 +40,8 @@ from typing import Any
 
 from hwbridge.devices.dynamixel.bus import DynamixelBus
 from hwbridge.devices.dynamixel.tables import ServoModel
-from hwbridge.errors import HwBridgeError
-from hwbridge.graph import Graph, Publisher, ServiceServer, Subscriber
+from hwbridge.errors import HwBridgeError, HwBridgeTimeoutError
+from hwbridge.graph import Graph, Node, Publisher, ServiceServer, Subscriber
 
 __all__ = ["DynamixelNode"]
 
@@ -52,7 +57,7 @@ X_HARDWARE_ERRORS = {
 """Bits of the X series' Hardware Error Status register (e-manual)."""
 P1_HARDWARE_ERRORS = {0x01: "input voltage", 0x04: "overheating", 0x20: "overload"}
 """The hardware bits of a Protocol 1.0 status packet's error byte (DEVICES.md)."""
-_OK, _ERROR = 0, 2
+_OK, _WARN, _ERROR = 0, 1, 2
 """diagnostic_msgs/DiagnosticStatus levels."""
 DIAGNOSTICS_PERIOD = 1.0
 
@@ -62,7 +67,8 @@ class DynamixelNode:
 
     ``joints`` maps joint names to servo IDs. The node runs a thread from construction until
     :meth:`close`; the bus stays open (it belongs to the caller). ``stamp`` gives the
-    JointState header time (default: wall clock).
+    JointState header time (default: wall clock). ``node`` is the graph node to use (a device
+    plugin's, in its namespace); without one the node is ``graph.node(name, namespace)``.
     """
 
     def __init__(
@@ -76,6 +82,7 @@ class DynamixelNode:
         namespace: str = "/",
         frame_id: str = "",
         stamp: Callable[[], float] = time.time,
+        node: Node | None = None,
     ) -> None:
         if not joints:
             raise ValueError("give at least one joint: joints={'name': servo_id}")
@@ -87,7 +94,6 @@ class DynamixelNode:
         self.frame_id = frame_id
         self._stamp = stamp
         self._names = list(self.joints)
-        self._ids = [self.joints[n] for n in self._names]
         self.models: dict[str, ServoModel] = {n: bus.model(i) for n, i in self.joints.items()}
         if bus.protocol == 2 and any(m.series != "X" for m in self.models.values()):
             raise HwBridgeError("on Protocol 2.0 the node drives X series servos only")
@@ -106,6 +112,8 @@ class DynamixelNode:
             for n, m in self.models.items()
         }
         """Joints whose servo measures current (2.69 mA units) rather than load (0.1 %)."""
+        self._shutdown = {n: bus.read_register(self.joints[n], "Shutdown") for n in self.models}
+        """Per joint, the hardware errors that turn its torque off (the Shutdown register)."""
         self.published = 0
         self.read_errors = 0
         self.write_errors = 0
@@ -113,7 +121,7 @@ class DynamixelNode:
         self._goals: dict[tuple[str, str], int] = {}
         self._goals_lock = threading.Lock()
         self._stop = threading.Event()
-        self.node = graph.node(name, namespace)
+        self.node = node if node is not None else graph.node(name, namespace)
         self._publisher: Publisher = self.node.publisher("joint_states", "sensor_msgs/JointState")
         self._subscribers: list[Subscriber] = []
         for joint in self._names:
@@ -139,6 +147,8 @@ class DynamixelNode:
         self._next_diagnostics = 0.0
         self.health: dict[str, str] = dict.fromkeys(self._names, "")
         """Per joint: "" when fine, else what is wrong ("no status", hardware errors)."""
+        self.silent: set[str] = set()
+        """Joints whose servo did not answer: left out of joint_states until it answers."""
         self._unknown_names: set[str] = set()
         self._thread = threading.Thread(target=self._run, name=f"dxl-node-{name}", daemon=True)
         self._thread.start()
@@ -252,14 +262,16 @@ class DynamixelNode:
 
     def _publish_state(self) -> None:
         try:
-            positions, velocities, efforts = self._read_state()
+            names, positions, velocities, efforts = self._read_state()
         except HwBridgeError as exc:
             self._failed("read", exc)
+            return
+        if not names:
             return
         self._publisher.publish(
             {
                 "header": {"stamp": self._stamp(), "frame_id": self.frame_id},
-                "name": self._names,
+                "name": names,
                 "position": positions,
                 "velocity": velocities,
                 "effort": efforts,
@@ -267,16 +279,34 @@ class DynamixelNode:
         )
         self.published += 1
 
-    def _read_state(self) -> tuple[list[float], list[float], list[float]]:
+    def _read_state(self) -> tuple[list[str], list[float], list[float], list[float]]:
+        """The answering joints and their readings; a joint whose servo times out joins
+        :attr:`silent` (counted as a read error), the others are still read."""
+        answering = [n for n in self._names if n not in self.silent]
+        raw: dict[str, bytes] = {}
+        if self.bus.protocol == 2 and answering:
+            # Present Load/Current 126 (2), Present Velocity 128 (4), Present Position 132 (4)
+            try:
+                by_id = self.bus.sync_read(126, 10, [self.joints[n] for n in answering])
+                raw = {n: by_id[self.joints[n]] for n in answering if self.joints[n] in by_id}
+            except HwBridgeTimeoutError as exc:
+                self._failed("read", exc)  # someone is silent: find out who, servo by servo
+        if len(raw) < len(answering):
+            # AX-12A: Present Position 36, Present Speed 38, Present Load 40
+            address, length = (126, 10) if self.bus.protocol == 2 else (36, 6)
+            for name in answering:
+                try:
+                    raw[name] = self.bus.read(self.joints[name], address, length)
+                except HwBridgeTimeoutError as exc:
+                    self.silent.add(name)
+                    self._failed("read", exc)
+        names = [n for n in answering if n in raw]
         positions: list[float] = []
         velocities: list[float] = []
         efforts: list[float] = []
-        if self.bus.protocol == 2:
-            # Present Load/Current 126 (2), Present Velocity 128 (4), Present Position 132 (4)
-            raw = self.bus.sync_read(126, 10, self._ids)
-            for name, id_ in zip(self._names, self._ids, strict=True):
-                model = self.models[name]
-                data = raw[id_]
+        for name in names:
+            model, data = self.models[name], raw[name]
+            if self.bus.protocol == 2:
                 effort = int.from_bytes(data[:2], "little", signed=True)
                 efforts.append(effort * 2.69e-3 if self._current[name] else effort / 1000.0)
                 velocities.append(
@@ -285,19 +315,16 @@ class DynamixelNode:
                 positions.append(
                     model.ticks_to_radians(int.from_bytes(data[6:], "little", signed=True))
                 )
-            return positions, velocities, efforts
-        for name, id_ in zip(self._names, self._ids, strict=True):
-            model = self.models[name]
-            # AX-12A: Present Position 36, Present Speed 38, Present Load 40 (bit 10: direction)
-            data = self.bus.read(id_, 36, 6)
-            positions.append(model.ticks_to_radians(int.from_bytes(data[:2], "little")))
-            velocities.append(model.velocity_to_rad_s(int.from_bytes(data[2:4], "little")))
-            load = int.from_bytes(data[4:], "little")
-            efforts.append((-1 if load & 0x400 else 1) * (load & 0x3FF) / 1023.0)
-        return positions, velocities, efforts
+            else:  # bit 10 of Present Speed/Load: direction
+                positions.append(model.ticks_to_radians(int.from_bytes(data[:2], "little")))
+                velocities.append(model.velocity_to_rad_s(int.from_bytes(data[2:4], "little")))
+                load = int.from_bytes(data[4:], "little")
+                efforts.append((-1 if load & 0x400 else 1) * (load & 0x3FF) / 1023.0)
+        return names, positions, velocities, efforts
 
-    def _servo_health(self, joint: str) -> str:
-        """ "" if the servo answers and reports no hardware error, else what is wrong."""
+    def _servo_health(self, joint: str) -> tuple[int, str]:
+        """The diagnostic level and "" if the servo answers and reports no hardware error,
+        else what is wrong."""
         id_ = self.joints[joint]
         try:
             if self.models[joint].series == "X":
@@ -307,18 +334,26 @@ class DynamixelNode:
                 self.bus.ping(id_, identify=False)
                 bits = self.bus.alerts.get(id_, 0)
                 names = P1_HARDWARE_ERRORS
-        except HwBridgeError:
-            return "no status"
+        except HwBridgeTimeoutError:
+            self.silent.add(joint)
+            return _ERROR, "no status"
+        except HwBridgeError as exc:
+            return _ERROR, f"status not read: {exc}"
+        self.silent.discard(joint)
+        if self.models[joint].series != "X":
+            bits &= sum(names)  # the other bits are instruction errors, not hardware
         found = [name for bit, name in names.items() if bits & bit]
         unknown = bits & ~sum(names)
         if unknown:
             found.append(f"bits 0x{unknown:02X}")
-        return ", ".join(found)
+        if not found:
+            return _OK, ""
+        return (_ERROR if bits & self._shutdown[joint] else _WARN), ", ".join(found)
 
     def _publish_diagnostics(self) -> None:
         statuses = []
         for joint in self._names:
-            problem = self._servo_health(joint)
+            level, problem = self._servo_health(joint)
             before = self.health[joint]
             if problem != before:
                 if problem:
@@ -332,7 +367,7 @@ class DynamixelNode:
                 self.health[joint] = problem
             statuses.append(
                 {
-                    "level": _ERROR if problem else _OK,
+                    "level": level,
                     "name": f"dynamixel/{joint}",
                     "message": problem or "OK",
                     "hardware_id": f"id {self.joints[joint]} {self.models[joint].name}",

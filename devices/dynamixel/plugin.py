@@ -62,9 +62,9 @@ class DynamixelBusPlugin(DevicePlugin):
                 bus,
                 joints,
                 rate_hz=settings["rate"],
-                name=context.node.name,
                 namespace=context.namespace,
                 frame_id=settings["frame_id"],
+                node=context.node,
             )
         except (HwBridgeError, ValueError) as exc:
             bus.close()

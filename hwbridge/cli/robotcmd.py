@@ -21,16 +21,22 @@ def check(robot_file: _FILE) -> None:
     from hwbridge.robot.config import load_robot
 
     robot = load_robot(robot_file)
-    boards = ", ".join(f"{b.name}: {len(b.devices)} devices" for b in robot.boards)
+    boards = ", ".join(f"{b.name}: {_count(len(b.devices), 'device')}" for b in robot.boards)
     sys.stdout.write(
-        f"{robot_file}: robot {robot.name}: {len(robot.boards)} board(s)"
-        f"{f' ({boards})' if boards else ''}, {len(robot.host_devices)} host device(s)\n"
+        f"{robot_file}: robot {robot.name}: {_count(len(robot.boards), 'board')}"
+        f"{f' ({boards})' if boards else ''}, "
+        f"{_count(len(robot.host_devices), 'host device')}\n"
     )
+
+
+def _count(number: int, what: str) -> str:
+    return f"{number} {what}{'' if number == 1 else 's'}"
 
 
 @robot_app.command("show")
 def show(robot_file: _FILE) -> None:
-    """Print a robot file as hwbridge reads it (YAML, every default filled in)."""
+    """Print a robot file as hwbridge reads it (YAML, every default filled in; a file that
+    hwbridge reads back as the same robot)."""
     import yaml
 
     from hwbridge.robot.config import load_robot
@@ -48,7 +54,7 @@ def show(robot_file: _FILE) -> None:
                 "link": b.link,
                 "protocol": b.protocol,
                 "namespace": b.namespace,
-                "baud": b.baud,
+                **({"baud": b.baud} if b.baud is not None else {}),
                 "service_timeout": b.service_timeout,
                 "start_delay": b.start_delay,
                 "devices": [device(d) for d in b.devices],
@@ -60,7 +66,7 @@ def show(robot_file: _FILE) -> None:
                 **device(h.device),
                 "link": h.link,
                 "namespace": h.namespace,
-                "baud": h.baud,
+                **({"baud": h.baud} if h.baud is not None else {}),
             }
             for h in robot.host_devices
         ],
@@ -82,6 +88,9 @@ def devices() -> None:
             plugin = get_device(name)
         except HwBridgeError as exc:
             sys.stdout.write(f"{name}: cannot be loaded: {exc}\n")
+            continue
+        except Exception as exc:  # noqa: BLE001 - a plugin that fails to import
+            sys.stdout.write(f"{name}: cannot be loaded: {type(exc).__name__}: {exc}\n")
             continue
         sys.stdout.write(f"{name} ({plugin.where}): {plugin.summary}\n")
         for field in plugin.fields:

@@ -24,8 +24,25 @@
 
 :func:`load_robot` checks every key, link URL, protocol, namespace and device setting (against
 the plugin's :class:`~hwbridge.robot.plugin.Field` list, filling in defaults) and reports every
-problem at once, each as ``FILE:LINE: what is wrong``, in one
-:class:`~hwbridge.robot.model.RobotFileError`.
+problem at once, each as ``FILE:LINE: what is wrong``, in file order, in one
+:class:`~hwbridge.robot.model.RobotFileError`. The rules:
+
+- top level: ``robot`` (a name) is required; ``world`` is an optional mapping, kept as it is for
+  the emulator; at least one board or host device. Unknown keys are errors that name the known
+  ones (and the closest, when one is close).
+- a board: ``name`` (required, ``[A-Za-z_][A-Za-z0-9_]*``) and ``link`` (required; parsed by
+  :func:`hwbridge.links.create_link`, never opened: ``hwbridge up`` opens it); ``protocol``
+  (default ``auto``), ``namespace`` (default ``/``, a graph name), ``baud`` (a whole number above
+  0), ``service_timeout`` (default 5 s), ``start_delay`` (default 0 s), ``devices`` (a list).
+- a device: ``type`` (a registered device type) and an optional ``name``, unique on its board
+  (default the type; ``hcsr04_2``, ``hcsr04_3`` for repeats); every other key is a setting of the
+  plugin: unknown ones, missing required ones, values of the wrong type (a bool is not a number;
+  an int is taken for a float), not among the choices or out of the minimum/maximum are errors.
+  A ``host`` device under a board, or a ``board`` device under ``host_devices``, is an error that
+  says where it belongs; a plugin that fails to import is a problem at its ``type`` line.
+- a host device: ``type``, ``name`` (required), ``link`` (required), ``namespace``, ``baud`` and
+  the plugin's settings.
+- board names and host-device names are unique across the robot (``--link NAME=URL`` picks one).
 """
 
 from __future__ import annotations
@@ -75,23 +92,60 @@ _KIND_NAMES: Final = {
 
 
 class _Problems:
-    """The problems found so far, each with its line."""
+    """The problems found so far, each with its line; :attr:`lines` in file order."""
 
     def __init__(self, path: str) -> None:
         self.path = path
-        self.lines: list[str] = []
+        self._found: list[tuple[int, str]] = []
+        self.names: dict[str, int] = {}
+        """Board and host-device names seen so far, with their lines (they must be unique)."""
 
     def at(self, node: yaml.Node | None, text: str) -> None:
-        line = node.start_mark.line + 1 if node is not None else 1
-        self.lines.append(f"{self.path}:{line}: {text}")
+        self.at_line(node.start_mark.line + 1 if node is not None else 1, text)
+
+    def at_line(self, line: int, text: str) -> None:
+        self._found.append((line, f"{self.path}:{line}: {text}"))
+
+    @property
+    def lines(self) -> list[str]:
+        return [text for _line, text in sorted(self._found, key=lambda found: found[0])]
 
     def where(self, node: yaml.Node) -> str:
         return f"{self.path}:{node.start_mark.line + 1}"
 
+    def unique(self, name: str, node: yaml.Node) -> None:
+        """Note a board's or host device's name (what ``--link NAME=URL`` addresses)."""
+        line = node.start_mark.line + 1
+        if name in self.names:
+            self.at_line(
+                line,
+                f"two boards or host devices named {name!r} (the other is at line "
+                f"{self.names[name]}): --link {name}=URL could not tell them apart",
+            )
+        else:
+            self.names[name] = line
+
+
+class _BadValue(Exception):
+    """A value YAML cannot build (``!!float abc``): a problem at its line."""
+
+    def __init__(self, line: int, text: str) -> None:
+        super().__init__(text)
+        self.line = line
+
 
 def _value(node: yaml.Node) -> Any:
-    """The plain Python value of a node (safe YAML types only)."""
-    return yaml.SafeLoader("").construct_object(node, deep=True)
+    """The plain Python value of a node (safe YAML types only); :class:`_BadValue` if YAML
+    cannot build it."""
+    line = node.start_mark.line + 1
+    try:
+        return yaml.SafeLoader("").construct_object(node, deep=True)
+    except yaml.MarkedYAMLError as exc:  # an unknown tag, a bad !!binary...
+        mark = exc.problem_mark or exc.context_mark
+        line = mark.line + 1 if mark is not None else line
+        raise _BadValue(line, f"not valid here: {exc.problem or exc}") from exc
+    except (ValueError, TypeError, OverflowError) as exc:  # !!float abc, !!int x, ...
+        raise _BadValue(line, f"YAML cannot read this value: {exc}") from exc
 
 
 def _mapping(
@@ -106,7 +160,11 @@ def _mapping(
         if not isinstance(key_node, yaml.ScalarNode):
             problems.at(key_node, f"{what}: a key must be a name, not a list or a mapping")
             continue
-        key = str(_value(key_node))
+        try:
+            key = str(_value(key_node))
+        except _BadValue as exc:
+            problems.at_line(exc.line, f"{what}: {exc}")
+            continue
         if key in out:
             problems.at(key_node, f"{what}: {key!r} is given twice")
         out[key] = (key_node, value_node)
@@ -114,7 +172,7 @@ def _mapping(
 
 
 def _sequence(node: yaml.Node, what: str, problems: _Problems) -> list[yaml.Node]:
-    if isinstance(node, yaml.ScalarNode) and _value(node) is None:
+    if isinstance(node, yaml.ScalarNode) and node.tag == "tag:yaml.org,2002:null":
         return []
     if not isinstance(node, yaml.SequenceNode):
         problems.at(node, f"{what} must be a list (lines starting with '- ')")
@@ -191,7 +249,11 @@ def _settings(
                 settings[name] = field.default
             continue
         _key_node, value_node = given[name]
-        value, why = check_value(field, _value(value_node))
+        try:
+            value, why = check_value(field, _value(value_node))
+        except _BadValue as exc:
+            problems.at_line(exc.line, f"{what}: {name}: {exc}")
+            continue
         if why is not None:
             problems.at(value_node, f"{what}: {name}: {why}")
         settings[name] = value
@@ -210,7 +272,11 @@ def _string(
         if default is None:
             problems.at(node, f"{what}: missing {key!r}")
         return default
-    value = _value(items[key][1])
+    try:
+        value = _value(items[key][1])
+    except _BadValue as exc:
+        problems.at_line(exc.line, f"{what}: {key}: {exc}")
+        return default
     if not isinstance(value, str) or not value:
         problems.at(items[key][1], f"{what}: {key} must be a non-empty string, not {value!r}")
         return default
@@ -231,6 +297,9 @@ def _checked(
     node = items[key][1]
     try:
         return check(_value(node))
+    except _BadValue as exc:
+        problems.at_line(exc.line, f"{what}: {key}: {exc}")
+        return default
     except (HwBridgeError, ValueError, TypeError) as exc:
         problems.at(node, f"{what}: {key}: {exc}")
         return default
@@ -284,7 +353,11 @@ def _check_timeout(value: Any) -> float:
 def _plugin(type_node: yaml.Node, what: str, problems: _Problems) -> DevicePlugin | None:
     from hwbridge.robot.registry import get_device
 
-    name = _value(type_node)
+    try:
+        name = _value(type_node)
+    except _BadValue as exc:
+        problems.at_line(exc.line, f"{what}: type: {exc}")
+        return None
     if not isinstance(name, str):
         problems.at(type_node, f"{what}: type must be a device type name, not {name!r}")
         return None
@@ -343,8 +416,10 @@ def _board(entry: yaml.Node, index: int, problems: _Problems) -> RobotBoardConfi
         return None
     _unknown_keys(items, _BOARD_KEYS, what, problems)
     name = _string(items, "name", what, problems, entry)
-    if name is not None and not _NAME.match(name):
-        problems.at(items["name"][1], f"{what}: name {name!r} must be letters, digits and _")
+    if name is not None:
+        if not _NAME.match(name):
+            problems.at(items["name"][1], f"{what}: name {name!r} must be letters, digits and _")
+        problems.unique(name, items["name"][1])
     what = f"board {name or index + 1}"
     baud = _checked(items, "baud", _check_baud, what, problems, None)
     link = _checked(items, "link", lambda url: _check_link(url, baud), what, problems, None)
@@ -378,8 +453,10 @@ def _host_device(entry: yaml.Node, index: int, problems: _Problems) -> HostDevic
     if plugin is None:
         return None
     name = _string(items, "name", what, problems, entry)
-    if name is not None and not _NAME.match(name):
-        problems.at(items["name"][1], f"{what}: name {name!r} must be letters, digits and _")
+    if name is not None:
+        if not _NAME.match(name):
+            problems.at(items["name"][1], f"{what}: name {name!r} must be letters, digits and _")
+        problems.unique(name, items["name"][1])
     what = f"host device {name or index + 1} ({plugin.type})"
     if plugin.where != "host":
         problems.at(
@@ -407,6 +484,8 @@ def parse_robot(text: str, path: str = "<robot>") -> Robot:
         mark = exc.problem_mark or exc.context_mark
         line = mark.line + 1 if mark is not None else 1
         raise RobotFileError([f"{path}:{line}: not valid here: {exc.problem or exc}"]) from exc
+    except _BadValue as exc:  # one that no check above caught
+        raise RobotFileError([f"{path}:{exc.line}: {exc}"]) from exc
 
 
 def _parse_robot(text: str, path: str) -> Robot:
@@ -428,7 +507,11 @@ def _parse_robot(text: str, path: str) -> Robot:
     name = _string(top, "robot", "the robot file", problems, root) or ""
     world: dict[str, Any] = {}
     if "world" in top:
-        value = _value(top["world"][1])
+        try:
+            value = _value(top["world"][1])
+        except _BadValue as exc:
+            problems.at_line(exc.line, f"world: {exc}")
+            value = None
         if isinstance(value, dict):
             world = value
         elif value is not None:
@@ -449,17 +532,6 @@ def _parse_robot(text: str, path: str) -> Robot:
         )
         if (host := _host_device(entry, index, problems)) is not None
     ]
-    seen: dict[str, str] = {}
-    for source, item in [(b.source, b.name) for b in boards] + [
-        (h.source, h.device.name) for h in hosts
-    ]:
-        if item in seen:
-            line = int(source.rsplit(":", 1)[1])
-            problems.lines.append(
-                f"{path}:{line}: two boards or host devices named {item!r} "
-                f"(the other is at line {seen[item].rsplit(':', 1)[1]})"
-            )
-        seen[item] = source
     if not boards and not hosts and not problems.lines:
         problems.at(root, "the robot has no boards and no host_devices")
     if problems.lines:
@@ -478,7 +550,12 @@ def device_config(entry: dict[str, Any], source: str = "<device>") -> DeviceConf
     problems: list[str] = []
     fields = {f.name: f for f in plugin.fields}
     for key in sorted(set(settings) - set(fields)):
-        problems.append(f"{source}: {plugin.type}: unknown setting {key!r}")
+        close = difflib.get_close_matches(key, list(fields), n=1)
+        hint = f" (did you mean {close[0]!r}?)" if close else ""
+        problems.append(
+            f"{source}: {plugin.type}: unknown setting {key!r}{hint}; known: "
+            + (", ".join(fields) or "none")
+        )
     checked: dict[str, Any] = {}
     for field in plugin.fields:
         if field.name not in settings:

@@ -51,6 +51,12 @@ class NamedRegistry(Generic[T]):
             self._registered[name] = target
             self._resolved.pop(name, None)
 
+    def unregister(self, name: str) -> None:
+        """Forget what :meth:`register` gave ``name`` (built-ins and entry points stay)."""
+        with self._lock:
+            self._registered.pop(name, None)
+            self._resolved.pop(name, None)
+
     def _plugins(self, refresh: bool = False) -> dict[str, EntryPoint]:
         with self._lock:
             if self._entry_points is None or refresh:

@@ -19,6 +19,7 @@ __all__ = [
     "get_device",
     "refresh",
     "register_device",
+    "unregister_device",
 ]
 
 ENTRY_POINT_GROUP: Final = "hwbridge.devices"
@@ -62,6 +63,11 @@ def register_device(
     if not key:
         raise ValueError("a device given as 'module:attr' needs a name")
     _REGISTRY.register(key, plugin)
+
+
+def unregister_device(name: str) -> None:
+    """Forget a device type given by :func:`register_device` (tests, applications)."""
+    _REGISTRY.unregister(name)
 
 
 def refresh() -> None:

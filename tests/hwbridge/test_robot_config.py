@@ -184,24 +184,15 @@ class FakeBus(DevicePlugin):
 
 
 @pytest.fixture
-def fakes(monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
-    """fake_sensor, fake_bus and fake_broken (a plugin that fails to import), in a fresh
-    device registry that the test leaves behind."""
-    from hwbridge.protocols.plugins import NamedRegistry
-
-    fresh = NamedRegistry(
-        "device type",
-        registry.ENTRY_POINT_GROUP,
-        registry.BUILTIN_DEVICES,
-        registry._plugin,  # the registry's own check of what a name loads
-        registry.UnknownDeviceError,
-    )
-    monkeypatch.setattr(registry, "_REGISTRY", fresh)
+def fakes() -> Iterator[None]:
+    """fake_sensor, fake_bus and fake_broken (a plugin that fails to import), registered for
+    the test and forgotten after it."""
     registry.register_device(FakeSensor)
     registry.register_device(FakeBus())
     registry.register_device("hwbridge_no_such_module_xyz:Plugin", "fake_broken")
     yield
-    registry.refresh()
+    for name in ("fake_sensor", "fake_bus", "fake_broken"):
+        registry.unregister_device(name)
 
 
 def write(tmp_path: Path, text: str) -> Path:

@@ -1,0 +1,137 @@
+// The frame encoder (PROTOCOL.md 1.3-1.5): a frame to COBS wire bytes and the delimiter,
+// streamed to a sink without a second buffer, with the leading-0x00 rule.
+#ifndef HWBRIDGE_ENCODER_H
+#define HWBRIDGE_ENCODER_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "cobs.h"
+#include "crc16.h"
+#include "frame.h"
+
+namespace hwbridge {
+
+/** What a frame is, without its payload. */
+struct FrameHeader {
+  FrameType type;
+  Frag frag;
+  uint8_t channel;
+  uint8_t seq;
+};
+
+/**
+ * A frame body seen as one run of bytes without copying it: header, a payload in up to two
+ * pieces (a FIRST fragment's length prefix and its chunk), and the CRC.
+ */
+class BodyView {
+ public:
+  BodyView(const FrameHeader& h, const uint8_t* p1, size_t n1, const uint8_t* p2, size_t n2)
+      : p1_(p1), p2_(p2), n1_(n1), n2_(n2) {
+    head_[0] = header_byte0(h.type, h.frag);
+    head_[1] = h.channel;
+    head_[2] = h.seq;
+    size = kEnvelope + n1 + n2;
+    uint16_t crc = crc16(head_, kHeaderSize);
+    crc = crc16(p1, n1, crc);
+    crc = crc16(p2, n2, crc);
+    crc_[0] = static_cast<uint8_t>(crc);
+    crc_[1] = static_cast<uint8_t>(crc >> 8);
+  }
+  uint8_t at(size_t i) const {
+    if (i < kHeaderSize) return head_[i];
+    i -= kHeaderSize;
+    if (i < n1_) return p1_[i];
+    i -= n1_;
+    if (i < n2_) return p2_[i];
+    return crc_[i - n2_];
+  }
+  uint16_t crc() const { return static_cast<uint16_t>(crc_[0] | crc_[1] << 8); }
+
+  size_t size;  ///< body bytes
+
+ private:
+  const uint8_t* p1_;
+  const uint8_t* p2_;
+  size_t n1_;
+  size_t n2_;
+  uint8_t head_[kHeaderSize];
+  uint8_t crc_[kCrcSize];
+};
+
+/**
+ * Writes one frame to sink.put(uint8_t): an optional leading 0x00, COBS(body), the 0x00
+ * delimiter. The payload is p1 followed by p2 (either may be empty). Returns the bytes written.
+ * The caller keeps the payload within the peer's MTU; nothing here is bounded by a buffer.
+ */
+template <class Sink>
+size_t write_frame(Sink& sink, const FrameHeader& h, const uint8_t* p1, size_t n1,
+                   const uint8_t* p2 = nullptr, size_t n2 = 0, bool lead = false) {
+  BodyView body(h, p1, n1, p2, n2);
+  size_t n = 0;
+  if (lead) {
+    sink.put(0);
+    ++n;
+  }
+  n += cobs_encode_to(body, sink);
+  sink.put(0);
+  return n + 1;
+}
+
+/**
+ * Encodes one frame into out (room for cap bytes; max_wire_size(n) + 1 is always enough with
+ * a lead). Returns the wire length, or 0 when it does not fit: never writes at or past
+ * out + cap.
+ */
+inline size_t encode_frame(const FrameHeader& h, const uint8_t* payload, size_t n, uint8_t* out,
+                           size_t cap, bool lead = false) {
+  detail::BufferSink sink = {out, cap, 0, false};
+  write_frame(sink, h, payload, n, nullptr, 0, lead);
+  return sink.overflow ? 0 : sink.len;
+}
+
+/**
+ * Encodes a frame for a datagram link (1.13): header + payload + CRC, no COBS, no delimiter.
+ * Returns the length, or 0 when it does not fit in cap bytes.
+ */
+inline size_t encode_datagram(const FrameHeader& h, const uint8_t* payload, size_t n, uint8_t* out,
+                              size_t cap) {
+  if (cap < kEnvelope || n > cap - kEnvelope) return 0;
+  BodyView body(h, payload, n, nullptr, 0);
+  for (size_t i = 0; i < body.size; ++i) out[i] = body.at(i);
+  return body.size;
+}
+
+/**
+ * The leading-delimiter rule (1.3): a 0x00 before the first frame after the link opens (or the
+ * board restarts), and before a frame sent after the line was idle for kIdleMicros.
+ */
+class LeadTracker {
+ public:
+  static const uint32_t kIdleMicros = 100000UL;  ///< 0.1 s (2.11)
+
+  LeadTracker() : last_(0), fresh_(true) {}
+  /** The link (re)opened: the next frame gets a lead. */
+  void reset() { fresh_ = true; }
+  /** Whether a frame sent at now_us needs a leading 0x00; records the send. */
+  bool lead(uint32_t now_us) {
+    const bool need = fresh_ || static_cast<uint32_t>(now_us - last_) >= kIdleMicros;
+    fresh_ = false;
+    last_ = now_us;
+    return need;
+  }
+
+ private:
+  uint32_t last_;
+  bool fresh_;
+};
+
+/** A sink that counts bytes: write_frame(counter, ...) measures a frame without sending it. */
+struct CountingSink {
+  size_t count;
+  void put(uint8_t) { ++count; }
+};
+
+}  // namespace hwbridge
+
+#endif  // HWBRIDGE_ENCODER_H

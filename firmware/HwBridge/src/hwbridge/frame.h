@@ -1,0 +1,113 @@
+// Frames of the native protocol (PROTOCOL.md 1.4-1.7): the 3-byte header, the frame types and
+// fragment bits, the check of one decoded body, and the sizes.
+#ifndef HWBRIDGE_FRAME_H
+#define HWBRIDGE_FRAME_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "cobs.h"
+#include "crc16.h"
+
+namespace hwbridge {
+
+/** Protocol version carried in bits 7-6 of header byte 0. */
+static const uint8_t kVersion = 1;
+static const size_t kHeaderSize = 3;
+static const size_t kCrcSize = 2;
+/** Header + CRC: the smallest body (an empty payload). */
+static const size_t kEnvelope = kHeaderSize + kCrcSize;
+/** Bytes of the uint32 message length at the start of a FIRST fragment's payload. */
+static const size_t kLengthPrefix = 4;
+/** Smallest payload MTU that fragmentation works with (one data byte per FIRST). */
+static const size_t kMinFragmentPayload = kLengthPrefix + 1;
+/** Channel of every ACK frame, and of control messages. */
+static const uint8_t kControlChannel = 0;
+
+/** Header bits 5-4. The value 3 is reserved (a bad frame). */
+enum class FrameType : uint8_t { BestEffort = 0, Reliable = 1, Ack = 2 };
+
+/** Header bits 3-2: where a frame's payload sits in its message. */
+enum class Frag : uint8_t { Whole = 0, First = 1, Middle = 2, Last = 3 };
+
+/** Result of checking one run or body; Ok for a frame (PROTOCOL.md 1.6, 1.12). */
+enum class FrameError : uint8_t {
+  Ok = 0,
+  Crc,           ///< COBS decoded, but the CRC does not match
+  Cobs,          ///< a COBS code points past the end of the run
+  TooShort,      ///< a body shorter than 5 bytes
+  Version,       ///< a CRC-valid frame of another protocol version
+  ReservedType,  ///< a CRC-valid version-1 frame of the reserved type 3
+  Oversize,      ///< a run longer than max_frame, or a payload above the MTU
+  Text,          ///< non-frame bytes that look like text (a board's debug print)
+};
+
+/** One frame. The payload is a view: valid as long as the memory it points into. */
+struct Frame {
+  FrameType type;
+  Frag frag;
+  uint8_t channel;
+  uint8_t seq;  ///< for an ACK, the acknowledged RELIABLE sequence number
+  const uint8_t* payload;
+  size_t size;
+};
+
+/** Header byte 0 of a frame: 0x40 | type << 4 | frag << 2. */
+inline constexpr uint8_t header_byte0(FrameType type, Frag frag) {
+  return static_cast<uint8_t>(kVersion << 6 | static_cast<uint8_t>(type) << 4 |
+                              static_cast<uint8_t>(frag) << 2);
+}
+
+/** Largest body for a payload MTU: header + payload + CRC. */
+inline constexpr size_t max_body(size_t max_payload) { return max_payload + kEnvelope; }
+
+/** Longest run between delimiters a decoder with this payload MTU accepts (max_frame, 1.6). */
+inline constexpr size_t max_frame(size_t max_payload) {
+  return cobs_max_encoded(max_body(max_payload));
+}
+
+/** Most wire bytes of a frame with n payload bytes (delimiter included, no leading 0x00). */
+inline constexpr size_t max_wire_size(size_t n) { return max_frame(n) + 1; }
+
+/**
+ * Checks one decoded body (header, payload, CRC; steps 4-9 of PROTOCOL.md 1.6) and, when it is
+ * a frame, fills *out (its payload points into body). This is also the whole check of a
+ * datagram (1.13).
+ */
+inline FrameError parse_body(const uint8_t* body, size_t n, size_t max_payload, Frame* out) {
+  if (n < kEnvelope) return FrameError::TooShort;
+  const uint16_t sent = static_cast<uint16_t>(body[n - 2] | body[n - 1] << 8);
+  if (crc16(body, n - kCrcSize) != sent) return FrameError::Crc;
+  const uint8_t byte0 = body[0];
+  if (byte0 >> 6 != kVersion) return FrameError::Version;
+  const uint8_t type = (byte0 >> 4) & 3;
+  if (type == 3) return FrameError::ReservedType;
+  const size_t size = n - kEnvelope;
+  if (size > max_payload) return FrameError::Oversize;
+  out->type = static_cast<FrameType>(type);
+  out->frag = static_cast<Frag>((byte0 >> 2) & 3);
+  out->channel = body[1];
+  out->seq = body[2];
+  out->payload = body + kHeaderSize;
+  out->size = size;
+  return FrameError::Ok;
+}
+
+/** The name PROTOCOL.md and the golden vectors give a result ("crc", "cobs", ...). */
+inline const char* frame_error_name(FrameError e) {
+  switch (e) {
+    case FrameError::Ok: return "ok";
+    case FrameError::Crc: return "crc";
+    case FrameError::Cobs: return "cobs";
+    case FrameError::TooShort: return "too_short";
+    case FrameError::Version: return "version";
+    case FrameError::ReservedType: return "reserved_type";
+    case FrameError::Oversize: return "oversize";
+    case FrameError::Text: return "text";
+  }
+  return "?";
+}
+
+}  // namespace hwbridge
+
+#endif  // HWBRIDGE_FRAME_H

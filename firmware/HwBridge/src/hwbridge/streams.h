@@ -432,7 +432,10 @@ class ReliableReceiver {
     ack_every_ = window_ >= 4 ? static_cast<uint8_t>(window_ / 2) : 1;
     ack_needed_ = ack_urgent_ = false;
     unacked_ = 0;
-    for (size_t i = 0; i < kSlots; ++i) held_[i].used = false;
+    for (size_t i = 0; i < kSlots; ++i) {
+      held_[i].used = false;
+      held_[i].seq = 0;
+    }
   }
 
   /** Takes one RELIABLE frame. On Deliver, expected() has moved past it. */
@@ -501,7 +504,7 @@ class ReliableReceiver {
   /** Frames held early. */
   uint8_t held() const {
     uint8_t n = 0;
-    for (size_t i = 0; i < kSlots; ++i) n = static_cast<uint8_t>(n + (held_[i].used ? 1 : 0));
+    for (size_t i = 0; i < Hold; ++i) n = static_cast<uint8_t>(n + (held_[i].used ? 1 : 0));
     return n;
   }
 
@@ -515,7 +518,7 @@ class ReliableReceiver {
     unacked_ = 0;
     ++stats_.acks_sent;
     size_t len = 0;
-    for (size_t i = 0; i < kSlots; ++i) {
+    for (size_t i = 0; i < Hold; ++i) {
       if (!held_[i].used) continue;
       const uint8_t bit = static_cast<uint8_t>(seq_diff(held_[i].seq, expected_) - 1);
       const size_t byte = bit / 8u;

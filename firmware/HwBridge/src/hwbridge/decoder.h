@@ -49,7 +49,7 @@ class FrameDecoder {
   static const size_t kCapacity = max_frame(MaxPayload);
 
   FrameDecoder()
-      : stats_(), len_(0), limit_(kCapacity), max_payload_(MaxPayload), total_(0), printable_(0),
+      : frame_(), stats_(), len_(0), limit_(kCapacity), max_payload_(MaxPayload), total_(0), printable_(0),
         overflow_(false), error_(FrameError::Ok), peer_version_(0) {
     frame_.type = FrameType::BestEffort;
     frame_.frag = Frag::Whole;
@@ -149,7 +149,6 @@ class FrameDecoder {
     overflow_ = false;
   }
 
-  uint8_t buf_[kCapacity];
   Frame frame_;
   DecoderStats stats_;
   size_t len_;
@@ -160,6 +159,7 @@ class FrameDecoder {
   bool overflow_;
   FrameError error_;
   uint8_t peer_version_;
+  uint8_t buf_[kCapacity];  // last: the fuzz tests' guards sit right after it
 };
 
 template <size_t MaxPayload, bool DetectText>

@@ -296,12 +296,12 @@ class Reassembler {
     return true;
   }
 
-  uint8_t buf_[MaxMessage ? MaxMessage : 1];
   Space spaces_[2];
   ReassemblyStats stats_;
   size_t total_;
   size_t held_;
   uint8_t owner_;  // space (0 best effort, 1 reliable) whose partial message is held, or kNone
+  uint8_t buf_[MaxMessage ? MaxMessage : 1];  // last: the fuzz tests' guards sit right after it
 };
 
 }  // namespace hwbridge

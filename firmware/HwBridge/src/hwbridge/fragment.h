@@ -129,7 +129,8 @@ struct Message {
  * space abandons a partial message of the other (counted as a dropped partial); frames of a
  * space are otherwise handled on their own. Feed frames in arrival order (RELIABLE ones in the
  * order the reliable receiver delivers them). WHOLE frames need no buffer: a Reassembler<0>
- * delivers them and refuses every fragmented message as oversize. A message is returned only
+ * delivers them and refuses every fragmented message as oversize (without counting its other
+ * fragments as orphans), in little code. A message is returned only
  * when exactly its announced length arrived in consecutive fragments; memory never grows.
  */
 template <size_t MaxMessage>
@@ -173,6 +174,13 @@ class Reassembler {
     if (sp.has_last && sp.last_seq == f.seq && sp.last_channel == f.channel &&
         sp.last_frag == f.frag && sp.last_size == f.size && sp.last_crc == crc) {
       ++stats_.duplicates;
+      return false;
+    }
+    if (MaxMessage == 0 && f.frag != Frag::Whole) {
+      // No buffer: a FIRST refuses its message (it cannot be held), and the MIDDLE and LAST
+      // frames after it are dropped without being counted again.
+      if (f.frag == Frag::First) ++stats_.oversize;
+      sp.has_last = false;
       return false;
     }
     switch (f.frag) {

@@ -1,0 +1,196 @@
+"""The C++ library's framing and stream layers (``firmware/HwBridge``), built and run host-native.
+
+Every program is built into pytest's temporary directory with ``g++ -std=c++11 -Wall -Wextra
+-Werror -O1``, once plain and once under ASan and UBSan (``-fsanitize=address,undefined
+-fno-sanitize-recover=all``): ``test_vectors`` (every vector of
+``protocols/vectors/native_frames.json``, fed on stdin, plus unit checks and a pty/TCP loopback
+of the POSIX ``Hardware``), ``test_streams`` (the reliable stream over a seeded lossy,
+duplicating, reordering link) and ``fuzz_decoder`` (a seeded, time-bounded fuzz run). The
+headers are also compiled one by one, and for the ATmega328P with ``avr-g++`` when it is on PATH.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import re
+import shutil
+import subprocess
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+LIBRARY = ROOT / "firmware" / "HwBridge"
+INCLUDE = LIBRARY / "src"
+TESTS = ROOT / "firmware" / "tests"
+HEADERS = sorted(p.relative_to(INCLUDE).as_posix() for p in INCLUDE.rglob("*.h"))
+HOST_ONLY = {"hwbridge/hardware_posix.h"}
+
+CXXFLAGS = ["-std=c++11", "-Wall", "-Wextra", "-Werror", "-O1"]
+SANITIZE = ["-fsanitize=address,undefined", "-fno-sanitize-recover=all"]
+AVRFLAGS = [
+    "-mmcu=atmega328p",
+    "-std=gnu++11",
+    "-Os",
+    "-Wall",
+    "-Wextra",
+    "-Werror",
+    "-fno-exceptions",
+    "-fno-rtti",
+]
+FUZZ_SECONDS = 3
+
+needs_gxx = pytest.mark.skipif(
+    shutil.which("g++") is None, reason="g++ is not installed (Debian package g++)"
+)
+needs_avr = pytest.mark.skipif(
+    shutil.which("avr-g++") is None,
+    reason="avr-g++ is not installed (Debian packages gcc-avr avr-libc binutils-avr)",
+)
+
+Builder = Callable[[str], Path]
+
+
+def _vector_lines() -> str:
+    spec = importlib.util.spec_from_file_location("firmware_vectors", TESTS / "vectors.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    lines: list[str] = module.lines(ROOT)
+    return "".join(line + "\n" for line in lines)
+
+
+def _compile(command: list[str]) -> None:
+    result = subprocess.run(command, check=False, capture_output=True, text=True, timeout=300)
+    if result.returncode != 0:
+        pytest.fail(f"{' '.join(command)} failed:\n{result.stderr}", pytrace=False)
+
+
+def _run(command: list[str], stdin: str = "", timeout: float = 120) -> str:
+    result = subprocess.run(
+        command, check=False, input=stdin, capture_output=True, text=True, timeout=timeout
+    )
+    if result.returncode != 0:
+        pytest.fail(
+            f"{' '.join(command)} exited with {result.returncode}:\n{result.stderr}{result.stdout}",
+            pytrace=False,
+        )
+    assert "runtime error" not in result.stderr, result.stderr  # UBSan, in case it recovered
+    return result.stdout
+
+
+@pytest.fixture(scope="module", params=["plain", "sanitized"])
+def build(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> Builder:
+    """Builds ``firmware/tests/NAME.cpp`` once per variant into a temporary directory."""
+    if shutil.which("g++") is None:
+        pytest.skip("g++ is not installed (Debian package g++)")
+    out = tmp_path_factory.mktemp(f"cpp_{request.param}")
+    flags = CXXFLAGS + (SANITIZE if request.param == "sanitized" else [])
+    built: dict[str, Path] = {}
+
+    def make(name: str) -> Path:
+        if name not in built:
+            exe = out / name
+            _compile(["g++", *flags, f"-I{INCLUDE}", str(TESTS / f"{name}.cpp"), "-o", str(exe)])
+            built[name] = exe
+        return built[name]
+
+    return make
+
+
+def test_every_golden_vector(build: Builder) -> None:
+    out = _run([str(build("test_vectors"))], stdin=_vector_lines())
+    match = re.search(r"ok: (\d+) vectors", out)
+    assert match, out
+    assert int(match.group(1)) == len(_vector_lines().splitlines())
+
+
+def test_a_wrong_vector_fails_with_its_name(build: Builder, tmp_path: Path) -> None:
+    lines = _vector_lines().splitlines()
+    first = lines[0].split(" ")
+    first[2] = first[2][:-4] + ("ff" if first[2][-4:-2] != "ff" else "fe") + "00"
+    result = subprocess.run(
+        [str(build("test_vectors")), "--no-posix"],
+        check=False,
+        input=" ".join(first) + "\n",
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert result.returncode == 1
+    assert f"FAIL: {first[1]}: encoded" in result.stderr
+
+
+def test_reliable_stream_over_a_lossy_link(build: Builder) -> None:
+    out = _run([str(build("test_streams")), "1"])
+    assert "ok:" in out
+    assert "retransmits 0 " not in out.split("window 1:")[1].splitlines()[0]
+
+
+def test_fuzz_decoder_bounded(build: Builder) -> None:
+    out = _run([str(build("fuzz_decoder")), "1", str(FUZZ_SECONDS)], timeout=FUZZ_SECONDS + 60)
+    match = re.search(r"ok: seed 1, (\d+) inputs", out)
+    assert match and int(match.group(1)) > 1000, out
+
+
+@needs_gxx
+@pytest.mark.parametrize("header", HEADERS)
+def test_each_header_compiles_alone(header: str, tmp_path: Path) -> None:
+    source = tmp_path / "one.cpp"
+    source.write_text(f'#include "{header}"\n#include "{header}"\nint main() {{ return 0; }}\n')
+    _compile(["g++", *CXXFLAGS, "-Wshadow", "-fsyntax-only", f"-I{INCLUDE}", str(source)])
+
+
+@needs_avr
+@pytest.mark.parametrize("header", [h for h in HEADERS if h not in HOST_ONLY])
+def test_each_header_compiles_for_avr(header: str, tmp_path: Path) -> None:
+    source = tmp_path / "one.cpp"
+    source.write_text(f'#include "{header}"\nint main() {{ return 0; }}\n')
+    _compile(["avr-g++", *AVRFLAGS, "-fsyntax-only", f"-I{INCLUDE}", str(source)])
+
+
+@needs_avr
+@pytest.mark.parametrize("profile", ["hello", "comfortable"])
+def test_avr_build_uses_no_heap(profile: str, tmp_path: Path) -> None:
+    """Every template instantiated for the ATmega328P; no malloc/new in the image; RAM as set."""
+    elf = tmp_path / "avr_core.elf"
+    define = ["-DPROFILE_COMFORTABLE"] if profile == "comfortable" else []
+    source = TESTS / "avr_core.cpp"
+    _compile(["avr-g++", *AVRFLAGS, "-flto", *define, f"-I{INCLUDE}", str(source), "-o", str(elf)])
+    symbols = subprocess.run(["avr-nm", str(elf)], capture_output=True, text=True, check=True)
+    assert not re.search(r"\b(malloc|free|_Znw\w*|_Zdl\w*|realloc)\b", symbols.stdout)
+    size = subprocess.run(["avr-size", str(elf)], capture_output=True, text=True, check=True)
+    text, data, bss = (int(v) for v in size.stdout.splitlines()[1].split()[:3])
+    # Receive run buffer 70 + retransmission slots (window x (MTU + 9)) + reassembly buffer +
+    # state: within PROTOCOL.md 2.13's protocol budget (307 B hello world, 570 B comfortable)
+    # plus the 20-30 bytes of counters and state this layer keeps beyond it.
+    assert data + bss <= (340 if profile == "hello" else 620), size.stdout
+    assert text < 8192, size.stdout
+
+
+def test_library_sources_allocate_nothing() -> None:
+    """No heap, no exceptions, no RTTI, no STL in the library (the tests may use them)."""
+    forbidden = re.compile(
+        r"\bnew\b|\bdelete\b|\bmalloc\b|\bcalloc\b|\brealloc\b|\bfree\s*\(|\bthrow\b|\btry\b"
+        r"|\bcatch\b|dynamic_cast|typeid|std::|#include\s*<(?!(stddef|stdint|string|stdlib"
+        r"|errno|fcntl|netdb|termios|time|unistd|util/crc16)\.h>|(netinet|sys)/)"
+    )
+    for path in sorted(INCLUDE.rglob("*.h")):
+        code = re.sub(r"//[^\n]*|/\*.*?\*/", "", path.read_text(), flags=re.S)
+        hits = [m.group(0) for m in forbidden.finditer(code)]
+        assert not hits, f"{path.relative_to(ROOT)}: {hits}"
+
+
+def test_library_properties() -> None:
+    fields = dict(
+        line.split("=", 1)
+        for line in (LIBRARY / "library.properties").read_text().splitlines()
+        if "=" in line
+    )
+    assert fields["name"] == "HwBridge"
+    assert fields["category"] == "Communication"
+    assert fields["architectures"] == "*"
+    for key in ("version", "author", "sentence", "paragraph", "url"):
+        assert fields.get(key), key
+    assert re.fullmatch(r"\d+\.\d+\.\d+", fields["version"])

@@ -5,13 +5,15 @@ Every program is built into pytest's temporary directory with ``g++ -std=c++11 -
 -fno-sanitize-recover=all``): ``test_vectors`` (every vector of
 ``protocols/vectors/native_frames.json``, fed on stdin, plus unit checks and a pty/TCP loopback
 of the POSIX ``Hardware``), ``test_streams`` (the reliable stream over a seeded lossy,
-duplicating, reordering link) and ``fuzz_decoder`` (a seeded, time-bounded fuzz run). The
+duplicating, reordering link) and ``fuzz_decoder`` (a seeded, time-bounded fuzz run; also as a
+libFuzzer target when clang++ with its fuzzer runtime is installed). The
 headers are also compiled one by one, and for the ATmega328P with ``avr-g++`` when it is on PATH.
 """
 
 from __future__ import annotations
 
 import importlib.util
+import json
 import re
 import shutil
 import subprocess
@@ -132,6 +134,47 @@ def test_fuzz_decoder_bounded(build: Builder) -> None:
     out = _run([str(build("fuzz_decoder")), "1", str(FUZZ_SECONDS)], timeout=FUZZ_SECONDS + 60)
     match = re.search(r"ok: seed 1, (\d+) inputs", out)
     assert match and int(match.group(1)) > 1000, out
+
+
+def _clang() -> str | None:
+    return next((c for c in ("clang++", "clang++-14") if shutil.which(c)), None)
+
+
+def test_libfuzzer_bounded(tmp_path: Path) -> None:
+    """The same fuzz target under libFuzzer, from a corpus of the golden vectors' wire bytes."""
+    clang = _clang()
+    if clang is None:
+        pytest.skip("clang++ is not installed (Debian packages clang-14 libclang-rt-14-dev)")
+    exe = tmp_path / "fuzz_libfuzzer"
+    flags = [*CXXFLAGS, "-DHWBRIDGE_LIBFUZZER", "-fsanitize=fuzzer,address,undefined"]
+    source = TESTS / "fuzz_decoder.cpp"
+    probe = subprocess.run(
+        [clang, *flags, "-fno-sanitize-recover=all", f"-I{INCLUDE}", str(source), "-o", str(exe)],
+        check=False,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    if probe.returncode != 0 and "fuzzer" in probe.stderr and "cannot find" in probe.stderr:
+        pytest.skip(f"{clang} has no libFuzzer runtime (Debian package libclang-rt-14-dev)")
+    assert probe.returncode == 0, probe.stderr
+    corpus = tmp_path / "corpus"
+    corpus.mkdir()
+    frames = json.loads((ROOT / "protocols/vectors/native_frames.json").read_text())
+    runs = [v["hex"] for key in ("vectors", "decode_only", "bad") for v in frames[key]]
+    runs += ["".join(v["frames_hex"]) for v in frames["fragmentation"]]
+    for index, wire in enumerate(runs):
+        (corpus / f"v{index}").write_bytes(bytes.fromhex(wire))
+    result = subprocess.run(
+        [str(exe), f"-max_total_time={FUZZ_SECONDS}", "-seed=1", str(corpus)],
+        check=False,
+        capture_output=True,
+        text=True,
+        timeout=FUZZ_SECONDS + 120,
+        cwd=tmp_path,  # crash files, if any, land here
+    )
+    assert result.returncode == 0, result.stderr[-4000:]
+    assert re.search(r"Done \d+ runs", result.stderr), result.stderr[-2000:]
 
 
 @needs_gxx

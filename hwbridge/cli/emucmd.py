@@ -5,6 +5,7 @@ from __future__ import annotations
 import signal
 import sys
 import threading
+from pathlib import Path
 from types import FrameType
 from typing import Annotated
 
@@ -111,10 +112,26 @@ def demo(
         bool,
         typer.Option("--keep", help="Keep board and bridge running afterwards for other tools."),
     ] = False,
+    plot: Annotated[
+        Path | None,
+        typer.Option(
+            "--plot",
+            dir_okay=False,
+            help="SVG file for the driven path against the ground truth (default: "
+            "hwbridge-demo-SEED.svg in the temporary folder; the path is printed).",
+        ),
+    ] = None,
+    no_plot: Annotated[bool, typer.Option("--no-plot", help="Write no path plot.")] = False,
 ) -> None:
     """Drive an emulated diffbot through the real bridge and show what the graph sees."""
     from hwbridge.emulator.demo import run_demo
 
     options = ctx.find_root().obj
     endpoint = options.endpoint if isinstance(options, Context) else None
-    run_demo(duration=duration, seed=seed, endpoint=endpoint, keep=keep)
+    if plot is None:
+        import tempfile
+
+        plot = Path(tempfile.gettempdir()) / f"hwbridge-demo-{seed}.svg"
+    run_demo(
+        duration=duration, seed=seed, endpoint=endpoint, keep=keep, plot=None if no_plot else plot
+    )

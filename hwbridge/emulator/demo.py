@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 from rich.console import Console
@@ -26,6 +27,7 @@ from hwbridge.graph import Graph, GraphConfig
 from hwbridge.links import open_link
 from hwbridge.robot.config import load_robot
 from hwbridge.robot.runtime import RobotRuntime
+from hwbridge.viz.pathplot import PathPlot, write_svg
 
 __all__ = ["DemoResult", "run_demo"]
 
@@ -81,8 +83,10 @@ def run_demo(
     endpoint: str | None = None,
     keep: bool = False,
     console: Console | None = None,
+    plot: Path | None = None,
 ) -> DemoResult:
-    """Run the demo; returns its result (after Ctrl-C too)."""
+    """Run the demo; returns its result (after Ctrl-C too). With ``plot``, the driven path
+    (odometry) and the ground truth are drawn into that SVG file before the summary's last line."""
     out = console or Console(stderr=False)
     robot = load_robot(ROBOT_FILE)
     namespace = robot.board(BOARD).namespace
@@ -113,6 +117,12 @@ def run_demo(
         )
         _wait_connected(runtime, 20.0)
         driver = _Driver()
+        world = board.world.config
+        path_plot = PathPlot(
+            room=world.room,
+            obstacles=world.obstacles,
+            title=f"hwbridge demo: {robot.name}, odometry against ground truth (seed {seed})",
+        )
         started = time.monotonic()
         try:
             with Live(
@@ -126,10 +136,12 @@ def run_demo(
                     cmd_vel.publish({"linear": {"x": v}, "angular": {"z": w}})
                     pan_goal.publish({"data": 0.8 * math.sin(elapsed * 0.5)})
                     live.update(_table(board, seen, namespace, elapsed))
+                    _sample(path_plot, board, seen["odom"])
                     time.sleep(0.1)
             out.print()
             cmd_vel.publish({})
             time.sleep(0.8)  # the robot stops; the last ticks arrive
+            _sample(path_plot, board, seen["odom"])
             if keep:
                 out.print(
                     "The board and bridge keep running: try 'hwbridge topic list' in another "
@@ -144,6 +156,13 @@ def run_demo(
             f"drove {result.distance:.2f} m in {board.world.time:.1f} s of board time; "
             f"{board.published} board messages; link: {_link_summary(runtime)}"
         )
+        if plot is not None:
+            path_plot.notes.append(
+                f"drove {result.distance:.2f} m; final odometry error {result.error:.3f} m "
+                f"({result.error_percent:.3f}%)"
+            )
+            written = write_svg(path_plot, plot)
+            out.print(f"path plot: {written}", soft_wrap=True, highlight=False, markup=False)
         out.print(f"odometry error: {result.error_percent:.3f}% of {result.distance:.2f} m")
         return result
     finally:
@@ -161,6 +180,15 @@ def _wait_connected(runtime: RobotRuntime, timeout: float) -> None:
         if time.monotonic() > deadline:
             raise HwBridgeError(f"the virtual board did not connect (state {board.state})")
         time.sleep(0.05)
+
+
+def _sample(plot: PathPlot, board: VirtualBoard, odom: Any) -> None:
+    truth = board.world.pose
+    position = odom.pose.pose.position if odom is not None else None
+    plot.add(
+        (float(position.x), float(position.y)) if position is not None else None,
+        (truth.x, truth.y),
+    )
 
 
 def _result(board: VirtualBoard, odom: Any) -> DemoResult:

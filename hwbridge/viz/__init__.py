@@ -1,0 +1,1 @@
+"""Live views of the graph: the Foxglove WebSocket bridge (``hwbridge viz``) and plots."""

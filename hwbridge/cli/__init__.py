@@ -74,7 +74,7 @@ COMMANDS: dict[str, LazyCommand] = {
         _CLI + "upcmd:up",
         "Bring a robot up: its boards and every host node its devices need, until Ctrl-C.",
     ),
-    "robot": LazyCommand(_CLI + "robotcmd:robot_app", "Robot files: check, show, devices."),
+    "robot": LazyCommand(_CLI + "robotcmd:robot_app", "Robot files: check, show, devices, acl."),
     "board": LazyCommand(
         _CLI + "bridgecmd:board_app", "Boards of the running bridge: list, info, stats."
     ),

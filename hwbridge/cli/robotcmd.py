@@ -8,9 +8,11 @@ from typing import Annotated, Any
 
 import typer
 
+from hwbridge.cli.aclcmd import acl
+
 __all__ = ["robot_app"]
 
-robot_app = typer.Typer(help="Robot files: check, show, devices.", no_args_is_help=True)
+robot_app = typer.Typer(help="Robot files: check, show, devices, acl.", no_args_is_help=True)
 
 _FILE = Annotated[Path, typer.Argument(metavar="ROBOT.yaml", help="The robot file.")]
 
@@ -97,3 +99,6 @@ def devices() -> None:
             default = "required" if field.default is REQUIRED else f"default {field.default!r}"
             doc = f": {field.doc}" if field.doc else ""
             sys.stdout.write(f"    {field.name} ({default}){doc}\n")
+
+
+robot_app.command("acl")(acl)

@@ -58,6 +58,10 @@ class DiffDrivePlugin(DevicePlugin):
 
     type = "diffdrive"
     summary = "wheel encoders and motors: wheel_ticks -> odom and /tf, cmd_vel -> wheel_targets"
+    firmware = (
+        "hwbridge/drivers/quadrature.h: QuadratureEncoder; "
+        "hwbridge/drivers/motor.h: DiffDriveMotors"
+    )
     fields: ClassVar[tuple[Field, ...]] = (
         Field("ticks_topic", str, "wheel_ticks", "board topic of the counters"),
         Field("targets_topic", str, "wheel_targets", "board topic of the wheel speed targets"),
@@ -149,6 +153,7 @@ class HcSr04Plugin(DevicePlugin):
 
     type = "hcsr04"
     summary = "ultrasonic ranger: sonar_echo -> range (sensor_msgs/Range)"
+    firmware = "hwbridge/drivers/hcsr04.h: HcSr04"
     fields: ClassVar[tuple[Field, ...]] = (
         Field("topic", str, "sonar_echo", "board topic of the echo widths"),
         Field("range_topic", str, "range", "host topic of sensor_msgs/Range"),
@@ -201,6 +206,7 @@ class _MpuPlugin(DevicePlugin):
     (and ``mag`` for an MPU-9250 with its magnetometer)."""
 
     chip_value: ClassVar[int]
+    firmware = "hwbridge/drivers/mpu.h: Mpu"
     fields: ClassVar[tuple[Field, ...]] = (
         Field("topic", str, "imu_raw", "board topic of the raw registers"),
         Field("imu_topic", str, "imu", "host topic of sensor_msgs/Imu"),
@@ -303,6 +309,7 @@ class BoardServoPlugin(DevicePlugin):
 
     type = "dynamixel"
     summary = "a Dynamixel servo the board drives: joint_states, <joint>/goal_position"
+    firmware = "hwbridge/drivers/dynamixel.h: DynamixelBus"
     fields: ClassVar[tuple[Field, ...]] = (
         Field("joint", str, "pan", "joint name"),
         Field("id", int, 1, "servo id", minimum=0, maximum=252),

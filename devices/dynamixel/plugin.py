@@ -35,6 +35,8 @@ class DynamixelBusPlugin(DevicePlugin):
 
     type = "dynamixel_bus"
     summary = "Dynamixel servos on a host serial adapter (U2D2): joint_states, joint_command"
+    firmware = "hwbridge/drivers/dynamixel.h: DynamixelBus"
+    """The same bus driven by a board instead of the U2D2 (examples/DxlArm)."""
     where = "host"
     fields: ClassVar[tuple[Field, ...]] = (
         Field("joints", dict, doc="joint name: servo id, e.g. {shoulder: 1, elbow: 2}"),

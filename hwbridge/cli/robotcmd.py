@@ -95,6 +95,7 @@ def devices() -> None:
             sys.stdout.write(f"{name}: cannot be loaded: {type(exc).__name__}: {exc}\n")
             continue
         sys.stdout.write(f"{name} ({plugin.where}): {plugin.summary}\n")
+        sys.stdout.write(f"  firmware driver: {plugin.firmware or 'none'}\n")
         for field in plugin.fields:
             default = "required" if field.default is REQUIRED else f"default {field.default!r}"
             doc = f": {field.doc}" if field.doc else ""

@@ -153,7 +153,9 @@ class DevicePlugin(abc.ABC):
     where: ClassVar[Where] = "board"
     fields: ClassVar[tuple[Field, ...]] = ()
     firmware: ClassVar[str | None] = None
-    """The Arduino library's driver for this device (a class name), once there is one."""
+    """The Arduino library's driver for this device, once there is one: ``HEADER: Class``
+    pairs joined by ``; `` (headers under ``firmware/HwBridge/src``, classes in
+    ``hwbridge::drivers``), e.g. ``hwbridge/drivers/hcsr04.h: HcSr04``."""
 
     def emulate(self, settings: Mapping[str, Any], board: EmulatedBoard) -> None:  # noqa: B027
         """Add the device's model to a virtual board (board devices)."""

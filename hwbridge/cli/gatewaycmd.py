@@ -1,0 +1,181 @@
+"""``hwbridge ros2`` and ``hwbridge ros1``: gateways from the hwbridge graph into ROS graphs."""
+
+from __future__ import annotations
+
+import os
+import sys
+import threading
+from typing import Annotated
+
+import typer
+
+from hwbridge.cli.common import open_graph
+from hwbridge.errors import HwBridgeError
+
+__all__ = ["ros1", "ros2"]
+
+_REEXEC_GUARD = "HWBRIDGE_ROS2_ENV"
+
+TopicOption = Annotated[
+    list[str] | None,
+    typer.Option(
+        "--topic",
+        "-t",
+        metavar="PATTERN",
+        help="Mirror topics matching PATTERN (shell pattern, e.g. '/diffbot/*'); repeatable; "
+        "default all.",
+    ),
+]
+ExcludeOption = Annotated[
+    list[str] | None,
+    typer.Option(
+        "--exclude", "-x", metavar="PATTERN", help="Do not mirror matching names; repeatable."
+    ),
+]
+ServiceOption = Annotated[
+    list[str] | None,
+    typer.Option(
+        "--service",
+        "-s",
+        metavar="PATTERN",
+        help="Serve matching graph services in ROS; repeatable; default all.",
+    ),
+]
+RosServiceOption = Annotated[
+    list[str] | None,
+    typer.Option(
+        "--ros-service",
+        metavar="PATTERN",
+        help="Serve matching ROS services on the graph; repeatable; default none.",
+    ),
+]
+NodeOption = Annotated[
+    str, typer.Option("--node-name", help="Name of the gateway's node in ROS and on the graph.")
+]
+
+
+def _signals(stop: threading.Event) -> None:
+    import signal
+
+    def on_signal(_signum: int, _frame: object) -> None:
+        stop.set()
+
+    signal.signal(signal.SIGINT, on_signal)
+    signal.signal(signal.SIGTERM, on_signal)
+
+
+def _say(text: str) -> None:
+    sys.stderr.write(text + "\n")
+    sys.stderr.flush()
+
+
+def _qos_options(values: list[str] | None) -> dict[str, str]:
+    out: dict[str, str] = {}
+    for value in values or []:
+        pattern, sep, kind = value.rpartition("=")
+        if not sep or kind not in ("sensor", "reliable", "tf") or not pattern:
+            raise typer.BadParameter(
+                f"{value!r}: write PATTERN=sensor|reliable|tf", param_hint="--qos"
+            )
+        out[pattern] = kind
+    return out
+
+
+def ros2(
+    ctx: typer.Context,
+    topic: TopicOption = None,
+    exclude: ExcludeOption = None,
+    service: ServiceOption = None,
+    ros_service: RosServiceOption = None,
+    qos: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--qos",
+            metavar="PATTERN=KIND",
+            help="QoS for matching topics: sensor (best effort), reliable or tf; repeatable. "
+            "Default: sensor data from the graph best effort, the rest reliable.",
+        ),
+    ] = None,
+    node_name: NodeOption = "hwbridge_gateway",
+    no_rosout: Annotated[
+        bool, typer.Option("--no-rosout", help="Do not forward board logs to /rosout.")
+    ] = False,
+) -> None:
+    """Mirror the graph's topics and services into ROS 2 (rclpy, ROS_DOMAIN_ID) until Ctrl-C."""
+    from hwbridge.gateway.common import Selection
+    from hwbridge.gateway.ros2 import (
+        Ros2Options,
+        environment_ready,
+        load_rclpy,
+        ros2_environment,
+        run_ros2_gateway,
+    )
+
+    qos_map = _qos_options(qos)
+    if not environment_ready() and not os.environ.get(_REEXEC_GUARD):
+        # rclpy's libraries are found through LD_LIBRARY_PATH, read when the process starts:
+        # start again with it set (once).
+        env = ros2_environment()
+        env[_REEXEC_GUARD] = "1"
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os.execve(sys.executable, sys.orig_argv, env)
+    load_rclpy()
+    options = Ros2Options(
+        topics=Selection.of(topic, exclude),
+        services=Selection.of(service, exclude),
+        ros_services=Selection(tuple(ros_service or ()), tuple(exclude or ())),
+        node_name=node_name,
+        qos=qos_map,
+        rosout=not no_rosout,
+    )
+    stop = threading.Event()
+    _signals(stop)
+    try:
+        run_ros2_gateway(lambda: open_graph(ctx), options, stop, announce=_say)
+    except HwBridgeError:
+        raise
+    except Exception as exc:
+        raise HwBridgeError(f"ROS 2 gateway failed: {exc}") from exc
+
+
+def ros1(
+    ctx: typer.Context,
+    topic: TopicOption = None,
+    exclude: ExcludeOption = None,
+    service: ServiceOption = None,
+    ros_service: RosServiceOption = None,
+    param: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--param",
+            metavar="NAMESPACE",
+            help="Copy the ROS parameter server's parameters under NAMESPACE to the graph's "
+            "(and so to boards), and follow their changes; repeatable.",
+        ),
+    ] = None,
+    master: Annotated[
+        str | None,
+        typer.Option(
+            "--master",
+            envvar="ROS_MASTER_URI",
+            help="ROS master URI (default http://127.0.0.1:11311).",
+        ),
+    ] = None,
+    node_name: NodeOption = "hwbridge_gateway",
+) -> None:
+    """Mirror the graph's topics and services into a ROS 1 master's graph until Ctrl-C."""
+    from hwbridge.gateway.common import Selection
+    from hwbridge.gateway.ros1 import Ros1Options, run_ros1_gateway
+
+    options = Ros1Options(
+        master_uri=master or "http://127.0.0.1:11311",
+        topics=Selection.of(topic, exclude),
+        services=Selection.of(service, exclude),
+        ros_services=Selection(tuple(ros_service or ()), tuple(exclude or ())),
+        params=tuple(param or ()),
+        node_name=node_name,
+    )
+    stop = threading.Event()
+    _signals(stop)
+    run_ros1_gateway(lambda: open_graph(ctx), options, stop, announce=_say)

@@ -1,0 +1,204 @@
+"""What the ROS 2 and ROS 1 gateways share: choosing names, watching the graph, reporting once.
+
+A gateway mirrors what lives on the hwbridge graph (boards' topics and services, host nodes'
+topics) into ROS, and what ROS offers to the graph's subscribers back:
+
+- a topic with a publisher on the graph (not the gateway's own) goes **graph -> ROS**;
+- a topic with only subscribers on the graph (a board's ``cmd_vel``) goes **ROS -> graph**;
+- a service served on the graph is served in ROS too (ROS clients call the board);
+- ROS services named by ``--ros-service`` patterns are served on the graph (boards and graph
+  nodes call ROS).
+
+Names are chosen with shell patterns (``/diffbot/*``; ``*`` matches across ``/``), with
+exclusions winning.
+"""
+
+from __future__ import annotations
+
+import fnmatch
+import logging
+import queue
+import threading
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Final
+
+from hwbridge.errors import HwBridgeError
+
+if TYPE_CHECKING:
+    from hwbridge.graph import Graph, GraphEntity
+
+__all__ = [
+    "GraphChange",
+    "GraphWatcher",
+    "Reporter",
+    "Selection",
+    "open_graph_with_retry",
+]
+
+log = logging.getLogger("hwbridge.gateway")
+
+ANY: Final = "*"
+
+
+@dataclass(frozen=True)
+class Selection:
+    """Shell patterns: a name is chosen if it matches an include and no exclude."""
+
+    include: tuple[str, ...] = (ANY,)
+    exclude: tuple[str, ...] = ()
+
+    @classmethod
+    def of(cls, include: Sequence[str] | None, exclude: Sequence[str] | None) -> Selection:
+        return cls(tuple(include) if include else (ANY,), tuple(exclude or ()))
+
+    def __call__(self, name: str) -> bool:
+        if any(fnmatch.fnmatchcase(name, pattern) for pattern in self.exclude):
+            return False
+        return any(fnmatch.fnmatchcase(name, pattern) for pattern in self.include)
+
+
+class Reporter:
+    """Logs each distinct problem once (a type that does not map, a ROS side that is down)."""
+
+    def __init__(self) -> None:
+        self._seen: set[str] = set()
+        self._lock = threading.Lock()
+        self.problems: list[str] = []
+
+    def once(self, key: str, text: str, level: int = logging.WARNING) -> bool:
+        with self._lock:
+            if key in self._seen:
+                return False
+            self._seen.add(key)
+            self.problems.append(text)
+        log.log(level, "%s", text)
+        return True
+
+    def forget(self, key: str) -> None:
+        """Let ``key`` be reported again (the problem went away)."""
+        with self._lock:
+            self._seen.discard(key)
+
+
+@dataclass(frozen=True)
+class GraphChange:
+    """A topic or service the gateway should mirror, in the direction it says."""
+
+    kind: str  # "to_ros" (graph publishes), "from_ros" (graph subscribes), "service"
+    name: str
+    type: str
+
+
+@dataclass
+class _Names:
+    pubs: dict[str, dict[str, str]] = field(default_factory=dict)  # topic -> key -> type
+    subs: dict[str, dict[str, str]] = field(default_factory=dict)
+    services: dict[str, dict[str, str]] = field(default_factory=dict)
+
+
+class GraphWatcher:
+    """Follows the graph's discovery and queues :class:`GraphChange` items, one per name.
+
+    The gateway's own entities (its Zenoh session) are ignored. A topic is handed out once, in
+    the first direction it qualifies for after a short settling time (so that a topic with both
+    a publisher and subscribers on the graph goes graph -> ROS only, and nothing loops).
+    """
+
+    def __init__(
+        self,
+        graph: Graph,
+        topics: Selection,
+        services: Selection,
+        settle: float = 0.3,
+    ) -> None:
+        self.graph = graph
+        self.topics = topics
+        self.services = services
+        self.settle = settle
+        self.changes: queue.Queue[GraphChange] = queue.Queue()
+        self._names = _Names()
+        self._handed: set[tuple[str, str]] = set()
+        self._lock = threading.Lock()
+        self._dirty = threading.Event()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="gateway-watch", daemon=True)
+
+    def start(self) -> GraphWatcher:
+        self.graph.watch(self._on_entity)
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._dirty.set()
+        self._thread.join(2)
+
+    def _on_entity(self, entity: GraphEntity, alive: bool) -> None:
+        if entity.session == self.graph.zid or entity.kind not in ("pub", "sub", "srv"):
+            return
+        table = {
+            "pub": self._names.pubs,
+            "sub": self._names.subs,
+            "srv": self._names.services,
+        }[entity.kind]
+        key = f"{entity.session}/{entity.node}"
+        with self._lock:
+            if alive:
+                table.setdefault(entity.name, {})[key] = entity.type
+            else:
+                table.get(entity.name, {}).pop(key, None)
+        self._dirty.set()
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            self._dirty.wait()
+            if self._stop.wait(self.settle):
+                return
+            self._dirty.clear()
+            for change in self._decide():
+                self.changes.put(change)
+
+    def _decide(self) -> list[GraphChange]:
+        out: list[GraphChange] = []
+        with self._lock:
+            for topic, publishers in self._names.pubs.items():
+                types = sorted(set(publishers.values()) - {ANY})
+                if types and ("topic", topic) not in self._handed and self.topics(topic):
+                    self._handed.add(("topic", topic))
+                    out.append(GraphChange("to_ros", topic, types[0]))
+            for topic, subscribers in self._names.subs.items():
+                types = sorted(set(subscribers.values()) - {ANY})
+                if (
+                    types
+                    and ("topic", topic) not in self._handed
+                    and not self._names.pubs.get(topic)
+                    and self.topics(topic)
+                ):
+                    self._handed.add(("topic", topic))
+                    out.append(GraphChange("from_ros", topic, types[0]))
+            for name, servers in self._names.services.items():
+                types = sorted(set(servers.values()))
+                if types and ("srv", name) not in self._handed and self.services(name):
+                    self._handed.add(("srv", name))
+                    out.append(GraphChange("service", name, types[0]))
+        return out
+
+
+def open_graph_with_retry(
+    open_graph: Callable[[], Graph],
+    stop: threading.Event,
+    retry: float,
+    announce: Callable[[str], None] | None,
+) -> Graph | None:
+    """Open the graph, retrying every ``retry`` s (saying so once) until it opens or ``stop``."""
+    told = False
+    while not stop.is_set():
+        try:
+            return open_graph()
+        except HwBridgeError as exc:
+            if not told and announce is not None:
+                announce(f"hwbridge: waiting for the hwbridge graph: {exc}; retrying")
+                told = True
+            stop.wait(retry)
+    return None

@@ -101,6 +101,22 @@ COMMANDS: dict[str, LazyCommand] = {
     "dxl": LazyCommand(
         _CLI + "dxlcmd:dxl_app", "Dynamixel servos on a serial bus: scan, ping, read, write."
     ),
+    "viz": LazyCommand(
+        _CLI + "vizcmd:viz",
+        "Serve the graph's topics to Foxglove over WebSocket (ROS 1 schemas) until Ctrl-C.",
+    ),
+    "monitor": LazyCommand(
+        _CLI + "monitorcmd:monitor",
+        "A live terminal view of the running bridge: boards, link state, topics, rates, logs.",
+    ),
+    "ros2": LazyCommand(
+        _CLI + "gatewaycmd:ros2",
+        "Mirror the graph's topics and services into ROS 2 (rclpy) until Ctrl-C.",
+    ),
+    "ros1": LazyCommand(
+        _CLI + "gatewaycmd:ros1",
+        "Mirror the graph's topics and services into a ROS 1 master's graph until Ctrl-C.",
+    ),
 }
 """Top-level commands in the order ``hwbridge --help`` lists them."""
 

@@ -1,0 +1,471 @@
+"""The CAN transport of the native protocol: ids, tail bytes and transfers (CAN.md).
+
+Sans-I/O: :class:`TransferEncoder` turns one native datagram into the CAN frames of one transfer
+(``(can_id, data)`` pairs), :class:`TransferDecoder` turns received frames back into
+:class:`Transfer` objects, dropping and counting whatever is malformed, out of sequence,
+duplicated, corrupted, too long or never finished (:class:`CanStats`); :class:`ConflictMonitor`
+notices two nodes claiming one node id. Nothing here reads a clock or touches a bus.
+
+The 29-bit id (bit 28 first)::
+
+    28..26 priority (0 highest)   25..24 kind   23..16 channel   15..14 reserved (0)
+    13..7  destination node id    6..0   source node id
+
+and the last byte of every frame is the tail byte: ``start << 7 | end << 6 | toggle << 5 | tid``.
+"""
+
+from __future__ import annotations
+
+import enum
+from binascii import crc_hqx
+from collections.abc import Iterator
+from dataclasses import asdict, dataclass
+from typing import Final
+
+__all__ = [
+    "CLASSIC_MTU",
+    "CRC_INIT",
+    "FD_LENGTHS",
+    "FD_MTU",
+    "HOST_NODE",
+    "MAX_NODE",
+    "MIN_NODE",
+    "NODE_CLAIM",
+    "PRIORITY_ACK",
+    "PRIORITY_BEST_EFFORT",
+    "PRIORITY_CONTROL",
+    "PRIORITY_NODE",
+    "PRIORITY_RELIABLE",
+    "TID_MODULO",
+    "UID_SIZE",
+    "CanId",
+    "CanStats",
+    "ConflictMonitor",
+    "Kind",
+    "Transfer",
+    "TransferDecoder",
+    "TransferEncoder",
+    "crc16",
+    "decode_id",
+    "encode_id",
+    "frame_lengths",
+    "kind_of",
+    "priority_of",
+    "split_transfer",
+]
+
+HOST_NODE: Final = 0
+"""The host's node id (boards use 1..127)."""
+MIN_NODE: Final = 1
+MAX_NODE: Final = 127
+CLASSIC_MTU: Final = 8
+"""Data bytes of a classic CAN frame (7 of payload and the tail byte)."""
+FD_MTU: Final = 64
+"""Data bytes of the largest CAN FD frame."""
+FD_LENGTHS: Final = (0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64)
+"""The data lengths a CAN FD frame can have (DLC 0..15)."""
+_VALID_LENGTH: Final = frozenset(FD_LENGTHS)
+TID_MODULO: Final = 32
+"""Transfer ids count 0..31 and wrap."""
+CRC_INIT: Final = 0xFFFF
+UID_SIZE: Final = 6
+"""Bytes of the unique id a node claims its node id with."""
+NODE_CLAIM: Final = 1
+"""Channel (opcode) of a node-id claim in a NODE-kind transfer."""
+
+PRIORITY_ACK: Final = 1
+PRIORITY_CONTROL: Final = 2
+PRIORITY_NODE: Final = 3
+PRIORITY_RELIABLE: Final = 4
+PRIORITY_BEST_EFFORT: Final = 5
+
+_START: Final = 0x80
+_END: Final = 0x40
+_TOGGLE: Final = 0x20
+_TID_MASK: Final = 0x1F
+_RESERVED_MASK: Final = 0x3 << 14
+
+
+class Kind(enum.IntEnum):
+    """What a transfer carries: a native frame of one of the three types, or a NODE message."""
+
+    BEST_EFFORT = 0
+    RELIABLE = 1
+    ACK = 2
+    NODE = 3
+
+
+def crc16(data: bytes | bytearray | memoryview, value: int = CRC_INIT) -> int:
+    """CRC-16/CCITT-FALSE (``crc16(b"123456789") == 0x29B1``); over a transfer followed by its
+    big-endian CRC it is 0."""
+    return crc_hqx(data, value)
+
+
+@dataclass(frozen=True, slots=True)
+class CanId:
+    """The fields of a 29-bit id."""
+
+    priority: int
+    kind: Kind
+    channel: int
+    destination: int
+    source: int
+
+    def encode(self) -> int:
+        return encode_id(self.priority, self.kind, self.channel, self.destination, self.source)
+
+
+def encode_id(priority: int, kind: int, channel: int, destination: int, source: int) -> int:
+    """The 29-bit id of these fields (ValueError for a field out of range)."""
+    if not 0 <= priority <= 7:
+        raise ValueError(f"priority must be 0..7, not {priority}")
+    if not 0 <= kind <= 3:
+        raise ValueError(f"kind must be 0..3, not {kind}")
+    if not 0 <= channel <= 255:
+        raise ValueError(f"channel must be 0..255, not {channel}")
+    for what, node in (("destination", destination), ("source", source)):
+        if not 0 <= node <= MAX_NODE:
+            raise ValueError(f"{what} node id must be 0..{MAX_NODE}, not {node}")
+    return priority << 26 | kind << 24 | channel << 16 | destination << 7 | source
+
+
+def decode_id(can_id: int) -> CanId | None:
+    """The fields of a 29-bit id, or None when it is not one of ours (reserved bits set)."""
+    if not 0 <= can_id < 1 << 29 or can_id & _RESERVED_MASK:
+        return None
+    return CanId(
+        can_id >> 26,
+        Kind((can_id >> 24) & 3),
+        (can_id >> 16) & 0xFF,
+        (can_id >> 7) & 0x7F,
+        can_id & 0x7F,
+    )
+
+
+def kind_of(datagram: bytes | bytearray | memoryview) -> tuple[Kind, int]:
+    """The kind and channel of a native datagram (from its flags and channel bytes)."""
+    if len(datagram) < 2:
+        return Kind.BEST_EFFORT, 0
+    frame_type = (datagram[0] >> 4) & 3
+    kind = Kind(frame_type) if frame_type < 3 else Kind.BEST_EFFORT
+    return kind, datagram[1]
+
+
+def priority_of(kind: Kind, channel: int) -> int:
+    """The priority a native datagram of this kind on this channel is sent with."""
+    if kind is Kind.ACK:
+        return PRIORITY_ACK
+    if kind is Kind.NODE:
+        return PRIORITY_NODE
+    if channel == 0:
+        return PRIORITY_CONTROL
+    return PRIORITY_RELIABLE if kind is Kind.RELIABLE else PRIORITY_BEST_EFFORT
+
+
+def frame_lengths(size: int, mtu: int) -> list[int]:
+    """Data lengths (tail byte included) of the frames a transfer of ``size`` payload bytes takes
+    with frames of at most ``mtu`` bytes: one frame when ``size + 1`` fits and is a valid length,
+    otherwise payload and CRC in frames of the largest valid length that fits (never padding)."""
+    if size + 1 <= mtu and size + 1 in _VALID_LENGTH:
+        return [size + 1]
+    left = size + 2
+    lengths: list[int] = []
+    while left:
+        room = min(left + 1, mtu)
+        while room not in _VALID_LENGTH:
+            room -= 1
+        lengths.append(room)
+        left -= room - 1
+    return lengths
+
+
+def split_transfer(payload: bytes | bytearray | memoryview, tid: int, mtu: int) -> list[bytes]:
+    """The frames' data (tail bytes included) of one transfer of ``payload``."""
+    data = bytes(payload)
+    lengths = frame_lengths(len(data), mtu)
+    if len(lengths) == 1:
+        return [data + bytes([_START | _END | _TOGGLE | tid])]
+    data += crc16(data).to_bytes(2, "big")
+    frames: list[bytes] = []
+    offset = 0
+    toggle = _TOGGLE
+    for index, length in enumerate(lengths):
+        tail = toggle | tid
+        if index == 0:
+            tail |= _START
+        if index == len(lengths) - 1:
+            tail |= _END
+        frames.append(data[offset : offset + length - 1] + bytes([tail]))
+        offset += length - 1
+        toggle ^= _TOGGLE
+    return frames
+
+
+class TransferEncoder:
+    """Frames for what one node sends: a transfer id per CAN id, counting 0..31."""
+
+    def __init__(self, source: int, mtu: int = CLASSIC_MTU) -> None:
+        if not 0 <= source <= MAX_NODE:
+            raise ValueError(f"node id must be 0..{MAX_NODE}, not {source}")
+        if mtu not in (CLASSIC_MTU, *FD_LENGTHS[9:]):
+            raise ValueError(f"mtu must be 8 (classic CAN) or a CAN FD length 12..64, not {mtu}")
+        self.source = source
+        self.mtu = mtu
+        self._tids: dict[int, int] = {}
+
+    def transfer(
+        self, can_id: int, payload: bytes | bytearray | memoryview
+    ) -> list[tuple[int, bytes]]:
+        """The frames of one transfer of ``payload`` on ``can_id`` (its next transfer id)."""
+        tid = self._tids.get(can_id, 0)
+        self._tids[can_id] = (tid + 1) % TID_MODULO
+        return [(can_id, data) for data in split_transfer(payload, tid, self.mtu)]
+
+    def datagram(
+        self,
+        datagram: bytes | bytearray | memoryview,
+        destination: int,
+        priority: int | None = None,
+    ) -> list[tuple[int, bytes]]:
+        """The frames carrying one native datagram to ``destination``."""
+        kind, channel = kind_of(datagram)
+        if priority is None:
+            priority = priority_of(kind, channel)
+        return self.transfer(encode_id(priority, kind, channel, destination, self.source), datagram)
+
+    def claim(self, uid: bytes) -> list[tuple[int, bytes]]:
+        """A node-id claim: this node's unique id, to every node (destination 0)."""
+        if len(uid) != UID_SIZE:
+            raise ValueError(f"a unique id has {UID_SIZE} bytes, not {len(uid)}")
+        can_id = encode_id(PRIORITY_NODE, Kind.NODE, NODE_CLAIM, HOST_NODE, self.source)
+        return self.transfer(can_id, uid)
+
+
+@dataclass(frozen=True, slots=True)
+class Transfer:
+    """One received transfer."""
+
+    priority: int
+    kind: Kind
+    channel: int
+    destination: int
+    source: int
+    payload: bytes
+
+
+@dataclass
+class CanStats:
+    """Counters of a :class:`TransferDecoder` (they only grow)."""
+
+    frames: int = 0
+    """Frames fed."""
+    transfers: int = 0
+    """Transfers returned."""
+    foreign: int = 0
+    """Well-formed frames for another node (skipped, not an error)."""
+    malformed: int = 0
+    """Frames dropped as not ours: standard ids, reserved id bits set, no data, a length CAN FD
+    cannot have, a start frame whose toggle is 0."""
+    unexpected: int = 0
+    """Frames out of sequence: a middle or end frame with no transfer started, or of another
+    transfer id than the one in progress."""
+    duplicate_frames: int = 0
+    """A frame repeated (same toggle as the frame before it)."""
+    duplicate_transfers: int = 0
+    """A whole transfer received again (the transfer id of the last one, within tid_timeout)."""
+    crc_errors: int = 0
+    """Multi-frame transfers whose CRC was wrong (a frame lost, reordered or corrupted)."""
+    abandoned: int = 0
+    """Transfers left unfinished by a new start on the same id, or evicted for room."""
+    timeouts: int = 0
+    """Transfers that never ended: nothing came for ``timeout`` seconds."""
+    oversize: int = 0
+    """Transfers that grew past ``max_transfer`` bytes."""
+
+    @property
+    def dropped(self) -> int:
+        """Frames or transfers dropped for any reason (foreign frames not included)."""
+        return (
+            self.malformed
+            + self.unexpected
+            + self.duplicate_frames
+            + self.duplicate_transfers
+            + self.crc_errors
+            + self.abandoned
+            + self.timeouts
+            + self.oversize
+        )
+
+    def as_dict(self) -> dict[str, int]:
+        return asdict(self)
+
+
+class _Rx:
+    __slots__ = ("buf", "frames", "started", "tid", "toggle")
+
+    def __init__(self, tid: int, body: bytes, now: float) -> None:
+        self.tid = tid
+        self.toggle = _TOGGLE
+        self.buf = bytearray(body)
+        self.frames = 1
+        self.started = now
+
+
+class TransferDecoder:
+    """Reassembles transfers addressed to ``local`` (None: to any node) from CAN frames.
+
+    One transfer is in progress per CAN id. ``timeout`` bounds how long a transfer may take,
+    ``tid_timeout`` how long a finished transfer's id is remembered to drop a repeat of it,
+    ``max_transfer`` the bytes of one transfer, ``max_pending`` the transfers in progress at once
+    (the oldest is abandoned for a new one), so garbage costs bounded memory.
+    """
+
+    def __init__(
+        self,
+        local: int | None,
+        *,
+        max_transfer: int = 4096,
+        timeout: float = 1.0,
+        tid_timeout: float = 1.0,
+        max_pending: int = 256,
+    ) -> None:
+        self.local = local
+        self.max_transfer = max_transfer
+        self.timeout = timeout
+        self.tid_timeout = tid_timeout
+        self.max_pending = max_pending
+        self.stats = CanStats()
+        self._rx: dict[int, _Rx] = {}
+        self._done: dict[int, tuple[int, float]] = {}
+
+    @property
+    def pending(self) -> int:
+        """Transfers in progress."""
+        return len(self._rx)
+
+    def feed(
+        self, can_id: int, data: bytes | bytearray, now: float, *, extended: bool = True
+    ) -> Transfer | None:
+        """Take one received frame; the transfer it completes, if any."""
+        stats = self.stats
+        stats.frames += 1
+        size = len(data)
+        ident = decode_id(can_id) if extended else None
+        if ident is None or not size or size > FD_MTU or size not in _VALID_LENGTH:
+            stats.malformed += 1
+            return None
+        local = self.local
+        if local is not None and ident.destination != local and ident.kind is not Kind.NODE:
+            stats.foreign += 1
+            return None
+        tail = data[-1]
+        tid = tail & _TID_MASK
+        body = bytes(data[:-1])
+        rx = self._rx.get(can_id)
+        if tail & _START:
+            if not tail & _TOGGLE:
+                stats.malformed += 1
+                return None
+            if rx is not None:
+                if rx.frames == 1 and rx.tid == tid and rx.buf == body:
+                    stats.duplicate_frames += 1
+                    return None
+                del self._rx[can_id]
+                stats.abandoned += 1
+            if tail & _END:
+                return self._finish(can_id, ident, tid, body, now)
+            if len(self._rx) >= self.max_pending:
+                self._evict()
+            self._rx[can_id] = _Rx(tid, body, now)
+            return None
+        if rx is None:
+            done = self._done.get(can_id)
+            if done is not None and done[0] == tid and tail & _END:
+                stats.duplicate_frames += 1  # the end frame of the transfer just finished, again
+            else:
+                stats.unexpected += 1
+            return None
+        if tid != rx.tid:
+            stats.unexpected += 1
+            return None
+        toggle = tail & _TOGGLE
+        if toggle == rx.toggle:
+            stats.duplicate_frames += 1
+            return None
+        rx.toggle = toggle
+        rx.buf += body
+        rx.frames += 1
+        if len(rx.buf) > self.max_transfer + 2:
+            del self._rx[can_id]
+            stats.oversize += 1
+            return None
+        if not tail & _END:
+            return None
+        del self._rx[can_id]
+        if len(rx.buf) < 2 or crc16(rx.buf):
+            stats.crc_errors += 1
+            return None
+        return self._finish(can_id, ident, tid, bytes(rx.buf[:-2]), now)
+
+    def _finish(
+        self, can_id: int, ident: CanId, tid: int, payload: bytes, now: float
+    ) -> Transfer | None:
+        done = self._done.get(can_id)
+        if done is not None and done[0] == tid and now - done[1] < self.tid_timeout:
+            self.stats.duplicate_transfers += 1
+            return None
+        if len(payload) > self.max_transfer:
+            self.stats.oversize += 1
+            return None
+        if can_id not in self._done and len(self._done) >= 4 * self.max_pending:
+            self._done.pop(next(iter(self._done)))
+        self._done[can_id] = (tid, now)
+        self.stats.transfers += 1
+        return Transfer(
+            ident.priority, ident.kind, ident.channel, ident.destination, ident.source, payload
+        )
+
+    def _evict(self) -> None:
+        oldest = min(self._rx, key=lambda key: self._rx[key].started)
+        del self._rx[oldest]
+        self.stats.abandoned += 1
+
+    def expire(self, now: float) -> int:
+        """Drop (and count) the transfers that started ``timeout`` seconds ago or more."""
+        stale = [key for key, rx in self._rx.items() if now - rx.started >= self.timeout]
+        for key in stale:
+            del self._rx[key]
+        self.stats.timeouts += len(stale)
+        return len(stale)
+
+
+class ConflictMonitor:
+    """Notices one node id claimed by two unique ids within ``window`` seconds."""
+
+    def __init__(self, window: float = 3.0) -> None:
+        self.window = window
+        self.conflicts = 0
+        """Claims that contradicted the one before them."""
+        self._claims: dict[int, tuple[bytes, float]] = {}
+        self._conflicted: dict[int, float] = {}
+
+    def claim(self, node: int, uid: bytes, now: float) -> bool:
+        """Record a claim; True if it conflicts with another unique id's recent claim."""
+        before = self._claims.get(node)
+        self._claims[node] = (uid, now)
+        if before is not None and before[0] != uid and now - before[1] < self.window:
+            self.conflicts += 1
+            self._conflicted[node] = now
+            return True
+        return False
+
+    def in_conflict(self, node: int, now: float) -> bool:
+        """True while a conflict on ``node`` was seen in the last ``window`` seconds."""
+        seen = self._conflicted.get(node)
+        return seen is not None and now - seen < self.window
+
+    def claimed(self, now: float) -> Iterator[tuple[int, bytes]]:
+        """Nodes with a claim in the last ``window`` seconds, and their unique ids."""
+        for node, (uid, seen) in sorted(self._claims.items()):
+            if now - seen < self.window:
+                yield node, uid

@@ -1,8 +1,9 @@
 // HwBridge: the board side of the hwbridge native protocol (protocols/PROTOCOL.md).
 // Header-only C++11, no heap, no exceptions, no RTTI; sizes are template parameters.
 //
-// So far: framing (COBS, CRC-16, header, stream decoder, encoder, fragmentation) and the two
-// streams (best effort, reliable). The session comes next.
+// Framing (COBS, CRC-16, header, stream decoder, encoder, fragmentation), the two streams (best
+// effort, reliable), and the session with its rosserial-like API (hwbridge/node.h): NodeHandle,
+// Publisher, Subscriber, ServiceServer, ServiceClient, parameters, logs, host time.
 #ifndef HWBRIDGE_H
 #define HWBRIDGE_H
 
@@ -14,5 +15,6 @@
 #include "hwbridge/encoder.h"
 #include "hwbridge/fragment.h"
 #include "hwbridge/streams.h"
+#include "hwbridge/node.h"
 
 #endif  // HWBRIDGE_H

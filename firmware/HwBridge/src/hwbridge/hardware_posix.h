@@ -18,6 +18,7 @@
 #include <netinet/tcp.h>
 #include <stddef.h>
 #include <stdint.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <sys/socket.h>
@@ -63,6 +64,30 @@ class PosixHardware {
     if (strncmp(target, "listen://", 9) == 0) return open_tcp(target + 9, true);
     if (strncmp(target, "tcp-listen://", 13) == 0) return open_tcp(target + 13, true);
     return open_path(target, baud);
+  }
+
+  /**
+   * The node's init(baud): opens $HWBRIDGE_LINK (any target above; default "pty") and, for a
+   * pty, prints the URL to connect to ("pty:/dev/pts/N") as one line on stdout, flushed.
+   */
+  bool init(uint32_t baud) {
+    const char* target = getenv("HWBRIDGE_LINK");
+    if (target == nullptr || target[0] == 0) target = "pty";
+    if (!init(target, baud)) {
+      fprintf(stderr, "hwbridge: cannot open %s: %s\n", target, error());
+      return false;
+    }
+    if (strcmp(target, "pty") == 0) {
+      printf("pty:%s\n", device_path());
+      fflush(stdout);
+    }
+    return true;
+  }
+
+  /** Entropy for the session id. */
+  uint32_t seed() {
+    uint64_t t = now_us();
+    return static_cast<uint32_t>(t ^ (t >> 32)) ^ static_cast<uint32_t>(getpid()) * 2654435761u;
   }
 
   void close() {

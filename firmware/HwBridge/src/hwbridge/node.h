@@ -1,0 +1,494 @@
+// The user API of the board side: a rosserial-like NodeHandle with publishers, subscribers,
+// service servers and clients, parameters, logs and host time, over the native session
+// (PROTOCOL.md Part 2). No heap: every object is a static the sketch declares; sizes are the
+// template parameters of a Profile.
+//
+//   #include <HwBridge.h>
+//   #include <std_msgs/String.h>
+//   hwbridge::NodeHandle nh;                    // HelloWorldProfile + Arduino Serial
+//   std_msgs::String msg;
+//   hwbridge::Publisher<std_msgs::String> chatter("chatter");
+//   void setup() { nh.initNode(115200, "uno"); nh.advertise(chatter); }
+//   void loop() { msg.data.assign("hello"); chatter.publish(msg); nh.spinOnce(); delay(100); }
+//
+// Every registration (advertise, subscribe, advertiseService, serviceClient) must happen before
+// the first spinOnce(): the table is announced to the host once per session, in that order,
+// and channels are numbered 1, 2, ... in registration order.
+#ifndef HWBRIDGE_NODE_H
+#define HWBRIDGE_NODE_H
+
+#include <stddef.h>
+#include <stdint.h>
+#include <string.h>
+
+#include "config.h"
+#include "decoder.h"
+#include "encoder.h"
+#include "fragment.h"
+#include "frame.h"
+#include "streams.h"
+#include "progmem.h"
+#include "../hwbridge_msg.h"
+
+namespace hwbridge {
+
+// ---------------------------------------------------------------------------------------------
+// Profiles: the sizes and features of a node, chosen at compile time.
+
+/**
+ * The smallest node (PROTOCOL.md 2.13 "hello world"): MTU 64, max_message 64, window 1, no
+ * reassembly buffer (a host never sends it a message above one frame), messages of up to 64
+ * bytes sent, no own time requests (it still answers the host's), no host logs.
+ */
+struct HelloWorldProfile {
+  static const uint16_t kMtu = 64;           ///< largest frame payload accepted (>= 24)
+  static const uint16_t kMaxMessage = 64;    ///< largest message received (reassembly above kMtu)
+  static const uint8_t kWindow = 1;          ///< reliable frames in flight (1..64)
+  static const uint16_t kTxBuffer = 64;      ///< largest message sent (serialization buffer)
+  static const uint8_t kFeatures = 3;        ///< TIME_SYNC | PARAM_PUSH (| 4 = HOST_LOG)
+  static const uint16_t kTimeSyncMs = 0;     ///< own time requests every this many ms (0: none)
+  static const uint16_t kParamTimeoutMs = 2000;
+  static const uint16_t kServiceTimeoutMs = 5000;
+};
+
+/** PROTOCOL.md 2.13 "comfortable": max_message 192 with reassembly, window 2, messages of up to
+ * 192 bytes sent, time sync every 5 s, host logs accepted. */
+struct ComfortableProfile {
+  static const uint16_t kMtu = 64;
+  static const uint16_t kMaxMessage = 192;
+  static const uint8_t kWindow = 2;
+  static const uint16_t kTxBuffer = 192;
+  static const uint8_t kFeatures = 7;
+  static const uint16_t kTimeSyncMs = 5000;
+  static const uint16_t kParamTimeoutMs = 2000;
+  static const uint16_t kServiceTimeoutMs = 5000;
+};
+
+// ---------------------------------------------------------------------------------------------
+// Values shared with the protocol
+
+/** Log levels (PROTOCOL.md 2.8), as rosserial numbers them. */
+enum LogLevel : uint8_t { kDebug = 0, kInfo = 1, kWarn = 2, kError = 3, kFatal = 4 };
+
+/** Parameter types of PARAM_GET / PARAM_VALUE; `| kParamList` makes a list. */
+enum ParamType : uint8_t {
+  kParamAny = 0,
+  kParamBool = 1,
+  kParamInt32 = 2,
+  kParamFloat32 = 3,
+  kParamString = 4,
+  kParamList = 0x80,
+};
+
+/** Status of a parameter answer: the host's (OK .. TOO_LARGE) or the board's own. */
+enum ParamStatus : uint8_t {
+  kParamOk = 0,
+  kParamNotFound = 1,
+  kParamTypeMismatch = 2,
+  kParamTooLarge = 3,
+  kParamTimeout = 0x10,       ///< no answer within the profile's kParamTimeoutMs
+  kParamSessionReset = 0x11,  ///< the session ended before the answer
+  kParamNotConnected = 0x12,  ///< refused: no session, or another request is pending
+};
+
+/** Status of a service call made by the board. */
+enum CallStatus : uint8_t {
+  kCallOk = 0,
+  kCallError = 1,        ///< the host's service failed
+  kCallNoService = 2,    ///< the host serves nothing on that channel
+  kCallTimeout = 0x10,
+  kCallSessionReset = 0x11,
+  kCallNotConnected = 0x12,  ///< refused: not connected, another call pending, or too large
+  kCallBadResponse = 0x13,   ///< the response does not deserialize into the Response type
+};
+
+/**
+ * One parameter answer. Its elements point into the node's receive buffer: read them inside the
+ * callback. For a list, count() elements; a scalar is a list of one.
+ */
+class ParamValue {
+ public:
+  uint16_t request_id;  ///< 0 for a value the host pushed (a subscribed parameter changed)
+  uint8_t status;       ///< ParamStatus
+  uint8_t type;         ///< ParamType of the value (kParamList bit for lists), when status is kParamOk
+  const char* name;     ///< not NUL-terminated: name_len bytes (empty for board-side errors)
+  uint8_t name_len;
+
+  bool ok() const { return status == kParamOk; }
+  uint16_t count() const { return count_; }
+  /** Element i as int32 (bools as 0/1; floats truncated); 0 when out of range. */
+  int32_t asInt(uint16_t i = 0) const;
+  float asFloat(uint16_t i = 0) const;
+  bool asBool(uint16_t i = 0) const { return asInt(i) != 0; }
+  /** Copies string element i (NUL-terminated, cut to cap - 1 bytes); its full length. */
+  size_t asString(char* out, size_t cap, uint16_t i = 0) const;
+  /** True when the name equals s. */
+  bool is(const char* s) const { return strlen(s) == name_len && memcmp(s, name, name_len) == 0; }
+
+  // internal
+  const uint8_t* elems_;
+  size_t size_;
+  uint16_t count_;
+};
+
+typedef void (*ParamCallback)(const ParamValue& value);
+typedef void (*LogCallback)(uint8_t level, const char* text, size_t len);
+
+/** Counters of a node (cumulative over sessions; 16-bit, wrapping). */
+struct NodeStats {
+  Counter sessions;          ///< sessions established
+  Counter link_losses;       ///< ended by the link timeout or the retry limit
+  Counter peer_resets;       ///< ended by a host restart, GOODBYE or a dropped session
+  Counter protocol_errors;   ///< malformed or unexpected control messages, refused entries
+  Counter mismatches;        ///< TOPIC_ACK MISMATCH (the host expects another type or md5)
+  Counter refused_entries;   ///< TOPIC_ACK INVALID
+  Counter dropped_messages;  ///< data on unknown, refused, wrong-direction channels, or too large
+  Counter tx_refused;        ///< sends refused (not connected, window full, too large)
+  Counter ignored_frames;    ///< frames outside a session
+  Counter hellos_sent;
+  Counter heartbeats_sent;
+};
+
+class NodeBase;
+
+/** Where a service server's response goes (the node's transmit buffer). */
+struct ServiceOut {
+  uint8_t* buf;
+  size_t cap;
+};
+
+// ---------------------------------------------------------------------------------------------
+// Entries of the topic table
+
+/** Entry kinds (PROTOCOL.md 2.6). */
+enum EntryKind : uint8_t { kPublisher = 0, kSubscriber = 1, kServiceServer = 2, kServiceClient = 3 };
+
+/**
+ * One row of the topic table: the base of Publisher, Subscriber, ServiceServer, ServiceClient.
+ * Constant-initialized (no static constructor); linked into its node by registration.
+ */
+class Entry {
+ public:
+  /** What the node asks of the typed part (hooks, one function per entry type). */
+  enum Op : uint8_t { kOpType = 0, kOpMd5 = 1, kOpDeliver = 2 };
+  /** kOpType/kOpMd5: returns the type name / md5 hex (in flash on AVR). kOpDeliver: handles a
+   * message of *len bytes at data (a subscriber's callback; a server's callback, writing the
+   * response's length to *len; a client's response deserialized into obj); returns nullptr on
+   * success, non-null when the bytes do not deserialize. */
+  typedef const char* (*Hook)(Entry* self, uint8_t op, const uint8_t* data, size_t* len, void* obj);
+
+  constexpr Entry(const char* name, uint8_t kind, bool reliable, Hook hook)
+      : name_(name), hook_(hook), next_(nullptr), node_(nullptr), channel_(0), kind_(kind),
+        reliable_(reliable), accepted_(false) {}
+
+  uint8_t channel() const { return channel_; }
+  /** The host accepted this entry in the current session (it can be used). */
+  bool accepted() const { return accepted_; }
+  const char* name() const { return name_; }
+
+  // internal (used by the node)
+  const char* name_;
+  Hook hook_;
+  Entry* next_;
+  NodeBase* node_;
+  uint8_t channel_;
+  uint8_t kind_;
+  bool reliable_;
+  bool accepted_;
+};
+
+// ---------------------------------------------------------------------------------------------
+// The node: hardware-independent part (what entries call)
+
+/**
+ * What Publisher, ServiceClient and friends call; NodeHandle_ is the real class. Not used
+ * directly by sketches.
+ */
+class NodeBase {
+ public:
+  /** The serialization buffer for one outgoing message, or nullptr when it is busy (a previous
+   * message still being sent) and cannot be freed now. */
+  virtual uint8_t* txBuffer(size_t* cap) = 0;
+  /** Sends len bytes of txBuffer() on entry e's channel (best effort or reliable). */
+  virtual bool sendEntry(Entry& e, size_t len) = 0;
+  /** Sends a SERVICE_REQUEST whose body (len bytes) is already at txBuffer() + 4 and spins
+   * until its answer; an OK response body is deserialized into res by e's hook. */
+  virtual uint8_t callService(Entry& e, size_t len, uint16_t timeout_ms, void* res) = 0;
+  /** Host time now (sec, nsec); zeros before the first time sync. */
+  virtual void hostTime(uint32_t* sec, uint32_t* nsec) = 0;
+
+ protected:
+  ~NodeBase() {}
+};
+
+// ---------------------------------------------------------------------------------------------
+// Typed entries
+
+/** Publishes messages of type T (a generated message header) on a topic. */
+template <class T>
+class Publisher : public Entry {
+ public:
+  /** name: the topic ("chatter" or "/chatter"), kept as a pointer (use a string literal).
+   * reliable: send on the reliable stream (acknowledged, resent) instead of best effort. */
+  constexpr explicit Publisher(const char* name, bool reliable = false)
+      : Entry(name, kPublisher, reliable, &hook) {}
+  /** Serializes and sends msg; false when not connected, refused by the host, too large for
+   * the node's kTxBuffer, or (reliable) the window stays full. */
+  bool publish(const T& msg);
+
+ private:
+  static const char* hook(Entry* self, uint8_t op, const uint8_t* data, size_t* len, void* obj);
+};
+
+/** Receives messages of type T on a topic; the callback runs inside spinOnce(). */
+template <class T>
+class Subscriber : public Entry {
+ public:
+  typedef void (*Callback)(const T& msg);
+  constexpr Subscriber(const char* name, Callback cb, bool reliable = false)
+      : Entry(name, kSubscriber, reliable, &hook), cb_(cb) {}
+
+ private:
+  Callback cb_;
+  static const char* hook(Entry* self, uint8_t op, const uint8_t* data, size_t* len, void* obj);
+};
+
+/** Serves a service of type Srv (Srv::Request, Srv::Response) to the host; the callback runs
+ * inside spinOnce() and fills the response. */
+template <class Srv>
+class ServiceServer : public Entry {
+ public:
+  typedef typename Srv::Request Request;
+  typedef typename Srv::Response Response;
+  typedef void (*Callback)(const Request& req, Response& res);
+  constexpr ServiceServer(const char* name, Callback cb)
+      : Entry(name, kServiceServer, true, &hook), cb_(cb) {}
+
+ private:
+  Callback cb_;
+  static const char* hook(Entry* self, uint8_t op, const uint8_t* data, size_t* len, void* obj);
+};
+
+/** Calls a host service of type Srv. */
+template <class Srv>
+class ServiceClient : public Entry {
+ public:
+  typedef typename Srv::Request Request;
+  typedef typename Srv::Response Response;
+  constexpr explicit ServiceClient(const char* name)
+      : Entry(name, kServiceClient, true, &hook) {}
+  /**
+   * Sends req and spins the node until the response (returns kCallOk and fills res), an error
+   * (kCallError, kCallNoService), timeout_ms (0: the profile's kServiceTimeoutMs), the end of
+   * the session, or a refusal (kCallNotConnected). Call it from loop(), not from a callback.
+   */
+  uint8_t call(const Request& req, Response& res, uint16_t timeout_ms = 0);
+
+ private:
+  static const char* hook(Entry* self, uint8_t op, const uint8_t* data, size_t* len, void* obj);
+};
+
+// ---------------------------------------------------------------------------------------------
+// The node
+
+/**
+ * A board's node: the native session over Hardware, sized by Profile.
+ *
+ * Hardware concept: init(baud) (bool), int read() (a byte or -1), put(uint8_t) and flush()
+ * (bytes out), uint32_t micros() (wrapping), uint32_t seed() (entropy for the session id).
+ */
+template <class Hardware, class Profile = HelloWorldProfile>
+class NodeHandle_ : public NodeBase {
+ public:
+  /** Opens the hardware at baud and starts announcing the board (its first HELLO goes out at
+   * the first spinOnce). name is the board's name shown by the host; firmware its version. */
+  void initNode(uint32_t baud = 115200, const char* name = "arduino", const char* firmware = "");
+  /** As initNode, with the hardware already opened by the caller (tests, custom links). */
+  void begin(const char* name = "arduino", const char* firmware = "");
+
+  /** Registers entries (before the first spinOnce). False when 255 entries exist already or
+   * the entry is registered elsewhere. */
+  template <class T> bool advertise(Publisher<T>& p) { return add(p); }
+  template <class T> bool subscribe(Subscriber<T>& s) { return add(s); }
+  template <class S> bool advertiseService(ServiceServer<S>& s) { return add(s); }
+  template <class S> bool serviceClient(ServiceClient<S>& c) { return add(c); }
+
+  /** Reads what the hardware has, handles it, runs the timers, writes what is due. Call it
+   * often (every loop(); at least every few ms while messages flow). */
+  void spinOnce();
+  /** The two halves of spinOnce (tests replay transcripts with them). */
+  void processInput();
+  void runTimers();
+
+  /** CONNECTED: READY received, topics usable. */
+  bool connected() const { return state_ == kConnected; }
+
+  /** Host time now (ROS time; zeros before the first time sync answer). */
+  void now(uint32_t* sec, uint32_t* nsec) { hostTime(sec, nsec); }
+  /** True once a time sync answer arrived in this session. */
+  bool timeSynced() const { return time_synced_; }
+  /** Asks the host for its time now (the profile's kTimeSyncMs does it periodically). */
+  void requestSyncTime();
+
+  /** Logs to the host (reliable; cut to fit). False when not connected or the window stays
+   * full. Each spins the node until the line is queued. */
+  bool log(uint8_t level, const char* text);
+  bool logDebug(const char* t) { return log(kDebug, t); }
+  bool logInfo(const char* t) { return log(kInfo, t); }
+  bool logWarn(const char* t) { return log(kWarn, t); }
+  bool logError(const char* t) { return log(kError, t); }
+  bool logFatal(const char* t) { return log(kFatal, t); }
+  // rosserial's names
+  bool logdebug(const char* t) { return log(kDebug, t); }
+  bool loginfo(const char* t) { return log(kInfo, t); }
+  bool logwarn(const char* t) { return log(kWarn, t); }
+  bool logerror(const char* t) { return log(kError, t); }
+  bool logfatal(const char* t) { return log(kFatal, t); }
+  /** Logs the host sends (only when kFeatures has HOST_LOG, 4). */
+  void onLog(LogCallback cb) { log_cb_ = cb; }
+
+  /**
+   * Parameters, non-blocking: asks the host for name as type (ParamType; kParamAny: its own
+   * type). Exactly one call of cb follows (the answer, kParamTimeout, kParamSessionReset or
+   * kParamNotConnected), inside spinOnce(). With subscribe, later changes pushed by the host
+   * also go to cb (request_id 0; the last subscribing callback gets all pushes). max_count
+   * caps list lengths (0: none). Returns the request id (0 when refused: cb already ran).
+   * One request is pending at a time.
+   */
+  uint16_t requestParam(const char* name, uint8_t type, ParamCallback cb, bool subscribe = false,
+                        uint16_t max_count = 0);
+  /**
+   * Parameters, blocking (as rosserial): spins until the answer; fills length values and
+   * returns true when the host has name with exactly length elements of a convertible type.
+   */
+  bool getParam(const char* name, int32_t* value, uint16_t length = 1, uint16_t timeout_ms = 0);
+  bool getParam(const char* name, float* value, uint16_t length = 1, uint16_t timeout_ms = 0);
+  bool getParam(const char* name, bool* value, uint16_t length = 1, uint16_t timeout_ms = 0);
+  /** A string parameter into out (NUL-terminated, at most cap - 1 bytes). */
+  bool getParamString(const char* name, char* out, size_t cap, uint16_t timeout_ms = 0);
+
+  /** Counters. */
+  const NodeStats& stats() const { return stats_; }
+  Hardware& getHardware() { return hw_; }
+  uint32_t sessionId() const { return id_; }
+  /** The unique id sent in BOARD_INFO (kept as a pointer; at most 255 bytes). */
+  void setUniqueId(const uint8_t* id, uint8_t len) { uid_ = id; uid_len_ = len; }
+  /** Fixes the session id and ISN instead of random ones (tests; before begin/initNode). */
+  void setIdentity(uint32_t session_id, uint8_t isn) { fixed_id_ = session_id; fixed_isn_ = isn; has_fixed_ = true; }
+
+  // NodeBase
+  uint8_t* txBuffer(size_t* cap) override;
+  bool sendEntry(Entry& e, size_t len) override;
+  uint8_t callService(Entry& e, size_t len, uint16_t timeout_ms, void* res) override;
+  void hostTime(uint32_t* sec, uint32_t* nsec) override;
+
+
+ private:
+  enum State : uint8_t { kOff = 0, kHandshake, kConfiguring, kConnected };
+  static const uint16_t kMinMtu = 24;
+  static const uint32_t kHelloFirstUs = 50000UL;
+  static const uint32_t kHelloIntervalUs = 250000UL;
+  static const uint32_t kHeartbeatUs = 100000UL;
+  static const uint32_t kLinkTimeoutUs = 800000UL;
+  static const uint32_t kHandshakeTimeoutUs = 3000000UL;
+  static const uint32_t kTimeRetryUs = 1000000UL;
+  static const uint32_t kMaxTimeAgeUs = 10000000UL;
+  static const uint16_t kReassembly = Profile::kMaxMessage > Profile::kMtu ? Profile::kMaxMessage : 0;
+
+  bool add(Entry& e);
+  bool established() const { return state_ >= kConfiguring; }
+  uint32_t random32();
+  void onFrame(const Frame& f);
+  void onBestEffort(const Frame& f);
+  void onMessage(const Message& m, bool reliable);
+  void onControl(const uint8_t* p, size_t n, bool reliable);
+  void onHello(const uint8_t* p);
+  void onData(const Message& m);
+  void onTopicAck(const uint8_t* p, size_t n);
+  void onServiceRequest(const uint8_t* p, size_t n);
+  void onServiceResponse(const uint8_t* p, size_t n);
+  void onParamValue(const uint8_t* p, size_t n);
+  void onTimeResponse(const uint8_t* p);
+  void establish(const uint8_t* hello);
+  void teardown();
+  void protocolError() { ++stats_.protocol_errors; }
+  void sendHello();
+  void sendControlBe(const uint8_t* p, size_t n);
+  void emit(const Frame& f);
+  void flushOut();
+  void pump();
+  bool queueTable();
+  bool txFree() const { return pending_len_ == 0 && !rel_tx_.sending(); }
+  bool waitTx(uint32_t limit_us);
+  void spinFor();
+  Entry* entryOn(uint8_t channel, uint8_t kind);
+  uint16_t newRequestId();
+  void finishParam(uint8_t status, const ParamValue* v);
+  bool blockingParam(const char* name, uint8_t type, void* out, uint16_t length, uint16_t timeout_ms);
+
+  Hardware hw_;
+  FrameDecoder<Profile::kMtu, false> dec_;
+  Reassembler<kReassembly> reasm_;
+  BestEffortSender be_tx_;
+  BestEffortReceiver be_rx_;
+  ReliableSender<Profile::kWindow, Profile::kMtu> rel_tx_;
+  ReliableReceiver<Profile::kWindow, Profile::kMtu, 0> rel_rx_;
+  LeadTracker lead_;
+  NodeStats stats_;
+  Entry* entries_;
+  const char* name_;
+  const char* firmware_;
+  const uint8_t* uid_;
+  ParamCallback param_cb_;
+  ParamCallback push_cb_;
+  LogCallback log_cb_;
+  void* sync_out_;       // blocking getParam: where the values go
+  void* call_res_;
+  Entry* call_entry_;
+  uint32_t now_;
+  uint32_t id_, peer_, be_peer_, fixed_id_, rng_;
+  uint32_t peer_max_;    // the host's max_message
+  uint32_t next_hello_, hello_wait_, last_rx_, last_tx_, since_, time_next_;
+  uint32_t param_deadline_, call_deadline_;
+  uint32_t board_ref_, host_sec_, host_nsec_;  // time sync reference pair
+  uint16_t mtu_;
+  uint16_t pending_len_;  // a reliable message in tx_ waiting for a free slot
+  uint16_t next_request_;
+  uint16_t param_id_, call_id_;
+  uint16_t sync_len_;
+  uint8_t pending_ch_;
+  uint8_t state_;
+  uint8_t isn_, fixed_isn_;
+  uint8_t features_;
+  uint8_t entry_count_;
+  uint8_t table_pos_;
+  uint8_t uid_len_;
+  uint8_t call_state_;    // 0 none, 1 waiting, 2 answered
+  uint8_t call_status_;
+  uint8_t sync_type_;     // blocking getParam: element type wanted (0: none pending)
+  uint8_t sync_state_;    // 0 none, 1 waiting, 2 answered ok, 3 failed
+  bool has_fixed_;
+  bool in_input_;
+  bool time_synced_;
+  uint8_t tx_[Profile::kTxBuffer];
+};
+
+#if defined(ARDUINO)
+}  // namespace hwbridge
+#include "hardware_arduino.h"
+namespace hwbridge {
+/** The default node: Arduino Serial, HelloWorldProfile. */
+typedef NodeHandle_<ArduinoHardware> NodeHandle;
+#elif !defined(__AVR__)
+}  // namespace hwbridge
+#include "hardware_posix.h"
+namespace hwbridge {
+/** The default node on a host build: a pseudo-terminal (its path printed at init). */
+typedef NodeHandle_<PosixHardware> NodeHandle;
+#endif
+
+}  // namespace hwbridge
+
+#include "node_impl.h"
+
+#endif  // HWBRIDGE_NODE_H

@@ -1,0 +1,965 @@
+// The bodies of node.h: the board's session (PROTOCOL.md 2.5-2.10), following the Python
+// reference DeviceSession (protocols/native/_session/). Included by node.h only.
+#ifndef HWBRIDGE_NODE_IMPL_H
+#define HWBRIDGE_NODE_IMPL_H
+
+#include "node.h"
+
+namespace hwbridge {
+
+namespace detail {
+
+inline uint16_t get16(const uint8_t* p) { return static_cast<uint16_t>(p[0] | p[1] << 8); }
+inline uint32_t get32(const uint8_t* p) {
+  return static_cast<uint32_t>(get16(p)) | static_cast<uint32_t>(get16(p + 2)) << 16;
+}
+inline uint8_t* put16(uint8_t* p, uint16_t v) {
+  p[0] = static_cast<uint8_t>(v);
+  p[1] = static_cast<uint8_t>(v >> 8);
+  return p + 2;
+}
+inline uint8_t* put32(uint8_t* p, uint32_t v) {
+  put16(p, static_cast<uint16_t>(v));
+  return put16(p + 2, static_cast<uint16_t>(v >> 16));
+}
+/** Copies up to cap bytes of a RAM string; returns the end. */
+inline uint8_t* put_str(uint8_t* p, const char* s, size_t cap) {
+  while (cap-- && *s) *p++ = static_cast<uint8_t>(*s++);
+  return p;
+}
+/** Copies up to cap bytes of a flash string (generated type names); returns the end. */
+inline uint8_t* put_str_P(uint8_t* p, const char* s, size_t cap) {
+  uint8_t c;
+  while (cap-- && (c = flash_byte(s++)) != 0) *p++ = c;
+  return p;
+}
+/** Element size of a scalar parameter type (strings: 0, they carry their length). */
+inline uint8_t param_elem_size(uint8_t scalar) {
+  return scalar == kParamBool ? 1 : (scalar == kParamInt32 || scalar == kParamFloat32) ? 4 : 0;
+}
+inline float f32(const uint8_t* p) {
+  const uint32_t v = get32(p);
+  float f;
+  memcpy(&f, &v, 4);
+  return f;
+}
+
+}  // namespace detail
+
+// ---------------------------------------------------------------------------------------------
+// ParamValue
+
+inline int32_t ParamValue::asInt(uint16_t i) const {
+  if (i >= count_) return 0;
+  const uint8_t scalar = static_cast<uint8_t>(type & 0x7F);
+  if (scalar == kParamBool) return elems_[i];
+  if (scalar == kParamInt32) return static_cast<int32_t>(detail::get32(elems_ + 4 * i));
+  if (scalar == kParamFloat32) return static_cast<int32_t>(detail::f32(elems_ + 4 * i));
+  return 0;
+}
+
+inline float ParamValue::asFloat(uint16_t i) const {
+  if (i < count_ && (type & 0x7F) == kParamFloat32) return detail::f32(elems_ + 4 * i);
+  return static_cast<float>(asInt(i));
+}
+
+inline size_t ParamValue::asString(char* out, size_t cap, uint16_t i) const {
+  if (cap) out[0] = 0;
+  if (i >= count_ || (type & 0x7F) != kParamString) return 0;
+  const uint8_t* p = elems_;
+  for (uint16_t k = 0; k < i; ++k) p += 2 + detail::get16(p);
+  const size_t n = detail::get16(p);
+  if (cap) {
+    const size_t m = n < cap - 1 ? n : cap - 1;
+    memcpy(out, p + 2, m);
+    out[m] = 0;
+  }
+  return n;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Typed entries
+
+namespace detail {
+/** Serializes m into buf (cap bytes): false when it does not fit; *n its size. */
+template <class M>
+bool serialize_into(const M& m, uint8_t* buf, size_t cap, size_t* n) {
+  msg::Writer w(buf, cap);
+  m.write(w);
+  *n = w.finish();
+  return w.ok();
+}
+}  // namespace detail
+
+template <class T>
+bool Publisher<T>::publish(const T& msg) {
+  size_t cap = 0, n = 0;
+  uint8_t* buf = node_ ? node_->txBuffer(&cap) : nullptr;
+  if (buf == nullptr || !detail::serialize_into(msg, buf, cap, &n)) return false;
+  return node_->sendEntry(*this, n);
+}
+
+template <class T>
+const char* Publisher<T>::hook(Entry*, uint8_t op, const uint8_t*, size_t*, void*) {
+  return op == kOpType ? T::type_name() : T::md5sum();
+}
+
+template <class T>
+const char* Subscriber<T>::hook(Entry* self, uint8_t op, const uint8_t* data, size_t* len, void*) {
+  if (op == kOpType) return T::type_name();
+  if (op == kOpMd5) return T::md5sum();
+  T msg;
+  if (!msg.deserialize(data, *len)) return "bad";
+  static_cast<Subscriber<T>*>(self)->cb_(msg);
+  return nullptr;
+}
+
+template <class Srv>
+const char* ServiceServer<Srv>::hook(Entry* self, uint8_t op, const uint8_t* data, size_t* len, void* obj) {
+  if (op == kOpType) return Srv::type_name();
+  if (op == kOpMd5) return Srv::md5sum();
+  Request req;
+  if (!req.deserialize(data, *len)) return "bad request";
+  Response res;
+  static_cast<ServiceServer<Srv>*>(self)->cb_(req, res);
+  ServiceOut* out = static_cast<ServiceOut*>(obj);
+  return detail::serialize_into(res, out->buf, out->cap, len) ? nullptr : "response too large";
+}
+
+template <class Srv>
+const char* ServiceClient<Srv>::hook(Entry*, uint8_t op, const uint8_t* data, size_t* len, void* obj) {
+  if (op == kOpType) return Srv::type_name();
+  if (op == kOpMd5) return Srv::md5sum();
+  return static_cast<Response*>(obj)->deserialize(data, *len) ? nullptr : "bad response";
+}
+
+template <class Srv>
+uint8_t ServiceClient<Srv>::call(const Request& req, Response& res, uint16_t timeout_ms) {
+  size_t cap = 0, n = 0;
+  uint8_t* buf = node_ ? node_->txBuffer(&cap) : nullptr;
+  if (buf == nullptr || cap < 4 || !detail::serialize_into(req, buf + 4, cap - 4, &n)) {
+    return kCallNotConnected;
+  }
+  return node_->callService(*this, n, timeout_ms, &res);
+}
+
+// ---------------------------------------------------------------------------------------------
+// NodeHandle_: setup and registration
+
+#define HWB_NODE template <class Hardware, class Profile>
+#define HWB_SELF NodeHandle_<Hardware, Profile>
+
+HWB_NODE void HWB_SELF::initNode(uint32_t baud, const char* name, const char* firmware) {
+  hw_.init(baud);
+  begin(name, firmware);
+}
+
+HWB_NODE void HWB_SELF::begin(const char* name, const char* firmware) {
+  name_ = name;
+  firmware_ = firmware;
+  rng_ = hw_.seed() | 1u;
+  rng_ ^= 0x9E3779B9UL;
+  if (rng_ == 0) rng_ = 1;
+  id_ = has_fixed_ ? fixed_id_ : 0;
+  while (id_ == 0) id_ = random32();
+  now_ = hw_.micros();
+  peer_max_ = kMinMtu;
+  mtu_ = Profile::kMtu;
+  dec_.set_max_payload(Profile::kMtu);
+  be_peer_ = 0;
+  be_rx_.resync();
+  lead_.reset();
+  state_ = kHandshake;
+  teardown();  // draws the ISN, schedules the first HELLO now
+}
+
+HWB_NODE uint32_t HWB_SELF::random32() {
+  uint32_t x = rng_;  // xorshift32
+  x ^= x << 13;
+  x ^= x >> 17;
+  x ^= x << 5;
+  return rng_ = x;
+}
+
+HWB_NODE bool HWB_SELF::add(Entry& e) {
+  if (e.node_ != nullptr || entry_count_ == 255) return false;
+  e.node_ = this;
+  e.channel_ = ++entry_count_;
+  e.next_ = nullptr;
+  Entry** tail = &entries_;
+  while (*tail) tail = &(*tail)->next_;
+  *tail = &e;
+  return true;
+}
+
+HWB_NODE Entry* HWB_SELF::entryOn(uint8_t channel, uint8_t kind) {
+  for (Entry* e = entries_; e; e = e->next_) {
+    if (e->channel_ == channel) return e->accepted_ && e->kind_ == kind ? e : nullptr;
+  }
+  return nullptr;
+}
+
+// ---------------------------------------------------------------------------------------------
+// The loop
+
+HWB_NODE void HWB_SELF::spinOnce() {
+  processInput();
+  runTimers();
+}
+
+HWB_NODE void HWB_SELF::processInput() {
+  if (state_ == kOff || in_input_) return;
+  in_input_ = true;
+  now_ = hw_.micros();
+  for (uint16_t budget = 2 * FrameDecoder<Profile::kMtu, false>::kCapacity + 8; budget; --budget) {
+    const int c = hw_.read();
+    if (c < 0) break;
+    if (dec_.push(static_cast<uint8_t>(c)) == Decoded::Frame) onFrame(dec_.frame());
+  }
+  in_input_ = false;
+  flushOut();
+}
+
+HWB_NODE void HWB_SELF::runTimers() {
+  if (state_ == kOff || in_input_) return;
+  now_ = hw_.micros();
+  if (!established()) {
+    if (time_reached(now_, next_hello_)) {
+      sendHello();
+      next_hello_ = now_ + hello_wait_;
+      hello_wait_ = hello_wait_ * 2 < kHelloIntervalUs ? hello_wait_ * 2 : kHelloIntervalUs;
+    }
+    hw_.flush();
+    return;
+  }
+  if (now_ - last_rx_ >= kLinkTimeoutUs ||
+      (state_ == kConfiguring && now_ - since_ >= kHandshakeTimeoutUs)) {
+    ++stats_.link_losses;
+    teardown();
+    runTimers();
+    return;
+  }
+  pump();
+  if (!established()) {  // the retry limit ended the session
+    runTimers();
+    return;
+  }
+  if (state_ == kConnected) {
+    if (call_state_ == 1 && time_reached(now_, call_deadline_)) {
+      call_status_ = kCallTimeout;
+      call_state_ = 2;
+    }
+    if (param_id_ && time_reached(now_, param_deadline_)) finishParam(kParamTimeout, nullptr);
+    if (Profile::kTimeSyncMs && (features_ & 1) && time_reached(now_, time_next_)) {
+      requestSyncTime();
+      time_next_ = now_ + kTimeRetryUs;
+    }
+  }
+  if (now_ - last_tx_ >= kHeartbeatUs) {
+    ++stats_.heartbeats_sent;
+    const uint8_t hb = 0x02;
+    sendControlBe(&hb, 1);
+  }
+  hw_.flush();
+}
+
+HWB_NODE void HWB_SELF::spinFor() {
+  in_input_ = false;
+  processInput();
+  runTimers();
+}
+
+/** Waits (spinning) until the transmit buffer is free, for at most limit_us. */
+HWB_NODE bool HWB_SELF::waitTx(uint32_t limit_us) {
+  if (txFree()) return true;
+  if (in_input_ || !established()) return false;
+  const uint32_t start = hw_.micros();
+  while (!txFree() && established()) {
+    if (hw_.micros() - start >= limit_us) return false;
+    spinFor();
+  }
+  return txFree();
+}
+
+// ---------------------------------------------------------------------------------------------
+// Output
+
+HWB_NODE void HWB_SELF::emit(const Frame& f) {
+  FrameHeader h;
+  h.type = f.type;
+  h.frag = f.frag;
+  h.channel = f.channel;
+  h.seq = f.seq;
+  write_frame(hw_, h, f.payload, f.size, nullptr, 0, lead_.lead(now_));
+  last_tx_ = now_;
+}
+
+HWB_NODE void HWB_SELF::sendControlBe(const uint8_t* p, size_t n) {
+  be_tx_.send(hw_, kControlChannel, p, n, established() ? mtu_ : kMinMtu, lead_.lead(now_));
+  last_tx_ = now_;
+}
+
+HWB_NODE void HWB_SELF::sendHello() {
+  ++stats_.hellos_sent;
+  uint8_t h[22];
+  h[0] = 0x01;
+  h[1] = 1;  // version
+  h[2] = 1;  // role: board
+  h[3] = established() ? 1 : 0;
+  detail::put32(h + 4, id_);
+  detail::put32(h + 8, peer_);
+  detail::put16(h + 12, Profile::kMtu);
+  detail::put32(h + 14, Profile::kMaxMessage);
+  h[18] = Profile::kWindow;
+  h[19] = isn_;
+  h[20] = Profile::kFeatures;
+  lead_.reset();  // 1.3: a HELLO is always led by 0x00
+  sendControlBe(h, 21);
+}
+
+/** After input: the ACK that is due (every one at once: this board never holds ACKs back),
+ * then what the reliable window lets out. */
+HWB_NODE void HWB_SELF::flushOut() {
+  if (established() && rel_rx_.ack_needed()) {
+    rel_rx_.write_ack(hw_, lead_.lead(now_));
+    last_tx_ = now_;
+  }
+  pump();
+  hw_.flush();
+}
+
+/** Moves the waiting message (or the next table message) into the reliable window and sends
+ * every frame that is due. */
+HWB_NODE void HWB_SELF::pump() {
+  if (!established()) return;
+  while (!rel_tx_.sending() && rel_tx_.free_slots()) {
+    if (pending_len_ == 0 && !queueTable()) break;
+    if (!rel_tx_.send(pending_ch_, tx_, pending_len_)) break;
+    pending_len_ = 0;
+  }
+  Frame f;
+  while (rel_tx_.poll(now_, &f)) emit(f);
+  if (rel_tx_.dead()) {
+    ++stats_.link_losses;
+    teardown();
+  }
+}
+
+/** Builds the next message of the topic table (2.6) in tx_; false when the table is done. */
+HWB_NODE bool HWB_SELF::queueTable() {
+  if (state_ != kConfiguring || table_pos_ > entry_count_ + 1) return false;
+  uint8_t* p = tx_;
+  const size_t cap = Profile::kTxBuffer;
+  static_assert(Profile::kTxBuffer >= 24, "kTxBuffer must hold at least 24 bytes");
+  if (table_pos_ == 0) {  // BOARD_INFO
+    *p++ = 0x10;
+    *p++ = entry_count_;
+    uint8_t* len = p++;
+    p = detail::put_str(p, name_, cap - 5 < 255 ? cap - 5 : 255);
+    *len = static_cast<uint8_t>(p - len - 1);
+    const size_t room = cap - static_cast<size_t>(p - tx_) - 1;
+    const uint8_t ul = uid_len_ <= room ? uid_len_ : static_cast<uint8_t>(room);
+    *p++ = ul;
+    for (uint8_t i = 0; i < ul; ++i) *p++ = uid_[i];
+    p = detail::put_str(p, firmware_, cap - static_cast<size_t>(p - tx_));
+  } else if (table_pos_ <= entry_count_) {  // TOPIC
+    Entry* e = entries_;
+    for (uint8_t i = 1; i < table_pos_; ++i) e = e->next_;
+    *p++ = 0x11;
+    *p++ = e->channel_;
+    *p++ = e->kind_;
+    *p++ = e->reliable_ ? 1 : 0;
+    const char* md5 = e->hook_(e, Entry::kOpMd5, nullptr, nullptr, nullptr);
+    for (uint8_t i = 0; i < 16; ++i) {
+      *p++ = static_cast<uint8_t>(hex_value(flash_byte(md5 + 2 * i)) << 4 |
+                                  hex_value(flash_byte(md5 + 2 * i + 1)));
+    }
+    uint8_t* len = p++;
+    p = detail::put_str(p, e->name_, cap - 21);
+    *len = static_cast<uint8_t>(p - len - 1);
+    p = detail::put_str_P(p, e->hook_(e, Entry::kOpType, nullptr, nullptr, nullptr),
+                          cap - static_cast<size_t>(p - tx_));
+  } else {  // TABLE_END
+    *p++ = 0x12;
+    *p++ = entry_count_;
+  }
+  ++table_pos_;
+  pending_ch_ = kControlChannel;
+  pending_len_ = static_cast<uint16_t>(p - tx_);
+  return true;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Input
+
+HWB_NODE void HWB_SELF::onFrame(const Frame& f) {
+  if (f.type == FrameType::BestEffort) {
+    onBestEffort(f);
+    return;
+  }
+  if (!established()) {
+    ++stats_.ignored_frames;
+    return;
+  }
+  last_rx_ = now_;
+  if (f.type == FrameType::Ack) {
+    rel_tx_.on_ack(f, now_);
+    return;
+  }
+  if (rel_rx_.receive(f) != Received::Deliver) return;
+  Message m;
+  if (reasm_.feed(f, &m)) onMessage(m, true);
+}
+
+HWB_NODE void HWB_SELF::onBestEffort(const Frame& f) {
+  const uint8_t* p = f.payload;
+  if (f.channel == kControlChannel && f.size >= 8 && p[0] == 0x01 && p[1] == 1) {
+    const uint32_t peer = detail::get32(p + 4);  // a HELLO: a new session has its own seq space
+    if (peer != be_peer_ && peer != id_) {
+      be_peer_ = peer;
+      be_rx_.resync();
+      reasm_.reset(FrameType::BestEffort);
+    }
+  }
+  if (!be_rx_.accept(f.seq)) return;
+  Message m;
+  if (reasm_.feed(f, &m)) onMessage(m, false);
+}
+
+HWB_NODE void HWB_SELF::onMessage(const Message& m, bool reliable) {
+  if (m.channel == kControlChannel) {
+    onControl(m.data, m.size, reliable);
+  } else if (established()) {
+    last_rx_ = now_;
+    onData(m);
+  } else {
+    ++stats_.ignored_frames;
+  }
+}
+
+HWB_NODE void HWB_SELF::onData(const Message& m) {
+  Entry* e = state_ == kConnected ? entryOn(m.channel, kSubscriber) : nullptr;
+  size_t len = m.size;
+  if (e == nullptr || e->hook_(e, Entry::kOpDeliver, m.data, &len, nullptr) != nullptr) {
+    ++stats_.dropped_messages;
+  }
+}
+
+HWB_NODE void HWB_SELF::onControl(const uint8_t* p, size_t n, bool reliable) {
+  // the fixed size of each opcode's fields (0: unknown); variable ones give their minimum
+  static const uint8_t kBe[8] = {0, 22, 1, 0, 21, 1, 9, 0};  // opcodes 0x00..0x07 (board's view)
+  if (n == 0) {
+    protocolError();
+    return;
+  }
+  const uint8_t op = p[0];
+  uint8_t need = 0;
+  if (op < 8) {
+    need = kBe[op];
+  } else if (op == 0x13) {
+    need = 3;
+  } else if (op == 0x14) {
+    need = 2;
+  } else if (op == 0x20) {
+    need = 4;
+  } else if (op == 0x21) {
+    need = 5;
+  } else if (op == 0x31) {
+    need = 5;
+  } else if (op == 0x40) {
+    need = 2;
+  }
+  if (need == 0 || n < need || (op < 0x10) == reliable) {  // unknown, short, or wrong stream
+    protocolError();
+    return;
+  }
+  if (op == 0x01) {
+    onHello(p);
+    return;
+  }
+  if (!established()) {
+    ++stats_.ignored_frames;
+    return;
+  }
+  last_rx_ = now_;
+  switch (op) {
+    case 0x02:  // HEARTBEAT
+      break;
+    case 0x04:
+      onTimeResponse(p);
+      break;
+    case 0x05:  // GOODBYE
+      ++stats_.peer_resets;
+      teardown();
+      break;
+    case 0x06: {  // HOST_TIME_REQUEST: t1 echoed, t2 = t3 = now
+      if (!(Profile::kFeatures & 1)) break;
+      if (!time_synced_) {  // a first estimate of host time: t1 plus the one-way delay
+        host_sec_ = detail::get32(p + 1);
+        host_nsec_ = detail::get32(p + 5);
+        board_ref_ = now_;
+      }
+      uint8_t r[17];
+      r[0] = 0x07;
+      memcpy(r + 1, p + 1, 8);
+      detail::put32(r + 9, now_);
+      detail::put32(r + 13, now_);
+      sendControlBe(r, 17);
+      break;
+    }
+    case 0x13:
+      onTopicAck(p, n);
+      break;
+    case 0x14:  // READY
+      if (state_ != kConfiguring) break;
+      {
+        uint8_t accepted = 0;
+        for (Entry* e = entries_; e; e = e->next_) accepted = static_cast<uint8_t>(accepted + e->accepted_);
+        if (accepted != p[1]) protocolError();
+      }
+      state_ = kConnected;
+      time_next_ = now_;
+      break;
+    case 0x20:
+      onServiceRequest(p, n);
+      break;
+    case 0x21:
+      onServiceResponse(p, n);
+      break;
+    case 0x31:
+      onParamValue(p, n);
+      break;
+    case 0x40:  // LOG from the host
+      if (p[1] > 4) {
+        protocolError();
+      } else if (log_cb_ != nullptr) {
+        log_cb_(p[1], reinterpret_cast<const char*>(p + 2), n - 2);
+      }
+      break;
+    default:  // an opcode only a board sends
+      protocolError();
+  }
+}
+
+HWB_NODE void HWB_SELF::onHello(const uint8_t* p) {
+  const uint32_t session = detail::get32(p + 4);
+  const uint32_t peer_session = detail::get32(p + 8);
+  if (p[1] != 1 || p[2] != 0) {  // another version, or the peer is a board (or an echo)
+    protocolError();
+    return;
+  }
+  if (established() && (session != peer_ || peer_session != id_)) {
+    ++stats_.peer_resets;  // the host restarted, or dropped the session
+    teardown();
+  }
+  if (!established()) {
+    if (detail::get16(p + 12) < kMinMtu || p[18] == 0 || detail::get32(p + 14) == 0 || session == 0) {
+      protocolError();
+      return;
+    }
+    peer_ = session;
+    if (peer_session == id_) establish(p);
+  }
+  if (!(p[3] & 1)) sendHello();
+}
+
+HWB_NODE void HWB_SELF::establish(const uint8_t* h) {
+  const uint16_t host_mtu = detail::get16(h + 12);
+  mtu_ = host_mtu < Profile::kMtu ? host_mtu : Profile::kMtu;
+  uint8_t window = h[18] < Profile::kWindow ? h[18] : Profile::kWindow;
+  if (window > kMaxWindow) window = kMaxWindow;
+  peer_max_ = detail::get32(h + 14);
+  features_ = static_cast<uint8_t>(h[20] & Profile::kFeatures);
+  rel_tx_.reset(isn_, window, mtu_);
+  rel_rx_.reset(h[19], window);
+  reasm_.reset(FrameType::Reliable);
+  dec_.set_max_payload(mtu_);
+  for (Entry* e = entries_; e; e = e->next_) e->accepted_ = false;
+  table_pos_ = 0;
+  pending_len_ = 0;
+  state_ = kConfiguring;
+  since_ = last_rx_ = now_;
+  ++stats_.sessions;
+}
+
+/** Ends the session (2.10), or starts the first handshake: pending requests fail, the reliable
+ * stream is dropped, a new ISN is drawn, and a HELLO goes out at the next timer run. */
+HWB_NODE void HWB_SELF::teardown() {
+  const bool was = established();
+  state_ = kHandshake;
+  peer_ = 0;
+  peer_max_ = kMinMtu;
+  mtu_ = Profile::kMtu;
+  dec_.set_max_payload(Profile::kMtu);
+  if (was) reasm_.reset(FrameType::Reliable);
+  pending_len_ = 0;
+  time_synced_ = false;
+  features_ = 0;
+  isn_ = has_fixed_ ? fixed_isn_ : static_cast<uint8_t>(random32());
+  rel_tx_.reset(isn_, Profile::kWindow, Profile::kMtu);
+  next_hello_ = now_;
+  hello_wait_ = kHelloFirstUs;
+  for (Entry* e = entries_; e; e = e->next_) e->accepted_ = false;
+  if (call_state_ == 1) {
+    call_status_ = kCallSessionReset;
+    call_state_ = 2;
+  }
+  if (param_id_) finishParam(kParamSessionReset, nullptr);
+}
+
+HWB_NODE void HWB_SELF::onTopicAck(const uint8_t* p, size_t n) {
+  const uint8_t status = p[2];
+  Entry* e = entries_;
+  while (e && e->channel_ != p[1]) e = e->next_;
+  if (e == nullptr || status > 2 || (status != 0 && n < 19)) {
+    protocolError();
+    return;
+  }
+  if (status == 0) {
+    e->accepted_ = true;
+    return;
+  }
+  protocolError();
+  if (status == 1) {
+    ++stats_.mismatches;
+  } else {
+    ++stats_.refused_entries;
+  }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Services
+
+HWB_NODE void HWB_SELF::onServiceRequest(const uint8_t* p, size_t n) {
+  const uint8_t channel = p[1];
+  const uint16_t id = detail::get16(p + 2);
+  if (!txFree()) {  // no room to answer now: the host's call times out
+    ++stats_.tx_refused;
+    return;
+  }
+  Entry* e = state_ == kConnected ? entryOn(channel, kServiceServer) : nullptr;
+  uint8_t status = 2;  // NO_SERVICE
+  size_t len = 0;
+  if (e != nullptr) {
+    const size_t cap = Profile::kTxBuffer - 5;
+    const size_t limit = peer_max_ - 5 < cap ? peer_max_ - 5 : cap;
+    ServiceOut out = {tx_ + 5, limit};
+    len = n - 4;
+    const char* err = e->hook_(e, Entry::kOpDeliver, p + 4, &len, &out);
+    status = 0;
+    if (err != nullptr) {
+      status = 1;  // ERROR, with the reason as the body
+      uint8_t* end = detail::put_str(tx_ + 5, err, limit);
+      len = static_cast<size_t>(end - tx_ - 5);
+    }
+  }
+  tx_[0] = 0x21;
+  tx_[1] = channel;
+  detail::put16(tx_ + 2, id);
+  tx_[4] = status;
+  pending_ch_ = kControlChannel;
+  pending_len_ = static_cast<uint16_t>(5 + len);
+}
+
+HWB_NODE void HWB_SELF::onServiceResponse(const uint8_t* p, size_t n) {
+  if (p[4] > 2) {
+    protocolError();
+    return;
+  }
+  if (call_state_ != 1 || detail::get16(p + 2) != call_id_ || call_entry_ == nullptr ||
+      p[1] != call_entry_->channel_) {
+    return;  // late, or not ours
+  }
+  call_status_ = p[4];
+  if (call_status_ == kCallOk) {
+    size_t len = n - 5;
+    if (call_entry_->hook_(call_entry_, Entry::kOpDeliver, p + 5, &len, call_res_) != nullptr) {
+      call_status_ = kCallBadResponse;
+    }
+  }
+  call_state_ = 2;
+}
+
+HWB_NODE uint8_t HWB_SELF::callService(Entry& e, size_t len, uint16_t timeout_ms, void* res) {
+  if (state_ != kConnected || !e.accepted_ || call_state_ == 1 || in_input_ ||
+      len + 4 > peer_max_) {
+    ++stats_.tx_refused;
+    return kCallNotConnected;
+  }
+  call_id_ = newRequestId();
+  tx_[0] = 0x20;
+  tx_[1] = e.channel_;
+  detail::put16(tx_ + 2, call_id_);
+  pending_ch_ = kControlChannel;
+  pending_len_ = static_cast<uint16_t>(len + 4);
+  call_entry_ = &e;
+  call_res_ = res;
+  call_state_ = 1;
+  call_deadline_ = hw_.micros() + 1000UL * (timeout_ms ? timeout_ms : Profile::kServiceTimeoutMs);
+  pump();
+  hw_.flush();
+  while (call_state_ == 1) spinFor();
+  call_state_ = 0;
+  call_entry_ = nullptr;
+  return call_status_;
+}
+
+HWB_NODE uint16_t HWB_SELF::newRequestId() {
+  uint16_t id;
+  do {
+    id = ++next_request_;
+  } while (id == 0 || id == param_id_ || (call_state_ == 1 && id == call_id_));
+  return id;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Parameters
+
+HWB_NODE uint16_t HWB_SELF::requestParam(const char* name, uint8_t type, ParamCallback cb,
+                                          bool subscribe, uint16_t max_count) {
+  const size_t len = strlen(name);
+  param_cb_ = cb;
+  if (param_id_ || state_ != kConnected || !waitTx(kHelloIntervalUs) || len + 7 > Profile::kTxBuffer ||
+      len + 7 > peer_max_) {
+    ++stats_.tx_refused;
+    ParamValue v;
+    memset(&v, 0, sizeof(v));
+    v.status = kParamNotConnected;
+    if (cb) cb(v);
+    return 0;
+  }
+  param_id_ = newRequestId();
+  if (subscribe) push_cb_ = cb;
+  uint8_t* p = tx_;
+  *p++ = 0x30;
+  p = detail::put16(p, param_id_);
+  *p++ = type;
+  *p++ = subscribe ? 1 : 0;
+  p = detail::put16(p, max_count);
+  memcpy(p, name, len);
+  pending_ch_ = kControlChannel;
+  pending_len_ = static_cast<uint16_t>(7 + len);
+  param_deadline_ = now_ + 1000UL * Profile::kParamTimeoutMs;
+  pump();
+  hw_.flush();
+  return param_id_;
+}
+
+HWB_NODE void HWB_SELF::finishParam(uint8_t status, const ParamValue* v) {
+  ParamValue none;
+  if (v == nullptr) {
+    memset(&none, 0, sizeof(none));
+    none.request_id = param_id_;
+    none.status = status;
+    v = &none;
+  }
+  param_id_ = 0;
+  if (sync_state_ == 1) {  // a blocking getParam: copy the values out
+    uint8_t ok = 3;
+    if (sync_type_ != kParamString && v->status == kParamOk && v->count() == sync_len_) {
+      ok = 2;
+      for (uint16_t i = 0; i < sync_len_; ++i) {
+        if (sync_type_ == kParamInt32) {
+          static_cast<int32_t*>(sync_out_)[i] = v->asInt(i);
+        } else if (sync_type_ == kParamFloat32) {
+          static_cast<float*>(sync_out_)[i] = v->asFloat(i);
+        } else if (sync_type_ == kParamBool) {
+          static_cast<bool*>(sync_out_)[i] = v->asBool(i);
+        }
+      }
+    }
+    if (sync_type_ == kParamString && v->status == kParamOk && v->count() == 1 &&
+        (v->type & 0x7F) == kParamString) {
+      ok = 2;
+      v->asString(static_cast<char*>(sync_out_), sync_len_);
+    }
+    sync_state_ = ok;
+    return;
+  }
+  if (param_cb_) param_cb_(*v);
+}
+
+HWB_NODE void HWB_SELF::onParamValue(const uint8_t* p, size_t n) {
+  ParamValue v;
+  v.request_id = detail::get16(p + 1);
+  v.status = p[3];
+  v.name_len = p[4];
+  v.name = reinterpret_cast<const char*>(p + 5);
+  v.type = 0;
+  v.count_ = 0;
+  v.elems_ = nullptr;
+  v.size_ = 0;
+  size_t at = 5u + v.name_len;
+  bool good = v.status <= 3 && at <= n;
+  if (good && v.status == kParamOk) {
+    good = at < n;
+    if (good) {
+      v.type = p[at++];
+      const uint8_t scalar = static_cast<uint8_t>(v.type & 0x7F);
+      good = scalar >= 1 && scalar <= 4 && (v.type & 0x80 ? at + 2 <= n : true);
+      if (good) {
+        v.count_ = 1;
+        if (v.type & 0x80) {
+          v.count_ = detail::get16(p + at);
+          at += 2;
+        }
+        v.elems_ = p + at;
+        const uint8_t es = detail::param_elem_size(scalar);
+        for (uint16_t i = 0; good && i < v.count_; ++i) {  // every element within the payload
+          size_t step = es;
+          if (es == 0) step = at + 2 <= n ? 2u + detail::get16(p + at) : n + 1;
+          good = at + step <= n;
+          at += step;
+        }
+        v.size_ = at - static_cast<size_t>(v.elems_ - p);
+      }
+    }
+  }
+  if (!good) {
+    protocolError();
+    return;
+  }
+  if (v.request_id == 0) {  // pushed: a subscribed parameter changed
+    if (v.status == kParamOk && push_cb_) push_cb_(v);
+    return;
+  }
+  if (v.request_id != param_id_) return;  // answered after its timeout
+  finishParam(v.status, &v);
+}
+
+HWB_NODE bool HWB_SELF::blockingParam(const char* name, uint8_t type, void* out, uint16_t length,
+                                       uint16_t timeout_ms) {
+  if (in_input_ || param_id_ || length == 0) return false;
+  sync_out_ = out;
+  sync_type_ = type;
+  sync_len_ = length;
+  sync_state_ = 1;
+  const bool list = length > 1 && type != kParamString;
+  if (requestParam(name, static_cast<uint8_t>(list ? (type | kParamList) : type), nullptr, false,
+                   list ? length : 0) == 0) {
+    sync_state_ = 0;
+    return false;
+  }
+  if (timeout_ms) param_deadline_ = now_ + 1000UL * timeout_ms;
+  while (sync_state_ == 1) spinFor();
+  const bool ok = sync_state_ == 2;
+  sync_state_ = 0;
+  return ok;
+}
+
+HWB_NODE bool HWB_SELF::getParamString(const char* name, char* out, size_t cap, uint16_t timeout_ms) {
+  if (cap == 0) return false;
+  out[0] = 0;
+  return blockingParam(name, kParamString, out, static_cast<uint16_t>(cap > 0xFFFF ? 0xFFFF : cap), timeout_ms);
+}
+
+HWB_NODE bool HWB_SELF::getParam(const char* name, int32_t* value, uint16_t length, uint16_t timeout_ms) {
+  return blockingParam(name, kParamInt32, value, length, timeout_ms);
+}
+HWB_NODE bool HWB_SELF::getParam(const char* name, float* value, uint16_t length, uint16_t timeout_ms) {
+  return blockingParam(name, kParamFloat32, value, length, timeout_ms);
+}
+HWB_NODE bool HWB_SELF::getParam(const char* name, bool* value, uint16_t length, uint16_t timeout_ms) {
+  return blockingParam(name, kParamBool, value, length, timeout_ms);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Logs, time, publishing
+
+HWB_NODE bool HWB_SELF::log(uint8_t level, const char* text) {
+  if (state_ != kConnected || !waitTx(kHelloIntervalUs)) {
+    ++stats_.tx_refused;
+    return false;
+  }
+  const size_t cap = Profile::kTxBuffer < peer_max_ ? Profile::kTxBuffer : peer_max_;
+  tx_[0] = 0x40;
+  tx_[1] = level;
+  size_t n = static_cast<size_t>(detail::put_str(tx_ + 2, text, cap - 2) - tx_ - 2);
+  while (n && (static_cast<uint8_t>(text[n]) & 0xC0) == 0x80) --n;  // cut on a UTF-8 boundary
+  uint8_t* end = tx_ + 2 + n;
+  pending_ch_ = kControlChannel;
+  pending_len_ = static_cast<uint16_t>(end - tx_);
+  pump();
+  hw_.flush();
+  return true;
+}
+
+HWB_NODE void HWB_SELF::requestSyncTime() {
+  if (state_ != kConnected || !(features_ & 1)) return;
+  uint8_t r[5];
+  r[0] = 0x03;
+  detail::put32(r + 1, now_);
+  sendControlBe(r, 5);
+}
+
+HWB_NODE void HWB_SELF::onTimeResponse(const uint8_t* p) {
+  const uint32_t elapsed = now_ - detail::get32(p + 1);
+  if (elapsed > kMaxTimeAgeUs) return;
+  const uint32_t t2s = detail::get32(p + 5), t2n = detail::get32(p + 9);
+  const uint32_t t3s = detail::get32(p + 13), t3n = detail::get32(p + 17);
+  // host busy time t3 - t2 in us (below 10 s here)
+  const int32_t busy = static_cast<int32_t>(t3s - t2s) * 1000000L +
+                       (static_cast<int32_t>(t3n) - static_cast<int32_t>(t2n)) / 1000;
+  int32_t rtt = static_cast<int32_t>(elapsed) - busy;
+  if (rtt < 0) rtt = 0;
+  // reference pair: board_ref = t4 (now), host_ref = t3 + rtt / 2
+  host_sec_ = t3s;
+  host_nsec_ = t3n + static_cast<uint32_t>(rtt / 2) * 1000u;
+  while (host_nsec_ >= 1000000000UL) {
+    host_nsec_ -= 1000000000UL;
+    ++host_sec_;
+  }
+  board_ref_ = now_;
+  time_synced_ = true;
+  time_next_ = now_ + 1000UL * Profile::kTimeSyncMs;
+}
+
+HWB_NODE void HWB_SELF::hostTime(uint32_t* sec, uint32_t* nsec) {
+  if (host_sec_ == 0 && host_nsec_ == 0) {
+    *sec = *nsec = 0;
+    return;
+  }
+  const uint32_t us = hw_.micros() - board_ref_;
+  const uint32_t whole = us / 1000000UL;
+  uint32_t ns = host_nsec_ + (us - whole * 1000000UL) * 1000UL;
+  uint32_t s = host_sec_ + whole;
+  if (ns >= 1000000000UL) {
+    ns -= 1000000000UL;
+    ++s;
+  }
+  *sec = s;
+  *nsec = ns;
+}
+
+HWB_NODE uint8_t* HWB_SELF::txBuffer(size_t* cap) {
+  *cap = Profile::kTxBuffer;
+  if (state_ != kConnected || !waitTx(kHelloIntervalUs)) {
+    ++stats_.tx_refused;
+    return nullptr;
+  }
+  return tx_;
+}
+
+HWB_NODE bool HWB_SELF::sendEntry(Entry& e, size_t len) {
+  if (state_ != kConnected || !e.accepted_ || len > peer_max_ || !txFree()) {
+    ++stats_.tx_refused;
+    return false;
+  }
+  if (e.reliable_) {
+    pending_ch_ = e.channel_;
+    pending_len_ = static_cast<uint16_t>(len);
+    pump();
+  } else {
+    be_tx_.send(hw_, e.channel_, tx_, len, mtu_, lead_.lead(now_ = hw_.micros()));
+    last_tx_ = now_;
+  }
+  hw_.flush();
+  return true;
+}
+
+#undef HWB_NODE
+#undef HWB_SELF
+
+}  // namespace hwbridge
+
+#endif  // HWBRIDGE_NODE_IMPL_H

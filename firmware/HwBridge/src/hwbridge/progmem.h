@@ -1,0 +1,33 @@
+// Strings in flash on AVR (PROGMEM), in RAM elsewhere: one way to read both.
+#ifndef HWBRIDGE_PROGMEM_H
+#define HWBRIDGE_PROGMEM_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#ifdef __AVR__
+#include <avr/pgmspace.h>
+#endif
+
+namespace hwbridge {
+
+/** Byte i of a string that the generated headers keep in flash on AVR. */
+inline uint8_t flash_byte(const char* p) {
+#ifdef __AVR__
+  return pgm_read_byte(p);
+#else
+  return static_cast<uint8_t>(*p);
+#endif
+}
+
+/** Value of one hex digit (0 for anything else). */
+inline uint8_t hex_value(uint8_t c) {
+  if (c >= '0' && c <= '9') return static_cast<uint8_t>(c - '0');
+  c = static_cast<uint8_t>(c | 0x20);
+  if (c >= 'a' && c <= 'f') return static_cast<uint8_t>(c - 'a' + 10);
+  return 0;
+}
+
+}  // namespace hwbridge
+
+#endif  // HWBRIDGE_PROGMEM_H

@@ -1,0 +1,364 @@
+"""AVR firmware in simavr: the runner (a small C program against Debian's libsimavr), built on
+first use and cached, and :class:`SimAvr`, the Python side that starts it and talks to it.
+
+The runner loads an ELF for an ATmega328P or ATmega2560, puts UART0 on a pseudo-terminal (its
+URL, ``serial:///dev/pts/N``, is its first line of output), holds the simulation to the wall
+clock (or a stated speed-up), and carries the devices on the MCU's pins through a line protocol
+on its stdin and stdout (see ``runner.c``): watched output pins report their duty every report
+period together with the simulated time, input pins are driven, quadrature encoders are moved to
+a position (the edges spread over the next period), HC-SR04 triggers are answered with an echo
+of a set width, and I2C register files answer on the TWI bus (the firmware's writes are
+reported). :mod:`hwbridge.emulator.pins` puts the emulator's world on these pins.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import logging
+import os
+import shutil
+import subprocess
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Final
+
+from hwbridge.errors import HwBridgeError
+
+__all__ = [
+    "DEBIAN_PACKAGES",
+    "MCUS",
+    "SimAvr",
+    "SimError",
+    "SimToolchainMissingError",
+    "Tick",
+    "arduino_pin",
+    "runner_binary",
+]
+
+log = logging.getLogger("hwbridge.firmware.sim")
+
+SOURCE: Final = Path(__file__).with_name("runner.c")
+DEBIAN_PACKAGES: Final = "simavr libsimavr-dev libsimavrparts1 libelf-dev gcc"
+"""What building the runner needs (apt-get install ...)."""
+MCUS: Final = ("atmega328p", "atmega2560")
+_HEADERS: Final = Path("/usr/include/simavr")
+_LIBS: Final = ("-lsimavr", "-lsimavrparts", "-lelf", "-lpthread", "-lutil")
+
+
+class SimError(HwBridgeError):
+    """The simulation could not start, or stopped."""
+
+
+class SimToolchainMissingError(SimError):
+    """simavr's development files or a C compiler are missing."""
+
+
+def _cache_root() -> Path:
+    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(base) / "hwbridge" / "simavr-runner"
+
+
+def runner_binary(*, cache: Path | None = None) -> Path:
+    """The runner's executable: built from ``runner.c`` on first use, cached under
+    ``~/.cache/hwbridge/simavr-runner/<hash of the source>/``."""
+    source = SOURCE.read_bytes()
+    key = hashlib.sha256(source + b"\0" + " ".join(_LIBS).encode()).hexdigest()[:16]
+    folder = (cache or _cache_root()) / key
+    binary = folder / "hwbridge-simavr"
+    if binary.exists():
+        return binary
+    compiler = shutil.which(os.environ.get("CC", "gcc")) or shutil.which("cc")
+    if compiler is None or not (_HEADERS / "sim_avr.h").exists():
+        raise SimToolchainMissingError(
+            "the simavr runner cannot be built: install the Debian packages "
+            f"{DEBIAN_PACKAGES} (apt-get install {DEBIAN_PACKAGES})"
+        )
+    folder.mkdir(parents=True, exist_ok=True)
+    partial = folder / f"hwbridge-simavr.{os.getpid()}.tmp"
+    command = [
+        compiler,
+        "-std=gnu11",
+        "-O2",
+        "-Wall",
+        "-Wextra",
+        "-Werror",
+        "-isystem",
+        str(_HEADERS),
+        "-o",
+        str(partial),
+        str(SOURCE),
+        *_LIBS,
+    ]
+    done = subprocess.run(command, capture_output=True, text=True, check=False)
+    if done.returncode != 0:
+        missing = "cannot find -l" in done.stderr or "No such file" in done.stderr
+        if missing:
+            raise SimToolchainMissingError(
+                "the simavr runner cannot be built: install the Debian packages "
+                f"{DEBIAN_PACKAGES} (apt-get install {DEBIAN_PACKAGES})"
+            )
+        raise SimError(f"building the simavr runner failed:\n{done.stderr.strip()}")
+    partial.replace(binary)  # atomic: concurrent first uses each build, one wins
+    log.info("built the simavr runner: %s", binary)
+    return binary
+
+
+# ---------------------------------------------------------------------- pins
+_MEGA_PINS: Final[dict[int, str]] = {
+    0: "E0", 1: "E1", 2: "E4", 3: "E5", 4: "G5", 5: "E3", 6: "H3", 7: "H4", 8: "H5", 9: "H6",
+    10: "B4", 11: "B5", 12: "B6", 13: "B7", 14: "J1", 15: "J0", 16: "H1", 17: "H0", 18: "D3",
+    19: "D2", 20: "D1", 21: "D0", 38: "D7", 39: "G2", 40: "G1", 41: "G0", 50: "B3", 51: "B2",
+    52: "B1", 53: "B0",
+    **{22 + i: f"A{i}" for i in range(8)},
+    **{30 + i: f"C{7 - i}" for i in range(8)},
+    **{42 + i: f"L{7 - i}" for i in range(8)},
+    **{54 + i: f"F{i}" for i in range(8)},
+    **{62 + i: f"K{i}" for i in range(8)},
+}  # fmt: skip
+
+
+def arduino_pin(pin: int | str, mcu: str = "atmega328p") -> str:
+    """An Arduino pin number (or ``"A0"``) as the runner names it: port letter and bit (``D2``).
+
+    A name already in that form (``"PD2"`` or ``"D2"`` for the port) is given back without
+    ``P``; plain numbers follow the Uno's or the Mega's pin map."""
+    if isinstance(pin, str):
+        text = pin.strip().upper()
+        if text.startswith("P") and len(text) == 3:
+            return text[1:]
+        if text.startswith("A") and text[1:].isdigit():
+            number = int(text[1:]) + (14 if mcu == "atmega328p" else 54)
+        elif text.isdigit():
+            number = int(text)
+        else:
+            raise SimError(f"not a pin: {pin!r} (an Arduino number, A0.., or a port bit like PD2)")
+    else:
+        number = pin
+    if mcu == "atmega328p":
+        if 0 <= number <= 7:
+            return f"D{number}"
+        if 8 <= number <= 13:
+            return f"B{number - 8}"
+        if 14 <= number <= 19:
+            return f"C{number - 14}"
+    elif number in _MEGA_PINS:
+        return _MEGA_PINS[number]
+    raise SimError(f"{mcu} has no Arduino pin {pin!r}")
+
+
+# ---------------------------------------------------------------------- the process
+@dataclass(frozen=True)
+class Tick:
+    """One report of the runner: simulated time (s since power-on) and each watched output
+    pin's duty (share of the period it was high) by port-bit name."""
+
+    time: float
+    duty: dict[str, float] = field(default_factory=dict)
+
+
+class SimAvr:
+    """The runner with one ELF. ``start()`` returns once the UART's pty exists (:attr:`url`);
+    with ``hold`` the AVR waits until :meth:`go` so that devices are in place before it boots.
+
+    Callbacks run on the reader thread, in the order the runner reported: ``on_tick(tick)``,
+    ``on_i2c_write(address, register, data)``, ``on_reset()`` and ``on_exit(state)``."""
+
+    def __init__(
+        self,
+        elf: Path | str,
+        *,
+        mcu: str = "atmega328p",
+        frequency: int = 16_000_000,
+        speed: float = 1.0,
+        report_us: int = 5000,
+    ) -> None:
+        if mcu not in MCUS:
+            raise SimError(f"unknown MCU {mcu!r}: choose {' or '.join(MCUS)}")
+        self.elf = Path(elf)
+        if not self.elf.is_file():
+            raise SimError(f"no firmware at {self.elf}")
+        self.mcu = mcu
+        self.frequency = frequency
+        self.speed = speed
+        self.report_us = report_us
+        self.url = ""
+        self.time = 0.0
+        """Simulated seconds since power-on, as of the last report."""
+        self.resets = 0
+        self.exited: str | None = None
+        self.on_tick: list[Callable[[Tick], None]] = []
+        self.on_i2c_write: list[Callable[[int, int, bytes], None]] = []
+        self.on_reset: list[Callable[[], None]] = []
+        self.on_exit: list[Callable[[str], None]] = []
+        self.callback_errors = 0
+        self._process: subprocess.Popen[str] | None = None
+        self._reader: threading.Thread | None = None
+        self._write_lock = threading.Lock()
+        self._ticked = threading.Condition()
+
+    # ------------------------------------------------------------------ life
+    def start(self, *, hold: bool = False) -> SimAvr:
+        binary = runner_binary()
+        command = [
+            str(binary),
+            "--mcu",
+            self.mcu,
+            "--freq",
+            str(self.frequency),
+            "--speed",
+            repr(float(self.speed)),
+            "--report-us",
+            str(self.report_us),
+            *(["--hold"] if hold else []),
+            str(self.elf),
+        ]
+        self._process = subprocess.Popen(
+            command,
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            bufsize=1,
+        )
+        stdout = self._process.stdout
+        assert stdout is not None
+        first = stdout.readline().strip()
+        if not first.startswith("serial://"):
+            error = self._stderr_text()
+            self.close()
+            raise SimError(f"the simavr runner did not start: {error or first or 'no output'}")
+        self.url = first
+        self._reader = threading.Thread(target=self._read, args=(stdout,), daemon=True)
+        self._reader.name = "simavr-reader"
+        self._reader.start()
+        threading.Thread(target=self._drain_stderr, daemon=True, name="simavr-stderr").start()
+        return self
+
+    def _stderr_text(self) -> str:
+        process = self._process
+        if process is None or process.stderr is None:
+            return ""
+        try:
+            process.wait(1)
+        except subprocess.TimeoutExpired:
+            return ""
+        return " ".join(process.stderr.read().split())[:500]
+
+    def _drain_stderr(self) -> None:
+        process = self._process
+        if process is None or process.stderr is None:
+            return
+        for line in process.stderr:
+            text = line.rstrip()
+            if text:
+                log.debug("simavr: %s", text)
+
+    @property
+    def path(self) -> str:
+        """The UART's pseudo-terminal (``/dev/pts/N``)."""
+        return self.url.removeprefix("serial://")
+
+    @property
+    def running(self) -> bool:
+        return self._process is not None and self._process.poll() is None
+
+    def command(self, line: str) -> None:
+        """Send one command line to the runner (see ``runner.c``)."""
+        process = self._process
+        if process is None or process.stdin is None:
+            raise SimError("the simulation is not running")
+        with self._write_lock:
+            try:
+                process.stdin.write(line + "\n")
+                process.stdin.flush()
+            except (BrokenPipeError, ValueError, OSError) as exc:
+                raise SimError(f"the simulation has stopped ({exc})") from exc
+
+    def go(self) -> None:
+        """Let a held AVR start running."""
+        self.command("go")
+
+    def reset(self) -> None:
+        """Reset the AVR, as its reset pin does (the pty stays)."""
+        self.command("reset")
+
+    def wait_time(self, seconds: float, timeout: float = 30.0) -> float:
+        """Block until the simulated clock reaches ``seconds``; returns it."""
+        deadline = time.monotonic() + timeout
+        with self._ticked:
+            while self.time < seconds:
+                left = deadline - time.monotonic()
+                if left <= 0 or not self.running:
+                    raise SimError(
+                        f"the simulation did not reach {seconds:.3f} s (at {self.time:.3f} s)"
+                    )
+                self._ticked.wait(min(left, 0.5))
+        return self.time
+
+    def close(self) -> None:
+        process = self._process
+        if process is None:
+            return
+        with contextlib.suppress(SimError):
+            self.command("quit")
+        try:
+            process.wait(3)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait(3)
+        for stream in (process.stdin, process.stdout, process.stderr):
+            if stream is not None:
+                with contextlib.suppress(OSError):
+                    stream.close()
+        if self._reader is not None and self._reader is not threading.current_thread():
+            self._reader.join(3)
+
+    def __enter__(self) -> SimAvr:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # ------------------------------------------------------------------ events
+    def _read(self, stdout: IO[str]) -> None:
+        for line in stdout:
+            try:
+                self._event(line.split())
+            except Exception:
+                self.callback_errors += 1
+                if self.callback_errors == 1:
+                    log.exception("simavr: handling %r failed", line.strip())
+
+    def _event(self, words: list[str]) -> None:
+        if not words:
+            return
+        kind = words[0]
+        if kind == "t":
+            duty = {}
+            for word in words[2:]:
+                name, _, value = word.partition("=")
+                duty[name] = float(value)
+            tick = Tick(int(words[1]) / 1e6, duty)
+            for handle in list(self.on_tick):
+                handle(tick)
+            with self._ticked:
+                self.time = tick.time
+                self._ticked.notify_all()
+        elif kind == "i2cw" and len(words) == 4:
+            address, register, data = int(words[1], 16), int(words[2], 16), bytes.fromhex(words[3])
+            for handle_write in list(self.on_i2c_write):
+                handle_write(address, register, data)
+        elif kind == "reset":
+            self.resets += 1
+            log.info("simavr: the AVR was reset")
+            for handle_reset in list(self.on_reset):
+                handle_reset()
+        elif kind == "exit":
+            self.exited = words[1] if len(words) > 1 else "done"
+            log.warning("simavr: the AVR stopped (%s)", self.exited)
+            for handle_exit in list(self.on_exit):
+                handle_exit(self.exited)

@@ -1,0 +1,589 @@
+/*
+ * hwbridge-simavr: run an AVR ELF in simavr with UART0 on a pseudo-terminal and devices on its
+ * pins, driven line by line from a controlling process (hwbridge.firmware.sim).
+ *
+ *   hwbridge-simavr --mcu atmega328p --freq 16000000 [--speed 1.0] [--report-us 5000] [--hold]
+ *                   FIRMWARE.elf
+ *
+ * stdout, one event per line (the first line is the UART's URL):
+ *   serial:///dev/pts/N           UART0's pseudo-terminal
+ *   t US PIN=DUTY ...             every report period: simulated time (us since power-on) and the
+ *                                 share of that period each watched output pin was high (0..1)
+ *   i2cw ADDR REG HEX             the firmware wrote bytes HEX from register REG of slave ADDR
+ *   reset                         the AVR was reset (watchdog, or the "reset" command)
+ *   exit STATE                    the AVR stopped (crashed, or slept with interrupts off)
+ * stdin, one command per line (pins are port and bit: D2, B5):
+ *   out PIN                       watch an output pin (its duty appears in the "t" lines)
+ *   in PIN 0|1                    drive an input pin
+ *   enc ID PINA PINB              a quadrature encoder (ID 0..7) on two input pins
+ *   pos ID STEPS                  move encoder ID's disc to STEPS quadrature steps (edges), the
+ *                                 edges spread over the next report period
+ *   sonar ID TRIG ECHO            an HC-SR04: a trigger pulse on TRIG starts an echo on ECHO
+ *   echo ID US                    the width of sonar ID's next echo pulses (0: none)
+ *   i2c ADDR                      a register-file slave at 7-bit ADDR (hex) on the TWI bus
+ *   reg ADDR REG HEX              set registers from REG of slave ADDR (hex bytes)
+ *   go                            start the AVR (with --hold, commands before it set up devices)
+ *   reset                         reset the AVR (as its reset pin does)
+ *   quit                          exit
+ * Time: the simulation is held to the wall clock times --speed (0: as fast as it goes).
+ * simavr 1.6's uart_pty_stop() hangs, so the runner exits without it.
+ */
+#define _GNU_SOURCE
+#include <errno.h>
+#include <stdarg.h>
+#include <fcntl.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+#include <unistd.h>
+
+#include <avr_extint.h>
+#include <avr_ioport.h>
+#include <avr_twi.h>
+#include <parts/uart_pty.h>
+#include <sim_avr.h>
+#include <sim_elf.h>
+#include <sim_irq.h>
+#include <sim_time.h>
+
+#define MAX_PINS 32
+#define MAX_ENC 8
+#define MAX_SONAR 4
+#define MAX_I2C 4
+#define TICK_US 1000
+
+typedef struct pin_ref {
+  char port;
+  uint8_t bit;
+} pin_ref;
+
+typedef struct watched_pin {
+  pin_ref pin;
+  avr_irq_t *irq;
+  int level;
+  avr_cycle_count_t since;  // cycle of the last level change or report
+  avr_cycle_count_t high;   // high cycles in this report period
+} watched_pin;
+
+typedef struct encoder {
+  int used;
+  pin_ref a, b;
+  int64_t position, target;
+  avr_cycle_count_t period;  // cycles between edges while catching up
+  int running;
+} encoder;
+
+typedef struct sonar {
+  int used;
+  pin_ref trig, echo;
+  avr_irq_t *trig_irq;
+  uint32_t echo_us;
+  avr_cycle_count_t trig_rise;
+  int busy;
+} sonar;
+
+typedef struct i2c_slave {
+  int used;
+  uint8_t addr;
+  uint8_t regs[256];
+  int selected;
+  int index;  // bytes written since START
+  uint8_t reg;
+  uint8_t written[64];
+  int nwritten;
+  uint8_t first_reg;
+} i2c_slave;
+
+static avr_t *avr;
+static uart_pty_t uart;
+static watched_pin watched[MAX_PINS];
+static int nwatched;
+static encoder encoders[MAX_ENC];
+static sonar sonars[MAX_SONAR];
+static i2c_slave slaves[MAX_I2C];
+static avr_irq_t *twi_irq;
+static uint8_t ext_mask[26], ext_value[26];
+static double speed = 1.0;
+static uint32_t report_us = 5000;
+static avr_cycle_count_t last_report;
+static struct timespec wall_start;
+static avr_cycle_count_t cycle_start;
+static char inbuf[8192];
+static size_t inlen;
+static int want_reset, want_quit, want_go;
+
+static void out_line(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
+static void out_line(const char *fmt, ...) {
+  va_list ap;
+  va_start(ap, fmt);
+  vprintf(fmt, ap);
+  va_end(ap);
+  fflush(stdout);
+}
+
+static void quiet_logger(avr_t *a, const int level, const char *format, va_list ap) {
+  (void)a;
+  if (level <= LOG_WARNING) vfprintf(stderr, format, ap);
+}
+
+static int parse_pin(const char *s, pin_ref *p) {
+  if (!s || strlen(s) != 2 || s[0] < 'A' || s[0] > 'L' || s[1] < '0' || s[1] > '7') return -1;
+  p->port = s[0];
+  p->bit = (uint8_t)(s[1] - '0');
+  return 0;
+}
+
+static avr_irq_t *pin_irq(pin_ref p) {
+  return avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ(p.port), p.bit);
+}
+
+/* Drive an input pin from outside: the port's "external" value keeps PORT writes (pull-ups)
+   from overriding it, and raising the pin's IRQ updates PIN and fires INTn/PCINT. */
+static void drive(pin_ref p, int level) {
+  int i = p.port - 'A';
+  ext_mask[i] |= (uint8_t)(1u << p.bit);
+  if (level)
+    ext_value[i] |= (uint8_t)(1u << p.bit);
+  else
+    ext_value[i] &= (uint8_t)~(1u << p.bit);
+  avr_ioport_external_t e;
+  e.name = (unsigned long)p.port;
+  e.mask = ext_mask[i];
+  e.value = ext_value[i];
+  avr_ioctl(avr, AVR_IOCTL_IOPORT_SET_EXTERNAL(p.port), &e);
+  avr_raise_irq(pin_irq(p), level ? 1 : 0);
+}
+
+static void reapply_inputs(void) {
+  for (int i = 0; i < 26; i++)
+    for (int b = 0; b < 8; b++)
+      if (ext_mask[i] & (1u << b)) {
+        pin_ref p = {(char)('A' + i), (uint8_t)b};
+        drive(p, (ext_value[i] >> b) & 1);
+      }
+}
+
+/* ------------------------------------------------------------------ watched outputs */
+static void watched_hook(avr_irq_t *irq, uint32_t value, void *param) {
+  (void)irq;
+  watched_pin *w = (watched_pin *)param;
+  int level = (value & 0xff) != 0;
+  if (level == w->level) return;
+  if (w->level) w->high += avr->cycle - w->since;
+  w->since = avr->cycle;
+  w->level = level;
+}
+
+static void watch(pin_ref p) {
+  if (nwatched >= MAX_PINS) return;
+  watched_pin *w = &watched[nwatched++];
+  w->pin = p;
+  w->irq = pin_irq(p);
+  w->level = (int)(w->irq->value & 0xff) != 0;
+  w->since = avr->cycle;
+  w->high = 0;
+  avr_irq_register_notify(w->irq, watched_hook, w);
+}
+
+/* ------------------------------------------------------------------ encoders */
+static const uint8_t quad_a[4] = {0, 1, 1, 0};
+static const uint8_t quad_b[4] = {0, 0, 1, 1};
+
+static void encoder_levels(encoder *e) {
+  int phase = (int)(((e->position % 4) + 4) % 4);
+  drive(e->a, quad_a[phase]);
+  drive(e->b, quad_b[phase]);
+}
+
+static avr_cycle_count_t encoder_step(avr_t *a, avr_cycle_count_t when, void *param) {
+  (void)a;
+  encoder *e = (encoder *)param;
+  if (e->position == e->target) {
+    e->running = 0;
+    return 0;
+  }
+  e->position += e->target > e->position ? 1 : -1;
+  encoder_levels(e);
+  if (e->position == e->target) {
+    e->running = 0;
+    return 0;
+  }
+  return when + e->period;
+}
+
+static void encoder_move(encoder *e, int64_t target) {
+  e->target = target;
+  int64_t steps = target > e->position ? target - e->position : e->position - target;
+  if (steps == 0) return;
+  avr_cycle_count_t span = avr_usec_to_cycles(avr, report_us);
+  avr_cycle_count_t period = span / (avr_cycle_count_t)steps;
+  avr_cycle_count_t shortest = avr_usec_to_cycles(avr, 4);
+  e->period = period < shortest ? shortest : period;
+  if (!e->running) {
+    e->running = 1;
+    avr_cycle_timer_register(avr, e->period, encoder_step, e);
+  }
+}
+
+/* ------------------------------------------------------------------ sonar */
+static avr_cycle_count_t sonar_echo_end(avr_t *a, avr_cycle_count_t when, void *param) {
+  (void)a;
+  (void)when;
+  sonar *s = (sonar *)param;
+  drive(s->echo, 0);
+  s->busy = 0;
+  return 0;
+}
+
+static avr_cycle_count_t sonar_echo_start(avr_t *a, avr_cycle_count_t when, void *param) {
+  (void)a;
+  (void)when;
+  sonar *s = (sonar *)param;
+  if (s->echo_us == 0) {
+    s->busy = 0;
+    return 0;
+  }
+  drive(s->echo, 1);
+  avr_cycle_timer_register_usec(avr, s->echo_us, sonar_echo_end, s);
+  return 0;
+}
+
+static void sonar_trig_hook(avr_irq_t *irq, uint32_t value, void *param) {
+  sonar *s = (sonar *)param;
+  int level = (value & 0xff) != 0;
+  int was = (irq->value & 0xff) != 0;
+  if (level && !was) {
+    s->trig_rise = avr->cycle;
+  } else if (!level && was && !s->busy) {
+    // The module wants a pulse of 10 us; it then sends its burst (8 cycles at 40 kHz) and
+    // raises the echo line about 0.5 ms after the trigger's fall.
+    if (avr->cycle - s->trig_rise >= avr_usec_to_cycles(avr, 8)) {
+      s->busy = 1;
+      avr_cycle_timer_register_usec(avr, 460, sonar_echo_start, s);
+    }
+  }
+}
+
+/* ------------------------------------------------------------------ I2C register files */
+static void flush_i2c_write(i2c_slave *s) {
+  if (s->nwritten == 0) return;
+  char hex[2 * 64 + 1];
+  for (int i = 0; i < s->nwritten; i++) snprintf(hex + 2 * i, 3, "%02x", s->written[i]);
+  out_line("i2cw %02x %02x %s\n", s->addr, s->first_reg, hex);
+  s->nwritten = 0;
+}
+
+static void twi_hook(avr_irq_t *irq, uint32_t value, void *param) {
+  (void)irq;
+  (void)param;
+  avr_twi_msg_irq_t v;
+  v.u.v = value;
+  for (int k = 0; k < MAX_I2C; k++) {
+    i2c_slave *s = &slaves[k];
+    if (!s->used) continue;
+    if (v.u.twi.msg & TWI_COND_STOP) {
+      if (s->selected) flush_i2c_write(s);
+      s->selected = 0;
+    }
+    if (v.u.twi.msg & TWI_COND_START) {
+      if (s->selected) flush_i2c_write(s);
+      s->selected = 0;
+      s->index = 0;
+      if ((v.u.twi.addr >> 1) == s->addr) {
+        s->selected = v.u.twi.addr;
+        avr_raise_irq(twi_irq, avr_twi_irq_msg(TWI_COND_ACK, (uint8_t)s->selected, 1));
+      }
+    }
+    if (!s->selected) continue;
+    if (v.u.twi.msg & TWI_COND_WRITE) {
+      avr_raise_irq(twi_irq, avr_twi_irq_msg(TWI_COND_ACK, (uint8_t)s->selected, 1));
+      if (s->index == 0) {
+        s->reg = v.u.twi.data;
+        s->first_reg = s->reg;
+      } else {
+        if (s->nwritten == (int)sizeof s->written) {
+          flush_i2c_write(s);
+          s->first_reg = s->reg;
+        }
+        s->written[s->nwritten++] = v.u.twi.data;
+        s->regs[s->reg] = v.u.twi.data;
+        s->reg++;
+      }
+      s->index++;
+    }
+    if (v.u.twi.msg & TWI_COND_READ) {
+      uint8_t data = s->regs[s->reg];
+      avr_raise_irq(twi_irq, avr_twi_irq_msg(TWI_COND_READ, (uint8_t)s->selected, data));
+      s->reg++;
+    }
+  }
+}
+
+static int hexbytes(const char *hex, uint8_t *out, int cap) {
+  int n = 0;
+  size_t len = strlen(hex);
+  if (len % 2) return -1;
+  for (size_t i = 0; i < len && n < cap; i += 2) {
+    unsigned int b;
+    if (sscanf(hex + i, "%2x", &b) != 1) return -1;
+    out[n++] = (uint8_t)b;
+  }
+  return n;
+}
+
+/* ------------------------------------------------------------------ commands */
+static void command(char *line) {
+  char *argv[8];
+  int argc = 0;
+  for (char *tok = strtok(line, " \t\r"); tok && argc < 8; tok = strtok(NULL, " \t\r"))
+    argv[argc++] = tok;
+  if (argc == 0) return;
+  pin_ref p, q;
+  const char *c = argv[0];
+  if (!strcmp(c, "out") && argc == 2 && !parse_pin(argv[1], &p)) {
+    watch(p);
+  } else if (!strcmp(c, "in") && argc == 3 && !parse_pin(argv[1], &p)) {
+    drive(p, atoi(argv[2]));
+  } else if (!strcmp(c, "enc") && argc == 4 && !parse_pin(argv[2], &p) && !parse_pin(argv[3], &q)) {
+    int id = atoi(argv[1]);
+    if (id < 0 || id >= MAX_ENC) return;
+    encoder *e = &encoders[id];
+    e->used = 1;
+    e->a = p;
+    e->b = q;
+    encoder_levels(e);
+  } else if (!strcmp(c, "pos") && argc == 3) {
+    int id = atoi(argv[1]);
+    if (id < 0 || id >= MAX_ENC || !encoders[id].used) return;
+    encoder_move(&encoders[id], strtoll(argv[2], NULL, 10));
+  } else if (!strcmp(c, "sonar") && argc == 4 && !parse_pin(argv[2], &p) &&
+             !parse_pin(argv[3], &q)) {
+    int id = atoi(argv[1]);
+    if (id < 0 || id >= MAX_SONAR) return;
+    sonar *s = &sonars[id];
+    s->used = 1;
+    s->trig = p;
+    s->echo = q;
+    s->trig_irq = pin_irq(p);
+    drive(q, 0);
+    avr_irq_register_notify(s->trig_irq, sonar_trig_hook, s);
+  } else if (!strcmp(c, "echo") && argc == 3) {
+    int id = atoi(argv[1]);
+    if (id < 0 || id >= MAX_SONAR) return;
+    sonars[id].echo_us = (uint32_t)strtoul(argv[2], NULL, 10);
+  } else if (!strcmp(c, "i2c") && argc == 2) {
+    for (int k = 0; k < MAX_I2C; k++)
+      if (!slaves[k].used) {
+        slaves[k].used = 1;
+        slaves[k].addr = (uint8_t)strtoul(argv[1], NULL, 16);
+        break;
+      }
+  } else if (!strcmp(c, "reg") && argc == 4) {
+    uint8_t addr = (uint8_t)strtoul(argv[1], NULL, 16);
+    unsigned reg = (unsigned)strtoul(argv[2], NULL, 16);
+    for (int k = 0; k < MAX_I2C; k++)
+      if (slaves[k].used && slaves[k].addr == addr) {
+        uint8_t bytes[256];
+        int n = hexbytes(argv[3], bytes, 256);
+        for (int i = 0; i < n; i++) slaves[k].regs[(reg + (unsigned)i) & 0xff] = bytes[i];
+      }
+  } else if (!strcmp(c, "go")) {
+    want_go = 1;
+  } else if (!strcmp(c, "reset")) {
+    want_reset = 1;
+  } else if (!strcmp(c, "quit")) {
+    want_quit = 1;
+  } else {
+    fprintf(stderr, "hwbridge-simavr: bad command: %s\n", argv[0]);
+  }
+}
+
+static void read_commands(void) {
+  for (;;) {
+    ssize_t n = read(0, inbuf + inlen, sizeof inbuf - 1 - inlen);
+    if (n == 0) {
+      want_quit = 1;  // the controlling process went away
+      return;
+    }
+    if (n < 0) return;  // EAGAIN: nothing more now
+    inlen += (size_t)n;
+    char *start = inbuf;
+    char *nl;
+    while ((nl = memchr(start, '\n', inlen - (size_t)(start - inbuf))) != NULL) {
+      *nl = 0;
+      command(start);
+      start = nl + 1;
+    }
+    inlen -= (size_t)(start - inbuf);
+    memmove(inbuf, start, inlen);
+    if (inlen == sizeof inbuf - 1) inlen = 0;  // a line too long: dropped
+  }
+}
+
+/* ------------------------------------------------------------------ the tick */
+static double wall_seconds(void) {
+  struct timespec now;
+  clock_gettime(CLOCK_MONOTONIC, &now);
+  return (double)(now.tv_sec - wall_start.tv_sec) + 1e-9 * (double)(now.tv_nsec - wall_start.tv_nsec);
+}
+
+static void report(void) {
+  static char line[64 * MAX_PINS];
+  avr_cycle_count_t span = avr->cycle - last_report;
+  int n = snprintf(line, sizeof line, "t %llu",
+                   (unsigned long long)(avr->cycle * 1000000ULL / avr->frequency));
+  for (int i = 0; i < nwatched; i++) {
+    watched_pin *w = &watched[i];
+    if (w->level) w->high += avr->cycle - w->since;
+    w->since = avr->cycle;
+    double duty = span ? (double)w->high / (double)span : (double)w->level;
+    w->high = 0;
+    n += snprintf(line + n, sizeof line - (size_t)n, " %c%u=%.4f", w->pin.port, w->pin.bit, duty);
+  }
+  last_report = avr->cycle;
+  out_line("%s\n", line);
+}
+
+static avr_cycle_count_t tick(avr_t *a, avr_cycle_count_t when, void *param) {
+  (void)a;
+  (void)param;
+  read_commands();
+  if (avr->cycle - last_report >= avr_usec_to_cycles(avr, report_us)) report();
+  if (speed > 0) {
+    double sim = (double)(avr->cycle - cycle_start) / (double)avr->frequency / speed;
+    double ahead = sim - wall_seconds();
+    if (ahead > 0.0002) usleep((useconds_t)(ahead * 1e6));
+  }
+  return when + avr_usec_to_cycles(avr, TICK_US);
+}
+
+static void start_timers(void) {
+  // simavr 1.6 polls a low INTn pin every cycle while ISCn selects "low level", and keeps
+  // polling (and raising INTn) after the firmware switched to edges: level triggering then
+  // acts as a falling edge instead, which no Arduino sketch tells apart.
+  for (uint8_t i = 0; i < 8; i++) avr_extint_set_strict_lvl_trig(avr, i, 0);
+  avr_cycle_timer_register_usec(avr, TICK_US, tick, NULL);
+  for (int i = 0; i < MAX_ENC; i++) encoders[i].running = 0;
+  for (int i = 0; i < MAX_ENC; i++)
+    if (encoders[i].used) encoder_move(&encoders[i], encoders[i].target);
+  for (int i = 0; i < MAX_SONAR; i++) sonars[i].busy = 0;
+}
+
+static void usage(void) {
+  fprintf(stderr,
+          "usage: hwbridge-simavr [--mcu atmega328p] [--freq 16000000] [--speed 1.0] "
+          "[--report-us 5000] [--hold] FIRMWARE.elf\n");
+  exit(2);
+}
+
+int main(int argc, char **argv) {
+  const char *mcu = "atmega328p";
+  const char *elf = NULL;
+  uint32_t freq = 16000000;
+  int hold = 0;
+  for (int i = 1; i < argc; i++) {
+    if (!strcmp(argv[i], "--mcu") && i + 1 < argc)
+      mcu = argv[++i];
+    else if (!strcmp(argv[i], "--freq") && i + 1 < argc)
+      freq = (uint32_t)strtoul(argv[++i], NULL, 10);
+    else if (!strcmp(argv[i], "--speed") && i + 1 < argc)
+      speed = atof(argv[++i]);
+    else if (!strcmp(argv[i], "--report-us") && i + 1 < argc)
+      report_us = (uint32_t)strtoul(argv[++i], NULL, 10);
+    else if (!strcmp(argv[i], "--hold"))
+      hold = 1;
+    else if (argv[i][0] == '-')
+      usage();
+    else
+      elf = argv[i];
+  }
+  if (!elf) usage();
+  avr_global_logger_set(quiet_logger);
+
+  elf_firmware_t fw;
+  memset(&fw, 0, sizeof fw);
+  if (elf_read_firmware(elf, &fw) != 0) {
+    fprintf(stderr, "hwbridge-simavr: cannot read %s\n", elf);
+    return 1;
+  }
+  avr = avr_make_mcu_by_name(mcu);
+  if (!avr) {
+    fprintf(stderr, "hwbridge-simavr: simavr does not know the MCU %s\n", mcu);
+    return 1;
+  }
+  avr_init(avr);
+  avr->log = LOG_WARNING;
+  fw.frequency = freq;
+  avr_load_firmware(avr, &fw);
+  avr->frequency = freq;
+
+  // uart_pty prints its pty names on stdout: keep stdout for our own lines.
+  fflush(stdout);
+  int saved = dup(1);
+  dup2(2, 1);
+  uart_pty_init(avr, &uart);
+  uart_pty_connect(&uart, '0');
+  fflush(stdout);
+  dup2(saved, 1);
+  close(saved);
+  out_line("serial://%s\n", uart.port[0].slavename);
+
+  static const char *twi_names[2] = {"<twi.in", ">twi.out"};
+  twi_irq = avr_alloc_irq(&avr->irq_pool, 0, 2, twi_names);
+  avr_irq_register_notify(twi_irq + TWI_IRQ_OUTPUT, twi_hook, NULL);
+  avr_connect_irq(twi_irq + TWI_IRQ_INPUT, avr_io_getirq(avr, AVR_IOCTL_TWI_GETIRQ(0), TWI_IRQ_INPUT));
+  avr_connect_irq(avr_io_getirq(avr, AVR_IOCTL_TWI_GETIRQ(0), TWI_IRQ_OUTPUT), twi_irq + TWI_IRQ_OUTPUT);
+  twi_irq = twi_irq + TWI_IRQ_INPUT;
+
+  for (uint8_t i = 0; i < 8; i++) avr_extint_set_strict_lvl_trig(avr, i, 0);
+  if (hold) {
+    // Devices first: commands are taken (blocking) until "go".
+    while (!want_go && !want_quit) {
+      ssize_t n = read(0, inbuf + inlen, sizeof inbuf - 1 - inlen);
+      if (n <= 0) return 0;
+      inlen += (size_t)n;
+      char *start = inbuf;
+      char *nl;
+      while (!want_go && (nl = memchr(start, '\n', inlen - (size_t)(start - inbuf))) != NULL) {
+        *nl = 0;
+        command(start);
+        start = nl + 1;
+      }
+      inlen -= (size_t)(start - inbuf);
+      memmove(inbuf, start, inlen);
+    }
+  }
+  fcntl(0, F_SETFL, fcntl(0, F_GETFL) | O_NONBLOCK);
+  clock_gettime(CLOCK_MONOTONIC, &wall_start);
+  cycle_start = avr->cycle;
+  start_timers();
+
+  int state = cpu_Running;
+  while (!want_quit) {
+    state = avr_run(avr);
+    if (state == cpu_Done || state == cpu_Crashed) break;
+    if (want_reset) {
+      want_reset = 0;
+      avr_reset(avr);
+    }
+    if (avr->pc == avr->reset_pc && avr_cycle_timer_status(avr, tick, NULL) == 0) {
+      // avr_reset (ours, or the watchdog's) cleared the cycle timers and the registers.
+      start_timers();
+      reapply_inputs();
+      for (int i = 0; i < MAX_I2C; i++) slaves[i].selected = 0;
+      out_line("reset\n");
+    }
+  }
+  if (!want_quit) {
+    out_line("exit %s\n", state == cpu_Crashed ? "crashed" : "done");
+    // Stay until told to go, so the controlling process sees the pty as long as it wants.
+    fcntl(0, F_SETFL, fcntl(0, F_GETFL) & ~O_NONBLOCK);
+    char buf[256];
+    while (read(0, buf, sizeof buf) > 0) {
+    }
+  }
+  fflush(stdout);
+  _exit(0);  // not uart_pty_stop(): it hangs in simavr 1.6
+}

@@ -1,0 +1,115 @@
+"""The simavr runner with a test program of our own (tests/sim/avr/probe.c): the UART on a pty,
+pins driven and watched, an HC-SR04 echo, an I2C register file, watchdog and external resets."""
+
+from __future__ import annotations
+
+import threading
+from pathlib import Path
+
+import pytest
+
+from hwbridge.firmware.sim import SimAvr, SimError, Tick, arduino_pin, runner_binary
+from tests.sim.conftest import Terminal
+
+
+def test_runner_is_cached(runner: Path) -> None:
+    assert runner_binary() == runner
+    assert runner.stat().st_mode & 0o111
+
+
+def test_arduino_pins() -> None:
+    assert [arduino_pin(n) for n in (0, 2, 7, 8, 13, 14, "A5")] == [
+        "D0", "D2", "D7", "B0", "B5", "C0", "C5",
+    ]  # fmt: skip
+    assert arduino_pin(2, "atmega2560") == "E4"
+    assert arduino_pin(20, "atmega2560") == "D1"
+    assert arduino_pin("PD3") == "D3"
+    with pytest.raises(SimError):
+        arduino_pin(20)
+    with pytest.raises(SimError):
+        arduino_pin("X9")
+
+
+def test_missing_elf(tmp_path: Path) -> None:
+    with pytest.raises(SimError, match="no firmware"):
+        SimAvr(tmp_path / "nothing.elf")
+    with pytest.raises(SimError, match="unknown MCU"):
+        SimAvr(tmp_path, mcu="atmega8")
+
+
+def test_uart_pins_twi_and_resets(probe_elf: Path, terminal_factory: type[Terminal]) -> None:
+    ticks: list[Tick] = []
+    writes: list[tuple[int, int, bytes]] = []
+    resets = threading.Event()
+    with SimAvr(probe_elf) as sim:
+        sim.on_tick.append(ticks.append)
+        sim.on_i2c_write.append(lambda a, r, d: writes.append((a, r, d)))
+        sim.on_reset.append(resets.set)
+        sim.start(hold=True)
+        assert sim.url.startswith("serial:///dev/pts/")
+        for line in (
+            "enc 0 D2 D4",
+            "out D5",
+            "out D7",
+            "sonar 0 B1 B2",
+            "echo 0 1740",
+            "i2c 68",
+            "reg 68 75 68",
+            "reg 68 3b 0102030405",
+        ):
+            sim.command(line)
+        sim.go()
+        uart = terminal_factory(sim.path)
+        assert uart.read_until(b"boot\n") == b"boot\n"
+        # UART echo, both ways
+        uart.write(b"HELLO 0123 #")
+        assert uart.read_until(b"#") == b"HELLO 0123 #"
+        # quadrature: 100 steps forward are 50 edges of A (x2 decoding), then back to -31
+        sim.command("pos 0 100")
+        sim.wait_time(sim.time + 0.02)
+        uart.write(b"c")
+        assert uart.read_until(b"\n") == b"C50\n"
+        sim.command("pos 0 -31")
+        sim.wait_time(sim.time + 0.02)
+        uart.write(b"c")
+        assert uart.read_until(b"\n") == b"C-15\n"
+        # PWM on OC0B and a direction pin: duty measured over a report period
+        uart.write(b"p\x40")
+        uart.read_until(b"P\n")
+        start = sim.time
+        sim.wait_time(start + 0.03)
+        late = [t for t in ticks if t.time > start + 0.01]
+        assert late
+        for tick in late:
+            assert tick.duty["D5"] == pytest.approx(65 / 256, abs=0.01)
+            assert tick.duty["D7"] == 1.0
+        # the sonar: the echo is as wide as set
+        # (the program's polling loop adds a few microseconds)
+        uart.write(b"s")
+        assert int(uart.read_until(b"\n")[1:]) == pytest.approx(1740, abs=4)
+        sim.command("echo 0 250")
+        sim.wait_time(sim.time + 0.01)  # commands are taken at the runner's next tick
+        uart.write(b"s")
+        assert int(uart.read_until(b"\n")[1:]) == pytest.approx(250, abs=4)
+        # I2C: the firmware's write reported, burst reads from the register file
+        uart.write(b"i")
+        assert uart.read_until(b"\n") == b"I68 010203040500\n"
+        assert writes == [(0x68, 0x6B, b"\x00")]
+        # the watchdog resets the chip; the runner says so and the encoder is still there
+        uart.write(b"w")
+        assert uart.read_until(b"boot\n").endswith(b"boot\n")
+        assert resets.wait(5)
+        uart.write(b"c")
+        assert uart.read_until(b"\n") == b"C0\n"
+        sim.command("pos 0 -35")
+        sim.wait_time(sim.time + 0.02)
+        uart.write(b"c")
+        assert uart.read_until(b"\n") == b"C-2\n"
+        # a reset from outside, as the reset pin gives
+        sim.reset()
+        assert uart.read_until(b"boot\n").endswith(b"boot\n")
+        uart.write(b"AGAIN")
+        assert uart.read_until(b"AGAIN") == b"AGAIN"
+        assert sim.resets == 2
+        assert sim.callback_errors == 0
+    assert not sim.running

@@ -171,7 +171,9 @@ def frame_lengths(size: int, mtu: int) -> list[int]:
     left = size + 2
     lengths: list[int] = []
     while left:
-        room = min(left + 1, mtu)
+        # The first frame leaves at least one byte for a second: a transfer with a CRC is
+        # never a single frame.
+        room = min(left if not lengths else left + 1, mtu)
         while room not in _VALID_LENGTH:
             room -= 1
         lengths.append(room)

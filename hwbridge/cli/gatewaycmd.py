@@ -101,7 +101,10 @@ def ros2(
         bool, typer.Option("--no-rosout", help="Do not forward board logs to /rosout.")
     ] = False,
 ) -> None:
-    """Mirror the graph's topics and services into ROS 2 (rclpy, ROS_DOMAIN_ID) until Ctrl-C."""
+    """Mirror the graph's topics and services into ROS 2 (rclpy) until Ctrl-C.
+
+    The ROS 2 graph is the one ROS_DOMAIN_ID selects; installing the [ros2] extra gives rclpy.
+    """
     from hwbridge.gateway.common import Selection
     from hwbridge.gateway.ros2 import (
         Ros2Options,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
@@ -16,6 +16,11 @@ from hwbridge.cli.bridgecmd import (
     wait_for_signal,
 )
 from hwbridge.cli.common import get_registry
+
+if TYPE_CHECKING:
+    from hwbridge.gateway.launch import GatewayProcess
+    from hwbridge.graph import GraphConfig
+    from hwbridge.robot.model import Robot
 
 __all__ = ["up"]
 
@@ -30,6 +35,23 @@ def _links(values: list[str] | None) -> dict[str, str]:
             )
         links[name] = url
     return links
+
+
+def _start_gateways(
+    ctx: typer.Context, config: GraphConfig, robot: Robot, *, ros2: bool, ros1: bool
+) -> list[GatewayProcess]:
+    """The gateway processes asked for, attached to this robot's graph."""
+    from hwbridge.gateway.launch import GatewayProcess
+
+    msg_path = [str(p) for p in getattr(ctx.find_root().obj, "msg_path", ())]
+    started: list[GatewayProcess] = []
+    if ros2:
+        started.append(GatewayProcess("ros2", config, msg_path=msg_path))
+    if ros1:
+        namespaces = sorted({b.namespace for b in robot.boards if b.namespace != "/"})
+        extra = [arg for ns in namespaces for arg in ("--param", ns)]
+        started.append(GatewayProcess("ros1", config, extra, msg_path=msg_path))
+    return started
 
 
 def up(
@@ -53,6 +75,21 @@ def up(
     ] = False,
     params: ParamsOption = None,
     listen: ListenOption = None,
+    ros2: Annotated[
+        bool,
+        typer.Option(
+            "--ros2",
+            help="Also start 'hwbridge ros2': the robot's topics and services in ROS 2.",
+        ),
+    ] = False,
+    ros1: Annotated[
+        bool,
+        typer.Option(
+            "--ros1",
+            help="Also start 'hwbridge ros1' (master from ROS_MASTER_URI): the robot in ROS 1, "
+            "its boards' namespaces' parameters from the ROS parameter server.",
+        ),
+    ] = False,
 ) -> None:
     """Bring a robot up: its boards and every host node its devices need, until Ctrl-C."""
     from hwbridge.graph import Graph
@@ -68,14 +105,18 @@ def up(
         graph.registry = get_registry(ctx)
         runtime = RobotRuntime(robot, graph, params=initial, wait_for_boards=wait)
         runtime.start()
+        gateways: list[GatewayProcess] = []
         try:
             sys.stderr.write(
                 f"hwbridge: robot {robot.name} up on {config.describe()}; Ctrl-C stops\n"
                 f"{runtime.summary()}\n"
             )
             sys.stderr.flush()
+            gateways = _start_gateways(ctx, config, robot, ros2=ros2, ros1=ros1)
             wait_for_signal()
         finally:
+            for gateway in reversed(gateways):
+                gateway.stop()
             runtime.stop()
     finally:
         graph.close()

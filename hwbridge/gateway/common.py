@@ -39,6 +39,9 @@ __all__ = [
 log = logging.getLogger("hwbridge.gateway")
 
 ANY: Final = "*"
+GATEWAY_NODE: Final = "hwbridge_gateway"
+"""Graph nodes whose names start with this are gateways: their entities are never mirrored, so
+two gateways on one graph do not feed each other's mirrors back."""
 
 
 @dataclass(frozen=True)
@@ -100,7 +103,8 @@ class _Names:
 class GraphWatcher:
     """Follows the graph's discovery and queues :class:`GraphChange` items, one per name.
 
-    The gateway's own entities (its Zenoh session) are ignored. A topic is handed out once, in
+    The gateway's own entities (its Zenoh session) and those of any gateway node
+    (:data:`GATEWAY_NODE`) are ignored. A topic is handed out once, in
     the first direction it qualifies for after a short settling time (so that a topic with both
     a publisher and subscribers on the graph goes graph -> ROS only, and nothing loops).
     """
@@ -124,6 +128,12 @@ class GraphWatcher:
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="gateway-watch", daemon=True)
 
+    def claim(self, name: str, kind: str = "topic") -> None:
+        """Take ``name`` out of the watch: the gateway handles it from the start (``/rosout``,
+        whose graph publisher appears only with a board's first log line)."""
+        with self._lock:
+            self._handed.add((kind, name))
+
     def start(self) -> GraphWatcher:
         self.graph.watch(self._on_entity)
         self._thread.start()
@@ -135,7 +145,11 @@ class GraphWatcher:
         self._thread.join(2)
 
     def _on_entity(self, entity: GraphEntity, alive: bool) -> None:
-        if entity.session == self.graph.zid or entity.kind not in ("pub", "sub", "srv"):
+        if (
+            entity.session == self.graph.zid
+            or entity.kind not in ("pub", "sub", "srv")
+            or entity.node.rsplit("/", 1)[-1].startswith(GATEWAY_NODE)
+        ):
             return
         table = {
             "pub": self._names.pubs,

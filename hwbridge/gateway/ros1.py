@@ -57,6 +57,7 @@ __all__ = ["Ros1Gateway", "Ros1Options", "run_ros1_gateway"]
 log = logging.getLogger("hwbridge.gateway.ros1")
 
 _CHECK_PERIOD: Final = 1.0
+ROSOUT: Final = "/rosout"
 
 
 @dataclass
@@ -202,8 +203,14 @@ class _Service:
 class Ros1Gateway:
     """Mirrors a graph into a ROS 1 master's graph until :meth:`close`."""
 
-    def __init__(self, graph: Graph, options: Ros1Options | None = None) -> None:
+    def __init__(
+        self,
+        graph: Graph,
+        options: Ros1Options | None = None,
+        announce: Callable[[str], None] | None = None,
+    ) -> None:
         self.graph = graph
+        self._announce = announce
         self.options = options or Ros1Options()
         self.caller_id = "/" + self.options.node_name.strip("/")
         self.report = Reporter()
@@ -233,8 +240,19 @@ class Ros1Gateway:
         self._main = threading.Thread(target=self._run, name="ros1-gateway", daemon=True)
         self.bridged: dict[str, str] = {}
 
+    def _say(self, text: str, *args: object) -> None:
+        """What is mirrored: one line each, to ``announce`` (the command's stderr) or the log."""
+        line = text % args
+        if self._announce is not None:
+            self._announce(f"hwbridge: {line}")
+        else:
+            log.info("%s", line)
+
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> Ros1Gateway:
+        if self.options.topics(ROSOUT):
+            self._watcher.claim(ROSOUT)
+            self._apply(GraphChange("to_ros", ROSOUT, "rosgraph_msgs/Log"))
         self.slave.start()
         self._watcher.start()
         self._main.start()
@@ -476,7 +494,7 @@ class Ros1Gateway:
             self._publications[topic] = publication
         self.bridged[topic] = f"to_ros {type_name}"
         self._when_up(lambda: self._register_publication(publication))
-        log.info("%s: graph -> ROS 1 (%s)", topic, type_name)
+        self._say("%s: graph -> ROS 1 (%s)", topic, type_name)
 
     def _to_ros(self, topic: str, type_name: str) -> None:
         known = self._known(type_name)
@@ -524,7 +542,7 @@ class Ros1Gateway:
             self._subscriptions[topic] = subscription
         self.bridged[topic] = f"from_ros {type_name}"
         self._when_up(lambda: self._register_subscription(subscription))
-        log.info("%s: ROS 1 -> graph (%s)", topic, type_name)
+        self._say("%s: ROS 1 -> graph (%s)", topic, type_name)
 
     def _serve_in_ros(self, name: str, type_name: str) -> None:
         try:
@@ -546,7 +564,7 @@ class Ros1Gateway:
             self._services[name] = service
         self.bridged[name] = f"service {type_name}"
         self._when_up(lambda: self._register_service(service))
-        log.info("%s: graph service in ROS 1 (%s)", name, type_name)
+        self._say("%s: graph service in ROS 1 (%s)", name, type_name)
 
     # ------------------------------------------------------------------ ROS services -> graph
     def _poll_ros_services(self) -> None:
@@ -587,7 +605,7 @@ class Ros1Gateway:
 
         self._keep.append(self.graph_node.deferred_service(name, type_name, handle))
         self.bridged[name] = f"ros_service {type_name}"
-        log.info("%s: ROS 1 service on the graph (%s)", name, type_name)
+        self._say("%s: ROS 1 service on the graph (%s)", name, type_name)
 
     # ------------------------------------------------------------------ parameters
     def _follow_params(self, prefix: str) -> None:
@@ -630,7 +648,7 @@ def run_ros1_gateway(
     if graph is None:
         return
     try:
-        gateway = Ros1Gateway(graph, options).start()
+        gateway = Ros1Gateway(graph, options, announce).start()
         try:
             if announce is not None:
                 announce(

@@ -163,8 +163,14 @@ class _Counters:
 class Ros2Gateway:
     """Mirrors a graph into ROS 2 until :meth:`close`. Needs rclpy importable."""
 
-    def __init__(self, graph: Graph, options: Ros2Options | None = None) -> None:
+    def __init__(
+        self,
+        graph: Graph,
+        options: Ros2Options | None = None,
+        announce: Callable[[str], None] | None = None,
+    ) -> None:
         self.graph = graph
+        self._announce = announce
         self.options = options or Ros2Options()
         self.report = Reporter()
         self.counters = _Counters()
@@ -197,8 +203,19 @@ class Ros2Gateway:
         self._main = threading.Thread(target=self._run, name="ros2-gateway", daemon=True)
         self._stop = threading.Event()
 
+    def _say(self, text: str, *args: object) -> None:
+        """What is mirrored: one line each, to ``announce`` (the command's stderr) or the log."""
+        line = text % args
+        if self._announce is not None:
+            self._announce(f"hwbridge: {line}")
+        else:
+            log.info("%s", line)
+
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> Ros2Gateway:
+        if self.options.rosout and self.options.topics(ROSOUT):
+            self._watcher.claim(ROSOUT)
+            self._apply(GraphChange("to_ros", ROSOUT, "rosgraph_msgs/Log"))
         self._spin.start()
         self._watcher.start()
         self._main.start()
@@ -315,7 +332,7 @@ class Ros2Gateway:
 
         self._keep.append(self.graph_node.subscriber(topic, ros1, forward, raw=True))
         self.bridged[topic] = f"to_ros {ros1}"
-        log.info("%s: graph -> ROS 2 (%s)", topic, ros2)
+        self._say("%s: graph -> ROS 2 (%s)", topic, ros2)
 
     def _rosout(self) -> None:
         from hwbridge import msg as msgmod
@@ -347,6 +364,7 @@ class Ros2Gateway:
             self.graph_node.subscriber(ROSOUT, "rosgraph_msgs/Log", forward, raw=True)
         )
         self.bridged[ROSOUT] = "to_ros rosgraph_msgs/Log -> rcl_interfaces/msg/Log"
+        self._say("%s: graph -> ROS 2 (rcl_interfaces/msg/Log)", ROSOUT)
 
     def _from_ros(self, topic: str, ros1: str) -> None:
         cls, ros2 = self._message_types(ros1)
@@ -372,7 +390,7 @@ class Ros2Gateway:
             raw=True,
         )
         self.bridged[topic] = f"from_ros {ros1}"
-        log.info("%s: ROS 2 -> graph (%s)", topic, ros2)
+        self._say("%s: ROS 2 -> graph (%s)", topic, ros2)
 
     # ------------------------------------------------------------------ services
     def _service_types(self, ros1: str) -> tuple[Any, str, str, str]:
@@ -411,7 +429,7 @@ class Ros2Gateway:
         self.node.create_service(cls, name, handle, callback_group=self._group)
         self._served_in_ros.add(name)
         self.bridged[name] = f"service {ros1}"
-        log.info("%s: graph service in ROS 2 (%s)", name, ros1)
+        self._say("%s: graph service in ROS 2 (%s)", name, ros1)
 
     def _poll_ros_services(self) -> None:
         try:
@@ -460,7 +478,7 @@ class Ros2Gateway:
 
         self._keep.append(self.graph_node.deferred_service(name, ros1, handle))
         self.bridged[name] = f"ros_service {ros1}"
-        log.info("%s: ROS 2 service on the graph (%s)", name, ros1)
+        self._say("%s: ROS 2 service on the graph (%s)", name, ros1)
 
 
 def run_ros2_gateway(
@@ -475,7 +493,7 @@ def run_ros2_gateway(
     if graph is None:
         return
     try:
-        gateway = Ros2Gateway(graph, options).start()
+        gateway = Ros2Gateway(graph, options, announce).start()
         try:
             if announce is not None:
                 domain = os.environ.get("ROS_DOMAIN_ID", "0")

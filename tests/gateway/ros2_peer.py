@@ -1,0 +1,129 @@
+"""A plain rclpy node for the gateway tests, run as its own process (``python ros2_peer.py CMD``).
+
+Commands (each prints JSON lines on stdout and exits 0 when done, 1 on a timeout):
+
+- ``echo TOPIC TYPE N``: the first N messages (``sensor_msgs/msg/Imu``), as dicts;
+- ``pub TOPIC TYPE JSON RATE SECONDS``: publish a message (fields as JSON) at RATE Hz;
+- ``call SERVICE TYPE JSON``: call a service once, print the response;
+- ``rosout TEXT``: wait for a /rosout entry containing TEXT, print it;
+- ``serve SERVICE SECONDS``: serve std_srvs/srv/Trigger (message ``ros2 says hi``).
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+import sys
+import time
+from typing import Any
+
+TIMEOUT = 20.0
+
+
+def _class(name: str) -> Any:
+    package, kind, base = name.split("/")
+    return getattr(importlib.import_module(f"{package}.{kind}"), base)
+
+
+def _to_dict(message: Any) -> Any:
+    if hasattr(message, "get_fields_and_field_types"):
+        return {
+            name: _to_dict(getattr(message, name)) for name in message.get_fields_and_field_types()
+        }
+    if hasattr(message, "tolist"):
+        return message.tolist()
+    if isinstance(message, (list, tuple)):
+        return [_to_dict(item) for item in message]
+    return message
+
+
+def _fill(message: Any, values: dict[str, Any]) -> Any:
+    for name, value in values.items():
+        if isinstance(value, dict):
+            _fill(getattr(message, name), value)
+        else:
+            setattr(message, name, value)
+    return message
+
+
+def main(argv: list[str]) -> int:
+    import rclpy
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+
+    rclpy.init()
+    node = rclpy.create_node(f"gateway_test_peer_{int(time.time() * 1000) % 100000}")
+    command, args = argv[0], argv[1:]
+    deadline = time.monotonic() + TIMEOUT
+    try:
+        if command == "echo":
+            topic, type_name, count = args[0], args[1], int(args[2])
+            got: list[Any] = []
+            node.create_subscription(_class(type_name), topic, got.append, qos_profile_sensor_data)
+            while len(got) < count and time.monotonic() < deadline:
+                rclpy.spin_once(node, timeout_sec=0.1)
+            for message in got[:count]:
+                print(json.dumps(_to_dict(message)), flush=True)
+            return 0 if len(got) >= count else 1
+        if command == "pub":
+            topic, type_name, fields, rate, seconds = args
+            cls = _class(type_name)
+            publisher = node.create_publisher(cls, topic, 10)
+            end = time.monotonic() + float(seconds)
+            while time.monotonic() < end:
+                publisher.publish(_fill(cls(), json.loads(fields)))
+                rclpy.spin_once(node, timeout_sec=1.0 / float(rate))
+            return 0
+        if command == "call":
+            name, type_name, fields = args
+            cls = _class(type_name)
+            client = node.create_client(cls, name)
+            if not client.wait_for_service(timeout_sec=TIMEOUT):
+                return 1
+            future = client.call_async(_fill(cls.Request(), json.loads(fields)))
+            rclpy.spin_until_future_complete(node, future, timeout_sec=TIMEOUT)
+            if not future.done():
+                return 1
+            print(json.dumps(_to_dict(future.result())), flush=True)
+            return 0
+        if command == "rosout":
+            text = args[0]
+            log_cls = _class("rcl_interfaces/msg/Log")
+            found: list[Any] = []
+            qos = QoSProfile(
+                depth=1000,
+                reliability=ReliabilityPolicy.RELIABLE,
+                durability=DurabilityPolicy.TRANSIENT_LOCAL,
+            )
+            node.create_subscription(
+                log_cls, "/rosout", lambda m: found.append(m) if text in m.msg else None, qos
+            )
+            print(json.dumps({"ready": True}), flush=True)
+            while not found and time.monotonic() < deadline:
+                rclpy.spin_once(node, timeout_sec=0.1)
+            if found:
+                print(json.dumps(_to_dict(found[0])), flush=True)
+            return 0 if found else 1
+        if command == "serve":
+            name, seconds = args[0], float(args[1])
+            trigger = _class("std_srvs/srv/Trigger")
+
+            def answer(_request: Any, response: Any) -> Any:
+                response.success = True
+                response.message = "ros2 says hi"
+                return response
+
+            node.create_service(trigger, name, answer)
+            print(json.dumps({"ready": True}), flush=True)
+            end = time.monotonic() + seconds
+            while time.monotonic() < end:
+                rclpy.spin_once(node, timeout_sec=0.1)
+            return 0
+        print(f"unknown command {command}", file=sys.stderr)
+        return 2
+    finally:
+        node.destroy_node()
+        rclpy.shutdown()
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

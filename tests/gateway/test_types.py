@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import socket
 import threading
+from typing import Any
 
 import pytest
 from rosbags.typesys import Stores, get_typestore
@@ -53,7 +54,7 @@ def test_imu_becomes_the_cdr_ros2_would_write_and_comes_back(converter: CdrConve
     converter.prepare("sensor_msgs/msg/Imu", "sensor_msgs/msg/Imu")
     cdr = converter.to_cdr(msg.encode(imu), "sensor_msgs/msg/Imu")
     ros2 = get_typestore(Stores.LATEST)
-    decoded = ros2.deserialize_cdr(cdr, "sensor_msgs/msg/Imu")
+    decoded: Any = ros2.deserialize_cdr(cdr, "sensor_msgs/msg/Imu")
     assert decoded.header.frame_id == "imu"
     assert (decoded.header.stamp.sec, decoded.header.stamp.nanosec) == (1700000000, 5)
     assert decoded.linear_acceleration.z == 9.81

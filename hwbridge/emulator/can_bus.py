@@ -139,7 +139,8 @@ class _DatagramSession(FaultySession):
 class CanBoard(VirtualBoard):
     """A virtual board with node id ``node`` on a CAN bus (see the module docstring).
 
-    ``rate`` is how often ``imu``, ``odom`` and ``count`` publish (per simulated second);
+    ``rate`` is how often ``count`` publishes (per simulated second), ``sensor_rate`` how often
+    ``imu`` and ``odom`` do (default: ``rate``);
     ``mtu`` the largest native frame payload it negotiates (smaller frames make shorter CAN
     transfers, which survive frame loss better)."""
 
@@ -152,6 +153,7 @@ class CanBoard(VirtualBoard):
         rate: float = 2.0,
         mtu: int = 64,
         speed: float = 1.0,
+        sensor_rate: float | None = None,
     ) -> None:
         super().__init__(config, seed=seed, speed=speed)
         self.node = node
@@ -160,8 +162,9 @@ class CanBoard(VirtualBoard):
         self.commands: list[int] = []
         """Every value the ``command`` subscriber got, in order."""
         self.calls = 0
-        self.publisher("~imu", "sensor_msgs/Imu", rate, self._imu)
-        self.publisher("~odom", "nav_msgs/Odometry", rate, self._odom)
+        sensors = rate if sensor_rate is None else sensor_rate
+        self.publisher("~imu", "sensor_msgs/Imu", sensors, self._imu)
+        self.publisher("~odom", "nav_msgs/Odometry", sensors, self._odom)
         self.publisher("~count", "std_msgs/UInt32", rate, self._count)
         self._make_reliable()
         self.subscriber("~command", "std_msgs/UInt32", self._command)
@@ -260,13 +263,16 @@ class CanBusEmulator:
         mtu: int = 64,
         seed: int = 0,
         config: BoardConfig | None = None,
+        sensor_rate: float | None = None,
     ) -> None:
         self.boards: list[CanBoard] = []
         for index in range(count):
             node = first + index
             base = config if config is not None else _default_config("")
             board_config = dataclasses.replace(base, name=f"node{node}")
-            board = CanBoard(board_config, node, seed=seed + node, rate=rate, mtu=mtu)
+            board = CanBoard(
+                board_config, node, seed=seed + node, rate=rate, mtu=mtu, sensor_rate=sensor_rate
+            )
             self.boards.append(board)
         self._new_bus = new_bus
         self.fd = fd

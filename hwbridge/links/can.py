@@ -12,7 +12,7 @@ each on the graph under its own name (``nodeN`` unless named)::
 
 Each datagram the session writes travels as one CAN transfer (``protocols/can/CAN.md``): the
 id carries priority, kind, channel and both node ids, the tail byte sequences the frames.
-Frames go out lowest id first (a controller's transmit priority): ACKs and control traffic
+Frames go out by priority (first come, first served within one): ACKs and control traffic
 overtake topic data when the bus is saturated, and best-effort data past ``tx_queue`` frames is
 dropped (counted). Error frames, send failures (bus-off) and the recovery are counted and
 logged; a bus that fails to read (an adapter unplugged) makes every link on it lost, and the
@@ -144,7 +144,8 @@ class HubStats:
 
 class CanHub:
     """One python-can bus shared by the links of one process: a reader thread that turns frames
-    into transfers for the links, a sender thread that sends frames lowest id first."""
+    into transfers for the links, a sender thread that sends frames highest priority first
+    (first come, first served within a priority, so one stream's frames keep their order)."""
 
     def __init__(
         self,
@@ -176,7 +177,7 @@ class CanHub:
         self.sending = True
         """False between a failed send and the next one that works (bus-off)."""
         self._lock = threading.Lock()  # links, encoder
-        self._tx: list[tuple[int, int, bytes]] = []
+        self._tx: list[tuple[int, int, int, bytes]] = []
         self._tx_ready = threading.Condition(threading.Lock())
         self._order = itertools.count()
         self._stop = threading.Event()
@@ -228,7 +229,7 @@ class CanHub:
                 self.stats.tx_dropped += len(frames)
                 return
             for can_id, data in frames:
-                heapq.heappush(self._tx, (can_id, next(self._order), data))
+                heapq.heappush(self._tx, (priority, next(self._order), can_id, data))
             self._tx_ready.notify()
 
     def _send_loop(self) -> None:
@@ -242,7 +243,7 @@ class CanHub:
                     self._tx_ready.wait(0.5)
                 if self._stop.is_set():
                     return
-                can_id, _, data = heapq.heappop(self._tx)
+                _, _, can_id, data = heapq.heappop(self._tx)
             if self.pace:
                 delay = next_slot - time.monotonic()
                 if delay > 0:

@@ -272,9 +272,11 @@ class CanStats:
     """Frames out of sequence: a middle or end frame with no transfer started, or of another
     transfer id than the one in progress."""
     duplicate_frames: int = 0
-    """A frame repeated (same toggle as the frame before it)."""
+    """A frame with the toggle of the frame before it: repeated, or the one between was lost
+    (then the transfer's CRC fails at its end)."""
     duplicate_transfers: int = 0
-    """A whole transfer received again (the transfer id of the last one, within tid_timeout)."""
+    """A whole transfer received again: the transfer id and content of the last one on its CAN
+    id, within ``tid_timeout`` (two nodes that share a node id are told apart by content)."""
     crc_errors: int = 0
     """Multi-frame transfers whose CRC was wrong (a frame lost, reordered or corrupted)."""
     abandoned: int = 0
@@ -338,7 +340,7 @@ class TransferDecoder:
         self.max_pending = max_pending
         self.stats = CanStats()
         self._rx: dict[int, _Rx] = {}
-        self._done: dict[int, tuple[int, float]] = {}
+        self._done: dict[int, tuple[int, float, int]] = {}
 
     @property
     def pending(self) -> int:
@@ -413,7 +415,13 @@ class TransferDecoder:
         self, can_id: int, ident: CanId, tid: int, payload: bytes, now: float
     ) -> Transfer | None:
         done = self._done.get(can_id)
-        if done is not None and done[0] == tid and now - done[1] < self.tid_timeout:
+        check = crc16(payload)
+        if (
+            done is not None
+            and done[0] == tid
+            and done[2] == check
+            and now - done[1] < self.tid_timeout
+        ):
             self.stats.duplicate_transfers += 1
             return None
         if len(payload) > self.max_transfer:
@@ -421,7 +429,7 @@ class TransferDecoder:
             return None
         if can_id not in self._done and len(self._done) >= 4 * self.max_pending:
             self._done.pop(next(iter(self._done)))
-        self._done[can_id] = (tid, now)
+        self._done[can_id] = (tid, now, check)
         self.stats.transfers += 1
         return Transfer(
             ident.priority, ident.kind, ident.channel, ident.destination, ident.source, payload

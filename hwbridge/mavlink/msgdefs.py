@@ -29,6 +29,7 @@ from typing import Any, Final
 __all__ = [
     "PACKAGE",
     "RawType",
+    "find_type",
     "load_dialect",
     "raw_type",
     "type_name",
@@ -148,6 +149,26 @@ def _raw_type(dialect_name: str, msgname: str) -> RawType:
 def raw_type(msgname: str, dialect: str = "ardupilotmega") -> RawType:
     """The ROS view of MAVLink message ``msgname`` (``ATTITUDE``) in ``dialect`` (cached)."""
     return _raw_type(dialect, msgname)
+
+
+@functools.cache
+def _names(dialect: str) -> dict[str, str]:
+    module = load_dialect(dialect)
+    return {type_name(cls.msgname): cls.msgname for cls in module.mavlink_map.values()}
+
+
+def find_type(name: str, dialect: str = "ardupilotmega") -> RawType | None:
+    """The ROS view of the MAVLink message whose ROS type is ``name`` (``mavlink/Attitude``);
+    None if ``name`` is not one (or pymavlink is not installed)."""
+    from hwbridge.errors import HwBridgeError
+
+    if not name.startswith(PACKAGE + "/"):
+        return None
+    try:
+        msgname = _names(dialect).get(name)
+    except HwBridgeError:
+        return None
+    return raw_type(msgname, dialect) if msgname is not None else None
 
 
 def write_package(root: Path, dialect: str = "ardupilotmega") -> Path:

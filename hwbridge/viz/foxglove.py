@@ -160,6 +160,9 @@ class VizServer:
             known = registry.message(message.type)
         except HwBridgeError:
             problem = "which this host has no definition of"
+            mavlink = _mavlink_definition(message)
+            if mavlink is not None:
+                return mavlink
         else:
             if known.md5 == message.md5:
                 return str(registry.definition(message.type))
@@ -199,6 +202,17 @@ class VizServer:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _mavlink_definition(message: RawMessage) -> str | None:
+    """The definition of a raw MAVLink message type (``mavlink/Attitude``, published by the
+    ``mavlink_vehicle`` device) when pymavlink is here and the md5 matches."""
+    try:
+        from hwbridge.mavlink.msgdefs import find_type
+    except ImportError:
+        return None
+    found = find_type(message.type)
+    return found.definition if found is not None and found.md5 == message.md5 else None
 
 
 def start_viz(

@@ -215,3 +215,27 @@ def test_the_example_robot_file_loads() -> None:
     (host,) = robot.host_devices
     assert host.device.type == "mavlink_vehicle" and host.link.startswith("mavlink://")
     assert free_port() > 0
+
+
+def test_foxglove_shows_the_vehicle_raw_messages_included(running: Any, router: Graph) -> None:
+    pytest.importorskip("foxglove")
+    from hwbridge.viz.foxglove import start_viz
+    from tests.viz.test_foxglove import FoxgloveClient, connect, decode_ros1
+
+    server = start_viz(router, port=0, topics=["/fc/imu", "/fc/mavlink/ATTITUDE"])
+    try:
+        with connect(server.url) as ws:
+            client = FoxgloveClient(ws)
+            raw = client.wait_for_channel("/fc/mavlink/ATTITUDE")
+            assert (raw["schemaName"], raw["schemaEncoding"]) == ("mavlink/Attitude", "ros1msg")
+            imu = client.wait_for_channel("/fc/imu")
+            client.subscribe(1, raw)
+            client.subscribe(2, imu)
+            (payload,) = client.messages(1, 1)
+            attitude = decode_ros1(raw["schemaName"], raw["schema"], payload)
+            assert float(attitude.pitch) == pytest.approx(-0.02)
+            (payload,) = client.messages(2, 1)
+            decoded = decode_ros1(imu["schemaName"], imu["schema"], payload)
+            assert decoded.header.frame_id == "base_link"
+    finally:
+        server.close()

@@ -1,0 +1,40 @@
+// ServiceServer: the board serves std_srvs/SetBool on `set_led` (switches the built-in LED and
+// says what it did) and std_srvs/Trigger on `count` (how many calls so far).
+//
+//   hwbridge service call /set_led '{data: true}'
+//   hwbridge service call /count '{}'
+#include <HwBridge.h>
+#include <std_srvs/SetBool.h>
+#include <std_srvs/Trigger.h>
+
+hwbridge::NodeHandle nh;
+uint16_t calls = 0;
+
+void on_set_led(const std_srvs::SetBool::Request& req, std_srvs::SetBool::Response& res) {
+  digitalWrite(LED_BUILTIN, req.data ? HIGH : LOW);
+  ++calls;
+  res.success = true;
+  res.message.assign(req.data ? "LED on" : "LED off");
+}
+
+void on_count(const std_srvs::Trigger::Request&, std_srvs::Trigger::Response& res) {
+  ++calls;
+  char text[24];
+  snprintf(text, sizeof text, "%u calls", calls);
+  res.success = true;
+  res.message.assign(text);
+}
+
+hwbridge::ServiceServer<std_srvs::SetBool> set_led("set_led", &on_set_led);
+hwbridge::ServiceServer<std_srvs::Trigger> count("count", &on_count);
+
+void setup() {
+  pinMode(LED_BUILTIN, OUTPUT);
+  nh.initNode(115200, "service_server");
+  nh.advertiseService(set_led);
+  nh.advertiseService(count);
+}
+
+void loop() {
+  nh.spinOnce();
+}

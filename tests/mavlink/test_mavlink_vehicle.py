@@ -239,3 +239,23 @@ def test_foxglove_shows_the_vehicle_raw_messages_included(running: Any, router: 
             assert decoded.header.frame_id == "base_link"
     finally:
         server.close()
+
+
+def test_a_vehicle_on_a_serial_line(router: Graph, client: Graph) -> None:
+    """The same device over a serial line: the vehicle's pymavlink opens the far end of the
+    pty the node's link made (as a flight controller's USB port)."""
+    from hwbridge.links import open_link
+    from hwbridge.mavlink.node import MavlinkNode
+
+    link = open_link("pty://")
+    node = MavlinkNode(router, link, node=router.node("fc_serial", namespace="/serial"))
+    vehicle = MavlinkVehicle(link.slave_path, baud=115200)  # type: ignore[attr-defined]
+    try:
+        vehicle.start()
+        imu = client.node("serial_view").wait_for_message("/serial/imu", "sensor_msgs/Imu", 10.0)
+        assert imu.header.frame_id == "base_link"
+        assert wait_until(lambda: node.stats()["connected"], 5.0)
+        assert wait_until(lambda: vehicle.state.gcs_heartbeats > 0, 5.0)
+    finally:
+        vehicle.close()
+        node.close()

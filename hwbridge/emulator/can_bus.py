@@ -15,7 +15,8 @@ demand. :class:`CanBusEmulator` puts ``count`` boards (node ids 1..count) on one
     python -m hwbridge.emulator.can_bus --boards 8 --bus udp_multicast/239.74.163.9
     python -m hwbridge.emulator.can_bus --boards 8 --slcan   # prints the adapter's pty
 
-and prints the links to give ``hwbridge connect`` (``can://.../node1`` ...).
+and prints the links to give ``hwbridge connect`` (``can://.../node1`` ...), then a line
+``nodeN command V`` for each value a board's ``command`` subscriber gets.
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 from hwbridge import msg
@@ -162,6 +163,8 @@ class CanBoard(VirtualBoard):
         self.commands: list[int] = []
         """Every value the ``command`` subscriber got, in order."""
         self.calls = 0
+        self.on_command: Callable[[int, int], None] | None = None
+        """Called with (node, value) for each value the ``command`` subscriber gets."""
         sensors = rate if sensor_rate is None else sensor_rate
         self.publisher("~imu", "sensor_msgs/Imu", sensors, self._imu)
         self.publisher("~odom", "nav_msgs/Odometry", sensors, self._odom)
@@ -221,7 +224,10 @@ class CanBoard(VirtualBoard):
 
     def _command(self, payload: bytes) -> None:
         if len(payload) == 4:
-            self.commands.append(int.from_bytes(payload, "little"))
+            value = int.from_bytes(payload, "little")
+            self.commands.append(value)
+            if self.on_command is not None:
+                self.on_command(self.node, value)
 
     def _on_event(self, event: Any) -> None:
         if isinstance(event, ns.ServiceRequest) and event.channel == self._whoami:
@@ -315,6 +321,11 @@ def _bus_factory(interface: str, channel: str, fd: bool, port: int | None) -> An
     return new_bus
 
 
+def _print_command(node: int, value: int) -> None:
+    sys.stdout.write(f"node{node} command {value}\n")
+    sys.stdout.flush()
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """``python -m hwbridge.emulator.can_bus``: boards on a bus until Ctrl-C (or SIGTERM)."""
     parser = argparse.ArgumentParser(prog="python -m hwbridge.emulator.can_bus")
@@ -325,7 +336,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--port", type=int, default=None, help="udp_multicast port")
     parser.add_argument("--slcan", action="store_true", help="serve the bus as an SLCAN pty")
     parser.add_argument("--fd", action="store_true", help="CAN FD frames (up to 64 bytes)")
-    parser.add_argument("--rate", type=float, default=2.0, help="publications per second")
+    parser.add_argument("--rate", type=float, default=2.0, help="counts published per second")
+    parser.add_argument(
+        "--sensor-rate", type=float, default=None, help="Imu and Odometry per second (--rate)"
+    )
     parser.add_argument("--mtu", type=int, default=64, help="native frame payload MTU")
     parser.add_argument("--loss", type=float, default=0.0, help="frame loss, 0..1")
     parser.add_argument(
@@ -352,7 +366,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         mtu=args.mtu,
         seed=args.seed,
         config=config,
-    ).start()
+        sensor_rate=args.sensor_rate,
+    )
+    for board in emulator.boards:
+        board.on_command = _print_command
+    emulator.start()
     emulator.set_faults(loss=args.loss)
     if adapter is not None:
         where = f"slcan{adapter.path}"

@@ -1,0 +1,137 @@
+"""Eight emulated boards on one CAN bus, all usable from the CLI at once: the emulator in one
+process (``python -m hwbridge.emulator.can_bus``), ``hwbridge connect`` with eight can:// links
+in another, CLI tools in more. Once over python-can's udp_multicast bus, once through the
+emulated SLCAN adapter on a pty driven by python-can's own ``slcan`` interface."""
+
+from __future__ import annotations
+
+import json
+import random
+import subprocess
+import sys
+import threading
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+import yaml
+
+from tests.bridgeproc import BridgeProcess
+from tests.netutil import free_port, wait_until
+
+NODES = range(1, 9)
+
+
+class Emulator:
+    def __init__(self, *args: str) -> None:
+        self.process = subprocess.Popen(
+            [sys.executable, "-m", "hwbridge.emulator.can_bus", "--boards", "8", *args],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+        )
+        self.lines: list[str] = []
+        self._reader = threading.Thread(target=self._read, daemon=True)
+        self._reader.start()
+
+    def _read(self) -> None:
+        assert self.process.stdout is not None
+        for line in self.process.stdout:
+            self.lines.append(line.rstrip("\n"))
+
+    def links(self) -> list[str]:
+        assert wait_until(lambda: any(x.startswith("links: ") for x in self.lines), 30), self.lines
+        line = next(x for x in self.lines if x.startswith("links: "))
+        return line.removeprefix("links: ").split()
+
+    def stop(self) -> None:
+        self.process.terminate()
+        try:
+            self.process.wait(15)
+        except subprocess.TimeoutExpired:
+            self.process.kill()
+            self.process.wait(5)
+
+
+@pytest.fixture(params=["udp_multicast", "slcan"])
+def emulator(request: pytest.FixtureRequest) -> Iterator[Emulator]:
+    common = ["--rate", "2", "--sensor-rate", "0.5"]
+    if request.param == "slcan":
+        process = Emulator("--slcan", *common)
+    else:
+        group = f"239.74.{random.randrange(1, 250)}.{random.randrange(1, 250)}"
+        process = Emulator("--bus", f"udp_multicast/{group}", "--port", str(free_port()), *common)
+    yield process
+    process.stop()
+
+
+@pytest.fixture
+def bridge(emulator: Emulator, tmp_path: Path) -> Iterator[BridgeProcess]:
+    first, *rest = emulator.links()
+    assert len(rest) == 7
+    assert first.endswith("node1") or "/node1?" in first
+    process = BridgeProcess(first, tmp_path, f"can{free_port()}", *rest)
+    process.wait_ready()
+    yield process
+    process.stop()
+
+
+BATCH = 6
+"""CLI processes started at once: more would starve the bridge of CPU on a two-core machine
+(python-can's slcan reader takes a call per byte), its sessions would time out."""
+
+
+def _run_all(
+    bridge: BridgeProcess, commands: list[list[str]]
+) -> list[subprocess.CompletedProcess[str]]:
+    """Run CLI commands, BATCH at the same time."""
+    results: list[subprocess.CompletedProcess[str] | None] = [None] * len(commands)
+
+    def run(index: int) -> None:
+        results[index] = bridge.cli(*commands[index], timeout=90)
+
+    for start in range(0, len(commands), BATCH):
+        threads = [
+            threading.Thread(target=run, args=(i,))
+            for i in range(start, min(start + BATCH, len(commands)))
+        ]
+        for thread in threads:
+            thread.start()
+        for thread in threads:
+            thread.join()
+    return [r for r in results if r is not None]
+
+
+def test_eight_boards_from_the_cli_at_once(bridge: BridgeProcess, emulator: Emulator) -> None:
+    def listed() -> bool:
+        names = bridge.cli("topic", "list").stdout
+        return all(f"/node{n}/odom" in names and f"/node{n}/command" in names for n in NODES)
+
+    assert wait_until(listed, 60), bridge.cli("topic", "list").stdout + bridge.output()
+    commands: list[list[str]] = [
+        ["topic", "echo", "/node3/odom", "-n", "1", "--json", "--timeout", "60"],
+        ["topic", "echo", "/node8/imu", "-n", "1", "--json", "--timeout", "60"],
+    ]
+    for node in NODES:
+        commands.append(["service", "call", f"/node{node}/whoami"])
+        commands.append(
+            [
+                "topic",
+                "pub",
+                f"/node{node}/command",
+                "std_msgs/UInt32",
+                f"{{data: {node * 11}}}",
+                "-1",
+            ]
+        )
+    results = _run_all(bridge, commands)
+    for command, result in zip(commands, results, strict=True):
+        assert result.returncode == 0, (command, result.stdout, result.stderr, bridge.output())
+    for node in NODES:
+        answer = yaml.safe_load(results[2 + 2 * (node - 1)].stdout)
+        assert answer == {"success": True, "message": f"node {node}"}
+    assert wait_until(lambda: all(f"node{n} command {n * 11}" in emulator.lines for n in NODES), 30)
+    odom = json.loads(results[0].stdout.splitlines()[0])
+    imu = json.loads(results[1].stdout.splitlines()[0])
+    assert "node3_base" in json.dumps(odom)
+    assert "node8_imu" in json.dumps(imu)

@@ -8,6 +8,7 @@ import os
 import select
 import shutil
 import subprocess
+import termios
 import time
 import tty
 from collections.abc import Iterator
@@ -58,7 +59,7 @@ class Terminal:
 
     def __init__(self, path: str) -> None:
         self.fd = os.open(path, os.O_RDWR | os.O_NOCTTY)
-        tty.setraw(self.fd)
+        tty.setraw(self.fd, termios.TCSANOW)  # not TCSAFLUSH: keep what came
         self.buffer = b""
 
     def write(self, data: bytes) -> None:

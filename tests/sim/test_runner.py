@@ -58,8 +58,8 @@ def test_uart_pins_twi_and_resets(probe_elf: Path, terminal_factory: type[Termin
             "reg 68 3b 0102030405",
         ):
             sim.command(line)
-        sim.go()
         uart = terminal_factory(sim.path)
+        sim.go()
         assert uart.read_until(b"boot\n") == b"boot\n"
         # UART echo, both ways
         uart.write(b"HELLO 0123 #")

@@ -59,8 +59,12 @@ typedef struct pin_ref {
   uint8_t bit;
 } pin_ref;
 
+typedef struct pwm_out pwm_out;
 typedef struct watched_pin {
   pin_ref pin;
+  const pwm_out *pwm;
+  double pwm_sum;           // high cycles (or duty x cycles on the timer) this period
+  avr_cycle_count_t pwm_at; // cycle of the last sample
   avr_irq_t *irq;
   int level;
   avr_cycle_count_t since;  // cycle of the last level change or report
@@ -166,6 +170,69 @@ static void reapply_inputs(void) {
 }
 
 /* ------------------------------------------------------------------ watched outputs */
+/* Timer outputs: simavr 1.6 drives an OCnx pin in some waveform modes only (not, for one, the
+   phase-correct PWM Arduino sets up on timer 1), so while a pin's COM bits connect it to its
+   timer, its duty is taken from the timer's registers: OCR / TOP. */
+typedef struct pwm_out {
+  char port;
+  uint8_t bit;
+  uint16_t tccra;  // TCCRnA; TCCRnB follows it, ICRn is at +6 on 16-bit timers
+  uint8_t channel; // 0 A, 1 B, 2 C
+  uint16_t ocr;    // OCRnx (low byte)
+  uint8_t wide;    // a 16-bit timer
+} pwm_out;
+
+static const pwm_out pwm_328p[] = {
+    {'D', 6, 0x44, 0, 0x47, 0}, {'D', 5, 0x44, 1, 0x48, 0}, {'B', 1, 0x80, 0, 0x88, 1},
+    {'B', 2, 0x80, 1, 0x8A, 1}, {'B', 3, 0xB0, 0, 0xB3, 0}, {'D', 3, 0xB0, 1, 0xB4, 0},
+    {0, 0, 0, 0, 0, 0}};
+static const pwm_out pwm_2560[] = {
+    {'B', 7, 0x44, 0, 0x47, 0},  {'G', 5, 0x44, 1, 0x48, 0},  {'B', 5, 0x80, 0, 0x88, 1},
+    {'B', 6, 0x80, 1, 0x8A, 1},  {'B', 4, 0xB0, 0, 0xB3, 0},  {'H', 6, 0xB0, 1, 0xB4, 0},
+    {'E', 3, 0x90, 0, 0x98, 1},  {'E', 4, 0x90, 1, 0x9A, 1},  {'E', 5, 0x90, 2, 0x9C, 1},
+    {'H', 3, 0xA0, 0, 0xA8, 1},  {'H', 4, 0xA0, 1, 0xAA, 1},  {'H', 5, 0xA0, 2, 0xAC, 1},
+    {'L', 3, 0x120, 0, 0x128, 1}, {'L', 4, 0x120, 1, 0x12A, 1}, {'L', 5, 0x120, 2, 0x12C, 1},
+    {0, 0, 0, 0, 0, 0}};
+static const pwm_out *pwm_table = pwm_328p;
+
+static const pwm_out *pwm_of(pin_ref p) {
+  for (const pwm_out *o = pwm_table; o->port; o++)
+    if (o->port == p.port && o->bit == p.bit) return o;
+  return NULL;
+}
+
+static uint16_t reg16(uint16_t addr) {
+  return (uint16_t)(avr->data[addr] | (avr->data[addr + 1] << 8));
+}
+
+/* The duty a connected timer output gives, or -1 when the pin is not connected to its timer. */
+static double pwm_duty(const pwm_out *o) {
+  uint8_t a = avr->data[o->tccra], b = avr->data[o->tccra + 1];
+  uint8_t com = (uint8_t)((a >> (6 - 2 * o->channel)) & 3);
+  if (com == 0) return -1;
+  if (com == 1) return 0.5;  // toggling on compare match
+  double top, ocr;
+  if (o->wide) {
+    uint8_t wgm = (uint8_t)((a & 3) | (((b >> 3) & 3) << 2));
+    switch (wgm) {
+      case 1: case 5: top = 0xFF; break;
+      case 2: case 6: top = 0x1FF; break;
+      case 3: case 7: top = 0x3FF; break;
+      case 8: case 10: case 12: case 14: top = reg16((uint16_t)(o->tccra + 6)); break;
+      case 9: case 11: case 15: top = reg16((uint16_t)(o->ocr - 2 * o->channel)); break;
+      default: top = 0xFFFF; break;
+    }
+    ocr = reg16(o->ocr);
+  } else {
+    uint8_t wgm = (uint8_t)((a & 3) | (((b >> 3) & 1) << 2));
+    top = (wgm == 5 || wgm == 7) ? avr->data[o->ocr - o->channel] : 0xFF;
+    ocr = avr->data[o->ocr];
+  }
+  double duty = top > 0 ? ocr / top : 0;
+  if (duty > 1) duty = 1;
+  return com == 3 ? 1 - duty : duty;
+}
+
 static void watched_hook(avr_irq_t *irq, uint32_t value, void *param) {
   (void)irq;
   watched_pin *w = (watched_pin *)param;
@@ -180,6 +247,9 @@ static void watch(pin_ref p) {
   if (nwatched >= MAX_PINS) return;
   watched_pin *w = &watched[nwatched++];
   w->pin = p;
+  w->pwm = pwm_of(p);
+  w->pwm_sum = 0;
+  w->pwm_at = avr->cycle;
   w->irq = pin_irq(p);
   w->level = (int)(w->irq->value & 0xff) != 0;
   w->since = avr->cycle;
@@ -429,17 +499,32 @@ static double wall_seconds(void) {
   return (double)(now.tv_sec - wall_start.tv_sec) + 1e-9 * (double)(now.tv_nsec - wall_start.tv_nsec);
 }
 
+/* Every tick closes an interval of each watched pin: a pin connected to its timer counts the
+   timer's duty over it, any other pin the time it was high. */
+static void sample_pins(void) {
+  for (int i = 0; i < nwatched; i++) {
+    watched_pin *w = &watched[i];
+    if (w->level) w->high += avr->cycle - w->since;
+    w->since = avr->cycle;
+    avr_cycle_count_t span = avr->cycle - w->pwm_at;
+    w->pwm_at = avr->cycle;
+    double duty = w->pwm ? pwm_duty(w->pwm) : -1;
+    w->pwm_sum += duty >= 0 ? duty * (double)span : (double)w->high;
+    w->high = 0;
+  }
+}
+
 static void report(void) {
   static char line[64 * MAX_PINS];
   avr_cycle_count_t span = avr->cycle - last_report;
   int n = snprintf(line, sizeof line, "t %llu",
                    (unsigned long long)(avr->cycle * 1000000ULL / avr->frequency));
+  sample_pins();
   for (int i = 0; i < nwatched; i++) {
     watched_pin *w = &watched[i];
-    if (w->level) w->high += avr->cycle - w->since;
-    w->since = avr->cycle;
-    double duty = span ? (double)w->high / (double)span : (double)w->level;
-    w->high = 0;
+    double duty = span ? w->pwm_sum / (double)span : (double)w->level;
+    if (duty > 1) duty = 1;
+    w->pwm_sum = 0;
     n += snprintf(line + n, sizeof line - (size_t)n, " %c%u=%.4f", w->pin.port, w->pin.bit, duty);
   }
   last_report = avr->cycle;
@@ -450,7 +535,10 @@ static avr_cycle_count_t tick(avr_t *a, avr_cycle_count_t when, void *param) {
   (void)a;
   (void)param;
   read_commands();
-  if (avr->cycle - last_report >= avr_usec_to_cycles(avr, report_us)) report();
+  if (avr->cycle - last_report >= avr_usec_to_cycles(avr, report_us))
+    report();
+  else
+    sample_pins();
   if (speed > 0) {
     double sim = (double)(avr->cycle - cycle_start) / (double)avr->frequency / speed;
     double ahead = sim - wall_seconds();
@@ -508,6 +596,7 @@ int main(int argc, char **argv) {
     fprintf(stderr, "hwbridge-simavr: cannot read %s\n", elf);
     return 1;
   }
+  if (!strcmp(mcu, "atmega2560")) pwm_table = pwm_2560;
   avr = avr_make_mcu_by_name(mcu);
   if (!avr) {
     fprintf(stderr, "hwbridge-simavr: simavr does not know the MCU %s\n", mcu);

@@ -47,8 +47,8 @@ def _fill(message: Any, values: dict[str, Any]) -> Any:
 
 
 def main(argv: list[str]) -> int:
-    import rclpy
-    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+    rclpy = importlib.import_module("rclpy")  # by name: the [ros2] extra is optional
+    qos = importlib.import_module("rclpy.qos")
 
     rclpy.init()
     node = rclpy.create_node(f"gateway_test_peer_{int(time.time() * 1000) % 100000}")
@@ -58,7 +58,9 @@ def main(argv: list[str]) -> int:
         if command == "echo":
             topic, type_name, count = args[0], args[1], int(args[2])
             got: list[Any] = []
-            node.create_subscription(_class(type_name), topic, got.append, qos_profile_sensor_data)
+            node.create_subscription(
+                _class(type_name), topic, got.append, qos.qos_profile_sensor_data
+            )
             while len(got) < count and time.monotonic() < deadline:
                 rclpy.spin_once(node, timeout_sec=0.1)
             for message in got[:count]:
@@ -89,13 +91,13 @@ def main(argv: list[str]) -> int:
             text = args[0]
             log_cls = _class("rcl_interfaces/msg/Log")
             found: list[Any] = []
-            qos = QoSProfile(
+            profile = qos.QoSProfile(
                 depth=1000,
-                reliability=ReliabilityPolicy.RELIABLE,
-                durability=DurabilityPolicy.TRANSIENT_LOCAL,
+                reliability=qos.ReliabilityPolicy.RELIABLE,
+                durability=qos.DurabilityPolicy.TRANSIENT_LOCAL,
             )
             node.create_subscription(
-                log_cls, "/rosout", lambda m: found.append(m) if text in m.msg else None, qos
+                log_cls, "/rosout", lambda m: found.append(m) if text in m.msg else None, profile
             )
             print(json.dumps({"ready": True}), flush=True)
             while not found and time.monotonic() < deadline:

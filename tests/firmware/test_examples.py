@@ -18,6 +18,7 @@ import os
 import re
 import shutil
 import subprocess
+import sys
 from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -235,3 +236,32 @@ def test_library_json_and_library_properties_agree() -> None:
     for example in manifest["examples"]:
         for name in example["files"]:
             assert (LIBRARY / example["base"] / name).is_file()
+
+
+def test_the_footprint_bench_prints_its_cases_and_says_how_to_get_rosserial(
+    tmp_path: Path,
+) -> None:
+    """tools/bench/firmware_footprint.py without a rosserial checkout: hwbridge's cases only,
+    and the line saying how to get rosserial. No size is judged here (the bench reports)."""
+    if shutil.which("avr-g++") is None or not (CORE_DIR / "cores" / "arduino").is_dir():
+        pytest.skip("needs gcc-avr avr-libc binutils-avr arduino-core-avr")
+    env = {k: v for k, v in os.environ.items() if k != "ROSSERIAL_DIR"}
+    done = subprocess.run(
+        [
+            sys.executable,
+            str(ROOT / "tools" / "bench" / "firmware_footprint.py"),
+            "--keep",
+            str(tmp_path),
+        ],
+        capture_output=True,
+        text=True,
+        env=env,
+        check=False,
+    )
+    assert done.returncode == 0, done.stderr
+    lines = [json.loads(line) for line in done.stdout.splitlines()]
+    assert [line["case"] for line in lines] == ["empty", "serial", "hello_world", "pub_sub_service"]
+    assert all(line["bench"] == "firmware_footprint" for line in lines)
+    for line in lines[2:]:
+        assert line["hwbridge_flash"] > lines[1]["flash"] and "peer" not in line
+    assert "git clone -b noetic-devel https://github.com/ros-drivers/rosserial" in done.stderr

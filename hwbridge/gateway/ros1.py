@@ -116,7 +116,9 @@ class _Subscription:
         md5: str,
         caller_id: str,
         deliver: Callable[[bytes, dict[str, str]], None],
+        refused: Callable[[str], None],
     ) -> None:
+        self.refused = refused
         self.topic = topic
         self.type = type_name
         self.md5 = md5
@@ -168,7 +170,8 @@ class _Subscription:
             )
             header = read_header(sock)
             if "error" in header:
-                raise TcprosError(f"{self.topic} from {uri}: {header['error']}")
+                self.refused(f"{self.topic}: the ROS publisher at {uri} refused: {header['error']}")
+                raise TcprosError(header["error"])
             sock.settimeout(None)
             while True:
                 self.deliver(read_frame(sock), header)
@@ -398,6 +401,12 @@ class Ros1Gateway:
             return
         wanted = header.get("md5sum", ANY)
         if wanted not in (ANY, publication.md5):
+            self.report.once(
+                f"refused:{topic}:{wanted}",
+                f"{topic}: {header.get('callerid', '?')} subscribes with "
+                f"{header.get('type', '?')} (md5 {wanted}), the graph publishes "
+                f"{publication.type} (md5 {publication.md5}): refused",
+            )
             conn.sendall(
                 encode_header(
                     {
@@ -535,7 +544,10 @@ class Ros1Gateway:
                 self._keep.append(publisher)
             publisher.publish_raw(data)
 
-        subscription = _Subscription(topic, type_name, md5, self.caller_id, deliver)
+        def refused(text: str) -> None:
+            self.report.once(f"refused:{topic}", f"{text} (a type that does not map)")
+
+        subscription = _Subscription(topic, type_name, md5, self.caller_id, deliver, refused)
         with self._lock:
             if topic in self._subscriptions:
                 return

@@ -42,6 +42,14 @@ print("ready", flush=True)
 rospy.spin()
 """
 
+WRONG_LISTENER = """
+import rospy
+from std_msgs.msg import String
+rospy.init_node("gateway_test_wrong_listener")
+rospy.Subscriber("/diffbot/imu", String, lambda _m: None)
+rospy.spin()
+"""
+
 
 class Ros1Robot(Robot):
     def __init__(self, tmp: Any) -> None:
@@ -186,6 +194,29 @@ def test_any_type_passes_through(robot: Ros1Robot) -> None:
     assert "/diffbot/wheel_ticks [hwbridge_msgs/WheelTicks]" in done.stdout
     bw = robot.ros("rostopic", "type", "/diffbot/wheel_ticks")
     assert bw.stdout.strip() == "hwbridge_msgs/WheelTicks"
+
+
+def test_a_ros_type_that_does_not_map_is_reported_once(robot: Ros1Robot) -> None:
+    # A ROS node publishes a String where the board subscribes a Twist, and one subscribes
+    # to the Imu topic as a String: both refused, each said once, nothing else disturbed.
+    wrong = robot.start(
+        "rostopic_wrong",
+        ["rostopic", "pub", "-r", "5", "/diffbot/cmd_vel", "std_msgs/String", "data: nope"],
+    )
+    try:
+        robot.wait_log("up", "/diffbot/cmd_vel: the ROS publisher", 30)
+    finally:
+        robot.stop_process(wrong)
+    listener = robot.start("wrong_listener", ["/usr/bin/python3", "-c", WRONG_LISTENER])
+    try:
+        robot.wait_log("up", "subscribes with std_msgs/String", 30)
+    finally:
+        robot.stop_process(listener)
+    robot.wait_log("up", "subscribes with std_msgs/String", 30)
+    text = robot.log("up")
+    assert text.count("/diffbot/cmd_vel: the ROS publisher") == 1, text
+    assert "a type that does not map" in text
+    assert _echo(robot, "/diffbot/imu")["header"]["frame_id"]
 
 
 def test_a_ros1_service_is_served_on_the_graph(robot: Ros1Robot) -> None:

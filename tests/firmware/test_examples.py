@@ -51,6 +51,7 @@ CTAGS_PATTERN = (
 _SIZE = re.compile(r"flash (\d+) B of \d+ \(\d+%\), SRAM (\d+) B")
 _AB_FLASH = re.compile(r"Sketch uses (\d+) bytes")
 _AB_RAM = re.compile(r"Global variables use (\d+) bytes")
+_HEAP = re.compile(r" T (malloc|free|realloc|calloc|_Znwj|_Znaj)$", re.M)
 _MISSING_HEADER = re.compile(r"fatal error: (\w+)\.h: No such file or directory")
 
 
@@ -61,6 +62,7 @@ class Built:
     sram: int = 0
     output: str = ""
     skip: str = ""
+    elf: Path | None = None
 
 
 def _cache() -> Path:
@@ -81,7 +83,7 @@ def _hwbridge_build(sketch: str, board: str, out: Path) -> Built:
     output = done.stdout + done.stderr
     found = _SIZE.search(output)
     if done.returncode == 0 and found:
-        return Built(True, int(found[1]), int(found[2]), output)
+        return Built(True, int(found[1]), int(found[2]), output, elf=out / f"{sketch}.elf")
     missing = _MISSING_HEADER.search(output)
     if missing and (CORE_DIR / "libraries" / missing[1]).is_dir():
         return Built(
@@ -129,7 +131,7 @@ def _arduino_builder(sketch: str, board: str, sketchbook: Path) -> Built:
     flash, ram = _AB_FLASH.search(output), _AB_RAM.search(output)
     if done.returncode != 0 or not flash or not ram:
         return Built(False, output=output)
-    return Built(True, int(flash[1]), int(ram[1]), output)
+    return Built(True, int(flash[1]), int(ram[1]), output, elf=out / f"{sketch}.ino.elf")
 
 
 def _own_warnings(output: str) -> list[str]:
@@ -201,6 +203,10 @@ def test_example_builds_without_warnings(
     limits = {"uno": (32256, 2048), "mega": (253952, 8192)}[board]
     assert 0 < built.flash <= limits[0]
     assert 0 < built.sram <= limits[1] - 256, "less than 256 B left for the stack"
+    assert built.elf is not None
+    symbols = subprocess.run(["avr-nm", str(built.elf)], capture_output=True, text=True, check=True)
+    heap = sorted(set(_HEAP.findall(symbols.stdout)))
+    assert not heap, f"heap functions linked: {heap}"
     record_property("flash", built.flash)
     record_property("sram", built.sram)
 

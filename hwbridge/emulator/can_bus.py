@@ -241,10 +241,14 @@ class CanBoard(VirtualBoard):
         super()._on_event(event)
 
     # ------------------------------------------------------------------ running
-    def start_on(self, bus: Any, *, fd: bool = False, url: str = "can://emulated/bus") -> CanBoard:
-        """Run on a python-can bus object (wrapped in a :class:`FaultyBus`)."""
+    def start_on(
+        self, bus: Any, *, fd: bool = False, url: str = "can://emulated/bus", pace: int = 0
+    ) -> CanBoard:
+        """Run on a python-can bus object (wrapped in a :class:`FaultyBus`); ``pace`` (bits/s)
+        spaces its frames as a bus of that rate would (0: as fast as they come)."""
         self.bus = FaultyBus(bus, seed=self.seed)
-        link = CanLink(f"{url}?node=0&local={self.node}&fd={int(fd)}", bus=self.bus)
+        query = f"node=0&local={self.node}&fd={int(fd)}&pace={pace}"
+        link = CanLink(f"{url}?{query}", bus=self.bus)
         link.open()
         self.start(link)
         return self
@@ -270,7 +274,9 @@ class CanBusEmulator:
         seed: int = 0,
         config: BoardConfig | None = None,
         sensor_rate: float | None = None,
+        pace: int = 0,
     ) -> None:
+        self.pace = pace
         self.boards: list[CanBoard] = []
         for index in range(count):
             node = first + index
@@ -285,7 +291,9 @@ class CanBusEmulator:
 
     def start(self) -> CanBusEmulator:
         for board in self.boards:
-            board.start_on(self._new_bus(), fd=self.fd, url=f"can://emulated/board{board.node}")
+            board.start_on(
+                self._new_bus(), fd=self.fd, url=f"can://emulated/board{board.node}", pace=self.pace
+            )
         return self
 
     def board(self, node: int) -> CanBoard:

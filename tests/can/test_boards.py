@@ -223,3 +223,31 @@ def test_two_boards_with_one_node_id(
     stats = host.links[5].can_stats()
     assert wait_for(lambda: host.connected(5), 10)  # the other board is unaffected
     assert stats["node_conflicts"] >= 1
+
+
+def test_saturated_bus_keeps_control_traffic_flowing(
+    bus: tuple[str, Callable[..., CanBusEmulator]], hosts: list[HostSide]
+) -> None:
+    # Each board's frames are spaced as on a 50 kbit/s bus (about 330 a second) while its Imu
+    # and Odometry ask for ten times that: best-effort data queues and is shed, while ACKs,
+    # control (heartbeats, the table), services and the reliable counter go first.
+    channel, emulate = bus
+    emulator = emulate(2, rate=5.0, sensor_rate=20.0, pace=50_000)
+    host = HostSide(f"can://virtual/{channel}", [1, 2])
+    hosts.append(host)
+    assert wait_for(lambda: all(host.connected(n) for n in (1, 2)), 30)
+    started = time.monotonic()
+    calls = 0
+    while time.monotonic() - started < 3.0:
+        for node in (1, 2):
+            assert _call_whoami(host, node)[5:] == f"node {node}".encode()
+            calls += 1
+    assert calls >= 6
+    for node in (1, 2):
+        assert not host.of(node, base.Disconnected)  # heartbeats kept the sessions alive
+        counts = host.counts(node)
+        assert len(counts) >= 10
+        assert counts == list(range(counts[0], counts[0] + len(counts)))
+        link = emulator.board(node).link
+        assert isinstance(link, CanLink)
+        assert link.can_stats()["tx_dropped"] > 0  # the bus really was saturated

@@ -298,6 +298,13 @@ class Ros2Gateway:
         except HwBridgeError as exc:
             raise TypeMapError(f"{ros1} is not defined on this host") from exc
         self.converter.prepare(store1, ros2)
+        added = self.converter.added_fields(ros2)
+        if added:
+            self.report.once(
+                f"added:{ros2}",
+                f"{ros2} has fields ROS 1's {ros1} lacks ({', '.join(added)}): "
+                "they go to ROS 2 as zeros",
+            )
         return cls, ros2
 
     def _qos_for(self, topic: str, ros1: str, direction: str) -> Any:

@@ -10,7 +10,7 @@ same fields as the ROS 1 one (``Header.seq`` aside); :func:`layout_problem` says
 from __future__ import annotations
 
 import threading
-from typing import TYPE_CHECKING, Any, Final
+from typing import TYPE_CHECKING, Any, Final, cast
 
 from hwbridge.errors import HwBridgeError
 
@@ -129,6 +129,24 @@ def layout_problem(
     return compare(ros1_store_name, ros2_store_name, "")
 
 
+_SIZES: Final = {
+    "bool": 1,
+    "byte": 1,
+    "char": 1,
+    "int8": 1,
+    "uint8": 1,
+    "octet": 1,
+    "int16": 2,
+    "uint16": 2,
+    "int32": 4,
+    "uint32": 4,
+    "float32": 4,
+    "int64": 8,
+    "uint64": 8,
+    "float64": 8,
+}
+
+
 def _base(name: str) -> str:
     # ROS 1 byte/char are ROS 2 int8/uint8 on the wire.
     return {"byte": "uint8", "char": "uint8", "int8": "uint8", "octet": "uint8"}.get(name, name)
@@ -148,6 +166,8 @@ class CdrConverter:
         self.store: Typestore = get_typestore(Stores.LATEST)
         self._ros1: Typestore = get_typestore(Stores.ROS1_NOETIC)
         self._checked: dict[tuple[str, str], str | None] = {}
+        self._extended: dict[str, tuple[str, list[tuple[int, int]]]] = {}
+        """ROS 2 name -> (stand-in of the ROS 1 layout, (size, alignment) of each added field)."""
         self._lock = threading.Lock()
 
     def _ros1_fielddefs(self, store_name: str) -> dict[str, list[tuple[str, Any]]]:
@@ -176,6 +196,43 @@ class CdrConverter:
             raise TypeMapError(problem)
 
     def _check(self, ros1_store_name: str, ros2_store_name: str) -> str | None:
+        problem = self._check_strict(ros1_store_name, ros2_store_name)
+        if problem is not None and self._extend(ros1_store_name, ros2_store_name):
+            return None
+        return problem
+
+    def _extend(self, ros1_store_name: str, ros2_store_name: str) -> bool:
+        """ROS 2 added fixed-size fields at the end of the type (``sensor_msgs/Range`` got
+        ``variance``): convert the ROS 1 fields through a stand-in type of the ROS 1 layout and
+        send the added fields as zeros (dropped on the way back). True if that works."""
+        ros2_fields = self.store.fielddefs.get(ros2_store_name)
+        if ros2_fields is None:
+            return False
+        ros1_fields = self.registry.fields(ros1_store_name)
+        names1 = _field_names(ros1_fields, ros1_store_name)
+        names2 = _field_names(ros2_fields[1], ros2_store_name)
+        if len(names2) <= len(names1) or names2[: len(names1)] != names1:
+            return False
+        added: list[tuple[int, int]] = []
+        for _, desc in ros2_fields[1][len(names1) :]:
+            kind, arg = cast("tuple[Any, Any]", desc)
+            size = _SIZES.get(str(arg[0])) if int(kind) == 1 else None
+            if size is None:
+                return False
+            added.append((size, size))
+        package, _, name = ros2_store_name.split("/")
+        stand_in = f"hwbridge_gateway/msg/{package}__{name}"
+        kept = ros2_fields[1][: len(names1)]
+        try:
+            self.store.register({stand_in: ([], kept)})
+        except Exception:  # noqa: BLE001 - rosbags raises several kinds here
+            return False
+        if self._check_strict(ros1_store_name, stand_in) is not None:
+            return False
+        self._extended[ros2_store_name] = (stand_in, added)
+        return True
+
+    def _check_strict(self, ros1_store_name: str, ros2_store_name: str) -> str | None:
         try:
             ros1 = self._ros1_fielddefs(ros1_store_name)
         except HwBridgeError as exc:
@@ -197,13 +254,45 @@ class CdrConverter:
             ros2 = {name: defs[1] for name, defs in self.store.fielddefs.items()}
         return layout_problem(ros1, ros2, ros1_store_name, ros2_store_name)
 
+    def added_fields(self, ros2_store_name: str) -> list[str]:
+        """Fields ROS 2 has at the end of a type and ROS 1 lacks (sent as zeros)."""
+        if ros2_store_name not in self._extended:
+            return []
+        stand_in = self._extended[ros2_store_name][0]
+        kept = len(self.store.fielddefs[stand_in][1])
+        return [name for name, _ in self.store.fielddefs[ros2_store_name][1][kept:]]
+
     def to_cdr(self, data: bytes, ros2_store_name: str) -> bytes:
         """ROS 1 bytes -> CDR (with its 4-byte encapsulation header), as rmw serializes."""
-        return bytes(self.store.ros1_to_cdr(data, ros2_store_name))
+        extended = self._extended.get(ros2_store_name)
+        if extended is None:
+            return bytes(self.store.ros1_to_cdr(data, ros2_store_name))
+        stand_in, added = extended
+        out = bytearray(self.store.ros1_to_cdr(data, stand_in))
+        for size, align in added:  # zeros, aligned as CDR aligns (from after the header)
+            out += bytes((-(len(out) - 4)) % align + size)
+        return bytes(out)
 
     def from_cdr(self, data: bytes, ros2_store_name: str) -> bytes:
-        """CDR -> ROS 1 bytes (``Header.seq`` = 0)."""
-        return bytes(self.store.cdr_to_ros1(data, ros2_store_name))
+        """CDR -> ROS 1 bytes (``Header.seq`` = 0; fields ROS 1 lacks are dropped)."""
+        extended = self._extended.get(ros2_store_name)
+        if extended is None:
+            return bytes(self.store.cdr_to_ros1(data, ros2_store_name))
+        stand_in, added = extended
+        fixed = sum(size for size, _ in added)
+        problem: Exception | None = None
+        for padding in range(8 * len(added) + 1):  # where the added fields began
+            length = len(data) - fixed - padding
+            end = length
+            for size, align in added:
+                end += (-(end - 4)) % align + size
+            if length < 4 or end != len(data):
+                continue
+            try:
+                return bytes(self.store.cdr_to_ros1(data[:length], stand_in))
+            except Exception as exc:  # noqa: BLE001 - try the next split
+                problem = exc
+        raise TypeMapError(f"{len(data)} CDR bytes do not hold a {ros2_store_name}: {problem}")
 
 
 def _names_in(desc: Any) -> list[str]:

@@ -511,6 +511,28 @@ static void test_dynamixel() {
   serial.echo = true;
   bus.echo(true);
   CHECK(bus.read_int(1, 132, pos, 4) && pos == 166, "with echo");
+  // Non-blocking: start, then poll until done; the status read as a signed value.
+  serial.echo = false;
+  bus.echo(false);
+  CHECK(bus.start_read(1, 132, 4), "start_read");
+  DxlResult result;
+  while ((result = bus.poll()) == kDxlPending) fake::advance_us(100);
+  CHECK(result == kDxlDone && bus.status_int(pos, 4) && pos == 166, "polled read %ld", (long)pos);
+  CHECK(!bus.status_int(pos, 2), "status of 4 bytes is not 2");
+  serial.replies[parse_hex("FFFFFD0001090003740000020000CA89")] = parse_hex("FFFFFD0001040055000000");
+  size_t before = serial.written.size();
+  CHECK(bus.start_write_int(1, 116, 512, 4), "start_write_int");
+  CHECK(Bytes(serial.written.begin() + before, serial.written.end()) ==
+            parse_hex("FFFFFD0001090003740000020000CA89"),
+        "the e-manual's write of Goal Position 512");
+  // Sign extension of a 2-byte value (Present Load -100 = 0xFF9C).
+  uint8_t load_status[16];
+  const uint8_t load_body[] = {0x00, 0x9C, 0xFF};
+  size_t ls = dxl::build_packet(2, 1, dxl::kStatus, load_body, 3, load_status, sizeof load_status);
+  serial.replies[parse_hex("FFFFFD00010700027E0002003549")] = Bytes(load_status, load_status + ls);
+  int32_t load = 0;
+  CHECK(bus.read_int(1, 126, load, 2) && load == -100, "sign-extended %ld", (long)load);
+
   // Protocol 1.0: the e-manual's read of address 43 (one byte) -> 0x20.
   FakeSerial s1;
   s1.replies[parse_hex("FFFF0104022B01CC")] = parse_hex("FFFF01030020DB");

@@ -85,8 +85,9 @@ sensor_msgs::JointState joint_msg;
 hwbridge::Publisher<sensor_msgs::JointState> joint_pub("joint_states");
 bool goal_pending = false;
 int32_t goal_ticks = 2048;
-bool reading = false;
 bool torque_on = false;
+enum BusJob : uint8_t { kNoJob, kTorqueJob, kGoalJob, kReadJob };
+BusJob job = kNoJob;
 unsigned long joint_ms = 0;
 
 void on_goal(const std_msgs::Float64& goal) {
@@ -95,39 +96,34 @@ void on_goal(const std_msgs::Float64& goal) {
 }
 hwbridge::Subscriber<std_msgs::Float64> goal_sub("pan/goal_position", &on_goal);
 
-// One bus transaction at a time, never waiting in loop(): a goal write, else a position read
-// every 50 ms whose answer is published when it comes.
+// One bus transaction at a time, never waited for: torque on (until the servo answers), a new
+// goal, else a position read every 50 ms whose answer is published when it comes.
 void servo_step() {
-  if (reading) {
+  if (job != kNoJob) {
     DxlResult r = dxl_bus.poll();
     if (r == kDxlPending) return;
-    reading = false;
-    if (r == kDxlDone && dxl_bus.status_size() == 4) {
-      const uint8_t* p = dxl_bus.status_params();
-      int32_t ticks = static_cast<int32_t>(static_cast<uint32_t>(p[0]) |
-                                           (static_cast<uint32_t>(p[1]) << 8) |
-                                           (static_cast<uint32_t>(p[2]) << 16) |
-                                           (static_cast<uint32_t>(p[3]) << 24));
+    int32_t ticks;
+    if (job == kTorqueJob) {
+      torque_on = r == kDxlDone;
+    } else if (job == kReadJob && r == kDxlDone && dxl_bus.status_int(ticks, 4)) {
       joint_msg.position[0] = dxl::x_ticks_to_radians(ticks);
       nh.now(&joint_msg.header.stamp.sec, &joint_msg.header.stamp.nsec);
       ++joint_msg.header.seq;
       joint_pub.publish(joint_msg);
     }
+    job = kNoJob;
     return;
   }
+  if (millis() - joint_ms < kJointPeriodMs && !goal_pending) return;
   if (!torque_on) {
-    torque_on = dxl_bus.write_u8(kPanId, kTorqueEnable, 1);
-    if (!torque_on) joint_ms = millis();  // try again at the next period
-  }
-  if (goal_pending) {
-    goal_pending = false;
-    dxl_bus.write_int(kPanId, kGoalPosition, goal_ticks, 4);
-    return;
-  }
-  if (millis() - joint_ms >= kJointPeriodMs) {
     joint_ms = millis();
-    uint8_t params[4] = {kPresentPosition & 0xFF, kPresentPosition >> 8, 4, 0};
-    reading = dxl_bus.send(kPanId, dxl::kRead, params, sizeof params);
+    if (dxl_bus.start_write_int(kPanId, kTorqueEnable, 1, 1)) job = kTorqueJob;
+  } else if (goal_pending) {
+    goal_pending = false;
+    if (dxl_bus.start_write_int(kPanId, kGoalPosition, goal_ticks, 4)) job = kGoalJob;
+  } else {
+    joint_ms = millis();
+    if (dxl_bus.start_read(kPanId, kPresentPosition, 4)) job = kReadJob;
   }
 }
 #endif

@@ -15,7 +15,8 @@
 // there the bus is a SoftwareSerial on pins 10 (RX) and 11 (TX) (57600 baud is its limit).
 // Either way through a half-duplex buffer (74LS241 or similar) whose direction pin is pin 2
 // (high: the board talks). Bus transactions never stall loop(): one at a time, sent, then
-// polled until the status comes or 10 ms pass.
+// polled until the status comes or 10 ms pass. torque_enable answers at once and the writes
+// follow (a servo that does not answer is logged).
 #include <HwBridge.h>
 #include <hwbridge/drivers/dynamixel.h>
 #include <sensor_msgs/JointState.h>
@@ -45,8 +46,11 @@ hwbridge::Publisher<sensor_msgs::JointState> state_pub("joint_states");
 
 int32_t goal[kJoints];
 bool goal_pending[kJoints] = {false, false};
-int8_t torque_request = -1;  // -1 none, 0 off, 1 on
-uint8_t reading = 0;         // the joint being read, + 1 (0: none)
+int8_t torque_request = -1;  // -1: none; 0 or 1: to write to both servos
+uint8_t torque_next = 0;     // the servo the torque write goes to next
+enum BusJob : uint8_t { kNoJob, kTorqueJob, kGoalJob, kReadJob };
+BusJob job = kNoJob;
+uint8_t job_joint = 0;
 bool any_answer = false;
 unsigned long state_ms = 0;
 
@@ -63,51 +67,61 @@ void on_command(const sensor_msgs::JointState& cmd) {
 hwbridge::Subscriber<sensor_msgs::JointState> command_sub("joint_command", &on_command);
 
 void on_torque(const std_srvs::SetBool::Request& req, std_srvs::SetBool::Response& res) {
-  // Both servos now (two short writes; the service answer waits for them).
-  bool ok = true;
-  for (uint8_t j = 0; j < kJoints; ++j) ok = bus.write_u8(kIds[j], kTorqueEnable, req.data) && ok;
-  res.success = ok;
-  res.message.assign(ok ? (req.data ? "torque on" : "torque off") : "a servo did not answer");
+  // Queued for the bus (written at the next free moments, both servos): the answer says so.
+  torque_request = req.data ? 1 : 0;
+  torque_next = 0;
+  res.success = true;
+  res.message.assign(req.data ? "torque on requested" : "torque off requested");
 }
 hwbridge::ServiceServer<std_srvs::SetBool> torque_srv("torque_enable", &on_torque);
 
+// One transaction at a time, never waited for: torque writes, then goals, else the position of
+// each joint in turn every 50 ms; joint_states goes out when the last joint has answered.
 void bus_step() {
-  if (reading) {
+  if (job != kNoJob) {
     DxlResult r = bus.poll();
     if (r == kDxlPending) return;
-    uint8_t j = reading - 1;
-    reading = 0;
-    if (r == kDxlDone && bus.status_size() == 4) {
-      const uint8_t* p = bus.status_params();
-      int32_t ticks = static_cast<int32_t>(
-          static_cast<uint32_t>(p[0]) | (static_cast<uint32_t>(p[1]) << 8) |
-          (static_cast<uint32_t>(p[2]) << 16) | (static_cast<uint32_t>(p[3]) << 24));
-      state_msg.position[j] = dxl::x_ticks_to_radians(ticks);
+    int32_t ticks;
+    if (job == kTorqueJob && r != kDxlDone) {
+      char line[40];
+      snprintf(line, sizeof line, "torque_enable: servo %u did not answer", kIds[job_joint]);
+      nh.logWarn(line);
+    } else if (job == kReadJob && r == kDxlDone && bus.status_int(ticks, 4)) {
+      state_msg.position[job_joint] = dxl::x_ticks_to_radians(ticks);
       any_answer = true;
     }
-    if (j + 1 < kJoints) {
-      reading = static_cast<uint8_t>(j + 2);  // the next joint at once
-      uint8_t params[4] = {kPresentPosition & 0xFF, kPresentPosition >> 8, 4, 0};
-      if (!bus.send(kIds[j + 1], dxl::kRead, params, sizeof params)) reading = 0;
-    } else if (any_answer) {
+    bool read_next = job == kReadJob && job_joint + 1 < kJoints;
+    bool publish = job == kReadJob && job_joint + 1 == kJoints && any_answer;
+    job = kNoJob;
+    if (read_next) {
+      job_joint = static_cast<uint8_t>(job_joint + 1);
+      if (bus.start_read(kIds[job_joint], kPresentPosition, 4)) job = kReadJob;
+    } else if (publish) {
       nh.now(&state_msg.header.stamp.sec, &state_msg.header.stamp.nsec);
       ++state_msg.header.seq;
       state_pub.publish(state_msg);
     }
     return;
   }
+  if (torque_request >= 0) {
+    job_joint = torque_next;
+    if (bus.start_write_int(kIds[job_joint], kTorqueEnable, torque_request, 1)) job = kTorqueJob;
+    if (++torque_next >= kJoints) torque_request = -1;
+    return;
+  }
   for (uint8_t j = 0; j < kJoints; ++j) {
     if (goal_pending[j]) {
       goal_pending[j] = false;
-      bus.write_int(kIds[j], kGoalPosition, goal[j], 4);
+      job_joint = j;
+      if (bus.start_write_int(kIds[j], kGoalPosition, goal[j], 4)) job = kGoalJob;
       return;
     }
   }
   if (millis() - state_ms >= kStatePeriodMs) {
     state_ms = millis();
     any_answer = false;
-    uint8_t params[4] = {kPresentPosition & 0xFF, kPresentPosition >> 8, 4, 0};
-    reading = bus.send(kIds[0], dxl::kRead, params, sizeof params) ? 1 : 0;
+    job_joint = 0;
+    if (bus.start_read(kIds[0], kPresentPosition, 4)) job = kReadJob;
   }
 }
 

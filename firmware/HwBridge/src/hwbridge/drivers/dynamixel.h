@@ -13,9 +13,10 @@
 //
 // The direction pin is high while the board transmits (a 74LS241 / 74HC126 buffer's enable) and
 // low to receive; transmit() waits for the UART to finish (Serial.flush()) before turning it.
-// A transaction is send() then poll() until it is done or timed out, so loop() need not wait;
-// read()/write() do both in one call, waiting at most timeout_us (default 10 ms). On a single
-// wire without a buffer the board hears its own packet: set echo(true) and it is skipped.
+// A transaction is started (start_read(), start_write(), send()) then poll()ed until it is done
+// or timed out, so loop() need not wait; read()/write() do both in one call, waiting at most
+// timeout_us (default 10 ms). On a single wire without a buffer the board hears its own packet:
+// set echo(true) and it is skipped.
 #ifndef HWBRIDGE_DRIVERS_DYNAMIXEL_H
 #define HWBRIDGE_DRIVERS_DYNAMIXEL_H
 
@@ -349,8 +350,10 @@ class DynamixelBus {
   }
 
   bool ping(uint8_t id) { return send(id, dxl::kPing, nullptr, 0) && wait(); }
-  /** Reads n bytes of the control table from address into out. */
-  bool read(uint8_t id, uint16_t address, uint8_t* out, uint8_t n) {
+
+  // Non-blocking: start a READ or WRITE; poll() until it is done (status_params() then hold
+  // the bytes read) or timed out.
+  bool start_read(uint8_t id, uint16_t address, uint8_t n) {
     uint8_t params[4];
     size_t count;
     if (protocol_ == 1) {
@@ -364,40 +367,58 @@ class DynamixelBus {
       params[3] = 0;
       count = 4;
     }
-    if (!send(id, dxl::kRead, params, count) || !wait() || parser_.size() != n) return false;
-    for (uint8_t i = 0; i < n; ++i) out[i] = parser_.params()[i];
-    return true;
+    return send(id, dxl::kRead, params, count);
   }
-  /** Writes n bytes from data to the control table at address (status awaited unless id is
-      the broadcast id). */
-  bool write(uint8_t id, uint16_t address, const uint8_t* data, uint8_t n) {
+  bool start_write(uint8_t id, uint16_t address, const uint8_t* data, uint8_t n) {
     uint8_t params[MaxParams];
     size_t head = protocol_ == 1 ? 1 : 2;
     if (n + head > MaxParams) return false;
     params[0] = static_cast<uint8_t>(address & 0xFF);
     if (head == 2) params[1] = static_cast<uint8_t>(address >> 8);
     for (uint8_t i = 0; i < n; ++i) params[head + i] = data[i];
-    return send(id, dxl::kWrite, params, head + n) && wait();
-  }
-  bool write_u8(uint8_t id, uint16_t address, uint8_t value) {
-    return write(id, address, &value, 1);
+    return send(id, dxl::kWrite, params, head + n);
   }
   /** A little-endian value of `size` bytes (1, 2 or 4). */
-  bool write_int(uint8_t id, uint16_t address, int32_t value, uint8_t size) {
+  bool start_write_int(uint8_t id, uint16_t address, int32_t value, uint8_t size) {
     uint8_t data[4];
     uint32_t v = static_cast<uint32_t>(value);
     for (uint8_t i = 0; i < 4; ++i) data[i] = static_cast<uint8_t>(v >> (8 * i));
-    return write(id, address, data, size);
+    return size <= 4 && start_write(id, address, data, size);
   }
-  /** A little-endian signed value of `size` bytes (1, 2 or 4), sign-extended. */
-  bool read_int(uint8_t id, uint16_t address, int32_t& value, uint8_t size) {
-    uint8_t data[4] = {0, 0, 0, 0};
-    if (size == 0 || size > 4 || !read(id, address, data, size)) return false;
+  /** The last status's first `size` parameters as a little-endian signed value (1, 2 or 4
+      bytes, sign-extended); false if the status has not that many. */
+  bool status_int(int32_t& value, uint8_t size) const {
+    if (size == 0 || size > 4 || parser_.size() != size) return false;
+    const uint8_t* data = parser_.params();
     uint32_t v = 0;
     for (uint8_t i = 0; i < size; ++i) v |= static_cast<uint32_t>(data[i]) << (8 * i);
     if (size < 4 && (data[size - 1] & 0x80)) v |= static_cast<uint32_t>(0xFFFFFFFFUL << (8 * size));
     value = static_cast<int32_t>(v);
     return true;
+  }
+
+  // Blocking: the same, waiting at most the timeout.
+  /** Reads n bytes of the control table from address into out. */
+  bool read(uint8_t id, uint16_t address, uint8_t* out, uint8_t n) {
+    if (!start_read(id, address, n) || !wait() || parser_.size() != n) return false;
+    for (uint8_t i = 0; i < n; ++i) out[i] = parser_.params()[i];
+    return true;
+  }
+  /** Writes n bytes from data to the control table at address (status awaited unless id is
+      the broadcast id). */
+  bool write(uint8_t id, uint16_t address, const uint8_t* data, uint8_t n) {
+    return start_write(id, address, data, n) && wait();
+  }
+  bool write_u8(uint8_t id, uint16_t address, uint8_t value) {
+    return write(id, address, &value, 1);
+  }
+  bool write_int(uint8_t id, uint16_t address, int32_t value, uint8_t size) {
+    return start_write_int(id, address, value, size) && wait();
+  }
+  /** A little-endian signed value of `size` bytes (1, 2 or 4), sign-extended. */
+  bool read_int(uint8_t id, uint16_t address, int32_t& value, uint8_t size) {
+    return size > 0 && size <= 4 && start_read(id, address, size) && wait() &&
+           status_int(value, size);
   }
 
  private:

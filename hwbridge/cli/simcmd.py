@@ -1,0 +1,91 @@
+"""``hwbridge firmware sim``: an AVR firmware in simavr, UART0 on a pty, the robot on its pins."""
+
+from __future__ import annotations
+
+import json
+import sys
+import threading
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+__all__ = ["sim"]
+
+
+def sim(
+    firmware: Annotated[
+        str,
+        typer.Argument(
+            metavar="ELF",
+            help="An AVR ELF, a sketch folder, or the name of a HwBridge example (HelloWorld).",
+        ),
+    ],
+    mcu: Annotated[
+        str, typer.Option("--mcu", help="atmega328p (Uno) or atmega2560 (Mega).")
+    ] = "atmega328p",
+    robot: Annotated[
+        str | None,
+        typer.Option(
+            "--robot",
+            metavar="ROBOT.yaml",
+            help="Put this robot file's world on the pins (a path, or diffbot).",
+        ),
+    ] = None,
+    board: Annotated[
+        str | None, typer.Option("--board", help="The robot file's board (default: the first).")
+    ] = None,
+    pins: Annotated[
+        str | None,
+        typer.Option(
+            "--pins",
+            metavar="JSON",
+            help="Pins other than DiffDriveBase's, e.g. '{\"sonar\": [9, 10]}'.",
+        ),
+    ] = None,
+    speed: Annotated[
+        float, typer.Option("--speed", help="Simulated seconds per second (0: flat out).")
+    ] = 1.0,
+    frequency: Annotated[int, typer.Option("--frequency", help="Clock (Hz).")] = 16_000_000,
+    seed: Annotated[int, typer.Option("--seed", help="The world's seed.")] = 0,
+) -> None:
+    """Run an AVR firmware in simavr until Ctrl-C. The first line printed is the URL of its
+    UART0 (serial:///dev/pts/N): give it to 'hwbridge connect' or a robot file's --link."""
+    from hwbridge.emulator.board import load_board
+    from hwbridge.emulator.pins import PinMap, PinWorld
+    from hwbridge.errors import HwBridgeError
+    from hwbridge.firmware.sim import SimAvr
+    from hwbridge.firmware.sim.examples import EXAMPLES_DIR, build_sketch_for_sim
+
+    path = Path(firmware)
+    board_name = "mega" if mcu == "atmega2560" else "uno"
+    if path.is_dir():
+        path = build_sketch_for_sim(path, board_name)
+    elif not path.exists() and (EXAMPLES_DIR / firmware).is_dir():
+        path = build_sketch_for_sim(EXAMPLES_DIR / firmware, board_name)
+    simulation = SimAvr(path, mcu=mcu, frequency=frequency, speed=speed)
+    try:
+        simulation.start(hold=True)
+        if robot is not None:
+            pin_map = PinMap.for_board(board_name)
+            if pins is not None:
+                try:
+                    pin_map = pin_map.with_settings(json.loads(pins))
+                except (ValueError, TypeError) as exc:
+                    raise HwBridgeError(f"--pins: {exc}") from exc
+            PinWorld(simulation, load_board(robot, board), pins=pin_map, seed=seed).attach()
+        simulation.go()
+        sys.stdout.write(simulation.url + "\n")
+        sys.stdout.flush()
+        stopped = threading.Event()
+        simulation.on_exit.append(lambda state: stopped.set())
+        try:
+            while not stopped.wait(0.5):
+                if not simulation.running:
+                    break
+        except KeyboardInterrupt:
+            pass
+        if simulation.exited is not None:
+            raise HwBridgeError(f"the AVR stopped ({simulation.exited})")
+    finally:
+        simulation.close()

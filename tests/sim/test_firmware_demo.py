@@ -1,0 +1,73 @@
+"""``hwbridge demo --firmware`` (run_firmware_demo): DiffDriveBase for the ATmega328P in simavr
+behind RobotRuntime and the host nodes; odometry within 0.5 % of the distance driven; the
+``firmware sim`` command prints the UART's URL first."""
+
+from __future__ import annotations
+
+import io
+import re
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from rich.console import Console
+
+from hwbridge.emulator.firmware_demo import ROBOT_FILE, run_firmware_demo, uno_robot
+from hwbridge.errors import HwBridgeError
+from hwbridge.firmware.sim.examples import build_example
+from hwbridge.robot.config import load_robot
+from tests.netutil import free_port
+
+
+@pytest.fixture(scope="module")
+def diffdrive_elf(runner: Path) -> Path:
+    try:
+        return build_example("DiffDriveBase", "uno")
+    except HwBridgeError as exc:
+        pytest.skip(f"DiffDriveBase does not build here: {str(exc).splitlines()[0]}")
+
+
+def test_uno_robot_halves_counts_per_rev() -> None:
+    robot = load_robot(ROBOT_FILE)
+    (before,) = [d for d in robot.board("base").devices if d.type == "diffdrive"]
+    (after,) = [d for d in uno_robot(robot).board("base").devices if d.type == "diffdrive"]
+    assert after.settings["counts_per_rev"] == before.settings["counts_per_rev"] / 2
+
+
+def test_firmware_demo(diffdrive_elf: Path, tmp_path: Path) -> None:
+    text = io.StringIO()
+    console = Console(file=text, width=200)
+    result = run_firmware_demo(
+        duration=12.0,
+        endpoint=f"tcp/127.0.0.1:{free_port()}",
+        console=console,
+        plot=tmp_path / "path.svg",
+        elf=diffdrive_elf,
+    )
+    output = text.getvalue()
+    assert result.distance > 1.0, output
+    assert result.error_percent <= 0.5, output
+    last = output.strip().splitlines()[-1]
+    assert re.fullmatch(r"odometry error: \d+\.\d{3}% of \d+\.\d\d m", last), output
+    for topic in ("/diffbot/odom", "/diffbot/range", "/diffbot/imu"):
+        found = re.search(rf"{topic}: (\d+)", output)
+        assert found is not None and int(found.group(1)) > 10, output
+    assert (tmp_path / "path.svg").exists()
+
+
+def test_sim_command_prints_the_url_first(probe_elf: Path) -> None:
+    process = subprocess.Popen(
+        [sys.executable, "-m", "hwbridge.firmware.sim", str(probe_elf), "--robot", "diffbot"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert process.stdout is not None
+        first = process.stdout.readline().strip()
+        assert re.fullmatch(r"serial:///dev/pts/\d+", first), first
+    finally:
+        process.send_signal(signal.SIGINT)
+        assert process.wait(15) in (0, 130)  # 130: Ctrl-C before the command's loop

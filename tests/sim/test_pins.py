@@ -1,0 +1,87 @@
+"""The emulator's world on the pins of tests/sim/avr/probe.c: its PWM moves the world's wheel,
+the wheel's encoder edges reach its counter, the sonar's echo is as wide as the world's distance
+says, and the MPU-6050's register file answers its I2C reads."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import pytest
+
+from hwbridge.devices.ultrasonic import echo_for_distance
+from hwbridge.emulator.board import load_board
+from hwbridge.emulator.pins import PinMap, PinWorld
+from hwbridge.errors import HwBridgeError
+from hwbridge.firmware.sim import SimAvr
+from tests.sim.conftest import Terminal
+
+# probe.c's wiring: encoder A/B on 2/4, PWM on 5 (OC0B) with direction on 7, sonar 9/10; the
+# right-hand devices on analog pins the program leaves alone.
+PROBE_PINS = PinMap(
+    left_encoder=(2, 4),
+    right_encoder=("A0", "A1"),
+    left_motor=(5, 7),
+    right_motor=("A2", "A3"),
+    sonar=(9, 10),
+)
+
+
+def test_pin_map() -> None:
+    assert PinMap.for_board("uno") == PinMap()
+    assert PinMap.for_board("mega").right_encoder == (18, 19)
+    assert PinMap().with_settings({"sonar": [9, 10]}).sonar == (9, 10)
+    with pytest.raises(HwBridgeError, match="unknown pins"):
+        PinMap().with_settings({"lidar": [1, 2]})
+    with pytest.raises(HwBridgeError):
+        PinMap.for_board("due")
+
+
+def test_world_on_the_probe(probe_elf: Path, terminal_factory: type[Terminal]) -> None:
+    with SimAvr(probe_elf) as sim:
+        sim.start(hold=True)
+        world = PinWorld(sim, load_board("diffbot"), pins=PROBE_PINS, seed=3).attach()
+        assert world.skipped == ["dynamixel"]
+        uart = terminal_factory(sim.path)
+        sim.go()
+        uart.read_until(b"boot\n")
+        # the sonar: the round trip to the wall ahead (the robot starts in the room's centre)
+        with world.lock:
+            distance = world.world.sonar_distance()
+        assert distance is not None
+        uart.write(b"s")
+        echo = int(uart.read_until(b"\n")[1:])
+        # (diffbot's sonar has 2 mm of range noise: 12 us a standard deviation)
+        assert echo == pytest.approx(echo_for_distance(distance, 20.0) * 1e6, abs=60)
+        # the MPU-6050: asleep at power-on, woken by the program's write, then a burst read
+        uart.write(b"i")
+        uart.read_until(b"\n")
+        sim.wait_time(sim.time + 0.02)
+        uart.write(b"i")
+        reply = uart.read_until(b"\n").decode()
+        assert reply.startswith("I68 ")  # WHO_AM_I
+        data = bytes.fromhex(reply.split()[1])
+        z = int.from_bytes(data[4:6], "big", signed=True)
+        # 1 g at the +-2 g reset range, within the chip's drawn offset and scale errors
+        assert z == pytest.approx(16384, rel=0.1)
+        # the motor: half duty forwards -> the left wheel turns at half the top speed
+        uart.write(b"p\x80")
+        uart.read_until(b"P\n")
+        sim.wait_time(sim.time + 0.6)
+        with world.lock:
+            left, right = world.world.base.wheel_speeds
+        top = world.world.config.max_wheel_speed
+        assert left == pytest.approx(top * 128 / 255, rel=0.02)
+        assert right == 0.0
+        # the encoder: the program's x2 count follows the wheel's angle
+        uart.write(b"p\x00")
+        uart.read_until(b"P\n")
+        sim.wait_time(sim.time + 0.5)
+        with world.lock:
+            angle = world.world.base.wheel_angles[0]
+        steps = math.floor(angle / (2 * math.pi) * world.world.config.counts_per_rev)
+        assert steps > 1000
+        uart.write(b"c")
+        count = int(uart.read_until(b"\n")[1:])
+        # two encoder steps per count; the program's counter is 16-bit signed
+        assert count == pytest.approx(((steps // 2 + 32768) % 65536) - 32768, abs=1)

@@ -104,6 +104,11 @@ static void test_quadrature() {
   turn(2, 4, -800);
   CHECK(UnoLeft::count() == static_cast<uint16_t>(-200), "x2 backwards: %u", UnoLeft::count());
 
+  // A on a pin without an interrupt: nothing attached, decoding() says so.
+  typedef QuadratureEncoder<6, 3> NoIrq;
+  NoIrq::begin();
+  CHECK(NoIrq::decoding() == 0 && fake::board().handler[1] == 0, "no interrupt on A");
+
   // WheelTicks as the emulated board fills it: unsigned 16-bit values in the int32 fields.
   hwbridge_msgs::WheelTicks ticks;
   ticks.header.frame_id.assign("base_link");

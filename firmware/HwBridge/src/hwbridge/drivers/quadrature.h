@@ -8,7 +8,8 @@
 //   uint16_t n = left.count();                             // any time, interrupt-safe
 //
 // Decoding: every edge of A and of B (x4) when both pins have an external interrupt
-// (digitalPinToInterrupt), otherwise every edge of A only (x2; B is read in A's interrupt).
+// (digitalPinToInterrupt), otherwise every edge of A only (x2; B is read in A's interrupt); A
+// must have one (or the sketch calls on_edge() from its own pin-change interrupt).
 // decoding() says which, so that the robot file's counts_per_rev can match (an Uno has two
 // interrupt pins: two wheels there decode x2). Forward is A leading B; begin(true) reverses a
 // wheel mounted mirrored. No heap; the state is static per (PinA, PinB) pair, so each pair is
@@ -49,16 +50,17 @@ class QuadratureEncoder {
     state_ = read_state();
     int ia = digitalPinToInterrupt(PinA);
     int ib = digitalPinToInterrupt(PinB);
-    x4_ = ib != NOT_AN_INTERRUPT;
-    if (ia != NOT_AN_INTERRUPT) attachInterrupt(ia, &on_edge, CHANGE);
+    attached_ = ia != NOT_AN_INTERRUPT;
+    x4_ = attached_ && ib != NOT_AN_INTERRUPT;
+    if (attached_) attachInterrupt(ia, &on_edge, CHANGE);
     if (x4_) attachInterrupt(ib, &on_edge, CHANGE);
   }
   /** Interrupts detached (the counter keeps its value). */
   static void end() {
     int ia = digitalPinToInterrupt(PinA);
     int ib = digitalPinToInterrupt(PinB);
-    if (ia != NOT_AN_INTERRUPT) detachInterrupt(ia);
-    if (x4_ && ib != NOT_AN_INTERRUPT) detachInterrupt(ib);
+    if (attached_) detachInterrupt(ia);
+    if (x4_) detachInterrupt(ib);
   }
   /** The counter, read with interrupts held off (a multi-byte read is not atomic on AVR). */
   static Count count() {
@@ -73,8 +75,9 @@ class QuadratureEncoder {
     count_ = 0;
     interrupts();
   }
-  /** 4 (every edge of both channels) or 2 (edges of A only). */
-  static uint8_t decoding() { return x4_ ? 4 : 2; }
+  /** 4 (every edge of both channels), 2 (edges of A only), or 0: A has no external interrupt
+      and nothing is counted (call on_edge() from a pin-change interrupt of both pins). */
+  static uint8_t decoding() { return x4_ ? 4 : (attached_ ? 2 : 0); }
   /** Width of the counter: WheelTicks.counter_bits. */
   static uint8_t counter_bits() { return static_cast<uint8_t>(sizeof(Count) * 8); }
   /** Transitions where both channels changed between two interrupts (x4 only). */
@@ -110,6 +113,7 @@ class QuadratureEncoder {
   static volatile uint8_t state_;
   static bool reversed_;
   static bool x4_;
+  static bool attached_;
 };
 
 template <uint8_t A, uint8_t B, class C>
@@ -122,6 +126,8 @@ template <uint8_t A, uint8_t B, class C>
 bool QuadratureEncoder<A, B, C>::reversed_ = false;
 template <uint8_t A, uint8_t B, class C>
 bool QuadratureEncoder<A, B, C>::x4_ = false;
+template <uint8_t A, uint8_t B, class C>
+bool QuadratureEncoder<A, B, C>::attached_ = false;
 
 /** The two counters of a differential-drive base into a hwbridge_msgs/WheelTicks (any struct
     with int32 `left`, `right` and uint8 `counter_bits`): the unsigned counter values as the

@@ -61,8 +61,13 @@ def ros2_environment(
     prefix: str | None = None, env: dict[str, str] | None = None
 ) -> dict[str, str]:
     """The environment rclpy from wheels installed under ``prefix`` (default: this Python's
-    ``sys.prefix``) needs: its ``lib`` on ``LD_LIBRARY_PATH``, ``prefix`` on
-    ``AMENT_PREFIX_PATH``, Fast DDS unless an RMW is chosen. Existing entries are kept first."""
+    ``sys.prefix``) needs: its ``lib`` (and the wheels' ``ros_*.libs``) on ``LD_LIBRARY_PATH``,
+    ``prefix`` on ``AMENT_PREFIX_PATH``, Fast DDS unless an RMW is chosen. Existing entries are
+    kept first.
+
+    (The wheels also install ``ros_wheels_bootstrapper``, a ``.pth`` hook that re-executes
+    every Python process of the environment with ``LD_LIBRARY_PATH`` set, unless
+    ``_ROS_WHEELS_BOOTSTRAP_COMPLETE`` is set; ``hwbridge ros2`` does not rely on it.)"""
     base = dict(os.environ if env is None else env)
     root = prefix or sys.prefix
     lib = str(Path(root) / "lib")
@@ -74,6 +79,9 @@ def ros2_environment(
         base[name] = os.pathsep.join(parts)
 
     add("LD_LIBRARY_PATH", lib)
+    site = Path(lib) / f"python{sys.version_info.major}.{sys.version_info.minor}" / "site-packages"
+    for vendored in sorted(site.glob("ros_*.libs")):  # libraries the wheels carry along
+        add("LD_LIBRARY_PATH", str(vendored))
     add("AMENT_PREFIX_PATH", root)
     base.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
     return base

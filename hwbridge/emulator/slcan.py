@@ -59,6 +59,8 @@ class SlcanAdapter:
         self.bitrate: int | None = None
         self.frames_to_bus = 0
         self.frames_to_host = 0
+        self.fd_frames = 0
+        """CAN FD frames among those the host sent."""
         self.refused = 0
         """Commands answered with BEL."""
         self._master = -1
@@ -209,6 +211,7 @@ class SlcanAdapter:
             self.refused += 1
             return _BELL
         self.frames_to_bus += 1
+        self.fd_frames += fd
         return b"Z\r" if extended else b"z\r"
 
     # ------------------------------------------------------------------ bus side

@@ -197,11 +197,15 @@ def test_frame_bits() -> None:
     assert frame_bits(64, fd=True) > frame_bits(8)
 
 
-def test_slcan_adapter_through_python_can(opened: list[CanLink]) -> None:
+@pytest.mark.parametrize("fd", [False, True], ids=["classic", "fd"])
+def test_slcan_adapter_through_python_can(opened: list[CanLink], fd: bool) -> None:
     name = f"slcan{next(_names)}"
     with SlcanAdapter(name) as adapter:
-        host = _open(opened, f"can://slcan{adapter.path}/node7?sleep_after_open=0&bitrate=500000")
-        board = _open(opened, f"can://virtual/{name}?node=0&local=7")
+        host = _open(
+            opened,
+            f"can://slcan{adapter.path}/node7?sleep_after_open=0&bitrate=500000&fd={int(fd)}",
+        )
+        board = _open(opened, f"can://virtual/{name}?node=0&local=7&fd={int(fd)}")
         assert wait_for(lambda: adapter.is_open, 5)
         assert adapter.bitrate == 500000
         for size in (1, 50, 400):
@@ -212,6 +216,7 @@ def test_slcan_adapter_through_python_can(opened: list[CanLink]) -> None:
             assert host.read(4096, 5.0) == data[::-1]
         assert adapter.frames_to_bus > 0
         assert adapter.frames_to_host > 0
+        assert (adapter.fd_frames > 0) == fd
         # The adapter refuses what it cannot parse and goes on.
         assert adapter._command("Txyz") == b"\a"
         assert adapter._command("T0000000191122") == b"\a"

@@ -103,7 +103,7 @@ def ros2(
 ) -> None:
     """Mirror the graph's topics and services into ROS 2 (rclpy) until Ctrl-C.
 
-    The ROS 2 graph is the one ROS_DOMAIN_ID selects; installing the [ros2] extra gives rclpy.
+    The ROS 2 graph is the one ROS_DOMAIN_ID selects; rclpy comes with hwbridge's ros2 extra.
     """
     from hwbridge.gateway.common import Selection
     from hwbridge.gateway.ros2 import (

@@ -15,10 +15,11 @@ import pytest
 
 from hwbridge.errors import HwBridgeError
 from hwbridge.firmware.sim import SimAvr, Tick
-from hwbridge.firmware.sim.examples import build_example
+from hwbridge.firmware.sim.examples import build_example, build_sketch_for_sim
 from tests.bridgeproc import BridgeProcess
 from tests.netutil import wait_until
 
+SKETCHES = Path(__file__).with_name("sketches")
 LED = "B5"  # LED_BUILTIN, pin 13
 BUTTON = "D7"  # Button.ino's pin 7
 
@@ -45,7 +46,8 @@ def run_example(
 
     def start(name: str, *commands: str) -> Running:
         try:
-            elf = build_example(name, "uno")
+            sketch = SKETCHES / name
+            elf = build_sketch_for_sim(sketch) if sketch.is_dir() else build_example(name, "uno")
         except HwBridgeError as exc:
             pytest.skip(f"{name} does not build here: {str(exc).splitlines()[0]}")
         sim = SimAvr(elf)
@@ -92,6 +94,16 @@ def test_hello_world_and_resets(run_example: Callable[..., Running]) -> None:
     assert "data: hello world!" in _echo(bridge, "/chatter")
     boards = bridge.cli("board", "list")
     assert boards.returncode == 0, boards.stderr
+
+
+def test_watchdog_reset_recovered(run_example: Callable[..., Running]) -> None:
+    running = run_example("WatchdogHello")
+    bridge, sim = running.bridge, running.sim
+    assert "data: hello world!" in _echo(bridge, "/chatter")
+    done = bridge.cli("topic", "pub", "-1", "/hang", "std_msgs/Empty", "{}")
+    assert done.returncode == 0, done.stderr
+    assert wait_until(lambda: sim.resets == 1, 20), bridge.output()  # the watchdog's
+    assert "data: hello world!" in _echo(bridge, "/chatter")
 
 
 def test_blink_subscribers_drive_the_led(run_example: Callable[..., Running]) -> None:

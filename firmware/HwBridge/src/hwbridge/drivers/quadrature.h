@@ -20,6 +20,13 @@
 #include "arduino_api.h"
 #include <stdint.h>
 
+// On AVR with the Arduino core the interrupt reads the pins' input registers directly.
+#if defined(__AVR__) && defined(HWBRIDGE_DRIVERS_HAVE_ARDUINO) && defined(portInputRegister)
+#define HWBRIDGE_QUADRATURE_FAST_READ 1
+#else
+#define HWBRIDGE_QUADRATURE_FAST_READ 0
+#endif
+
 namespace hwbridge {
 namespace drivers {
 
@@ -44,6 +51,12 @@ class QuadratureEncoder {
   static void begin(bool reversed = false, bool pullup = true) {
     pinMode(PinA, pullup ? INPUT_PULLUP : INPUT);
     pinMode(PinB, pullup ? INPUT_PULLUP : INPUT);
+#if HWBRIDGE_QUADRATURE_FAST_READ
+    in_a_ = portInputRegister(digitalPinToPort(PinA));
+    in_b_ = portInputRegister(digitalPinToPort(PinB));
+    mask_a_ = digitalPinToBitMask(PinA);
+    mask_b_ = digitalPinToBitMask(PinB);
+#endif
     reversed_ = reversed;
     count_ = 0;
     missed_ = 0;
@@ -106,8 +119,19 @@ class QuadratureEncoder {
 
  private:
   static uint8_t read_state() {
+#if HWBRIDGE_QUADRATURE_FAST_READ
+    // The pins' input registers, looked up once in begin(): ~1 us instead of two digitalRead()s.
+    return static_cast<uint8_t>(((*in_a_ & mask_a_) ? 2U : 0U) | ((*in_b_ & mask_b_) ? 1U : 0U));
+#else
     return static_cast<uint8_t>((digitalRead(PinA) ? 2U : 0U) | (digitalRead(PinB) ? 1U : 0U));
+#endif
   }
+#if HWBRIDGE_QUADRATURE_FAST_READ
+  static volatile uint8_t* in_a_;
+  static volatile uint8_t* in_b_;
+  static uint8_t mask_a_;
+  static uint8_t mask_b_;
+#endif
   static volatile Count count_;
   static volatile uint16_t missed_;
   static volatile uint8_t state_;
@@ -128,6 +152,16 @@ template <uint8_t A, uint8_t B, class C>
 bool QuadratureEncoder<A, B, C>::x4_ = false;
 template <uint8_t A, uint8_t B, class C>
 bool QuadratureEncoder<A, B, C>::attached_ = false;
+#if HWBRIDGE_QUADRATURE_FAST_READ
+template <uint8_t A, uint8_t B, class C>
+volatile uint8_t* QuadratureEncoder<A, B, C>::in_a_ = nullptr;
+template <uint8_t A, uint8_t B, class C>
+volatile uint8_t* QuadratureEncoder<A, B, C>::in_b_ = nullptr;
+template <uint8_t A, uint8_t B, class C>
+uint8_t QuadratureEncoder<A, B, C>::mask_a_ = 0;
+template <uint8_t A, uint8_t B, class C>
+uint8_t QuadratureEncoder<A, B, C>::mask_b_ = 0;
+#endif
 
 /** The two counters of a differential-drive base into a hwbridge_msgs/WheelTicks (any struct
     with int32 `left`, `right` and uint8 `counter_bits`): the unsigned counter values as the

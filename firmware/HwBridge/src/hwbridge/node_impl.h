@@ -301,7 +301,7 @@ HWB_NODE void HWB_SELF::sendControlBe(const uint8_t* p, size_t n) {
 
 HWB_NODE void HWB_SELF::sendHello() {
   ++stats_.hellos_sent;
-  uint8_t h[22];
+  uint8_t h[21];
   h[0] = 0x01;
   h[1] = 1;  // version
   h[2] = 1;  // role: board
@@ -447,7 +447,7 @@ HWB_NODE void HWB_SELF::onData(const Message& m) {
 
 HWB_NODE void HWB_SELF::onControl(const uint8_t* p, size_t n, bool reliable) {
   // the fixed size of each opcode's fields (0: unknown); variable ones give their minimum
-  static const uint8_t kBe[8] = {0, 22, 1, 0, 21, 1, 9, 0};  // opcodes 0x00..0x07 (board's view)
+  static const uint8_t kBe[8] = {0, 21, 1, 0, 21, 1, 9, 0};  // opcodes 0x00..0x07 (board's view)
   if (n == 0) {
     protocolError();
     return;
@@ -897,8 +897,10 @@ HWB_NODE void HWB_SELF::onTimeResponse(const uint8_t* p) {
   if (elapsed > kMaxTimeAgeUs) return;
   const uint32_t t2s = detail::get32(p + 5), t2n = detail::get32(p + 9);
   const uint32_t t3s = detail::get32(p + 13), t3n = detail::get32(p + 17);
-  // host busy time t3 - t2 in us (below 10 s here)
-  const int32_t busy = static_cast<int32_t>(t3s - t2s) * 1000000L +
+  const uint32_t busy_s = t3s - t2s;
+  if (busy_s > 10 || t2n >= 1000000000UL || t3n >= 1000000000UL) return;  // nonsense: ignored
+  // host busy time t3 - t2 in us
+  const int32_t busy = static_cast<int32_t>(busy_s) * 1000000L +
                        (static_cast<int32_t>(t3n) - static_cast<int32_t>(t2n)) / 1000;
   int32_t rtt = static_cast<int32_t>(elapsed) - busy;
   if (rtt < 0) rtt = 0;

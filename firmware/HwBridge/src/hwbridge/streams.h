@@ -532,7 +532,7 @@ class ReliableReceiver {
   /** Writes the ACK frame (channel 0, frag WHOLE) to sink.put(); clears the due flags. */
   template <class Sink>
   size_t write_ack(Sink& sink, bool lead = false) {
-    uint8_t bitmap[kMaxSackBytes];
+    uint8_t bitmap[kMaxSackBytes] = {0};
     size_t n = 0;
     FrameHeader h;
     h.type = FrameType::Ack;

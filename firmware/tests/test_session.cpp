@@ -1,0 +1,226 @@
+// The board session (hwbridge/node.h) against the golden transcript of PROTOCOL.md 2.12
+// (protocols/vectors/native_session.json, fed on stdin by session_vectors.py): every byte the
+// board writes is compared with the transcript. Then the session's own rules: bad input counted
+// and dropped with the session kept, heartbeats, the link timeout, restarts of the host,
+// GOODBYE, pending requests failing when the session ends.
+//
+//   python3 firmware/tests/session_vectors.py | BUILD/test_session
+#include "session_harness.h"
+
+using harness::Bytes;
+using harness::GoldenBoard;
+using harness::Host;
+using harness::Transcript;
+using harness::expect_bytes;
+using hwbridge::FrameType;
+
+namespace {
+
+hwbridge::ParamValue g_last;
+int g_answers = 0;
+int32_t g_value = 0;
+std::string g_name;
+
+void on_param(const hwbridge::ParamValue& v) {
+  g_last = v;
+  g_name.assign(v.name ? v.name : "", v.name_len);
+  g_value = v.ok() ? v.asInt() : -1;
+  ++g_answers;
+}
+
+/** The whole transcript, step by step as build_transcript() in
+ * tests/protocols/test_native_session.py runs it. */
+void golden(const Transcript& tr) {
+  GoldenBoard b;
+  Host host;
+  harness::connect(b, tr, &host);
+  const double t = 10.001;
+  expect_bytes("time_request", b.timers(t), tr.get("time_request", 'd'));
+  Bytes in = tr.get("time_response", 'h');
+  const Bytes req = tr.get("host_time_request", 'h');
+  in.insert(in.end(), req.begin(), req.end());
+  expect_bytes("host_time_response", b.input(in, t + 0.002), tr.get("host_time_response", 'd'));
+  CHECK(b.node.timeSynced(), "no time sync after TIME_RESPONSE");
+  uint32_t sec = 0, nsec = 0;
+  b.node.now(&sec, &nsec);  // t3 (1700000000.002) + rtt / 2 (1 ms), read at t4
+  CHECK(sec == 1700000000UL && nsec == 3000000UL, "host time %u.%09u", sec, nsec);
+
+  const uint8_t hello[] = {5, 0, 0, 0, 'h', 'e', 'l', 'l', 'o'};
+  harness::Raw m;
+  m.p = hello;
+  m.n = sizeof(hello);
+  CHECK(b.chatter.publish(m), "publish refused");
+  expect_bytes("topic_data", b.hw().take(), tr.get("topic_data", 'd'));
+  uint8_t big[70] = {0x28, 0, 0, 0};
+  for (int i = 0; i < 40; ++i) big[4 + i] = static_cast<uint8_t>('0' + i % 10);
+  for (int i = 44; i < 70; ++i) big[i] = '!';
+  m.p = big;
+  m.n = sizeof(big);
+  CHECK(b.chatter.publish(m), "publish of 70 bytes refused");
+  expect_bytes("topic_data_fragments", b.hw().take(), tr.get("topic_data_fragments", 'd'));
+
+  expect_bytes("service_response", b.input(tr.get("service_request", 'h'), t + 0.005),
+               tr.get("service_response", 'd'));
+  expect_bytes("ack_service_response", b.input(tr.get("ack_service_response", 'h'), t + 0.006), Bytes());
+
+  const uint16_t id = b.node.requestParam("rate", hwbridge::kParamInt32, &on_param, true);
+  CHECK(id == 1, "request id %u", id);
+  expect_bytes("param_get", b.hw().take(), tr.get("param_get", 'd'));
+  expect_bytes("ack_param_value", b.input(tr.get("param_value", 'h'), t + 0.008), tr.get("ack_param_value", 'd'));
+  CHECK(g_answers == 1 && g_value == 50 && g_name == "rate" && g_last.request_id == 1, "rate: %d", g_value);
+  CHECK(g_last.type == hwbridge::kParamInt32 && g_last.count() == 1, "type %u", g_last.type);
+
+  CHECK(b.node.requestParam("missing", hwbridge::kParamAny, &on_param) == 2, "second request id");
+  expect_bytes("param_get_missing", b.hw().take(), tr.get("param_get_missing", 'd'));
+  expect_bytes("ack_param_not_found", b.input(tr.get("param_not_found", 'h'), t + 0.010),
+               tr.get("ack_param_not_found", 'd'));
+  CHECK(g_answers == 2 && g_last.status == hwbridge::kParamNotFound && g_name == "missing", "not found");
+
+  expect_bytes("ack_param_push", b.input(tr.get("param_push", 'h'), t + 0.011), tr.get("ack_param_push", 'd'));
+  CHECK(g_answers == 3 && g_last.request_id == 0 && g_value == 100, "push: %d", g_value);
+
+  CHECK(b.node.logWarn("low battery"), "log refused");
+  expect_bytes("log", b.hw().take(), tr.get("log", 'd'));
+  expect_bytes("ack_log", b.input(tr.get("ack_log", 'h'), t + 0.012), Bytes());
+  expect_bytes("heartbeat_host", b.input(tr.get("heartbeat_host", 'h'), t + 0.2), Bytes());
+  CHECK(b.node.connected(), "a heartbeat ended the session");
+  expect_bytes("goodbye", b.input(tr.get("goodbye", 'h'), t + 0.2), Bytes());
+  CHECK(!b.node.connected() && b.node.stats().peer_resets == 1, "GOODBYE did not end the session");
+  // a new handshake: a HELLO at once, without ESTABLISHED, knowing no host
+  const Bytes again = b.timers(t + 0.21);
+  std::vector<std::pair<hwbridge::Frame, Bytes> > fr = harness::frames_of(again);
+  CHECK(fr.size() == 1 && fr[0].second.size() == 21 && fr[0].second[0] == 0x01 && fr[0].second[3] == 0 &&
+            harness::detail_get32(fr[0].second, 8) == 0,
+        "after GOODBYE: %s", check::hex(again).c_str());
+  const hwbridge::NodeStats& s = b.node.stats();
+  CHECK(s.sessions == 1 && s.protocol_errors == 0 && s.dropped_messages == 0 && s.tx_refused == 0,
+        "counters: sessions %u errors %u dropped %u refused %u", s.sessions, s.protocol_errors,
+        s.dropped_messages, s.tx_refused);
+  printf("golden transcript: %zu frames, every byte as PROTOCOL.md 2.12\n", tr.frames.size());
+}
+
+/** Bad input on a connected board: counted, dropped, the session kept, no write past a buffer
+ * (ASan watches). */
+void bad_input(const Transcript& tr) {
+  GoldenBoard b;
+  Host host;
+  harness::connect(b, tr, &host);
+  double t = 10.01;
+  // a wrong CRC
+  Bytes f = host.rel(0, Bytes{0x40, 1, 'x'});
+  f[3] ^= 0x10;
+  b.input(f, t);
+  host.rel_seq--;  // never received: the next frame reuses the seq
+  // an oversize run, and a frame above the MTU
+  Bytes junk(300, 0x41);
+  junk.push_back(0);
+  b.input(junk, t);
+  b.input(host.frame(FrameType::BestEffort, 1, host.be_seq++, Bytes(100, 1)), t);
+  CHECK(b.node.connected(), "bad frames ended the session");
+  // an unknown opcode, a short message, a wrong-stream opcode: protocol errors, ACKed
+  const hwbridge::Counter errors0 = b.node.stats().protocol_errors;
+  Bytes out = b.input(host.rel(0, Bytes{0x7f, 1, 2}), t);
+  CHECK(!out.empty(), "no ACK for an unknown opcode");
+  b.input(host.rel(0, Bytes{0x21, 2}), t);        // SERVICE_RESPONSE too short
+  b.input(host.rel(0, Bytes{0x02}), t);           // HEARTBEAT on the reliable stream
+  b.input(host.be(0, Bytes{0x14, 1}), t);         // READY on the best-effort stream
+  b.input(host.rel(0, Bytes{0x11, 1, 2, 3}), t);  // TOPIC: only a board sends it
+  b.input(host.rel(0, Bytes{0x40, 9, 'x'}), t);   // LOG level 9
+  b.input(host.rel(0, Bytes{0x31, 5, 0, 0, 200, 'a'}), t);  // PARAM_VALUE name past the end
+  CHECK(b.node.stats().protocol_errors == errors0 + 7, "protocol errors %u", b.node.stats().protocol_errors);
+  // data on an unknown channel, on a publisher's channel: dropped
+  b.input(host.be(9, Bytes{1, 2, 3}), t);
+  b.input(host.be(1, Bytes{1, 2, 3}), t);
+  CHECK(b.node.stats().dropped_messages == 2, "dropped %u", b.node.stats().dropped_messages);
+  // a fragmented message above max_message (64): refused by reassembly, nothing kept
+  Bytes first{0x00, 0x04, 0, 0};
+  first.resize(64, 7);
+  b.input(host.frame(FrameType::Reliable, 0, host.rel_seq++, first, hwbridge::Frag::First), t);
+  b.input(host.frame(FrameType::Reliable, 0, host.rel_seq++, Bytes(64, 8), hwbridge::Frag::Middle), t);
+  // a service request for a channel that is not a server: NO_SERVICE; a request that does not
+  // deserialize: ERROR with a reason
+  out = b.input(host.rel(0, Bytes{0x20, 1, 9, 0}), t);
+  std::vector<std::pair<hwbridge::Frame, Bytes> > fr = harness::frames_of(out);
+  CHECK(fr.size() == 2 && fr[1].second == (Bytes{0x21, 1, 9, 0, 2}), "NO_SERVICE: %s", check::hex(out).c_str());
+  b.input(host.ack(fr[1].first.seq), t);
+  out = b.input(host.rel(0, Bytes{0x20, 2, 10, 0, 1, 2}), t);
+  fr = harness::frames_of(out);
+  CHECK(fr.size() == 2 && fr[1].second.size() > 5 && fr[1].second[4] == 1, "ERROR: %s", check::hex(out).c_str());
+  b.input(host.ack(fr[1].first.seq), t);
+  // the session still works: a service call is answered
+  out = b.input(host.rel(0, Bytes{0x20, 2, 11, 0}), t);
+  fr = harness::frames_of(out);
+  CHECK(fr.size() == 2 && fr[1].second == (Bytes{0x21, 2, 11, 0, 0, 1, 2, 0, 0, 0, 'o', 'k'}),
+        "service after bad input: %s", check::hex(out).c_str());
+  CHECK(b.node.connected() && b.node.stats().sessions == 1, "the session did not survive");
+  printf("bad input: counted and dropped, session kept\n");
+}
+
+/** Heartbeats after 100 ms without sending; the link timeout after 800 ms without a frame. */
+void liveness(const Transcript& tr) {
+  GoldenBoard b;
+  Host host;
+  harness::connect(b, tr, &host);
+  Bytes out = b.timers(10.05);
+  std::vector<std::pair<hwbridge::Frame, Bytes> > fr = harness::frames_of(out);
+  CHECK(fr.size() == 1 && fr[0].second[0] == 0x03, "time request expected first: %s", check::hex(out).c_str());
+  out = b.timers(10.16);
+  fr = harness::frames_of(out);
+  CHECK(fr.size() == 1 && fr[0].second == Bytes{0x02} && out[0] == 0, "heartbeat (led by 0x00): %s",
+        check::hex(out).c_str());
+  b.input(host.be(0, Bytes{0x02}), 10.5);
+  CHECK(b.node.connected(), "not connected");
+  b.timers(11.29);
+  CHECK(b.node.connected(), "link lost too early");
+  out = b.timers(11.31);
+  CHECK(!b.node.connected() && b.node.stats().link_losses == 1, "no link loss after 0.8 s");
+  fr = harness::frames_of(out);
+  CHECK(fr.size() == 1 && fr[0].second[0] == 0x01, "a HELLO at once after the link loss: %s", check::hex(out).c_str());
+  // the backoff: 50, 100, 200, then every 250 ms
+  const double at[] = {11.36, 11.46, 11.66, 11.91, 12.16};
+  for (size_t i = 0; i < 5; ++i) {
+    CHECK(b.timers(at[i] - 0.002).empty(), "HELLO too early (%zu)", i);
+    CHECK(!b.timers(at[i]).empty(), "no HELLO at %.2f", at[i]);
+  }
+  printf("liveness: heartbeat, link timeout, HELLO backoff\n");
+}
+
+/** A host restart (HELLO with another session id) ends the session; pending requests fail. */
+void restarts(const Transcript& tr) {
+  GoldenBoard b;
+  Host host;
+  harness::connect(b, tr, &host);
+  g_answers = 0;
+  CHECK(b.node.requestParam("kp", hwbridge::kParamFloat32, &on_param) != 0, "request refused");
+  b.hw().take();
+  // the host restarted: a HELLO from session 0x11111111 knowing no board
+  Bytes hello{0x01, 1, 0, 0, 0x11, 0x11, 0x11, 0x11, 0, 0, 0, 0, 0, 4, 0, 0, 0x10, 0, 16, 5, 7};
+  Bytes out = b.input(host.be(0, hello), 10.1);
+  CHECK(!b.node.connected() && b.node.stats().peer_resets == 1, "host restart not detected");
+  CHECK(g_answers == 1 && g_last.status == hwbridge::kParamSessionReset, "pending request: %d", g_answers);
+  std::vector<std::pair<hwbridge::Frame, Bytes> > fr = harness::frames_of(out);
+  CHECK(fr.size() == 1 && fr[0].second[0] == 0x01 && harness::detail_get32(fr[0].second, 8) == 0x11111111UL,
+        "answer to the new host: %s", check::hex(out).c_str());
+  // blocking calls fail cleanly too: the link is lost while getParam spins
+  GoldenBoard c;
+  Host h2;
+  harness::connect(c, tr, &h2);
+  c.hw().step_us = 1000;
+  int32_t v = 7;
+  CHECK(!c.node.getParam("rate", &v), "getParam without a host succeeded");
+  CHECK(v == 7 && c.node.stats().link_losses == 1, "getParam: v %d losses %u", v, c.node.stats().link_losses);
+  printf("restarts: host restart detected, pending requests fail\n");
+}
+
+}  // namespace
+
+int main() {
+  Transcript tr;
+  tr.read(stdin);
+  golden(tr);
+  bad_input(tr);
+  liveness(tr);
+  restarts(tr);
+  printf("test_session: %lu checks passed\n", check::count());
+  return 0;
+}

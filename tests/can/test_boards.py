@@ -18,6 +18,7 @@ from hwbridge import msg
 from hwbridge.emulator.can_bus import CanBusEmulator
 from hwbridge.links.can import CanLink
 from hwbridge.protocols import base
+from hwbridge.protocols.can.transport import Kind, encode_id
 from hwbridge.protocols.native.spec import new_session
 from hwbridge.protocols.registry import SessionContext
 from hwbridge.pump import SessionPump
@@ -251,3 +252,47 @@ def test_saturated_bus_keeps_control_traffic_flowing(
         link = emulator.board(node).link
         assert isinstance(link, CanLink)
         assert link.can_stats()["tx_dropped"] > 0  # the bus really was saturated
+
+
+def test_bad_traffic_error_frames_and_bus_off_leave_other_boards_alone(
+    bus: tuple[str, Callable[..., CanBusEmulator]], hosts: list[HostSide]
+) -> None:
+    channel, emulate = bus
+    emulator = emulate(3, rate=10.0, sensor_rate=1.0)
+    host = HostSide(f"can://virtual/{channel}", [1, 2, 3])
+    hosts.append(host)
+    assert wait_for(lambda: all(host.connected(n) for n in (1, 2, 3)))
+    before = {n: len(host.counts(n)) for n in (1, 2, 3)}
+    noisy = emulator.board(2).bus
+    off = emulator.board(3).bus
+    assert noisy is not None and off is not None
+    raw = can.Bus(interface="virtual", channel=channel)
+    try:
+        as_board_2 = encode_id(4, Kind.RELIABLE, 200, 0, 2)  # as if from board 2
+        for _ in range(20):
+            noisy.error_frame()
+            for data in (b"", bytes(9), b"\x01\x02\x00", bytes(7) + b"\xa5", b"\x00\x46"):
+                raw.send(can.Message(arbitration_id=as_board_2, data=data, is_extended_id=True))
+            raw.send(can.Message(arbitration_id=0x7FF, data=b"\xe0", is_extended_id=False))
+            time.sleep(0.02)
+        off.bus_off(3.0)  # longer than the link timeout: board 3's session ends
+        time.sleep(1.5)
+    finally:
+        raw.shutdown()
+    assert wait_for(lambda: host.of(3, base.Disconnected), 10)
+    assert wait_for(lambda: host.connected(3), 20)  # recovered, negotiated again
+    for node in (1, 2):
+        assert not host.of(node, base.Disconnected)
+        counts = host.counts(node)
+        assert len(counts) > before[node] + 10
+        assert counts == list(range(counts[0], counts[0] + len(counts)))
+    stats = host.links[1].can_stats()
+    assert stats["error_frames"] >= 20
+    assert stats["rx_malformed"] >= 40
+    assert stats["rx_unexpected"] >= 20
+    assert wait_for(lambda: host.links[1].can_stats()["rx_timeouts"] >= 1, 5)
+    board_3 = emulator.board(3).link
+    assert isinstance(board_3, CanLink)
+    board_stats = board_3.can_stats()
+    assert board_stats["bus_off"] >= 1
+    assert board_stats["recoveries"] >= 1

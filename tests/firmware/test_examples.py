@@ -100,6 +100,7 @@ def _arduino_builder(sketch: str, board: str, sketchbook: Path) -> Built:
         return Built(False, skip="needs the Debian package arduino-builder")
     out = _cache() / f"{sketch}-{board}"
     out.mkdir(parents=True, exist_ok=True)
+    (_cache() / "core").mkdir(exist_ok=True)
     done = subprocess.run(
         [
             "arduino-builder",
@@ -119,6 +120,8 @@ def _arduino_builder(sketch: str, board: str, sketchbook: Path) -> Built:
             "-prefs=tools.ctags.path=/usr/bin",
             "-prefs=tools.ctags.cmd.path=/usr/bin/arduino-ctags",
             f"-prefs=tools.ctags.pattern={CTAGS_PATTERN}",
+            "-build-cache",
+            str(_cache() / "core"),
             "-build-path",
             str(out),
             str(sketchbook / sketch / f"{sketch}.ino"),

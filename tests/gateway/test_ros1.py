@@ -80,6 +80,8 @@ def robot(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Ros1Robot]:
     running = Ros1Robot(tmp_path_factory.mktemp("ros1"))
     try:
         running.start_master()
+        set_before = running.ros("rosparam", "set", "/aux/initial", "7")
+        assert set_before.returncode == 0, set_before.stderr
         running.up("--ros1")
         running.wait_log("up", "ROS 1 gateway up")
         running.wait_log("up", "/diffbot/imu: graph -> ROS 1")
@@ -177,6 +179,10 @@ def test_a_board_log_reaches_rosout(robot: Ros1Robot) -> None:
 
 
 def test_parameters_from_the_ros_parameter_server_reach_the_graph(robot: Ros1Robot) -> None:
+    # Set before the gateway started: copied when it subscribed.
+    before = robot.cli("param", "get", "/aux/initial")
+    assert (before.returncode, before.stdout.strip()) == (0, "7"), before.stderr
+    # Set while it runs: followed.
     done = robot.ros("rosparam", "set", "/aux/gain", "2.5")
     assert done.returncode == 0, done.stderr
 

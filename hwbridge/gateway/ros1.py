@@ -58,6 +58,8 @@ log = logging.getLogger("hwbridge.gateway.ros1")
 
 _CHECK_PERIOD: Final = 1.0
 ROSOUT: Final = "/rosout"
+_SEND_TIMEOUT: Final = 2.0
+"""Seconds a ROS subscriber may keep a message waiting before it is disconnected."""
 
 
 @dataclass
@@ -429,6 +431,7 @@ class Ros1Gateway:
                 }
             )
         )
+        conn.settimeout(_SEND_TIMEOUT)  # a subscriber that stops reading is dropped
         with publication.lock:
             publication.connections.append(conn)
 

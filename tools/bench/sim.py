@@ -1,0 +1,548 @@
+#!/usr/bin/env python3
+"""AVR firmware in simavr: hwbridge's Arduino library against rosserial's ros_lib.
+
+Both libraries' firmware is built for an ATmega328P at 16 MHz and run in simavr
+(:class:`hwbridge.firmware.sim.SimAvr`, held to real time), each behind hwbridge's bridge (the
+native protocol for the HwBridge library, hwbridge's rosserial host for ros_lib), with a graph
+subscriber or service caller in this process. For each library and baud rate (115200 and
+1000000):
+
+- ``sim_throughput_*``: a HelloWorld-style publisher of std_msgs/String "hello world!" that
+  publishes at every loop() (no delay), messages per second reaching the graph subscriber,
+  per second of *simulated* time (the AVR's own clock; ``sim_speed`` says how fast the
+  simulation ran against the wall clock). ``wire_bytes_per_msg`` are the bytes the bridge read
+  from the UART per message received (framing, headers and the other traffic of the session
+  included).
+- ``sim_service_*``: the service of the library's ServiceServer example called from the graph
+  one call after the other (HwBridge: ``count``, std_srvs/Trigger; ros_lib: ``test_srv``,
+  rosserial_arduino/Test, with its example's ``delay(10)`` taken out of loop() so that both
+  answer as soon as they can), ``p50_us`` and ``p99_us`` of the round trip, wall clock.
+
+``ratio`` is hwbridge / rosserial: above 1, hwbridge delivers more messages per second; for the
+service lines the figure compared is calls per second (1 / mean round trip).
+
+What simavr's UART model means for the figures: simavr moves a byte through the AVR's UART in
+the time the baud rate gives it (UBRR and U2X as the firmware sets them: 10 bit times a byte),
+in both directions, with the AVR's 64-byte receive FIFO; the pty side has no rate at all. The
+line rate is therefore the AVR's real one, and the messages per second depend on the bytes per
+message and on the CPU time the firmware spends per message (both simulated cycle by cycle), as
+on a real Uno; what is not modelled is a USB-serial converter's latency (an Uno's 16U2 batches
+bytes into USB frames: about 1 ms more per direction on hardware) and a real pty's baud limit.
+The round trips are wall-clock: they include the simulator's pacing (the simulation runs up to
+a millisecond ahead of or behind the wall clock) and the host's scheduling.
+
+ros_lib comes from rosserial's sources (``ROSSERIAL_GIT``: a git directory of
+github.com/ros-drivers/rosserial, default /work/.mirror/ros-drivers+rosserial/repo): its
+client library and Arduino hardware files are taken from there at bench time, and the message
+headers it needs (std_msgs/String and Time, rosserial_msgs, rosserial_arduino/Test) are
+generated here from hwbridge's message definitions, into a temporary folder; nothing of it is
+kept. Without the sources the rosserial lines are skipped with a line saying so.
+
+Runs in about two minutes; prints one JSON object per line.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import os
+import socket
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from _common import emit
+
+from hwbridge import msg
+from hwbridge.firmware import build
+from hwbridge.firmware.sim import SimAvr
+
+ROSSERIAL_GIT = Path(os.environ.get("ROSSERIAL_GIT", "/work/.mirror/ros-drivers+rosserial/repo"))
+BAUDS = (115200, 1000000)
+DOMAIN = "bench_sim"
+HELLO = "hello world!"
+
+HWBRIDGE_PUBLISHER = """\
+#include <HwBridge.h>
+#include <std_msgs/String.h>
+hwbridge::NodeHandle nh;
+std_msgs::String str_msg;
+hwbridge::Publisher<std_msgs::String> chatter("chatter");
+void setup() {
+  nh.initNode(BENCH_BAUD, "hello");
+  nh.advertise(chatter);
+  str_msg.data.assign("hello world!");
+}
+void loop() {
+  if (nh.connected()) chatter.publish(str_msg);
+  nh.spinOnce();
+}
+"""
+
+ROSSERIAL_PUBLISHER = """\
+#include <ros.h>
+#include <std_msgs/String.h>
+ros::NodeHandle nh;
+std_msgs::String str_msg;
+ros::Publisher chatter("chatter", &str_msg);
+char hello[13] = "hello world!";
+void setup() {
+  nh.getHardware()->setBaud(BENCH_BAUD);
+  nh.initNode();
+  nh.advertise(chatter);
+}
+void loop() {
+  str_msg.data = hello;
+  if (nh.connected()) chatter.publish(&str_msg);
+  nh.spinOnce();
+}
+"""
+
+
+# ------------------------------------------------------------------------------ ros_lib
+def _git_file(path: str) -> bytes:
+    return subprocess.run(
+        ["git", "--git-dir", str(ROSSERIAL_GIT), "show", f"HEAD:{path}"],
+        capture_output=True,
+        check=True,
+    ).stdout
+
+
+def _git_ls(prefix: str) -> list[str]:
+    done = subprocess.run(
+        ["git", "--git-dir", str(ROSSERIAL_GIT), "ls-tree", "-r", "--name-only", "HEAD", prefix],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    return done.stdout.split()
+
+
+_CTYPES = {
+    "bool": ("bool", 1),
+    "uint8": ("uint8_t", 1),
+    "int8": ("int8_t", 1),
+    "uint16": ("uint16_t", 2),
+    "int16": ("int16_t", 2),
+    "uint32": ("uint32_t", 4),
+    "int32": ("int32_t", 4),
+    "float32": ("float", 4),
+}
+
+
+def _put(expr: str, size: int) -> list[str]:
+    lines = [f"      {{ uint32_t v = 0; memcpy(&v, &({expr}), {size});"]
+    lines += [f"        out[n++] = (unsigned char)(v >> {8 * i});" for i in range(size)]
+    return [*lines, "      }"]
+
+
+def _get(expr: str, ctype: str, size: int) -> list[str]:
+    parts = " | ".join(f"((uint32_t)in[n + {i}] << {8 * i})" for i in range(size))
+    return [
+        f"      {{ uint32_t v = {parts}; {ctype} t; memcpy(&t, &v, {size});",
+        f"        {expr} = t; n += {size}; }}",
+    ]
+
+
+def _string_get(expr: str) -> list[str]:
+    # The string's bytes move one place back over its length's last byte, which becomes room
+    # for the terminating zero at their end (as ros_lib does, no copy elsewhere).
+    return [
+        "      { uint32_t len = (uint32_t)in[n] | ((uint32_t)in[n+1] << 8) | "
+        "((uint32_t)in[n+2] << 16) | ((uint32_t)in[n+3] << 24); n += 4;",
+        "        for (uint32_t k = 0; k < len; ++k) in[n + k - 1] = in[n + k];",
+        f"        in[n + len - 1] = 0; {expr} = (char *)(in + n - 1); n += len; }}",
+    ]
+
+
+def _string_put(expr: str) -> list[str]:
+    return [
+        f"      {{ uint32_t len = strlen({expr}); memcpy(out + n, &len, 4); n += 4;",
+        f"        memcpy(out + n, {expr}, len); n += len; }}",
+    ]
+
+
+def _message_class(registry: Any, type_name: str, class_name: str, type_text: str) -> str:
+    """A ros::Msg subclass for ``type_name`` (the field kinds ros_lib's own messages use)."""
+    members: list[str] = []
+    put: list[str] = []
+    get: list[str] = []
+    for name, (kind, detail) in registry.fields(type_name):
+        if kind.name == "BASE" and detail[0] == "string":
+            members.append(f'  const char *{name} = "";')
+            put += _string_put(name)
+            get += _string_get(name)
+        elif kind.name == "BASE":
+            ctype, size = _CTYPES[detail[0]]
+            members.append(f"  {ctype} {name} = 0;")
+            put += _put(name, size)
+            get += _get(name, ctype, size)
+        elif kind.name == "NAME" and "Time" in detail:
+            members.append(f"  ros::Time {name};")
+            put += _put(f"{name}.sec", 4) + _put(f"{name}.nsec", 4)
+            get += _get(f"{name}.sec", "uint32_t", 4) + _get(f"{name}.nsec", "uint32_t", 4)
+        elif kind.name == "SEQUENCE":
+            element = detail[0][1][0]
+            ctype = "char *" if element == "string" else _CTYPES[element][0]
+            members += [f"  uint32_t {name}_length = 0;", f"  {ctype} *{name} = nullptr;"]
+            put += [
+                f"      memcpy(out + n, &{name}_length, 4); n += 4;",
+                f"      for (uint32_t i = 0; i < {name}_length; i++) {{",
+            ]
+            put += (
+                _string_put(f"{name}[i]")
+                if element == "string"
+                else _put(f"{name}[i]", _CTYPES[element][1])
+            )
+            put += ["      }"]
+            get += [
+                "      { uint32_t count = (uint32_t)in[n] | ((uint32_t)in[n+1] << 8) | "
+                "((uint32_t)in[n+2] << 16) | ((uint32_t)in[n+3] << 24); n += 4;",
+                f"        if (count > {name}_length) {name} = ({ctype} *)realloc({name}, "
+                f"count * sizeof({ctype}));",
+                f"        {name}_length = count;",
+                "        for (uint32_t i = 0; i < count; i++) {",
+            ]
+            get += (
+                _string_get(f"{name}[i]")
+                if element == "string"
+                else _get(f"{name}[i]", ctype, _CTYPES[element][1])
+            )
+            get += ["        }", "      }"]
+        else:
+            raise ValueError(f"{type_name}.{name}: a field kind this generator does not make")
+    constants = [
+        f"  enum {{ {name} = {value} }};" for name, _type, value in registry.constants(type_name)
+    ]
+    md5 = registry.md5(type_name)
+    return "\n".join(
+        [
+            f"class {class_name} : public ros::Msg {{",
+            " public:",
+            *members,
+            *constants,
+            "  int serialize(unsigned char *out) const override {",
+            "    int n = 0;",
+            *put,
+            "    return n;",
+            "  }",
+            "  int deserialize(unsigned char *in) override {",
+            "    int n = 0;",
+            *get,
+            "    return n;",
+            "  }",
+            f'  const char *getType() override {{ return "{type_text}"; }}',
+            f'  const char *getMD5() override {{ return "{md5}"; }}',
+            "};",
+        ]
+    )
+
+
+def _header(package: str, body: str) -> str:
+    guard = f"BENCH_ROS_LIB_{package.upper()}_{hashlib.md5(body.encode()).hexdigest()[:8]}"
+    return "\n".join(
+        [
+            f"#ifndef {guard}",
+            f"#define {guard}",
+            "#include <stdint.h>",
+            "#include <stdlib.h>",
+            "#include <string.h>",
+            '#include "ros/msg.h"',
+            '#include "ros/time.h"',
+            f"namespace {package} {{",
+            body,
+            "}",
+            "#endif",
+            "",
+        ]
+    )
+
+
+def make_ros_lib(folder: Path) -> Path:
+    """An Arduino library folder (``ros_lib/src``) with rosserial's client and Arduino files
+    and generated message headers."""
+    registry = msg.registry()
+    src = folder / "ros_lib" / "src"
+    for prefix, strip in (
+        ("rosserial_client/src/ros_lib/", "rosserial_client/src/ros_lib/"),
+        ("rosserial_arduino/src/ros_lib/", "rosserial_arduino/src/ros_lib/"),
+    ):
+        for path in _git_ls(prefix):
+            relative = path[len(strip) :]
+            if relative.startswith(("examples/", "tests/")) or not relative.endswith(
+                (".h", ".cpp")
+            ):
+                continue
+            if "Tcp" in relative:
+                continue
+            target = src / relative
+            target.parent.mkdir(parents=True, exist_ok=True)
+            target.write_bytes(_git_file(path))
+    messages = {
+        "std_msgs/String": ("std_msgs", "String"),
+        "std_msgs/Time": ("std_msgs", "Time"),
+        "rosserial_msgs/TopicInfo": ("rosserial_msgs", "TopicInfo"),
+        "rosserial_msgs/Log": ("rosserial_msgs", "Log"),
+    }
+    for type_name, (package, name) in messages.items():
+        body = _message_class(registry, type_name, name, type_name)
+        (src / package).mkdir(parents=True, exist_ok=True)
+        (src / package / f"{name}.h").write_text(_header(package, body))
+    for service, (package, name) in {
+        "rosserial_msgs/RequestParam": ("rosserial_msgs", "RequestParam"),
+        "rosserial_arduino/Test": ("rosserial_arduino", "Test"),
+    }.items():
+        parts = [
+            _message_class(registry, f"{service}Request", f"{name}Request", service),
+            _message_class(registry, f"{service}Response", f"{name}Response", service),
+            f"class {name} {{ public: typedef {name}Request Request; "
+            f"typedef {name}Response Response; }};",
+        ]
+        (src / package).mkdir(parents=True, exist_ok=True)
+        (src / package / f"{name}.h").write_text(_header(package, "\n".join(parts)))
+    return folder / "ros_lib"
+
+
+def build_ros_lib_sketch(ros_lib: Path, name: str, source: str, baud: int, tmp: Path) -> Path:
+    """Compile a ros_lib sketch as build_sketch does, without -Werror for rosserial's code."""
+    board = build.BOARDS["uno"]
+    out = tmp / f"{name}-{baud}"
+    out.mkdir(parents=True, exist_ok=True)
+    gpp, gcc = build._tool("avr-g++"), build._tool("avr-gcc")
+    flags = [
+        *build._CPP_FLAGS,
+        *build._flags(board),
+        f"-I{ros_lib / 'src'}",
+        f"-DBENCH_BAUD={baud}",
+    ]
+    cpp = out / f"{name}.ino.cpp"
+    cpp.write_text("#include <Arduino.h>\n" + source)
+    objects = [out / f"{name}.o"]
+    _run([gpp, *flags, "-w", str(cpp), "-o", str(objects[0])])
+    for unit in sorted((ros_lib / "src").rglob("*.cpp")):
+        objects.append(out / f"{unit.stem}.o")
+        _run([gpp, *flags, "-w", str(unit), "-o", str(objects[-1])])
+    elf = out / f"{name}.elf"
+    core = build._core_archive(board)
+    _run(
+        [
+            *(gcc, "-Os", "-flto", "-fuse-linker-plugin", "-Wl,--gc-sections"),
+            *(f"-mmcu={board.mcu}", "-o", str(elf), *map(str, objects), str(core), "-lm"),
+        ]
+    )
+    return elf
+
+
+def _run(command: list[str]) -> None:
+    done = subprocess.run(command, capture_output=True, text=True, check=False)
+    if done.returncode != 0:
+        raise RuntimeError(f"{' '.join(command[:2])}...: {done.stderr.strip()[:2000]}")
+
+
+def build_hwbridge_sketch(name: str, source: str | None, baud: int, tmp: Path) -> Path:
+    from hwbridge.firmware.sim.examples import EXAMPLES_DIR
+
+    folder = tmp / f"{name}-{baud}" / name
+    folder.mkdir(parents=True, exist_ok=True)
+    text = source if source is not None else (EXAMPLES_DIR / name / f"{name}.ino").read_text()
+    if source is None:
+        text = text.replace("nh.initNode(115200,", "nh.initNode(BENCH_BAUD,")
+    (folder / f"{name}.ino").write_text(text)
+    return build.build_sketch(folder, "uno", folder / "build", defines=[f"BENCH_BAUD={baud}"])
+
+
+def rosserial_service_source() -> str:
+    text = _git_file(
+        "rosserial_arduino/src/ros_lib/examples/ServiceServer/ServiceServer.pde"
+    ).decode()
+    text = text.replace("delay(10);", "")
+    return text.replace(
+        "nh.initNode();", "nh.getHardware()->setBaud(BENCH_BAUD);\n  nh.initNode();"
+    )
+
+
+# ------------------------------------------------------------------------------ measuring
+class Running:
+    """A firmware in simavr behind an in-process bridge on an embedded graph."""
+
+    def __init__(self, elf: Path, protocol: str, baud: int) -> None:
+        from hwbridge.bridge import BoardSpec, Bridge
+        from hwbridge.graph import Graph
+
+        self.sim = SimAvr(elf).start()
+        self.graph = Graph.embedded(listen=[f"tcp/127.0.0.1:{_free_port()}"], domain=DOMAIN)
+        self.bridge = Bridge(self.graph)
+        self.bridge.add_board(
+            BoardSpec(
+                f"{self.sim.url}?baud={baud}",
+                protocol=protocol,
+                namespace="/bench",
+                start_delay=0.1,
+                name="board",
+            )
+        )
+        deadline = time.monotonic() + 30
+        while self.bridge.boards["board"].state != "connected":
+            if time.monotonic() > deadline:
+                raise RuntimeError(f"the {protocol} firmware did not connect")
+            time.sleep(0.05)
+
+    def bytes_in(self) -> int:
+        info = self.bridge.boards["board"].info()
+        link = info.get("link", {})
+        for key in ("bytes_in", "rx_bytes", "bytes_read", "read_bytes"):
+            if key in link:
+                return int(link[key])
+        return -1
+
+    def close(self) -> None:
+        self.bridge.stop()
+        self.graph.close()
+        self.sim.close()
+
+
+def throughput(running: Running, seconds: float) -> dict[str, float]:
+    from hwbridge.graph import ANY_TYPE
+
+    count = [0]
+    node = running.graph.node("bench_sub")
+    node.subscriber(
+        "/bench/chatter", ANY_TYPE, lambda _m: count.__setitem__(0, count[0] + 1), raw=True
+    )
+    time.sleep(1.0)
+    n0, b0, s0, w0 = count[0], running.bytes_in(), running.sim.time, time.monotonic()
+    time.sleep(seconds)
+    n1, b1, s1, w1 = count[0], running.bytes_in(), running.sim.time, time.monotonic()
+    messages = n1 - n0
+    return {
+        "per_sim_s": messages / (s1 - s0) if s1 > s0 else 0.0,
+        "wire": (b1 - b0) / messages if messages and b0 >= 0 else -1.0,
+        "speed": (s1 - s0) / (w1 - w0),
+        "messages": messages,
+    }
+
+
+def service_times(
+    running: Running, service: str, type_name: str, payload: bytes, calls: int
+) -> list[float]:
+    """Round trips (s) of ``calls`` calls with the serialized request ``payload``."""
+    node = running.graph.node("bench_caller")
+    deadline = time.monotonic() + 20
+    while True:  # the service appears on the graph once the board advertised it
+        try:
+            node.call_raw(service, type_name, payload, timeout=2.0)
+            break
+        except Exception:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.2)
+    times = []
+    for _ in range(calls):
+        started = time.perf_counter()
+        node.call_raw(service, type_name, payload, timeout=2.0)
+        times.append(time.perf_counter() - started)
+    return times
+
+
+def _free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+def _percentile(values: list[float], q: float) -> float:
+    ordered = sorted(values)
+    return ordered[min(len(ordered) - 1, int(q * len(ordered)))]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=(__doc__ or "").split("\n\n")[0])
+    parser.add_argument("--seconds", type=float, default=5.0, help="throughput window (wall s)")
+    parser.add_argument("--calls", type=int, default=200, help="service calls per case")
+    args = parser.parse_args()
+    have_ros = (ROSSERIAL_GIT / "HEAD").exists()
+    if not have_ros:
+        print(
+            json.dumps(
+                {
+                    "bench": "sim",
+                    "skipped": "rosserial",
+                    "why": f"no rosserial git directory at {ROSSERIAL_GIT} (set ROSSERIAL_GIT)",
+                }
+            ),
+            flush=True,
+        )
+    with tempfile.TemporaryDirectory(prefix="hwbridge-bench-sim-") as folder:
+        tmp = Path(folder)
+        ros_lib = make_ros_lib(tmp) if have_ros else None
+        for baud in BAUDS:
+            ours_elf = build_hwbridge_sketch("BenchHello", HWBRIDGE_PUBLISHER, baud, tmp)
+            running = Running(ours_elf, "native", baud)
+            try:
+                ours = throughput(running, args.seconds)
+            finally:
+                running.close()
+            theirs: dict[str, float] | None = None
+            if ros_lib is not None:
+                elf = build_ros_lib_sketch(ros_lib, "RosHello", ROSSERIAL_PUBLISHER, baud, tmp)
+                running = Running(elf, "rosserial", baud)
+                try:
+                    theirs = throughput(running, args.seconds)
+                finally:
+                    running.close()
+            emit(
+                "sim_throughput_hello",
+                {"baud": baud, "type": "std_msgs/String"},
+                ours["per_sim_s"],
+                "rosserial_ros_lib" if theirs else None,
+                theirs["per_sim_s"] if theirs else None,
+                wire_bytes_per_msg=round(ours["wire"], 1),
+                peer_wire_bytes_per_msg=round(theirs["wire"], 1) if theirs else None,
+                sim_speed=round(ours["speed"], 3),
+                peer_sim_speed=round(theirs["speed"], 3) if theirs else None,
+            )
+
+            ours_elf = build_hwbridge_sketch("ServiceServer", None, baud, tmp)
+            running = Running(ours_elf, "native", baud)
+            try:
+                ours_t = service_times(running, "/bench/count", "std_srvs/Trigger", b"", args.calls)
+            finally:
+                running.close()
+            theirs_t: list[float] | None = None
+            if ros_lib is not None:
+                elf = build_ros_lib_sketch(
+                    ros_lib, "RosService", rosserial_service_source(), baud, tmp
+                )
+                running = Running(elf, "rosserial", baud)
+                try:
+                    theirs_t = service_times(
+                        running,
+                        "/bench/test_srv",
+                        "rosserial_arduino/Test",
+                        b"\x01\x00\x00\x00x",
+                        args.calls,
+                    )
+                finally:
+                    running.close()
+            emit(
+                "sim_service",
+                {"baud": baud},
+                1.0 / statistics.mean(ours_t),
+                "rosserial_ros_lib" if theirs_t else None,
+                1.0 / statistics.mean(theirs_t) if theirs_t else None,
+                p50_us=round(_percentile(ours_t, 0.5) * 1e6),
+                p99_us=round(_percentile(ours_t, 0.99) * 1e6),
+                peer_p50_us=round(_percentile(theirs_t, 0.5) * 1e6) if theirs_t else None,
+                peer_p99_us=round(_percentile(theirs_t, 0.99) * 1e6) if theirs_t else None,
+            )
+
+
+if __name__ == "__main__":
+    main()

@@ -21,16 +21,23 @@ def build(
     sketch: Annotated[
         Path, typer.Argument(metavar="SKETCH", help="A sketch folder (NAME/NAME.ino) or .ino file.")
     ],
-    board: Annotated[str, typer.Option("--board", "-b", help="uno or mega.")] = "uno",
+    board: Annotated[
+        str, typer.Option("--board", "-b", help="uno, mega, or host (a native program).")
+    ] = "uno",
     out: Annotated[
         Path | None,
         typer.Option("--out", "-o", help="Build folder (default: SKETCH/build/BOARD)."),
     ] = None,
 ) -> None:
-    """Build a sketch with the HwBridge library for an AVR board; prints the ELF and its size."""
-    from hwbridge.firmware.build import BOARDS, build_sketch, firmware_size
+    """Build a sketch with the HwBridge library for an AVR board (prints the ELF and its size), or
+    as a native program with --board host (prints its path; run it, then connect to the URL it
+    prints first)."""
+    from hwbridge.firmware.build import BOARDS, HOST_BOARD, build_sketch, firmware_size
 
     elf = build_sketch(sketch, board, out)
+    if board == HOST_BOARD:
+        sys.stdout.write(f"{elf}: a native program; it prints the URL to connect to\n")
+        return
     size = firmware_size(elf)
     limits = BOARDS[board]
     sys.stdout.write(

@@ -1,12 +1,19 @@
 """Build Arduino sketches for AVR boards the way the Arduino IDE does, and measure them.
 
-``hwbridge firmware build SKETCH --board uno|mega`` compiles a sketch (a folder with
+``hwbridge firmware build SKETCH --board uno|mega|host`` compiles a sketch (a folder with
 ``NAME.ino``, or the ``.ino`` itself) with the HwBridge library (``firmware/HwBridge``) and the
 Debian Arduino AVR core (``arduino-core-avr``), with the compiler flags of the core's
 ``platform.txt`` (``-Os``, LTO, sections garbage-collected): the sketch and the library are built
 with ``-Wall -Wextra -Werror``; the Arduino core with the warnings it always has. The core is
 compiled once per board and kept in a cache. ``hwbridge firmware size ELF`` reports flash and
 SRAM as ``avr-size`` counts them, and the static RAM of the HwBridge library's own objects.
+
+``--board host`` builds the sketch as a native program instead (``g++``, ``-Wall -Wextra
+-Werror``): a small Arduino stand-in (``firmware/HwBridge/src/hwbridge/host/``: ``setup()`` and
+``loop()``, the clock, pins in memory, serial ports and I2C that go nowhere) and the node on a
+POSIX ``Hardware``. The program opens the link given as its first argument or in
+``$HWBRIDGE_LINK`` (a pty or serial path, ``socket://HOST:PORT``, ``listen://PORT``), or else a new
+pseudo-terminal, and prints the URL to connect to as its first line.
 
 A sketch is compiled as the IDE compiles one: ``#include <Arduino.h>`` is put before it; unlike
 the IDE, no function prototypes are generated, so a sketch declares a function before it uses it.
@@ -33,6 +40,7 @@ __all__ = [
     "Board",
     "FirmwareSize",
     "ToolchainMissingError",
+    "build_host_sketch",
     "build_sketch",
     "firmware_size",
 ]
@@ -193,9 +201,13 @@ def build_sketch(
     """Compile and link ``sketch`` for ``board_name``; returns the ELF (an Intel HEX is written
     next to it). ``libraries`` are folders of Arduino libraries (their ``src/`` is on the include
     path, and their ``.cpp`` files are compiled); default: the HwBridge library."""
+    if board_name == HOST_BOARD:
+        return build_host_sketch(sketch, out_dir, libraries=libraries, defines=defines)
     board = BOARDS.get(board_name)
     if board is None:
-        raise HwBridgeError(f"unknown board {board_name!r}; use one of {', '.join(BOARDS)}")
+        raise HwBridgeError(
+            f"unknown board {board_name!r}; use one of {', '.join([*BOARDS, HOST_BOARD])}"
+        )
     name, ino = _sketch_source(sketch)
     gpp, gcc, objcopy = _tool("avr-g++"), _tool("avr-gcc"), _tool("avr-objcopy")
     core = _core_archive(board)
@@ -233,6 +245,54 @@ def build_sketch(
     )
     _run([objcopy, "-O", "ihex", "-R", ".eeprom", str(elf), str(elf.with_suffix(".hex"))], "hex")
     return elf
+
+
+HOST_BOARD: Final = "host"
+"""The board name of native builds (``build_host_sketch``)."""
+_HOST_SHIM: Final = LIBRARY_DIR / "src" / "hwbridge" / "host"
+
+
+def build_host_sketch(
+    sketch: Path,
+    out_dir: Path | None = None,
+    *,
+    libraries: list[Path] | None = None,
+    defines: list[str] | None = None,
+    sanitize: bool = False,
+) -> Path:
+    """Compile ``sketch`` as a native program (see the module docstring); returns it.
+    ``sanitize`` adds ASan and UBSan."""
+    gpp = shutil.which("g++")
+    if gpp is None:
+        raise ToolchainMissingError("g++ is not installed: install the Debian package g++")
+    name, ino = _sketch_source(sketch)
+    out = out_dir or (ino.parent / "build" / HOST_BOARD)
+    out.mkdir(parents=True, exist_ok=True)
+    libs = libraries if libraries is not None else [LIBRARY_DIR]
+    cpp = out / f"{name}.ino.cpp"
+    cpp.write_text(f'#include <Arduino.h>\n#line 1 "{ino}"\n' + ino.read_text(encoding="utf-8"))
+    shim = out / "arduino_host.cpp"
+    shim.write_text("#include <hwbridge/host/arduino_host_impl.h>\n")
+    sources = [cpp, shim] + [s for lib in libs for s in sorted((lib / "src").rglob("*.cpp"))]
+    exe = out / name
+    command = [
+        gpp,
+        "-std=gnu++11",
+        "-O1",
+        "-g",
+        *_WARNINGS,
+        "-DHWBRIDGE_HOST_BUILD",
+        *(["-fsanitize=address,undefined", "-fno-sanitize-recover=all"] if sanitize else []),
+        f"-I{_HOST_SHIM}",
+        *(f"-I{lib / 'src'}" for lib in libs),
+        f"-I{ino.parent}",
+        *(f"-D{d}" for d in defines or []),
+        *map(str, sources),
+        "-o",
+        str(exe),
+    ]
+    _run(command, f"compiling {ino} for the host")
+    return exe
 
 
 _SECTION: Final = re.compile(r"^\.(text|data|bss)\s+(\d+)", re.M)

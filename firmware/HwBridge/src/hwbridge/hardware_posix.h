@@ -67,8 +67,9 @@ class PosixHardware {
   }
 
   /**
-   * The node's init(baud): opens $HWBRIDGE_LINK (any target above; default "pty") and, for a
-   * pty, prints the URL to connect to ("pty:/dev/pts/N") as one line on stdout, flushed.
+   * The node's init(baud): opens $HWBRIDGE_LINK (any target above; default "pty") and prints,
+   * as one line on stdout, the URL the host connects to: "serial:///dev/pts/N" for a new pty,
+   * else the target itself.
    */
   bool init(uint32_t baud) {
     const char* target = getenv("HWBRIDGE_LINK");
@@ -78,9 +79,11 @@ class PosixHardware {
       return false;
     }
     if (strcmp(target, "pty") == 0) {
-      printf("pty:%s\n", device_path());
-      fflush(stdout);
+      printf("serial://%s\n", device_path());
+    } else {
+      printf("%s\n", target);
     }
+    fflush(stdout);
     return true;
   }
 

@@ -166,6 +166,9 @@ def ros1(
         ),
     ] = None,
     node_name: NodeOption = "hwbridge_gateway",
+    no_rosout: Annotated[
+        bool, typer.Option("--no-rosout", help="Do not forward board logs to /rosout.")
+    ] = False,
 ) -> None:
     """Mirror the graph's topics and services into a ROS 1 master's graph until Ctrl-C."""
     from hwbridge.gateway.common import Selection
@@ -178,6 +181,7 @@ def ros1(
         ros_services=Selection(tuple(ros_service or ()), tuple(exclude or ())),
         params=tuple(param or ()),
         node_name=node_name,
+        rosout=not no_rosout,
     )
     stop = threading.Event()
     _signals(stop)

@@ -71,6 +71,8 @@ class Ros1Options:
     params: tuple[str, ...] = ()
     node_name: str = "hwbridge_gateway"
     service_timeout: float = 5.0
+    rosout: bool = True
+    """Board logs (the graph's ``/rosout``) to ROS's ``/rosout``, whatever ``topics`` says."""
 
 
 class _Publication:
@@ -255,7 +257,7 @@ class Ros1Gateway:
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> Ros1Gateway:
-        if self.options.topics(ROSOUT):
+        if self.options.rosout and Selection(exclude=self.options.topics.exclude)(ROSOUT):
             self._watcher.claim(ROSOUT)
             self._apply(GraphChange("to_ros", ROSOUT, "rosgraph_msgs/Log"))
         self.slave.start()

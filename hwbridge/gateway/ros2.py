@@ -156,6 +156,7 @@ class Ros2Options:
     """Topic pattern -> ``sensor`` | ``reliable`` | ``tf`` (overrides :func:`qos_kind`)."""
     service_timeout: float = 5.0
     rosout: bool = True
+    """Board logs (the graph's ``/rosout``) to ROS 2's ``/rosout``, whatever ``topics`` says."""
     poll: float = 1.0
 
 
@@ -221,7 +222,7 @@ class Ros2Gateway:
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> Ros2Gateway:
-        if self.options.rosout and self.options.topics(ROSOUT):
+        if self.options.rosout and Selection(exclude=self.options.topics.exclude)(ROSOUT):
             self._watcher.claim(ROSOUT)
             self._apply(GraphChange("to_ros", ROSOUT, "rosgraph_msgs/Log"))
         self._spin.start()

@@ -238,6 +238,7 @@ def test_a_ros1_service_is_served_on_the_graph(robot: Ros1Robot) -> None:
         "/none",
         "--node-name",
         "hwbridge_gateway_b",
+        "--no-rosout",
     )
     try:
         assert responder.stdout is not None

@@ -217,7 +217,15 @@ def test_a_ros2_service_is_served_on_the_graph(tmp_path: Path, robot: Robot) -> 
         text=True,
     )
     gateway = robot.hwbridge(
-        "gw2", "ros2", "--ros-service", "/ros2_side/*", "--topic", "/none", "--service", "/none"
+        "gw2",
+        "ros2",
+        "--ros-service",
+        "/ros2_side/*",
+        "--topic",
+        "/none",
+        "--service",
+        "/none",
+        "--no-rosout",
     )
     try:
         assert server.stdout is not None

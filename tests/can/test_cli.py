@@ -55,9 +55,10 @@ class Emulator:
 
 @pytest.fixture(params=["udp_multicast", "slcan"])
 def emulator(request: pytest.FixtureRequest) -> Iterator[Emulator]:
-    common = ["--rate", "2", "--sensor-rate", "0.5"]
+    common = ["--rate", "1", "--sensor-rate", "0.5"]
     if request.param == "slcan":
-        process = Emulator("--slcan", *common)
+        # python-can's slcan reader makes two system calls per byte: keep the bus light.
+        process = Emulator("--slcan", "--rate", "1", "--sensor-rate", "0.1")
     else:
         group = f"239.74.{random.randrange(1, 250)}.{random.randrange(1, 250)}"
         process = Emulator("--bus", f"udp_multicast/{group}", "--port", str(free_port()), *common)
@@ -88,7 +89,13 @@ def _run_all(
     results: list[subprocess.CompletedProcess[str] | None] = [None] * len(commands)
 
     def run(index: int) -> None:
-        results[index] = bridge.cli(*commands[index], timeout=90)
+        result = bridge.cli(*commands[index], timeout=90)
+        if result.returncode != 0 and "no server" in result.stderr:
+            # On a loaded two-core machine a session can miss its 0.8 s link timeout and be
+            # negotiated again (a second or so); its service is back then: one retry.
+            wait_until(lambda: _listed(bridge), 30)
+            result = bridge.cli(*commands[index], timeout=90)
+        results[index] = result
 
     for start in range(0, len(commands), BATCH):
         threads = [
@@ -102,12 +109,13 @@ def _run_all(
     return [r for r in results if r is not None]
 
 
-def test_eight_boards_from_the_cli_at_once(bridge: BridgeProcess, emulator: Emulator) -> None:
-    def listed() -> bool:
-        names = bridge.cli("topic", "list").stdout
-        return all(f"/node{n}/odom" in names and f"/node{n}/command" in names for n in NODES)
+def _listed(bridge: BridgeProcess) -> bool:
+    names = bridge.cli("service", "list").stdout + bridge.cli("topic", "list").stdout
+    return all(f"/node{n}/whoami" in names and f"/node{n}/command" in names for n in NODES)
 
-    assert wait_until(listed, 60), bridge.cli("topic", "list").stdout + bridge.output()
+
+def test_eight_boards_from_the_cli_at_once(bridge: BridgeProcess, emulator: Emulator) -> None:
+    assert wait_until(lambda: _listed(bridge), 60), bridge.output()
     commands: list[list[str]] = [
         ["topic", "echo", "/node3/odom", "-n", "1", "--json", "--timeout", "60"],
         ["topic", "echo", "/node8/imu", "-n", "1", "--json", "--timeout", "60"],
@@ -126,7 +134,8 @@ def test_eight_boards_from_the_cli_at_once(bridge: BridgeProcess, emulator: Emul
         )
     results = _run_all(bridge, commands)
     for command, result in zip(commands, results, strict=True):
-        assert result.returncode == 0, (command, result.stdout, result.stderr, bridge.output())
+        warnings = [x for x in bridge.output().splitlines() if "WARNING" in x or "ERROR" in x]
+        assert result.returncode == 0, (command, result.stdout, result.stderr, warnings)
     for node in NODES:
         answer = yaml.safe_load(results[2 + 2 * (node - 1)].stdout)
         assert answer == {"success": True, "message": f"node {node}"}

@@ -42,6 +42,7 @@ REQUIRED = (
     "DiffDriveBase",
     "DxlArm",
 )
+WITH_DRIVERS = ("DiffDriveBase", "DxlArm", "Imu", "Sonar")
 BOARDS = {"uno": "arduino:avr:uno", "mega": "arduino:avr:mega:cpu=atmega2560"}
 HWBRIDGE = ROOT / ".venv" / "bin" / "hwbridge"
 CTAGS_PATTERN = (
@@ -93,6 +94,24 @@ def _hwbridge_build(sketch: str, board: str, out: Path) -> Built:
             f"{missing[1]} yet ({sketch} includes <{missing[1]}.h>)",
         )
     return Built(False, output=output)
+
+
+def _host_build(sketch: str, out: Path) -> Built:
+    """``--board host``: a native program with the POSIX hardware and the Arduino shim."""
+    if shutil.which("g++") is None:
+        return Built(False, skip="needs the Debian package g++")
+    command = [str(HWBRIDGE), "firmware", "build", str(LIBRARY / "examples" / sketch)]
+    done = subprocess.run(
+        [*command, "--board", "host", "--out", str(out)],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    output = done.stdout + done.stderr
+    if done.returncode != 0 and "unknown board 'host'" in output:
+        return Built(False, output=output, skip="hwbridge firmware build has no --board host")
+    program = out / sketch
+    return Built(done.returncode == 0 and program.is_file(), output=output, elf=program)
 
 
 def _arduino_builder(sketch: str, board: str, sketchbook: Path) -> Built:
@@ -168,12 +187,16 @@ def builds(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[tuple[str,
                 jobs[sketch, board, "arduino-builder"] = pool.submit(
                     _arduino_builder, sketch, board, sketchbook
                 )
+        for sketch in WITH_DRIVERS:
+            out = base / "hwbridge" / f"{sketch}-host"
+            jobs[sketch, "host", "hwbridge"] = pool.submit(_host_build, sketch, out)
         results = {key: job.result() for key, job in jobs.items()}
     yield results
     rows = [
         f"{sketch:14} {board:5} {tool:16} "
         + (f"{b.flash:6} B flash {b.sram:5} B SRAM" if b.ok else (b.skip or "FAILED"))
         for (sketch, board, tool), b in sorted(results.items())
+        if board != "host"
     ]
     print("\nexample sizes:\n" + "\n".join(rows))
 
@@ -212,6 +235,19 @@ def test_example_builds_without_warnings(
     assert not heap, f"heap functions linked: {heap}"
     record_property("flash", built.flash)
     record_property("sram", built.sram)
+
+
+@pytest.mark.parametrize("sketch", WITH_DRIVERS)
+def test_example_builds_for_the_host(
+    sketch: str, builds: dict[tuple[str, str, str], Built]
+) -> None:
+    """``hwbridge firmware build --board host``: the drivers and the sketch against the host's
+    Arduino shim, warnings as errors (the sketches with drivers; the others are the session's,
+    built for the host by its own tests)."""
+    built = builds[sketch, "host", "hwbridge"]
+    if built.skip:
+        pytest.skip(built.skip)
+    assert built.ok, built.output[-4000:]
 
 
 def test_both_tools_build_the_same_image(builds: dict[tuple[str, str, str], Built]) -> None:

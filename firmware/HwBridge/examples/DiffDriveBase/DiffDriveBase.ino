@@ -166,7 +166,7 @@ void loop() {
     announced = false;
   } else if (!announced) {
     announced = true;
-    char line[64];
+    char line[80];
     snprintf(line, sizeof line, "encoders x%u (counts_per_rev = PPR x %u), 16-bit counters%s",
              LeftEncoder::decoding(), LeftEncoder::decoding(), imu.ok() ? "" : "; no MPU-6050");
     nh.logInfo(line);

@@ -157,6 +157,7 @@ class _SonarPins(_PinModel):
         mcu = world.sim.mcu
         trigger, echo = world.pins.sonar
         world.sim.command(f"sonar 0 {arduino_pin(trigger, mcu)} {arduino_pin(echo, mcu)}")
+        self.next_refresh, self.echo_us = 0.0, -1
         self.after(world, 0.0)
 
     def after(self, world: PinWorld, now: float) -> None:
@@ -178,6 +179,7 @@ class _MpuPins(_PinModel):
     def setup(self, world: PinWorld) -> None:
         address = world.pins.imu_address
         self.chip.address = address
+        self.chip.reset()  # power-on: asleep, registers at their reset values
         world.sim.command(f"i2c {address:02x}")
         self._registers(world)
 
@@ -233,8 +235,9 @@ PIN_MODELS: Final[dict[str, Callable[[Mapping[str, Any], int], _PinModel]]] = {
 
 
 class PinWorld:
-    """A robot-file board's world on the pins of ``sim``. Call :meth:`attach` before the AVR
-    runs (``sim.start(hold=True)``, then ``attach()``, then ``sim.go()``)."""
+    """A robot-file board's world on the pins of ``sim``. Call :meth:`attach` while the AVR is
+    held (``sim.start(hold=True)``, then ``attach()``, then ``sim.go()``); a restart of the
+    simulation sets the devices up again (the world goes on: the robot stays where it is)."""
 
     def __init__(
         self,
@@ -262,11 +265,18 @@ class PinWorld:
             self.models.append(make(device.settings, seed))
 
     def attach(self) -> PinWorld:
-        for model in self.models:
-            model.setup(self)
+        """Put the devices on the pins (now, and again at each restart of the simulation)."""
+        self._setup()
+        self.sim.on_start.append(self._setup)
         self.sim.on_tick.append(self._on_tick)
         self.sim.on_i2c_write.append(self._on_i2c_write)
         return self
+
+    def _setup(self) -> None:
+        with self.lock:
+            self.last_time = 0.0  # a restarted simulation's clock starts again from zero
+            for model in self.models:
+                model.setup(self)
 
     def _on_tick(self, tick: Tick) -> None:
         with self.lock:

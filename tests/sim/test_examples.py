@@ -96,6 +96,33 @@ def test_hello_world_and_resets(run_example: Callable[..., Running]) -> None:
     assert boards.returncode == 0, boards.stderr
 
 
+def test_simulation_restarted(runner: Path, tmp_path: Path) -> None:
+    """The simulator stops and starts again (a new process, a new pty): the bridge, given the
+    symlink that follows the pty, finds the board again on its own."""
+    try:
+        elf = build_example("HelloWorld", "uno")
+    except HwBridgeError as exc:
+        pytest.skip(f"HelloWorld does not build here: {str(exc).splitlines()[0]}")
+    sim = SimAvr(elf, symlink=tmp_path / "board")
+    bridge: BridgeProcess | None = None
+    try:
+        sim.start()
+        assert sim.link_url == f"serial://{tmp_path / 'board'}"
+        first = sim.path
+        bridge = BridgeProcess(sim.link_url, tmp_path, "sim_restart")
+        bridge.wait_ready()
+        assert "data: hello world!" in _echo(bridge, "/chatter")
+        sim.restart()
+        assert sim.restarts == 1
+        assert (tmp_path / "board").resolve() == Path(sim.path)
+        assert sim.path != first or (tmp_path / "board").exists()
+        assert "data: hello world!" in _echo(bridge, "/chatter")
+    finally:
+        if bridge is not None:
+            bridge.stop()
+        sim.close()
+
+
 def test_watchdog_reset_recovered(run_example: Callable[..., Running]) -> None:
     running = run_example("WatchdogHello")
     bridge, sim = running.bridge, running.sim

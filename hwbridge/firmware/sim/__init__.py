@@ -175,6 +175,7 @@ class SimAvr:
         frequency: int = 16_000_000,
         speed: float = 1.0,
         report_us: int = 5000,
+        symlink: Path | str | None = None,
     ) -> None:
         if mcu not in MCUS:
             raise SimError(f"unknown MCU {mcu!r}: choose {' or '.join(MCUS)}")
@@ -185,6 +186,9 @@ class SimAvr:
         self.frequency = frequency
         self.speed = speed
         self.report_us = report_us
+        self.symlink = Path(symlink) if symlink is not None else None
+        """A path kept pointing at the current pty, across :meth:`restart` (which makes a new
+        pty): give the bridge ``serial://SYMLINK`` and it finds the board again."""
         self.url = ""
         self.time = 0.0
         """Simulated seconds since power-on, as of the last report."""
@@ -194,6 +198,9 @@ class SimAvr:
         self.on_i2c_write: list[Callable[[int, int, bytes], None]] = []
         self.on_reset: list[Callable[[], None]] = []
         self.on_exit: list[Callable[[str], None]] = []
+        self.on_start: list[Callable[[], None]] = []
+        """Run after each start (and restart) while the AVR is held: set devices up here."""
+        self.restarts = 0
         self.callback_errors = 0
         self._process: subprocess.Popen[str] | None = None
         self._reader: threading.Thread | None = None
@@ -213,7 +220,7 @@ class SimAvr:
             repr(float(self.speed)),
             "--report-us",
             str(self.report_us),
-            *(["--hold"] if hold else []),
+            "--hold",
             str(self.elf),
         ]
         self._process = subprocess.Popen(
@@ -232,11 +239,34 @@ class SimAvr:
             self.close()
             raise SimError(f"the simavr runner did not start: {error or first or 'no output'}")
         self.url = first
+        self.time = 0.0
+        self.exited = None
+        if self.symlink is not None:
+            fresh = self.symlink.with_name(f".{self.symlink.name}.{os.getpid()}")
+            fresh.unlink(missing_ok=True)
+            fresh.symlink_to(self.path)
+            fresh.replace(self.symlink)  # atomic: the old pty's path is never missing
         self._reader = threading.Thread(target=self._read, args=(stdout,), daemon=True)
         self._reader.name = "simavr-reader"
         self._reader.start()
         threading.Thread(target=self._drain_stderr, daemon=True, name="simavr-stderr").start()
+        for setup in list(self.on_start):
+            setup()
+        if not hold:
+            self.go()
         return self
+
+    @property
+    def link_url(self) -> str:
+        """The URL to give the bridge: the symlink's when there is one, else the pty's."""
+        return f"serial://{self.symlink}" if self.symlink is not None else self.url
+
+    def restart(self) -> None:
+        """Stop the simulation and start it again from power-on: a new process and a new pty
+        (the symlink follows), devices set up again by the ``on_start`` callbacks."""
+        self.close()
+        self.restarts += 1
+        self.start()
 
     def _stderr_text(self) -> str:
         process = self._process

@@ -563,12 +563,65 @@ static void test_dynamixel() {
   dump_packet(1, 253, dxl::kRead, parse_hex("2402"));
 }
 
+// Seeded: random status packets (parameters full of FF FF FD) survive build + parse in both
+// protocols, with noise between them; random bytes never complete a packet with more
+// parameters than the parser holds, and nothing is written past its buffer (ASan).
+static void test_dynamixel_parser_random() {
+  uint32_t seed = 12345;
+  struct Rng {
+    uint32_t& s;
+    uint8_t byte() {
+      s = s * 1664525u + 1013904223u;
+      return static_cast<uint8_t>(s >> 24);
+    }
+  } rng{seed};
+  for (int round = 0; round < 3000; ++round) {
+    uint8_t protocol = static_cast<uint8_t>(1 + (round & 1));
+    uint8_t id = static_cast<uint8_t>(rng.byte() % 200);
+    uint8_t body[9];
+    size_t n = 1 + rng.byte() % 9;  // ERR + 0..8 parameters
+    for (size_t i = 0; i < n; ++i) {
+      uint8_t pick = rng.byte() % 4;
+      body[i] = pick == 0 ? 0xFF : pick == 1 ? 0xFD : rng.byte();
+    }
+    body[0] &= 0x7F;  // an ERR byte
+    uint8_t packet[40];
+    size_t m = protocol == 1
+                   ? dxl::build_packet(1, id, body[0], body + 1, n - 1, packet, sizeof packet)
+                   : dxl::build_packet(2, id, dxl::kStatus, body, n, packet, sizeof packet);
+    CHECK(m > 0, "round %d builds", round);
+    dxl::StatusParser<8> parser(protocol);
+    uint8_t noise = rng.byte() % 5;
+    for (uint8_t i = 0; i < noise; ++i) parser.feed(protocol == 2 ? 0x00 : 0x13);
+    bool done = false;
+    for (size_t i = 0; i < m; ++i) done = parser.feed(packet[i]);
+    CHECK(done && parser.id() == id, "round %d parsed (protocol %u)", round, protocol);
+    CHECK(parser.error() == body[0] && parser.size() == n - 1, "round %d fields", round);
+    CHECK(memcmp(parser.params(), body + 1, n - 1) == 0, "round %d params", round);
+  }
+  for (uint8_t protocol = 1; protocol <= 2; ++protocol) {
+    struct Guarded {
+      uint32_t before = 0xA5A5A5A5u;
+      dxl::StatusParser<4> parser;
+      uint32_t after = 0x5A5A5A5Au;
+    } g;
+    g.parser.set_protocol(protocol);
+    for (int i = 0; i < 200000; ++i) {
+      uint8_t pick = rng.byte() % 8;
+      uint8_t b = pick == 0 ? 0xFF : pick == 1 ? 0xFD : pick == 2 ? 0x00 : rng.byte();
+      if (g.parser.feed(b)) CHECK(g.parser.size() <= 4, "at most 4 parameters");
+    }
+    CHECK(g.before == 0xA5A5A5A5u && g.after == 0x5A5A5A5Au, "guards intact");
+  }
+}
+
 int main() {
   test_quadrature();
   test_motors();
   test_sonar();
   test_mpu();
   test_dynamixel();
+  test_dynamixel_parser_random();
   fprintf(stderr, "drivers: %lu checks passed\n", check::count());
   return 0;
 }

@@ -6,7 +6,8 @@ Commands (each prints JSON lines on stdout and exits 0 when done, 1 on a timeout
 - ``pub TOPIC TYPE JSON RATE SECONDS``: publish a message (fields as JSON) at RATE Hz;
 - ``call SERVICE TYPE JSON``: call a service once, print the response;
 - ``rosout TEXT``: wait for a /rosout entry containing TEXT, print it;
-- ``serve SERVICE SECONDS``: serve std_srvs/srv/Trigger (message ``ros2 says hi``).
+- ``serve SERVICE SECONDS``: serve std_srvs/srv/Trigger (message ``ros2 says hi``);
+- ``qos TOPIC``: the reliability and durability of the gateway's endpoints on TOPIC.
 """
 
 from __future__ import annotations
@@ -120,6 +121,29 @@ def main(argv: list[str]) -> int:
             while time.monotonic() < end:
                 rclpy.spin_once(node, timeout_sec=0.1)
             return 0
+        if command == "qos":
+            # The QoS of the gateway's endpoints on a topic, as discovery reports them.
+            topic = args[0]
+            found = []
+            while not found and time.monotonic() < deadline:
+                rclpy.spin_once(node, timeout_sec=0.1)
+                infos = [
+                    ("publisher", info) for info in node.get_publishers_info_by_topic(topic)
+                ] + [("subscription", info) for info in node.get_subscriptions_info_by_topic(topic)]
+                found = [(kind, i) for kind, i in infos if i.node_name.startswith("hwbridge")]
+            for kind, info in found:
+                profile = info.qos_profile
+                print(
+                    json.dumps(
+                        {
+                            "kind": kind,
+                            "reliability": profile.reliability.name.lower(),
+                            "durability": profile.durability.name.lower(),
+                        }
+                    ),
+                    flush=True,
+                )
+            return 0 if found else 1
         print(f"unknown command {command}", file=sys.stderr)
         return 2
     finally:

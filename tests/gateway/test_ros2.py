@@ -242,6 +242,27 @@ def test_a_ros2_service_is_served_on_the_graph(tmp_path: Path, robot: Robot) -> 
         server.wait(5)
 
 
+@pytest.mark.parametrize(
+    ("topic", "kind", "reliability", "durability"),
+    [
+        ("/diffbot/imu", "publisher", "best_effort", "volatile"),
+        ("/diffbot/cmd_vel", "subscription", "reliable", "volatile"),
+        ("/rosout", "publisher", "reliable", "transient_local"),
+    ],
+)
+def test_qos_per_topic(
+    robot: Robot, topic: str, kind: str, reliability: str, durability: str
+) -> None:
+    # Sensor data best effort, commands to boards reliable, logs kept for late joiners. (On
+    # /rosout the gateway's node has rclpy's own log publisher too, with the same QoS.)
+    done = peer("qos", topic)
+    assert done.returncode == 0, done.stderr + robot.log("up")
+    found = [json.loads(line) for line in done.stdout.splitlines()]
+    expected = {"kind": kind, "reliability": reliability, "durability": durability}
+    assert found
+    assert all(endpoint == expected for endpoint in found), found
+
+
 def test_types_without_a_ros2_counterpart_are_reported_once(robot: Robot) -> None:
     text = robot.log("up")
     assert text.count("hwbridge_msgs/WheelTicks has no ROS 2 counterpart") == 1, text

@@ -100,6 +100,9 @@ typedef struct i2c_slave {
   uint8_t first_reg;
 } i2c_slave;
 
+/* uart_pty's own 1 kHz timer that feeds the host's bytes to the UART (not in its header). */
+extern avr_cycle_count_t uart_pty_flush_timer(avr_t *avr, avr_cycle_count_t when, void *param);
+
 static avr_t *avr;
 static uart_pty_t uart;
 static watched_pin watched[MAX_PINS];
@@ -660,6 +663,8 @@ int main(int argc, char **argv) {
     if (avr->pc == avr->reset_pc && avr_cycle_timer_status(avr, tick, NULL) == 0) {
       // avr_reset (ours, or the watchdog's) cleared the cycle timers and the registers.
       start_timers();
+      // avr_reset dropped uart_pty's feeding timer too; it comes back only at the next XON.
+      if (uart.xon) avr_cycle_timer_register(avr, avr_hz_to_cycles(avr, 1000), uart_pty_flush_timer, &uart);
       reapply_inputs();
       for (int i = 0; i < MAX_I2C; i++) slaves[i].selected = 0;
       out_line("reset\n");

@@ -441,6 +441,8 @@ class CanLink(Link):
         self.tx_queue: int = max(16, opts.get("tx_queue", 1024))
         self.rx_queue: int = max(1, opts.get("rx_queue", 256))
         self.transfer_timeout: float = opts.get("transfer_timeout", 1.0)
+        if self.pace < 0 or self.transfer_timeout <= 0:
+            raise LinkError(f"{url}: pace must be >= 0 bits/s and transfer_timeout above 0 s")
         self._bus_options: dict[str, Any] = {
             key: opts[key]
             for key in ("bitrate", "data_bitrate", "sleep_after_open", "port")

@@ -81,6 +81,8 @@ def test_urls() -> None:
         ("can:///bench/node1", "interface"),
         ("can://virtual/bench/node1?fd=maybe", "fd"),
         ("can://virtual/bench?node=4&local=4", "own"),
+        ("can://virtual/bench/node1?pace=-5", "pace"),
+        ("can://virtual/bench/node1?transfer_timeout=0", "transfer_timeout"),
     ],
 )
 def test_bad_urls(url: str, words: str) -> None:

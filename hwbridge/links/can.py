@@ -505,14 +505,15 @@ class CanLink(Link):
                 )
                 _hubs[key] = hub
             hub.users += 1
-        try:
-            hub.attach(self.node, self)
-        except LinkError:
-            self._release(hub)
-            raise
         with self._ready:
             self._inbox.clear()
         self._hub = hub
+        try:
+            hub.attach(self.node, self)
+        except LinkError:
+            self._hub = None
+            self._release(hub)
+            raise
 
     def _release(self, hub: CanHub) -> None:
         with _hubs_lock:

@@ -16,7 +16,7 @@ from hwbridge.emulator.slcan import SlcanAdapter
 from hwbridge.errors import LinkError
 from hwbridge.links import LinkClosedError, create_link
 from hwbridge.links.can import CanLink, frame_bits
-from hwbridge.protocols.can.transport import Kind, encode_id, split_transfer
+from hwbridge.protocols.can.transport import Kind, encode_id
 
 _names = itertools.count()
 
@@ -242,4 +242,3 @@ def test_failed_adapter_loses_every_link(opened: list[CanLink]) -> None:
             while True:
                 link.read(4096, 0.5)
         assert not info.value.local
-    assert split_transfer(b"", 0, 8) == [b"\xe0"]

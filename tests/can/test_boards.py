@@ -295,3 +295,20 @@ def test_bad_traffic_error_frames_and_bus_off_leave_other_boards_alone(
     board_stats = board_3.can_stats()
     assert board_stats["bus_off"] >= 1
     assert board_stats["recoveries"] >= 1
+
+
+def test_robot_file_devices_ride_along(
+    bus: tuple[str, Callable[..., CanBusEmulator]], hosts: list[HostSide]
+) -> None:
+    from hwbridge.emulator.board import load_board
+
+    channel, emulate = bus
+    emulate(1, config=load_board("diffbot"), rate=2.0)
+    host = HostSide(f"can://virtual/{channel}", [1])
+    hosts.append(host)
+    assert wait_for(lambda: host.connected(1))
+    names = set(host.channels[1])
+    assert {"~imu", "~odom", "~count", "~command", "~whoami"} <= names
+    assert len(names) > 5  # and the diffbot board's own devices
+    device_channels = {c for n, c in host.channels[1].items() if not n.startswith("~")}
+    assert wait_for(lambda: any(e.channel in device_channels for e in host.of(1, base.Message)), 10)

@@ -2,7 +2,7 @@
 
 The DiffDriveBase example sketch is built for an ATmega328P (an Uno) and run in simavr
 (:class:`~hwbridge.firmware.sim.SimAvr`); the emulator's world drives its pins
-(:class:`~hwbridge.emulator.pins.PinWorld`: encoder edges, motor PWM read back, the sonar's
+(:class:`~hwbridge.devices.pins.PinWorld`: encoder edges, motor PWM read back, the sonar's
 echo, the MPU-6050 on I2C). The robot file is brought up as ``hwbridge up`` brings it up
 (:class:`~hwbridge.robot.runtime.RobotRuntime`) with its board's link on the simulator's pty, so
 the same host nodes make ``odom``, ``range`` and ``imu`` from what the firmware publishes. The
@@ -24,8 +24,8 @@ from typing import Any
 
 from rich.console import Console
 
+from hwbridge.devices.pins import PinWorld
 from hwbridge.emulator.board import ROBOTS_DIR, load_board
-from hwbridge.emulator.pins import PinWorld
 from hwbridge.errors import HwBridgeError
 from hwbridge.firmware.sim import SimAvr
 from hwbridge.firmware.sim.examples import build_example
@@ -57,8 +57,8 @@ class FirmwareDemoResult:
 
 
 def uno_robot(robot: Robot, board: str = BOARD, decoding: int = 2) -> Robot:
-    """``robot`` with its diffdrive's ``counts_per_rev`` for a board decoding ``decoding``
-    edges of the 4 per encoder line (an Uno: 2)."""
+    """``robot`` with the ``counts_per_rev`` of its board's devices (the diffdrive's) for a
+    board decoding ``decoding`` edges of the 4 per encoder line (an Uno: 2)."""
     boards = []
     for entry in robot.boards:
         if entry.name == board:
@@ -70,7 +70,7 @@ def uno_robot(robot: Robot, board: str = BOARD, decoding: int = 2) -> Robot:
                         "counts_per_rev": d.settings["counts_per_rev"] * decoding / 4,
                     },
                 )
-                if d.type == "diffdrive"
+                if "counts_per_rev" in d.settings
                 else d
                 for d in entry.devices
             )

@@ -8,7 +8,7 @@ on its stdin and stdout (see ``runner.c``): watched output pins report their dut
 period together with the simulated time, input pins are driven, quadrature encoders are moved to
 a position (the edges spread over the next period), HC-SR04 triggers are answered with an echo
 of a set width, and I2C register files answer on the TWI bus (the firmware's writes are
-reported). :mod:`hwbridge.emulator.pins` puts the emulator's world on these pins.
+reported). :mod:`hwbridge.devices.pins` puts the emulator's world on these pins.
 """
 
 from __future__ import annotations
@@ -165,7 +165,8 @@ class SimAvr:
     with ``hold`` the AVR waits until :meth:`go` so that devices are in place before it boots.
 
     Callbacks run on the reader thread, in the order the runner reported: ``on_tick(tick)``,
-    ``on_i2c_write(address, register, data)``, ``on_reset()`` and ``on_exit(state)``."""
+    ``on_i2c_write(address, register, data)``, ``on_uart(name, packet)``, ``on_reset()`` and
+    ``on_exit(state)``."""
 
     def __init__(
         self,
@@ -196,6 +197,9 @@ class SimAvr:
         self.exited: str | None = None
         self.on_tick: list[Callable[[Tick], None]] = []
         self.on_i2c_write: list[Callable[[int, int, bytes], None]] = []
+        self.on_uart: list[Callable[[str, bytes], bytes | None]] = []
+        """A packet on a bus UART (``bus N``): return the reply, or None; the AVR waits for
+        it. The first callback that answers (not None) gives the reply."""
         self.on_reset: list[Callable[[], None]] = []
         self.on_exit: list[Callable[[str], None]] = []
         self.on_start: list[Callable[[], None]] = []
@@ -382,6 +386,16 @@ class SimAvr:
             address, register, data = int(words[1], 16), int(words[2], 16), bytes.fromhex(words[3])
             for handle_write in list(self.on_i2c_write):
                 handle_write(address, register, data)
+        elif kind == "uart" and len(words) == 3:
+            name, data = words[1], bytes.fromhex(words[2])
+            reply: bytes | None = None
+            try:
+                for handle_uart in list(self.on_uart):
+                    reply = handle_uart(name, data)
+                    if reply is not None:
+                        break
+            finally:  # the AVR is held until it has an answer
+                self.command(f"tx {name} {reply.hex() if reply else '-'}")
         elif kind == "reset":
             self.resets += 1
             log.info("simavr: the AVR was reset")

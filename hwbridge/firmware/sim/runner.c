@@ -10,6 +10,8 @@
  *   t US PIN=DUTY ...             every report period: simulated time (us since power-on) and the
  *                                 share of that period each watched output pin was high (0..1)
  *   i2cw ADDR REG HEX             the firmware wrote bytes HEX from register REG of slave ADDR
+ *   uart N HEX                    the firmware sent a packet on bus UART N; the AVR waits for
+ *                                 "tx N ..." (see bus)
  *   reset                         the AVR was reset (watchdog, or the "reset" command)
  *   exit STATE                    the AVR stopped (crashed, or slept with interrupts off)
  * stdin, one command per line (pins are port and bit: D2, B5):
@@ -23,6 +25,8 @@
  *   i2c ADDR                      a register-file slave at 7-bit ADDR (hex) on the TWI bus
  *   reg ADDR REG HEX              set registers from REG of slave ADDR (hex bytes)
  *   go                            start the AVR (with --hold, commands before it set up devices)
+ *   bus N                         a half-duplex bus on UART N (1..3): packets out, replies in
+ *   tx N HEX|-                    the reply to the last packet on bus N (- for none)
  *   reset                         reset the AVR (as its reset pin does)
  *   quit                          exit
  * Time: the simulation is held to the wall clock times --speed (0: as fast as it goes).
@@ -42,6 +46,7 @@
 #include <avr_extint.h>
 #include <avr_ioport.h>
 #include <avr_twi.h>
+#include <avr_uart.h>
 #include <parts/uart_pty.h>
 #include <sim_avr.h>
 #include <sim_elf.h>
@@ -406,6 +411,108 @@ static int hexbytes(const char *hex, uint8_t *out, int cap) {
   return n;
 }
 
+/* ------------------------------------------------------------------ a bus on a second UART */
+/* What the firmware sends on UARTn (n = 1..3) is collected; once the line has been quiet for
+   two byte times the packet goes out as "uart N HEX" and the simulation waits, taking commands,
+   until the controlling process answers "tx N HEX" (the devices' reply, put into the UART's
+   receive FIFO at the byte rate by simavr) or "tx N -" (no reply). A Dynamixel bus is
+   half-duplex: the firmware sends, then listens; holding the AVR while the host's model
+   answers keeps the firmware's reply timeouts honest whatever the host's scheduling. */
+#define MAX_BUS 4
+typedef struct uart_bus {
+  int used;
+  char name;
+  uint8_t packet[512];
+  int len;
+  avr_cycle_count_t last;
+  avr_irq_t *input;
+} uart_bus;
+static uart_bus buses[MAX_BUS];
+static int bus_waiting;  // the simulation holds until the controlling process answers
+
+static void bus_out_hook(avr_irq_t *irq, uint32_t value, void *param) {
+  (void)irq;
+  uart_bus *b = (uart_bus *)param;
+  if (b->len < (int)sizeof b->packet) b->packet[b->len++] = (uint8_t)value;
+  b->last = avr->cycle;
+}
+
+static void command(char *line);
+
+/* Take commands (blocking) until *flag is cleared by one of them. */
+static void read_blocking_until(int *flag) {
+  fcntl(0, F_SETFL, fcntl(0, F_GETFL) & ~O_NONBLOCK);
+  while (*flag && !want_quit) {
+    char *nl = memchr(inbuf, '\n', inlen);
+    if (nl) {
+      static char line[sizeof inbuf];
+      size_t used = (size_t)(nl - inbuf) + 1;
+      memcpy(line, inbuf, used - 1);
+      line[used - 1] = 0;
+      inlen -= used;
+      memmove(inbuf, inbuf + used, inlen);
+      command(line);
+      continue;
+    }
+    ssize_t n = read(0, inbuf + inlen, sizeof inbuf - 1 - inlen);
+    if (n <= 0) {
+      want_quit = 1;
+      break;
+    }
+    inlen += (size_t)n;
+  }
+  fcntl(0, F_SETFL, fcntl(0, F_GETFL) | O_NONBLOCK);
+}
+
+static void flush_buses(void) {
+  for (int i = 0; i < MAX_BUS; i++) {
+    uart_bus *b = &buses[i];
+    if (!b->used || b->len == 0) continue;
+    if (avr->cycle - b->last < avr_usec_to_cycles(avr, 400)) continue;  // still sending
+    static char hex[2 * 512 + 1];
+    for (int k = 0; k < b->len; k++) snprintf(hex + 2 * k, 3, "%02x", b->packet[k]);
+    b->len = 0;
+    out_line("uart %c %s\n", b->name, hex);
+    bus_waiting = 1;
+    read_blocking_until(&bus_waiting);
+  }
+}
+
+static void bus_setup(char name) {
+  for (int i = 0; i < MAX_BUS; i++) {
+    uart_bus *b = &buses[i];
+    if (b->used) continue;
+    b->used = 1;
+    b->name = name;
+    b->input = avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ(name), UART_IRQ_INPUT);
+    avr_irq_t *output = avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ(name), UART_IRQ_OUTPUT);
+    if (!b->input || !output) {
+      fprintf(stderr, "hwbridge-simavr: this MCU has no UART%c\n", name);
+      b->used = 0;
+      return;
+    }
+    uint32_t flags = 0;
+    avr_ioctl(avr, AVR_IOCTL_UART_GET_FLAGS(name), &flags);
+    flags &= ~(uint32_t)AVR_UART_FLAG_STDIO;
+    avr_ioctl(avr, AVR_IOCTL_UART_SET_FLAGS(name), &flags);
+    avr_irq_register_notify(output, bus_out_hook, b);
+    return;
+  }
+}
+
+static void bus_reply(char name, const char *hex) {
+  for (int i = 0; i < MAX_BUS; i++) {
+    uart_bus *b = &buses[i];
+    if (!b->used || b->name != name) continue;
+    if (strcmp(hex, "-") != 0) {
+      uint8_t bytes[512];
+      int n = hexbytes(hex, bytes, (int)sizeof bytes);
+      for (int k = 0; k < n; k++) avr_raise_irq(b->input, bytes[k]);
+    }
+  }
+  bus_waiting = 0;
+}
+
 /* ------------------------------------------------------------------ commands */
 static void command(char *line) {
   char *argv[8];
@@ -462,6 +569,10 @@ static void command(char *line) {
         int n = hexbytes(argv[3], bytes, 256);
         for (int i = 0; i < n; i++) slaves[k].regs[(reg + (unsigned)i) & 0xff] = bytes[i];
       }
+  } else if (!strcmp(c, "bus") && argc == 2 && argv[1][0] >= '1' && argv[1][0] <= '3') {
+    bus_setup(argv[1][0]);
+  } else if (!strcmp(c, "tx") && argc == 3) {
+    bus_reply(argv[1][0], argv[2]);
   } else if (!strcmp(c, "go")) {
     want_go = 1;
   } else if (!strcmp(c, "reset")) {
@@ -538,6 +649,7 @@ static avr_cycle_count_t tick(avr_t *a, avr_cycle_count_t when, void *param) {
   (void)a;
   (void)param;
   read_commands();
+  flush_buses();
   if (avr->cycle - last_report >= avr_usec_to_cycles(avr, report_us))
     report();
   else

@@ -1,4 +1,4 @@
-"""The emulator's world on the pins of real firmware running in simavr.
+"""Pin-level device models: the emulator's world on the pins of real firmware in simavr.
 
 :class:`PinWorld` is the pin-level twin of :class:`~hwbridge.emulator.board.VirtualBoard`: the
 same :class:`~hwbridge.emulator.world.World` and robot file, but instead of publishing readings
@@ -18,7 +18,12 @@ of the robot file with a pin-level model here gets one:
   :class:`~hwbridge.devices.imu.mpu.MpuChip`: asleep at power-on, WHO_AM_I, ranges from its
   configuration registers, a 14-byte burst from 0x3B), sampling the world's motion.
 
-Devices without a pin model (a Dynamixel bus on an Uno) are left out with one log line.
+- ``dynamixel``: the servos of the device's ``bus`` (:class:`~hwbridge.devices.dynamixel.
+  EmulatedDynamixelBus`) on a second UART (a Mega's Serial2 in DiffDriveBase): each packet the
+  firmware sends is answered by the bus model while the AVR waits, so that the firmware's reply
+  timeout holds whatever the host's scheduling; an Uno has no second UART and no bus.
+
+Devices without a pin model are left out with one log line.
 :class:`PinMap` says where the devices sit; its defaults are the wiring of the DiffDriveBase
 example sketch (``firmware/HwBridge/examples/DiffDriveBase``).
 """
@@ -41,7 +46,7 @@ from hwbridge.firmware.sim import SimAvr, Tick, arduino_pin
 
 __all__ = ["PIN_MODELS", "PinMap", "PinWorld"]
 
-log = logging.getLogger("hwbridge.emulator.pins")
+log = logging.getLogger("hwbridge.devices.pins")
 
 Pin = int | str
 SONAR_REFRESH: Final = 0.01
@@ -65,6 +70,8 @@ class PinMap:
     sonar: tuple[Pin, Pin] = (8, 12)
     """Trigger, echo."""
     imu_address: int = 0x68
+    dynamixel_uart: str | None = None
+    """The UART of the Dynamixel bus ("1".."3"; an Uno has none)."""
 
     @classmethod
     def for_board(cls, board: str) -> PinMap:
@@ -72,7 +79,7 @@ class PinMap:
         if board == "uno":
             return cls()
         if board == "mega":
-            return cls(left_encoder=(2, 3), right_encoder=(18, 19))
+            return cls(left_encoder=(2, 3), right_encoder=(18, 19), dynamixel_uart="2")
         raise HwBridgeError(f"no DiffDriveBase wiring for board {board!r} (uno or mega)")
 
     def with_settings(self, settings: Mapping[str, Any]) -> PinMap:
@@ -84,7 +91,13 @@ class PinMap:
                 f"unknown pins {', '.join(unknown)}: use {', '.join(sorted(known))}"
             )
         values: dict[str, Any] = {
-            key: (int(value) if key == "imu_address" else tuple(value))
+            key: (
+                int(value)
+                if key == "imu_address"
+                else str(value)
+                if key == "dynamixel_uart"
+                else tuple(value)
+            )
             for key, value in settings.items()
         }
         return replace(self, **values)
@@ -104,6 +117,10 @@ class _PinModel:
 
     def i2c_write(self, world: PinWorld, address: int, register: int, data: bytes) -> None:
         """The firmware wrote registers of an I2C device."""
+
+    def packet(self, world: PinWorld, uart: str, data: bytes) -> bytes | None:
+        """The firmware sent ``data`` on bus UART ``uart``: the reply, if this device answers."""
+        return None
 
 
 class _DiffDrivePins(_PinModel):
@@ -209,6 +226,28 @@ class _MpuPins(_PinModel):
         self._data(world)
 
 
+class _DynamixelPins(_PinModel):
+    """Servos on a bus UART: the firmware's packets answered by the emulated bus."""
+
+    def __init__(self, settings: Mapping[str, Any]) -> None:
+        from hwbridge.devices.dynamixel import EmulatedDynamixelBus
+
+        self.bus = EmulatedDynamixelBus.from_config(settings["bus"])
+        self.uart: str | None = None
+
+    def setup(self, world: PinWorld) -> None:
+        self.uart = world.pins.dynamixel_uart
+        if self.uart is not None:
+            world.sim.command(f"bus {self.uart}")
+
+    def packet(self, world: PinWorld, uart: str, data: bytes) -> bytes | None:
+        if uart != self.uart:
+            return None
+        now = world.last_time
+        reply = self.bus.feed(data, now) + self.bus.advance(now + 0.002)
+        return reply
+
+
 def _diffdrive(settings: Mapping[str, Any], seed: int) -> _PinModel:
     return _DiffDrivePins(settings)
 
@@ -225,7 +264,12 @@ def _mpu9250(settings: Mapping[str, Any], seed: int) -> _PinModel:
     return _MpuPins(Mpu9250(seed=seed + 3))
 
 
+def _dynamixel(settings: Mapping[str, Any], seed: int) -> _PinModel:
+    return _DynamixelPins(settings)
+
+
 PIN_MODELS: Final[dict[str, Callable[[Mapping[str, Any], int], _PinModel]]] = {
+    "dynamixel": _dynamixel,
     "diffdrive": _diffdrive,
     "hcsr04": _hcsr04,
     "mpu6050": _mpu6050,
@@ -258,6 +302,8 @@ class PinWorld:
         self.skipped: list[str] = []
         for device in config.devices:
             make = PIN_MODELS.get(device.type)
+            if make is _dynamixel and self.pins.dynamixel_uart is None:
+                make = None  # no second UART for the bus
             if make is None:
                 self.skipped.append(device.type)
                 log.info("%s: no pin-level model for %s; left out", config.name, device.type)
@@ -270,6 +316,7 @@ class PinWorld:
         self.sim.on_start.append(self._setup)
         self.sim.on_tick.append(self._on_tick)
         self.sim.on_i2c_write.append(self._on_i2c_write)
+        self.sim.on_uart.append(self._on_uart)
         return self
 
     def _setup(self) -> None:
@@ -289,6 +336,14 @@ class PinWorld:
             for model in self.models:
                 model.after(self, tick.time)
             self.last_time = tick.time
+
+    def _on_uart(self, uart: str, data: bytes) -> bytes | None:
+        with self.lock:
+            for model in self.models:
+                reply = model.packet(self, uart, data)
+                if reply is not None:
+                    return reply
+        return None
 
     def _on_i2c_write(self, address: int, register: int, data: bytes) -> None:
         with self.lock:

@@ -10,12 +10,14 @@ import signal
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import pytest
 from rich.console import Console
 
 from hwbridge.emulator.firmware_demo import ROBOT_FILE, run_firmware_demo, uno_robot
 from hwbridge.errors import HwBridgeError
+from hwbridge.firmware.sim import SimAvr
 from hwbridge.firmware.sim.examples import build_example
 from hwbridge.robot.config import load_robot
 from tests.netutil import free_port
@@ -71,3 +73,51 @@ def test_sim_command_prints_the_url_first(probe_elf: Path) -> None:
     finally:
         process.send_signal(signal.SIGINT)
         assert process.wait(15) in (0, 130)  # 130: Ctrl-C before the command's loop
+
+
+def test_mega_pan_servo_on_serial2(runner: Path) -> None:
+    """DiffDriveBase for a Mega: the pan servo on Serial2 is the emulated Dynamixel bus;
+    a goal from the graph moves it and joint_states reports it; odometry comes too."""
+    from hwbridge.devices.pins import PinWorld
+    from hwbridge.emulator.board import load_board
+    from hwbridge.graph import Graph, GraphConfig
+    from hwbridge.robot.runtime import RobotRuntime
+    from tests.netutil import wait_until
+
+    try:
+        elf = build_example("DiffDriveBase", "mega")
+    except HwBridgeError as exc:
+        pytest.skip(f"DiffDriveBase does not build here: {str(exc).splitlines()[0]}")
+    sim = SimAvr(elf, mcu="atmega2560")
+    packets: list[bytes] = []
+    sim.on_uart.append(lambda _uart, data: packets.append(data))
+    graph: Graph | None = None
+    runtime: RobotRuntime | None = None
+    try:
+        sim.start(hold=True)
+        world = PinWorld(sim, load_board(str(ROBOT_FILE), "base")).attach()
+        assert world.skipped == []
+        sim.go()
+        graph = Graph(GraphConfig.embedded([f"tcp/127.0.0.1:{free_port()}"]))
+        robot = load_robot(ROBOT_FILE).with_links({"base": sim.url})
+        runtime = RobotRuntime(robot, graph).start()
+        view = graph.node("mega_test", namespace="/diffbot")
+        seen: dict[str, Any] = {}
+        view.subscriber("joint_states", "sensor_msgs/JointState", lambda m: seen.update(j=m))
+        view.subscriber("odom", "nav_msgs/Odometry", lambda m: seen.update(o=m))
+        goal = view.publisher("pan/goal_position", "std_msgs/Float64")
+
+        def at_goal() -> bool:
+            goal.publish({"data": 0.5})
+            joints = seen.get("j")
+            return joints is not None and abs(float(joints.position[0]) - 0.5) < 0.01
+
+        assert wait_until(at_goal, 30, 0.1), (len(packets), seen.get("j"))
+        assert "o" in seen
+        assert packets  # the firmware's own packets on the bus
+    finally:
+        if runtime is not None:
+            runtime.stop()
+        if graph is not None:
+            graph.close()
+        sim.close()

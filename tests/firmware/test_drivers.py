@@ -16,6 +16,7 @@ from __future__ import annotations
 import math
 import shutil
 import subprocess
+import sys
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -52,7 +53,7 @@ def driver_output(tmp_path_factory: pytest.TempPathFactory) -> list[str]:
     out = tmp_path_factory.mktemp("drivers")
     generated = out / "msgs"
     subprocess.run(
-        [str(ROOT / ".venv" / "bin" / "hwbridge"), "firmware", "generate", str(generated), *TYPES],
+        [sys.executable, "-m", "hwbridge", "firmware", "generate", str(generated), *TYPES],
         check=True,
         capture_output=True,
     )

@@ -44,7 +44,7 @@ REQUIRED = (
 )
 WITH_DRIVERS = ("DiffDriveBase", "DxlArm", "Imu", "Sonar")
 BOARDS = {"uno": "arduino:avr:uno", "mega": "arduino:avr:mega:cpu=atmega2560"}
-HWBRIDGE = ROOT / ".venv" / "bin" / "hwbridge"
+HWBRIDGE = [sys.executable, "-m", "hwbridge"]  # the `hwbridge` command of this environment
 CTAGS_PATTERN = (
     '"{cmd.path}" -u --language-force=c++ -f - --c++-kinds=svpf --fields=KSTtzns '
     '--line-directives "{source_file}"'
@@ -74,7 +74,7 @@ def _cache() -> Path:
 def _hwbridge_build(sketch: str, board: str, out: Path) -> Built:
     if shutil.which("avr-g++") is None or not (CORE_DIR / "cores" / "arduino").is_dir():
         return Built(False, skip="needs gcc-avr avr-libc binutils-avr arduino-core-avr")
-    command = [str(HWBRIDGE), "firmware", "build", str(LIBRARY / "examples" / sketch)]
+    command = [*HWBRIDGE, "firmware", "build", str(LIBRARY / "examples" / sketch)]
     done = subprocess.run(
         [*command, "--board", board, "--out", str(out)],
         capture_output=True,
@@ -100,7 +100,7 @@ def _host_build(sketch: str, out: Path) -> Built:
     """``--board host``: a native program with the POSIX hardware and the Arduino shim."""
     if shutil.which("g++") is None:
         return Built(False, skip="needs the Debian package g++")
-    command = [str(HWBRIDGE), "firmware", "build", str(LIBRARY / "examples" / sketch)]
+    command = [*HWBRIDGE, "firmware", "build", str(LIBRARY / "examples" / sketch)]
     done = subprocess.run(
         [*command, "--board", "host", "--out", str(out)],
         capture_output=True,

@@ -48,16 +48,12 @@ class FrameDecoder {
  public:
   static const size_t kCapacity = max_frame(MaxPayload);
 
-  FrameDecoder()
-      : frame_(), stats_(), len_(0), limit_(kCapacity), max_payload_(MaxPayload), total_(0), printable_(0),
-        overflow_(false), error_(FrameError::Ok), peer_version_(0) {
-    frame_.type = FrameType::BestEffort;
-    frame_.frag = Frag::Whole;
-    frame_.channel = 0;
-    frame_.seq = 0;
-    frame_.payload = buf_;
-    frame_.size = 0;
-  }
+  /** Every member zero (limits 0 mean the full capacity): a global decoder is in .bss, with
+   * no constructor code. */
+  constexpr FrameDecoder()
+      : frame_{FrameType::BestEffort, Frag::Whole, 0, 0, nullptr, 0}, stats_(), len_(0),
+        limit_(0), max_payload_(0), total_(0), printable_(0), overflow_(false),
+        error_(FrameError::Ok), peer_version_(0), buf_() {}
 
   /** Lowers (or restores) the payload MTU; values above MaxPayload mean MaxPayload. */
   void set_max_payload(size_t max_payload) {
@@ -65,7 +61,7 @@ class FrameDecoder {
     max_payload_ = max_payload;
     limit_ = max_frame(max_payload);
   }
-  size_t max_payload() const { return max_payload_; }
+  size_t max_payload() const { return max_payload_ ? max_payload_ : MaxPayload; }
 
   /** Forgets a partial run (after the link reopened). */
   void reset() { clear_run(); }
@@ -73,7 +69,7 @@ class FrameDecoder {
   /** Consumes one byte. A Frame stays valid (its payload in this buffer) until the next push. */
   Decoded push(uint8_t byte) {
     if (byte != 0) {
-      if (len_ < limit_) {
+      if (len_ < (limit_ ? limit_ : kCapacity)) {
         buf_[len_++] = byte;
       } else {
         overflow_ = true;
@@ -121,7 +117,7 @@ class FrameDecoder {
     if (!cobs_decode(buf_, len_, buf_, &body_len)) {
       return looks_like_text() ? FrameError::Text : FrameError::Cobs;
     }
-    FrameError e = parse_body(buf_, body_len, max_payload_, &frame_);
+    FrameError e = parse_body(buf_, body_len, max_payload(), &frame_);
     if ((e == FrameError::TooShort || e == FrameError::Crc) && looks_like_text()) {
       return FrameError::Text;
     }

@@ -110,20 +110,20 @@ class LeadTracker {
  public:
   static const uint32_t kIdleMicros = 100000UL;  ///< 0.1 s (2.11)
 
-  LeadTracker() : last_(0), fresh_(true) {}
+  constexpr LeadTracker() : last_(0), sent_(false) {}
   /** The link (re)opened: the next frame gets a lead. */
-  void reset() { fresh_ = true; }
+  void reset() { sent_ = false; }
   /** Whether a frame sent at now_us needs a leading 0x00; records the send. */
   bool lead(uint32_t now_us) {
-    const bool need = fresh_ || static_cast<uint32_t>(now_us - last_) >= kIdleMicros;
-    fresh_ = false;
+    const bool need = !sent_ || static_cast<uint32_t>(now_us - last_) >= kIdleMicros;
+    sent_ = true;
     last_ = now_us;
     return need;
   }
 
  private:
   uint32_t last_;
-  bool fresh_;
+  bool sent_;  // false until the first frame (zero-filled: a fresh tracker)
 };
 
 /** A sink that counts bytes: write_frame(counter, ...) measures a frame without sending it. */

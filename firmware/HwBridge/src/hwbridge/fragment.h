@@ -45,7 +45,7 @@ struct Fragment {
  */
 class Fragmenter {
  public:
-  Fragmenter() : msg_(nullptr), len_(0), pos_(0), mtu_(0), left_(0), type_(FrameType::BestEffort), channel_(0) {}
+  constexpr Fragmenter() : msg_(nullptr), len_(0), pos_(0), mtu_(0), left_(0), type_(FrameType::BestEffort), channel_(0) {}
 
   /**
    * Starts a message. False (nothing started) for an ACK type, or for a message larger than the
@@ -136,7 +136,8 @@ struct Message {
 template <size_t MaxMessage>
 class Reassembler {
  public:
-  Reassembler() : stats_(), total_(0), held_(0), owner_(kNone) { reset(); }
+  /** Every member zero: a global one is in .bss, with no constructor code. */
+  constexpr Reassembler() : spaces_(), stats_(), total_(0), held_(0), owner_(kNone), buf_() {}
 
   /** Abandons any partial message (counted) and forgets the last frames of both spaces. */
   void reset() {
@@ -153,13 +154,13 @@ class Reassembler {
   void reset(FrameType type) {
     if (type == FrameType::Ack) return;
     const uint8_t s = static_cast<uint8_t>(type);
-    if (owner_ == s) abandon();
+    if (owner_ == s + 1) abandon();
     spaces_[s].has_last = false;
     spaces_[s].skipping = false;
   }
 
   /** True while a partial message of this space is held. */
-  bool in_progress(FrameType type) const { return owner_ == static_cast<uint8_t>(type); }
+  bool in_progress(FrameType type) const { return owner_ == static_cast<uint8_t>(type) + 1; }
   /** Bytes of the partial message held. */
   size_t buffered() const { return owner_ == kNone ? 0 : held_; }
   const ReassemblyStats& stats() const { return stats_; }
@@ -185,7 +186,7 @@ class Reassembler {
     }
     switch (f.frag) {
       case Frag::Whole:
-        if (owner_ == s) abandon();
+        if (owner_ == s + 1) abandon();
         remember(sp, f, crc);
         ++stats_.messages;
         out->channel = f.channel;
@@ -204,7 +205,7 @@ class Reassembler {
   }
 
  private:
-  static const uint8_t kNone = 0xFF;
+  static const uint8_t kNone = 0;
 
   struct Space {
     uint16_t last_crc;
@@ -222,7 +223,7 @@ class Reassembler {
   void abandon() {
     if (owner_ != kNone) {
       ++stats_.dropped_partial;
-      spaces_[owner_].skipping = false;
+      spaces_[owner_ - 1].skipping = false;
     }
     owner_ = kNone;
   }
@@ -264,12 +265,12 @@ class Reassembler {
     total_ = static_cast<size_t>(total);
     held_ = chunk;
     if (chunk) memcpy(buf_, f.payload + kLengthPrefix, chunk);
-    owner_ = s;
+    owner_ = static_cast<uint8_t>(s + 1);
   }
 
   bool next(uint8_t s, const Frame& f, uint16_t crc, Message* out) {
     Space& sp = spaces_[s];
-    const bool mine = owner_ == s;
+    const bool mine = owner_ == s + 1;
     if (!mine && !sp.skipping) {
       ++stats_.orphans;
       return false;
@@ -308,7 +309,7 @@ class Reassembler {
   ReassemblyStats stats_;
   size_t total_;
   size_t held_;
-  uint8_t owner_;  // space (0 best effort, 1 reliable) whose partial message is held, or kNone
+  uint8_t owner_;  // 1 + the space (0 best effort, 1 reliable) whose partial message is held; 0 none
   uint8_t buf_[MaxMessage ? MaxMessage : 1];  // last: the fuzz tests' guards sit right after it
 };
 

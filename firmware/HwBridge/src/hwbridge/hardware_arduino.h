@@ -41,9 +41,9 @@ class ArduinoHardware {
   }
 
  private:
-  HardwareSerial* serial_;
-  Stream* stream_;
-  bool external_;
+  HardwareSerial* serial_ = nullptr;
+  Stream* stream_ = nullptr;
+  bool external_ = false;
 };
 
 }  // namespace hwbridge

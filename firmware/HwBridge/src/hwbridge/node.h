@@ -208,17 +208,22 @@ class NodeBase {
  public:
   /** The serialization buffer for one outgoing message, or nullptr when it is busy (a previous
    * message still being sent) and cannot be freed now. */
-  virtual uint8_t* txBuffer(size_t* cap) = 0;
+  uint8_t* txBuffer(size_t* cap) { return tx_fn_(this, cap); }
   /** Sends len bytes of txBuffer() on entry e's channel (best effort or reliable). */
-  virtual bool sendEntry(Entry& e, size_t len) = 0;
+  bool sendEntry(Entry& e, size_t len) { return send_fn_(this, e, len); }
   /** Sends a SERVICE_REQUEST whose body (len bytes) is already at txBuffer() + 4 and spins
    * until its answer; an OK response body is deserialized into res by e's hook. */
-  virtual uint8_t callService(Entry& e, size_t len, uint16_t timeout_ms, void* res) = 0;
-  /** Host time now (sec, nsec); zeros before the first time sync. */
-  virtual void hostTime(uint32_t* sec, uint32_t* nsec) = 0;
+  uint8_t callService(Entry& e, size_t len, uint16_t timeout_ms, void* res) {
+    return call_fn_(this, e, len, timeout_ms, res);
+  }
 
  protected:
-  ~NodeBase() {}
+  // Set by the registrations that need them (advertise, serviceClient): a sketch without a
+  // service client links no client code. Function pointers instead of virtual functions: no
+  // vtable in RAM, and nothing kept that is never called.
+  uint8_t* (*tx_fn_)(NodeBase*, size_t*) = nullptr;
+  bool (*send_fn_)(NodeBase*, Entry&, size_t) = nullptr;
+  uint8_t (*call_fn_)(NodeBase*, Entry&, size_t, uint16_t, void*) = nullptr;
 };
 
 // ---------------------------------------------------------------------------------------------
@@ -308,10 +313,18 @@ class NodeHandle_ : public NodeBase {
 
   /** Registers entries (before the first spinOnce). False when 255 entries exist already or
    * the entry is registered elsewhere. */
-  template <class T> bool advertise(Publisher<T>& p) { return add(p); }
+  template <class T> bool advertise(Publisher<T>& p) {
+    tx_fn_ = &txThunk;
+    send_fn_ = &sendThunk;
+    return add(p);
+  }
   template <class T> bool subscribe(Subscriber<T>& s) { return add(s); }
   template <class S> bool advertiseService(ServiceServer<S>& s) { return add(s); }
-  template <class S> bool serviceClient(ServiceClient<S>& c) { return add(c); }
+  template <class S> bool serviceClient(ServiceClient<S>& c) {
+    tx_fn_ = &txThunk;
+    call_fn_ = &callThunk;
+    return add(c);
+  }
 
   /** Reads what the hardware has, handles it, runs the timers, writes what is due. Call it
    * often (every loop(); at least every few ms while messages flow). */
@@ -324,10 +337,12 @@ class NodeHandle_ : public NodeBase {
   bool connected() const { return state_ == kConnected; }
 
   /** Host time now (ROS time; zeros before the first time sync answer). */
-  void now(uint32_t* sec, uint32_t* nsec) { hostTime(sec, nsec); }
+  void now(uint32_t* sec, uint32_t* nsec);
   /** True once a time sync answer arrived in this session. */
   bool timeSynced() const { return time_synced_; }
-  /** Asks the host for its time now (the profile's kTimeSyncMs does it periodically). */
+  /** Asks the host for its time now (a profile with kTimeSyncMs > 0 also does it periodically;
+   * with kTimeSyncMs 0 the board reads no answers and host time comes from the host's own
+   * time requests). */
   void requestSyncTime();
 
   /** Logs to the host (reliable; cut to fit). False when not connected or the window stays
@@ -376,11 +391,10 @@ class NodeHandle_ : public NodeBase {
   /** Fixes the session id and ISN instead of random ones (tests; before begin/initNode). */
   void setIdentity(uint32_t session_id, uint8_t isn) { fixed_id_ = session_id; fixed_isn_ = isn; has_fixed_ = true; }
 
-  // NodeBase
-  uint8_t* txBuffer(size_t* cap) override;
-  bool sendEntry(Entry& e, size_t len) override;
-  uint8_t callService(Entry& e, size_t len, uint16_t timeout_ms, void* res) override;
-  void hostTime(uint32_t* sec, uint32_t* nsec) override;
+  // what entries call through NodeBase
+  uint8_t* takeTxBuffer(size_t* cap);
+  bool sendOn(Entry& e, size_t len);
+  uint8_t call(Entry& e, size_t len, uint16_t timeout_ms, void* res);
 
 
  private:
@@ -424,53 +438,61 @@ class NodeHandle_ : public NodeBase {
   Entry* entryOn(uint8_t channel, uint8_t kind);
   uint16_t newRequestId();
   void finishParam(uint8_t status, const ParamValue* v);
-  bool blockingParam(const char* name, uint8_t type, void* out, uint16_t length, uint16_t timeout_ms);
+  bool blockingParam(const char* name, uint8_t type, void* out, uint16_t length, uint16_t timeout_ms,
+                     bool (*copy)(void*, const ParamValue&, uint16_t));
+  static uint8_t* txThunk(NodeBase* n, size_t* cap) { return static_cast<NodeHandle_*>(n)->takeTxBuffer(cap); }
+  static bool sendThunk(NodeBase* n, Entry& e, size_t len) { return static_cast<NodeHandle_*>(n)->sendOn(e, len); }
+  static uint8_t callThunk(NodeBase* n, Entry& e, size_t len, uint16_t t, void* res) {
+    return static_cast<NodeHandle_*>(n)->call(e, len, t, res);
+  }
 
-  Hardware hw_;
-  FrameDecoder<Profile::kMtu, false> dec_;
-  Reassembler<kReassembly> reasm_;
-  BestEffortSender be_tx_;
-  BestEffortReceiver be_rx_;
-  ReliableSender<Profile::kWindow, Profile::kMtu> rel_tx_;
-  ReliableReceiver<Profile::kWindow, Profile::kMtu, 0> rel_rx_;
-  LeadTracker lead_;
-  NodeStats stats_;
-  Entry* entries_;
-  const char* name_;
-  const char* firmware_;
-  const uint8_t* uid_;
-  ParamCallback param_cb_;
-  ParamCallback push_cb_;
-  LogCallback log_cb_;
-  void* sync_out_;       // blocking getParam: where the values go
-  void* call_res_;
-  Entry* call_entry_;
-  uint32_t now_;
-  uint32_t id_, peer_, be_peer_, fixed_id_, rng_;
-  uint32_t peer_max_;    // the host's max_message
-  uint32_t next_hello_, hello_wait_, last_rx_, last_tx_, since_, time_next_;
-  uint32_t param_deadline_, call_deadline_;
-  uint32_t board_ref_, host_sec_, host_nsec_;  // time sync reference pair
-  uint16_t mtu_;
-  uint16_t pending_len_;  // a reliable message in tx_ waiting for a free slot
-  uint16_t next_request_;
-  uint16_t param_id_, call_id_;
-  uint16_t sync_len_;
-  uint8_t pending_ch_;
-  uint8_t state_;
-  uint8_t isn_, fixed_isn_;
-  uint8_t features_;
-  uint8_t entry_count_;
-  uint8_t table_pos_;
-  uint8_t uid_len_;
-  uint8_t call_state_;    // 0 none, 1 waiting, 2 answered
-  uint8_t call_status_;
-  uint8_t sync_type_;     // blocking getParam: element type wanted (0: none pending)
-  uint8_t sync_state_;    // 0 none, 1 waiting, 2 answered ok, 3 failed
-  bool has_fixed_;
-  bool in_input_;
-  bool time_synced_;
-  uint8_t tx_[Profile::kTxBuffer];
+  // Every member has an initializer, so that the implicit constructor is constexpr: a global
+  // node is initialized at compile time (no static constructor on the board).
+  Hardware hw_{};
+  FrameDecoder<Profile::kMtu, false> dec_{};
+  Reassembler<kReassembly> reasm_{};
+  BestEffortSender be_tx_{};
+  BestEffortReceiver be_rx_{};
+  ReliableSender<Profile::kWindow, Profile::kMtu> rel_tx_{};
+  ReliableReceiver<Profile::kWindow, Profile::kMtu, 0> rel_rx_{};
+  LeadTracker lead_{};
+  NodeStats stats_{};
+  Entry* entries_ = nullptr;
+  const char* name_ = nullptr;
+  const char* firmware_ = nullptr;
+  const uint8_t* uid_ = nullptr;
+  ParamCallback param_cb_ = nullptr;
+  ParamCallback push_cb_ = nullptr;
+  LogCallback log_cb_ = nullptr;
+  void* sync_out_ = nullptr;  // blocking getParam: where the values go
+  bool (*sync_copy_)(void*, const ParamValue&, uint16_t) = nullptr;
+  void* call_res_ = nullptr;
+  Entry* call_entry_ = nullptr;
+  uint32_t now_ = 0;
+  uint32_t id_ = 0, peer_ = 0, be_peer_ = 0, fixed_id_ = 0, rng_ = 0;
+  uint32_t peer_max_ = 0;  // the host's max_message
+  uint32_t next_hello_ = 0, hello_wait_ = 0, last_rx_ = 0, last_tx_ = 0, since_ = 0, time_next_ = 0;
+  uint32_t param_deadline_ = 0, call_deadline_ = 0;
+  uint32_t board_ref_ = 0, host_sec_ = 0, host_nsec_ = 0;  // time sync reference pair
+  uint16_t mtu_ = 0;
+  uint16_t pending_len_ = 0;  // a reliable message in tx_ waiting for a free slot
+  uint16_t next_request_ = 0;
+  uint16_t param_id_ = 0, call_id_ = 0;
+  uint16_t sync_len_ = 0;
+  uint8_t pending_ch_ = 0;
+  uint8_t state_ = 0;
+  uint8_t isn_ = 0, fixed_isn_ = 0;
+  uint8_t features_ = 0;
+  uint8_t entry_count_ = 0;
+  uint8_t table_pos_ = 0;
+  uint8_t uid_len_ = 0;
+  uint8_t call_state_ = 0;   // 0 none, 1 waiting, 2 answered
+  uint8_t call_status_ = 0;
+  uint8_t sync_state_ = 0;   // 0 none, 1 waiting, 2 answered ok, 3 failed
+  bool has_fixed_ = false;
+  bool in_input_ = false;
+  bool time_synced_ = false;
+  uint8_t tx_[Profile::kTxBuffer] = {};
 };
 
 #if defined(ARDUINO)

@@ -485,8 +485,8 @@ HWB_NODE void HWB_SELF::onControl(const uint8_t* p, size_t n, bool reliable) {
   switch (op) {
     case 0x02:  // HEARTBEAT
       break;
-    case 0x04:
-      onTimeResponse(p);
+    case 0x04:  // TIME_RESPONSE: only a board that asks (kTimeSyncMs) reads the answers
+      if (Profile::kTimeSyncMs) onTimeResponse(p);
       break;
     case 0x05:  // GOODBYE
       ++stats_.peer_resets;
@@ -680,7 +680,7 @@ HWB_NODE void HWB_SELF::onServiceResponse(const uint8_t* p, size_t n) {
   call_state_ = 2;
 }
 
-HWB_NODE uint8_t HWB_SELF::callService(Entry& e, size_t len, uint16_t timeout_ms, void* res) {
+HWB_NODE uint8_t HWB_SELF::call(Entry& e, size_t len, uint16_t timeout_ms, void* res) {
   if (state_ != kConnected || !e.accepted_ || call_state_ == 1 || in_input_ ||
       len + 4 > peer_max_) {
     ++stats_.tx_refused;
@@ -755,25 +755,7 @@ HWB_NODE void HWB_SELF::finishParam(uint8_t status, const ParamValue* v) {
   }
   param_id_ = 0;
   if (sync_state_ == 1) {  // a blocking getParam: copy the values out
-    uint8_t ok = 3;
-    if (sync_type_ != kParamString && v->status == kParamOk && v->count() == sync_len_) {
-      ok = 2;
-      for (uint16_t i = 0; i < sync_len_; ++i) {
-        if (sync_type_ == kParamInt32) {
-          static_cast<int32_t*>(sync_out_)[i] = v->asInt(i);
-        } else if (sync_type_ == kParamFloat32) {
-          static_cast<float*>(sync_out_)[i] = v->asFloat(i);
-        } else if (sync_type_ == kParamBool) {
-          static_cast<bool*>(sync_out_)[i] = v->asBool(i);
-        }
-      }
-    }
-    if (sync_type_ == kParamString && v->status == kParamOk && v->count() == 1 &&
-        (v->type & 0x7F) == kParamString) {
-      ok = 2;
-      v->asString(static_cast<char*>(sync_out_), sync_len_);
-    }
-    sync_state_ = ok;
+    sync_state_ = v->status == kParamOk && sync_copy_(sync_out_, *v, sync_len_) ? 2 : 3;
     return;
   }
   if (param_cb_) param_cb_(*v);
@@ -828,10 +810,11 @@ HWB_NODE void HWB_SELF::onParamValue(const uint8_t* p, size_t n) {
 }
 
 HWB_NODE bool HWB_SELF::blockingParam(const char* name, uint8_t type, void* out, uint16_t length,
-                                       uint16_t timeout_ms) {
+                                       uint16_t timeout_ms,
+                                       bool (*copy)(void*, const ParamValue&, uint16_t)) {
   if (in_input_ || param_id_ || length == 0) return false;
   sync_out_ = out;
-  sync_type_ = type;
+  sync_copy_ = copy;
   sync_len_ = length;
   sync_state_ = 1;
   const bool list = length > 1 && type != kParamString;
@@ -847,20 +830,50 @@ HWB_NODE bool HWB_SELF::blockingParam(const char* name, uint8_t type, void* out,
   return ok;
 }
 
+namespace detail {
+template <class V>
+bool copy_values(void* out, const ParamValue& v, uint16_t n);
+template <>
+inline bool copy_values<int32_t>(void* out, const ParamValue& v, uint16_t n) {
+  if (v.count() != n || (v.type & 0x7F) == kParamString) return false;
+  for (uint16_t i = 0; i < n; ++i) static_cast<int32_t*>(out)[i] = v.asInt(i);
+  return true;
+}
+template <>
+inline bool copy_values<float>(void* out, const ParamValue& v, uint16_t n) {
+  if (v.count() != n || (v.type & 0x7F) == kParamString) return false;
+  for (uint16_t i = 0; i < n; ++i) static_cast<float*>(out)[i] = v.asFloat(i);
+  return true;
+}
+template <>
+inline bool copy_values<bool>(void* out, const ParamValue& v, uint16_t n) {
+  if (v.count() != n || (v.type & 0x7F) == kParamString) return false;
+  for (uint16_t i = 0; i < n; ++i) static_cast<bool*>(out)[i] = v.asBool(i);
+  return true;
+}
+template <>
+inline bool copy_values<char>(void* out, const ParamValue& v, uint16_t cap) {
+  if (v.count() != 1 || (v.type & 0x7F) != kParamString) return false;
+  v.asString(static_cast<char*>(out), cap);
+  return true;
+}
+}  // namespace detail
+
 HWB_NODE bool HWB_SELF::getParamString(const char* name, char* out, size_t cap, uint16_t timeout_ms) {
   if (cap == 0) return false;
   out[0] = 0;
-  return blockingParam(name, kParamString, out, static_cast<uint16_t>(cap > 0xFFFF ? 0xFFFF : cap), timeout_ms);
+  return blockingParam(name, kParamString, out, static_cast<uint16_t>(cap > 0xFFFF ? 0xFFFF : cap),
+                       timeout_ms, &detail::copy_values<char>);
 }
 
 HWB_NODE bool HWB_SELF::getParam(const char* name, int32_t* value, uint16_t length, uint16_t timeout_ms) {
-  return blockingParam(name, kParamInt32, value, length, timeout_ms);
+  return blockingParam(name, kParamInt32, value, length, timeout_ms, &detail::copy_values<int32_t>);
 }
 HWB_NODE bool HWB_SELF::getParam(const char* name, float* value, uint16_t length, uint16_t timeout_ms) {
-  return blockingParam(name, kParamFloat32, value, length, timeout_ms);
+  return blockingParam(name, kParamFloat32, value, length, timeout_ms, &detail::copy_values<float>);
 }
 HWB_NODE bool HWB_SELF::getParam(const char* name, bool* value, uint16_t length, uint16_t timeout_ms) {
-  return blockingParam(name, kParamBool, value, length, timeout_ms);
+  return blockingParam(name, kParamBool, value, length, timeout_ms, &detail::copy_values<bool>);
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -916,7 +929,7 @@ HWB_NODE void HWB_SELF::onTimeResponse(const uint8_t* p) {
   time_next_ = now_ + 1000UL * Profile::kTimeSyncMs;
 }
 
-HWB_NODE void HWB_SELF::hostTime(uint32_t* sec, uint32_t* nsec) {
+HWB_NODE void HWB_SELF::now(uint32_t* sec, uint32_t* nsec) {
   if (host_sec_ == 0 && host_nsec_ == 0) {
     *sec = *nsec = 0;
     return;
@@ -933,7 +946,7 @@ HWB_NODE void HWB_SELF::hostTime(uint32_t* sec, uint32_t* nsec) {
   *nsec = ns;
 }
 
-HWB_NODE uint8_t* HWB_SELF::txBuffer(size_t* cap) {
+HWB_NODE uint8_t* HWB_SELF::takeTxBuffer(size_t* cap) {
   *cap = Profile::kTxBuffer;
   if (state_ != kConnected || !waitTx(kHelloIntervalUs)) {
     ++stats_.tx_refused;
@@ -942,7 +955,7 @@ HWB_NODE uint8_t* HWB_SELF::txBuffer(size_t* cap) {
   return tx_;
 }
 
-HWB_NODE bool HWB_SELF::sendEntry(Entry& e, size_t len) {
+HWB_NODE bool HWB_SELF::sendOn(Entry& e, size_t len) {
   if (state_ != kConnected || !e.accepted_ || len > peer_max_ || !txFree()) {
     ++stats_.tx_refused;
     return false;

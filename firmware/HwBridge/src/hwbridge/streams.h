@@ -37,7 +37,7 @@ inline bool time_reached(uint32_t now, uint32_t at) {
 /** Numbers best-effort frames 0, 1, 2, ... from boot, over all channels; never resends. */
 class BestEffortSender {
  public:
-  explicit BestEffortSender(uint8_t first_seq = 0) : next_seq_(first_seq), frames_sent_(0), messages_sent_(0) {}
+  constexpr explicit BestEffortSender(uint8_t first_seq = 0) : next_seq_(first_seq), frames_sent_(0), messages_sent_(0) {}
 
   uint8_t next_seq() const { return next_seq_; }
   /** Takes the next sequence number for one frame. */
@@ -88,7 +88,7 @@ struct BestEffortStats {
  */
 class BestEffortReceiver {
  public:
-  BestEffortReceiver() : stats_(), expected_(0), synced_(false) {}
+  constexpr BestEffortReceiver() : stats_(), expected_(0), synced_(false) {}
 
   /** A new peer session: the next frame counts as the first. */
   void resync() { synced_ = false; }
@@ -136,8 +136,8 @@ class RttEstimator {
   static const uint32_t kMin = 50000UL;       ///< 50 ms (never below 20 ms, 2.4)
   static const uint32_t kMax = 1000000UL;     ///< 1 s
 
-  RttEstimator(uint32_t rto_initial = kInitial, uint32_t rto_min = kMin, uint32_t rto_max = kMax)
-      : srtt_(0), rttvar_(0), rto_(rto_initial), rto_min_(rto_min), rto_max_(rto_max), sampled_(false) {}
+  /** Every member zero (rto_ 0 means kInitial): no constructor code for a global one. */
+  constexpr RttEstimator() : srtt_(0), rttvar_(0), rto_(0), sampled_(false) {}
 
   void sample(uint32_t rtt) {
     if (rtt > 60000000UL) rtt = 60000000UL;  // keeps the arithmetic below in 32 bits
@@ -151,17 +151,17 @@ class RttEstimator {
       srtt_ = (7 * srtt_ + rtt) / 8;
     }
     uint32_t rto = srtt_ + 4 * rttvar_;
-    if (rto < rto_min_) rto = rto_min_;
-    if (rto > rto_max_) rto = rto_max_;
+    if (rto < kMin) rto = kMin;
+    if (rto > kMax) rto = kMax;
     rto_ = rto;
   }
   /** The timeout of a frame already resent `retries` times: RTO doubled per retry, capped. */
   uint32_t timeout(uint8_t retries) const {
-    uint32_t t = rto_;
-    for (uint8_t i = 0; i < retries && t < rto_max_; ++i) t <<= 1;
-    return t < rto_max_ ? t : rto_max_;
+    uint32_t t = rto();
+    for (uint8_t i = 0; i < retries && t < kMax; ++i) t <<= 1;
+    return t < kMax ? t : kMax;
   }
-  uint32_t rto() const { return rto_; }
+  uint32_t rto() const { return rto_ ? rto_ : kInitial; }
   /** Smoothed RTT, or 0 before the first sample. */
   uint32_t srtt() const { return srtt_; }
   uint32_t rttvar() const { return rttvar_; }
@@ -170,9 +170,7 @@ class RttEstimator {
  private:
   uint32_t srtt_;
   uint32_t rttvar_;
-  uint32_t rto_;
-  uint32_t rto_min_;
-  uint32_t rto_max_;
+  uint32_t rto_;  // 0: kInitial
   bool sampled_;
 };
 
@@ -201,10 +199,10 @@ class ReliableSender {
   static_assert(MaxPayload >= 1, "MaxPayload must be at least 1");
 
  public:
-  explicit ReliableSender(uint8_t isn = 0, uint8_t max_retries = 10)
-      : stats_(), rtt_(), max_retries_(max_retries) {
-    reset(isn, static_cast<uint8_t>(Window), MaxPayload);
-  }
+  constexpr explicit ReliableSender(uint8_t isn = 0, uint8_t max_retries = 10)
+      : slots_(), cursor_(), stats_(), rtt_(), mtu_(0), base_(isn), next_seq_(isn), head_(0),
+        count_(0), released_(0), window_(0), retry_delta_(static_cast<uint8_t>(max_retries - 10)),
+        dead_(false) {}
 
   /** A new session: forgets every frame, starts at isn; window and mtu are the negotiated ones
    * (capped at Window and MaxPayload). The RTT estimate belongs to the link and is kept. */
@@ -222,8 +220,8 @@ class ReliableSender {
    * message is still being sent, when no slot is free, or when it cannot be fragmented.
    */
   bool send(uint8_t channel, const uint8_t* msg, size_t len) {
-    if (!cursor_.done() || count_ >= window_ || dead_ ||
-        !cursor_.begin(FrameType::Reliable, channel, msg, len, mtu_)) {
+    if (!cursor_.done() || count_ >= window() || dead_ ||
+        !cursor_.begin(FrameType::Reliable, channel, msg, len, mtu())) {
       ++stats_.refused;
       return false;
     }
@@ -237,14 +235,14 @@ class ReliableSender {
   /** Nothing queued, nothing waiting for an acknowledgement. */
   bool idle() const { return count_ == 0 && cursor_.done(); }
   /** Slots free for new frames. */
-  uint8_t free_slots() const { return static_cast<uint8_t>(window_ - count_); }
+  uint8_t free_slots() const { return static_cast<uint8_t>(window() - count_); }
   /** Frames sent and not yet acknowledged. */
   uint8_t in_flight() const { return released_; }
   /** The peer stopped acknowledging: the link is dead (2.10); reset() to start again. */
   bool dead() const { return dead_; }
   uint8_t base() const { return base_; }
-  uint8_t window() const { return window_; }
-  size_t mtu() const { return mtu_; }
+  uint8_t window() const { return window_ ? window_ : static_cast<uint8_t>(Window); }
+  size_t mtu() const { return mtu_ ? mtu_ : MaxPayload; }
 
   /**
    * The next frame to transmit at now, or false when nothing is due. The frame's payload is in
@@ -258,7 +256,7 @@ class ReliableSender {
       if (s.sacked) continue;
       const bool fast = s.fast;
       if (!fast && !time_reached(now, s.sent + rtt_.timeout(s.retries))) continue;
-      if (!fast && s.retries >= max_retries_) {
+      if (!fast && s.retries >= static_cast<uint8_t>(retry_delta_ + 10)) {
         dead_ = true;
         return false;
       }
@@ -365,7 +363,7 @@ class ReliableSender {
   /** Moves fragments of the current message into free slots. */
   void fill() {
     Fragment f;
-    while (count_ < window_ && cursor_.next(next_seq_, &f)) {
+    while (count_ < window() && cursor_.next(next_seq_, &f)) {
       Slot& s = slot(count_++);
       s.seq = next_seq_++;
       s.channel = f.header.channel;
@@ -384,14 +382,14 @@ class ReliableSender {
   Fragmenter cursor_;
   ReliableSenderStats stats_;
   RttEstimator rtt_;
-  size_t mtu_;
+  size_t mtu_;        // 0: MaxPayload (every member zero: no constructor code for a global one)
   uint8_t base_;      // oldest unacknowledged seq (slot head_)
   uint8_t next_seq_;  // seq of the next frame put in a slot
   uint8_t head_;
   uint8_t count_;     // slots used: base_ .. base_ + count_ - 1
   uint8_t released_;  // of those, the first released_ have been transmitted
-  uint8_t window_;
-  uint8_t max_retries_;
+  uint8_t window_;    // 0: Window
+  uint8_t retry_delta_;  // max_retries - 10 (mod 256): zero for the default
   bool dead_;
 };
 
@@ -423,7 +421,9 @@ class ReliableReceiver {
   static_assert(Hold < Window, "Hold must be below Window");
 
  public:
-  explicit ReliableReceiver(uint8_t isn = 0) : stats_() { reset(isn); }
+  constexpr explicit ReliableReceiver(uint8_t isn = 0)
+      : held_(), stats_(), expected_(isn), window_(0), ack_every_(0), unacked_(0),
+        ack_needed_(false), ack_urgent_(false) {}
 
   /** A new session: expects the peer's isn first; window is the negotiated one (<= Window). */
   void reset(uint8_t isn, uint8_t window = static_cast<uint8_t>(Window)) {
@@ -447,7 +447,7 @@ class ReliableReceiver {
       ack_urgent_ = true;
       return Received::Duplicate;
     }
-    if (ahead >= window_) {
+    if (ahead >= (window_ ? window_ : Window)) {
       ++stats_.out_of_window;
       ack_urgent_ = true;
       return Received::OutOfWindow;
@@ -473,7 +473,7 @@ class ReliableReceiver {
     expected_ = static_cast<uint8_t>(expected_ + 1);
     if (held() != 0) {
       ack_urgent_ = true;  // it releases held frames, or a gap remains after it
-    } else if (++unacked_ >= ack_every_) {
+    } else if (++unacked_ >= (window_ ? ack_every_ : (Window >= 4 ? Window / 2 : 1))) {
       ack_urgent_ = true;
     }
     return Received::Deliver;
@@ -566,7 +566,7 @@ class ReliableReceiver {
   Slot held_[kSlots];
   ReliableReceiverStats stats_;
   uint8_t expected_;
-  uint8_t window_;
+  uint8_t window_;     // 0: Window (every member zero: no constructor code for a global one)
   uint8_t ack_every_;
   uint8_t unacked_;
   bool ack_needed_;

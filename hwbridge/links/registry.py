@@ -59,7 +59,7 @@ BUILTIN_SCHEMES: Final[dict[str, str]] = {
 _EXAMPLES: Final = (
     "serial:///dev/ttyACM0?baud=115200, /dev/ttyUSB0, COM3, socket://192.168.4.1:11411, "
     "tcp-listen://:11411, pty://, memory://NAME, udp://192.168.4.1:2324, udp-listen://:2324, "
-    "spy+serial:///dev/ttyACM0"
+    "can://slcan/dev/ttyACM0/node1?bitrate=1000000, mavlink:///dev/ttyACM0?baud=57600, spy+serial:///dev/ttyACM0"
 )
 _HINTS: Final[dict[str, str]] = {
     "tcp": "socket://HOST:PORT to connect, or tcp-listen://:PORT to wait for a board",

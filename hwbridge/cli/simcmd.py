@@ -48,6 +48,14 @@ def sim(
     ] = 1.0,
     frequency: Annotated[int, typer.Option("--frequency", help="Clock (Hz).")] = 16_000_000,
     seed: Annotated[int, typer.Option("--seed", help="The world's seed.")] = 0,
+    symlink: Annotated[
+        Path | None,
+        typer.Option(
+            "--symlink",
+            metavar="PATH",
+            help="Also make PATH point at the UART's pty (the URL printed is then PATH's).",
+        ),
+    ] = None,
 ) -> None:
     """Run an AVR firmware in simavr until Ctrl-C. The first line printed is the URL of its
     UART0 (serial:///dev/pts/N): give it to 'hwbridge connect' or a robot file's --link."""
@@ -63,7 +71,7 @@ def sim(
         path = build_sketch_for_sim(path, board_name)
     elif not path.exists() and (EXAMPLES_DIR / firmware).is_dir():
         path = build_sketch_for_sim(EXAMPLES_DIR / firmware, board_name)
-    simulation = SimAvr(path, mcu=mcu, frequency=frequency, speed=speed)
+    simulation = SimAvr(path, mcu=mcu, frequency=frequency, speed=speed, symlink=symlink)
     try:
         simulation.start(hold=True)
         if robot is not None:
@@ -75,7 +83,7 @@ def sim(
                     raise HwBridgeError(f"--pins: {exc}") from exc
             PinWorld(simulation, load_board(robot, board), pins=pin_map, seed=seed).attach()
         simulation.go()
-        sys.stdout.write(simulation.url + "\n")
+        sys.stdout.write(simulation.link_url + "\n")
         sys.stdout.flush()
         stopped = threading.Event()
         simulation.on_exit.append(lambda state: stopped.set())

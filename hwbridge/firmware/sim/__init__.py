@@ -268,7 +268,7 @@ class SimAvr:
     def restart(self) -> None:
         """Stop the simulation and start it again from power-on: a new process and a new pty
         (the symlink follows), devices set up again by the ``on_start`` callbacks."""
-        self.close()
+        self._stop()
         self.restarts += 1
         self.start()
 
@@ -334,6 +334,13 @@ class SimAvr:
         return self.time
 
     def close(self) -> None:
+        """Stop the simulation (and remove the symlink, if it points at our pty)."""
+        self._stop()
+        link = self.symlink
+        if link is not None and link.is_symlink() and str(link.readlink()) == self.path:
+            link.unlink(missing_ok=True)
+
+    def _stop(self) -> None:
         process = self._process
         if process is None:
             return

@@ -17,6 +17,7 @@ import json
 import os
 import re
 import shutil
+import signal
 import subprocess
 import sys
 from collections.abc import Callable, Iterator
@@ -25,8 +26,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
+import yaml
 
 from hwbridge.firmware.build import CORE_DIR
+from tests.netutil import free_port, wait_until
 
 ROOT = Path(__file__).resolve().parents[2]
 LIBRARY = ROOT / "firmware" / "HwBridge"
@@ -42,6 +45,7 @@ REQUIRED = (
     "DiffDriveBase",
     "DxlArm",
 )
+DIFFBOT = ROOT / "examples" / "robots" / "diffbot.yaml"
 WITH_DRIVERS = ("DiffDriveBase", "DxlArm", "Imu", "Sonar")
 BOARDS = {"uno": "arduino:avr:uno", "mega": "arduino:avr:mega:cpu=atmega2560"}
 HWBRIDGE = [sys.executable, "-m", "hwbridge"]  # the `hwbridge` command of this environment
@@ -310,3 +314,76 @@ def test_the_footprint_bench_prints_its_cases_and_says_how_to_get_rosserial(
     for line in lines[2:]:
         assert line["hwbridge_flash"] > lines[1]["flash"] and "peer" not in line
     assert "git clone -b noetic-devel https://github.com/ros-drivers/rosserial" in done.stderr
+
+
+def _hwbridge(env: dict[str, str], *argv: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [*HWBRIDGE, *argv], env=env, capture_output=True, text=True, timeout=60, check=False
+    )
+
+
+def test_diffdrivebase_on_the_host_drives_the_demo_robots_host_nodes(tmp_path: Path) -> None:
+    """DiffDriveBase built with ``--board host`` (pins and I2C stubbed by the host's Arduino
+    stand-in: encoders still, sonar never echoing, no IMU answering) under ``hwbridge up
+    examples/robots/diffbot.yaml``: the diffdrive and hcsr04 host nodes turn the firmware's
+    wheel_ticks and sonar_echo into odom and range; its service, parameter and logs reach the
+    CLI."""
+    if shutil.which("g++") is None:
+        pytest.skip("needs the Debian package g++")
+    out = tmp_path / "build"
+    built = _host_build("DiffDriveBase", out)
+    if built.skip:
+        pytest.skip(built.skip)
+    assert built.ok, built.output[-4000:]
+    env = {
+        **os.environ,
+        "HWBRIDGE_ENDPOINT": f"tcp/127.0.0.1:{free_port()}",
+        "HWBRIDGE_DOMAIN": f"ddb{free_port()}",
+    }
+    board = subprocess.Popen(
+        [str(out / "DiffDriveBase")], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True
+    )
+    up_log = tmp_path / "up.log"
+    up: subprocess.Popen[bytes] | None = None
+    try:
+        assert board.stdout is not None
+        url = board.stdout.readline().strip()
+        assert url.startswith("serial://"), url
+        with up_log.open("w") as log:
+            up = subprocess.Popen(
+                [*HWBRIDGE, "-v", "up", str(DIFFBOT), "--link", f"base={url}"],
+                env=env,
+                stdout=log,
+                stderr=subprocess.STDOUT,
+            )
+        assert wait_until(lambda: "robot diffbot up" in up_log.read_text(), 30), up_log.read_text()
+        odom = _hwbridge(env, "topic", "echo", "/diffbot/odom", "-n", "1", "--json")
+        assert odom.returncode == 0, odom.stderr + up_log.read_text()
+        assert json.loads(odom.stdout.splitlines()[0])["child_frame_id"] == "base_link"
+        ranged = _hwbridge(env, "topic", "echo", "/diffbot/range", "-n", "1", "--json")
+        assert ranged.returncode == 0, ranged.stderr
+        assert json.loads(ranged.stdout.splitlines()[0])["radiation_type"] == 0
+        ticks = _hwbridge(env, "topic", "echo", "/diffbot/wheel_ticks", "-n", "1", "--json")
+        assert json.loads(ticks.stdout.splitlines()[0])["counter_bits"] == 16
+        assert wait_until(lambda: "encoders x4" in up_log.read_text(), 20), up_log.read_text()
+
+        call = _hwbridge(env, "service", "call", "/diffbot/reset_counters")
+        assert call.returncode == 0, call.stderr
+        assert yaml.safe_load(call.stdout) == {
+            "success": True,
+            "message": "counters reset, motors stopped",
+        }
+        assert _hwbridge(env, "param", "set", "/diffbot/max_wheel_speed", "25.5").returncode == 0
+        assert wait_until(lambda: "max_wheel_speed = 25.50 rad/s" in up_log.read_text(), 20), (
+            up_log.read_text()
+        )
+    finally:
+        if up is not None:
+            up.send_signal(signal.SIGINT)
+            try:
+                up.wait(15)
+            except subprocess.TimeoutExpired:
+                up.kill()
+                up.wait(5)
+        board.kill()
+        board.wait(5)

@@ -9,6 +9,10 @@
 //   imu_raw           hwbridge_msgs/ImuRaw        out, 50 Hz   (mpu6050 -> imu)
 //   joint_states      sensor_msgs/JointState      out, 20 Hz   (Mega: the pan servo)
 //   pan/goal_position std_msgs/Float64            in           (Mega: the pan servo)
+// and, beyond the emulated board:
+//   reset_counters    std_srvs/Trigger            service: both counters to zero, motors stopped
+//   max_wheel_speed   parameter (rad/s at full PWM, default 20), followed when it changes
+//   logs: the encoders' decoding at each connection, parameter changes
 //
 //   hwbridge up examples/robots/diffbot.yaml --link base=/dev/ttyACM0
 //   hwbridge topic pub -r 10 /diffbot/cmd_vel geometry_msgs/Twist '{linear: {x: 0.2}}'
@@ -34,6 +38,7 @@
 #include <hwbridge_msgs/SonarEcho.h>
 #include <hwbridge_msgs/WheelTargets.h>
 #include <hwbridge_msgs/WheelTicks.h>
+#include <std_srvs/Trigger.h>
 
 #if defined(HAVE_HWSERIAL2)
 #define WITH_PAN_SERVO 1
@@ -74,6 +79,24 @@ hwbridge::Publisher<hwbridge_msgs::ImuRaw> imu_pub("imu_raw");
 
 void on_targets(const hwbridge_msgs::WheelTargets& targets) { motors.command(targets); }
 hwbridge::Subscriber<hwbridge_msgs::WheelTargets> targets_sub("wheel_targets", &on_targets);
+
+void on_reset(const std_srvs::Trigger::Request&, std_srvs::Trigger::Response& res) {
+  LeftEncoder::reset();
+  RightEncoder::reset();
+  motors.stop();
+  res.success = true;
+  res.message.assign("counters reset, motors stopped");
+}
+hwbridge::ServiceServer<std_srvs::Trigger> reset_srv("reset_counters", &on_reset);
+
+void on_max_speed(const hwbridge::ParamValue& value) {
+  if (!value.ok() || !(value.asFloat() > 0.0f)) return;  // unset: keep the default
+  motors.set_max_speed(value.asFloat());
+  char line[48];
+  snprintf(line, sizeof line, "max_wheel_speed = %d.%02d rad/s", static_cast<int>(value.asFloat()),
+           static_cast<int>(value.asFloat() * 100) % 100);
+  nh.logInfo(line);
+}
 
 #if defined(WITH_PAN_SERVO)
 // The pan servo: an XL430-W250, id 1, Protocol 2.0 at 57600 baud.
@@ -138,6 +161,7 @@ void setup() {
   nh.advertise(echo_pub);
   nh.advertise(imu_pub);
   nh.subscribe(targets_sub);
+  nh.advertiseService(reset_srv);
   ticks_msg.header.frame_id.assign("base_link");
   echo_msg.header.frame_id.assign("sonar_link");
   imu_msg.header.frame_id.assign("imu_link");
@@ -170,6 +194,7 @@ void loop() {
     snprintf(line, sizeof line, "encoders x%u (counts_per_rev = PPR x %u), 16-bit counters%s",
              LeftEncoder::decoding(), LeftEncoder::decoding(), imu.ok() ? "" : "; no MPU-6050");
     nh.logInfo(line);
+    nh.requestParam("max_wheel_speed", hwbridge::kParamFloat32, &on_max_speed, true);
   }
   motors.update();
 

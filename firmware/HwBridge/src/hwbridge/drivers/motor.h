@@ -107,6 +107,9 @@ class DiffDriveMotors {
     right_.set(0);
     active_ = false;
   }
+  /** The wheel speed (rad/s) that full PWM gives (a calibration; used from the next command). */
+  void set_max_speed(float max_wheel_speed) { max_speed_ = max_wheel_speed; }
+  float max_speed() const { return max_speed_; }
   /** True while targets are being applied (not timed out). */
   bool active() const { return active_; }
 

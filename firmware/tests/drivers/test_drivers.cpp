@@ -146,6 +146,10 @@ static void test_motors() {
   fake::advance_us(200000);
   motors.update();
   CHECK(b.pwm[5] == 0 && b.pwm[6] == 0 && !motors.active(), "stopped after 0.5 s");
+  // A new calibration applies from the next command.
+  motors.set_max_speed(40.0f);
+  motors.command(10.0f, 10.0f);
+  CHECK(b.pwm[5] == 64 && motors.max_speed() == 40.0f, "recalibrated: %d", b.pwm[5]);
   // Reversed motor: positive duty drives its direction pin low.
   Motor mirrored(10, 11, Motor::kNoPin, true);
   mirrored.begin();

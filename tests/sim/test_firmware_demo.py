@@ -9,13 +9,20 @@ import re
 import signal
 import subprocess
 import sys
+import threading
+import time
 from pathlib import Path
 from typing import Any
 
 import pytest
 from rich.console import Console
 
-from hwbridge.emulator.firmware_demo import ROBOT_FILE, run_firmware_demo, uno_robot
+from hwbridge.emulator.firmware_demo import (
+    ROBOT_FILE,
+    FirmwareDemoResult,
+    run_firmware_demo,
+    uno_robot,
+)
 from hwbridge.errors import HwBridgeError
 from hwbridge.firmware.sim import SimAvr
 from hwbridge.firmware.sim.examples import build_example
@@ -41,13 +48,36 @@ def test_uno_robot_halves_counts_per_rev() -> None:
 def test_firmware_demo(diffdrive_elf: Path, tmp_path: Path) -> None:
     text = io.StringIO()
     console = Console(file=text, width=200)
-    result = run_firmware_demo(
-        duration=8.0,
-        endpoint=f"tcp/127.0.0.1:{free_port()}",
-        console=console,
-        plot=tmp_path / "path.svg",
-        elf=diffdrive_elf,
-    )
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    results: list[FirmwareDemoResult] = []
+
+    def demo() -> None:
+        results.append(
+            run_firmware_demo(
+                duration=8.0,
+                endpoint=endpoint,
+                console=console,
+                plot=tmp_path / "path.svg",
+                elf=diffdrive_elf,
+            )
+        )
+
+    thread = threading.Thread(target=demo)
+    thread.start()
+    # the CLI, from another process, sees the firmware's topics on the demo's graph
+    command = [sys.executable, "-m", "hwbridge", "--endpoint", endpoint, "topic", "list"]
+    listed = ""
+    for _ in range(20):
+        time.sleep(0.5)
+        done = subprocess.run(command, capture_output=True, text=True, timeout=30, check=False)
+        listed = done.stdout
+        if all(t in listed for t in ("/diffbot/odom", "/diffbot/range", "/diffbot/imu")):
+            break
+    thread.join(60)
+    assert results, text.getvalue()
+    result = results[0]
+    for topic in ("/diffbot/odom", "/diffbot/range", "/diffbot/imu"):
+        assert topic in listed, listed
     output = text.getvalue()
     assert result.distance > 0.8, output
     assert result.error_percent <= 0.5, output

@@ -113,3 +113,15 @@ def test_uart_pins_twi_and_resets(probe_elf: Path, terminal_factory: type[Termin
         assert sim.resets == 2
         assert sim.callback_errors == 0
     assert not sim.running
+
+
+def test_missing_toolchain_is_one_line(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import hwbridge.firmware.sim as sim_module
+
+    monkeypatch.setattr(sim_module, "_HEADERS", tmp_path / "no-simavr-headers")
+    with pytest.raises(sim_module.SimToolchainMissingError) as caught:
+        runner_binary(cache=tmp_path / "cache")
+    message = str(caught.value)
+    assert "\n" not in message
+    for package in ("simavr", "libsimavr-dev", "libsimavrparts1", "libelf-dev"):
+        assert package in message

@@ -53,7 +53,10 @@ def test_world_on_the_probe(probe_elf: Path, terminal_factory: type[Terminal]) -
         echo = int(uart.read_until(b"\n")[1:])
         # (diffbot's sonar has 2 mm of range noise: 12 us a standard deviation)
         assert echo == pytest.approx(echo_for_distance(distance, 20.0) * 1e6, abs=60)
-        # the MPU-6050: asleep at power-on, woken by the program's write, then a burst read
+        # the MPU-6050: asleep at power-on (SLEEP set, no data), woken by the program's write,
+        # then burst reads
+        uart.write(b"r")
+        assert uart.read_until(b"\n") == b"R40 000000000000\n"
         uart.write(b"i")
         uart.read_until(b"\n")
         sim.wait_time(sim.time + 0.02)
@@ -64,6 +67,15 @@ def test_world_on_the_probe(probe_elf: Path, terminal_factory: type[Terminal]) -
         z = int.from_bytes(data[4:6], "big", signed=True)
         # 1 g at the +-2 g reset range, within the chip's drawn offset and scale errors
         assert z == pytest.approx(16384, rel=0.1)
+        # +-4 g: half the counts per g
+        uart.write(b"a\x08")
+        uart.read_until(b"A\n")
+        sim.wait_time(sim.time + 0.02)
+        uart.write(b"r")
+        reply = uart.read_until(b"\n").decode()
+        assert reply.startswith("R00 ")
+        z4 = int.from_bytes(bytes.fromhex(reply.split()[1])[4:6], "big", signed=True)
+        assert z4 == pytest.approx(z / 2, rel=0.02)
         # the motor: half duty forwards -> the left wheel turns at half the top speed
         uart.write(b"p\x80")
         uart.read_until(b"P\n")

@@ -4,6 +4,8 @@
  *   p<byte> -> "P"     PWM on OC0B (PD5, Arduino D5) with that duty, PD7 (D7) high
  *   s  -> "S<us>"      an HC-SR04 reading: trigger PB1 (D9), echo PB2 (D10) timed with timer 1
  *   i  -> "I<hex>"     I2C: wake the MPU at 0x68, then WHO_AM_I and 6 bytes from 0x3B
+ *   r  -> "R<hex>"     I2C, no writes: PWR_MGMT_1 (0x6B) and 6 bytes from 0x3B
+ *   a<byte> -> "A"     I2C: ACCEL_CONFIG (0x1C) = byte
  *   w  -> (nothing)    the watchdog resets the chip after 15 ms
  */
 #include <avr/interrupt.h>
@@ -83,6 +85,17 @@ int main(void) {
       snprintf(buf, sizeof buf, "I%02x %02x%02x%02x%02x%02x%02x\n", who, data[0], data[1],
                data[2], data[3], data[4], data[5]);
       puts_(buf);
+    } else if (c == 'r') {
+      uint8_t power, data[6];
+      twi_read_regs(0x6B, &power, 1);
+      twi_read_regs(0x3B, data, 6);
+      snprintf(buf, sizeof buf, "R%02x %02x%02x%02x%02x%02x%02x\n", power, data[0], data[1],
+               data[2], data[3], data[4], data[5]);
+      puts_(buf);
+    } else if (c == 'a') {
+      uint8_t value = (uint8_t)get();
+      twi_start(); twi_write(0x68 << 1); twi_write(0x1C); twi_write(value); twi_stop();
+      puts_("A\n");
     } else if (c == 'w') {
       wdt_enable(WDTO_15MS);
       for (;;) {}

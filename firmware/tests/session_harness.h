@@ -55,6 +55,11 @@ struct GoldenProfile {
   static const uint16_t kTimeSyncMs = 5000;
   static const uint16_t kParamTimeoutMs = 2000;
   static const uint16_t kServiceTimeoutMs = 5000;
+#ifdef HWBRIDGE_TEST_FIXED_RTO
+  static const bool kFixedRto = true;  // the hello-world simplification (same bytes on a clean link)
+#else
+  static const bool kFixedRto = false;
+#endif
 };
 
 typedef hwbridge::NodeHandle_<FakeHardware, GoldenProfile> Node;

@@ -5,7 +5,8 @@
 then checks bad input (counted, dropped, session kept), heartbeats, the link timeout and HELLO
 backoff, host restarts and pending requests failing; ``fuzz_session.cpp`` is a seeded,
 time-bounded fuzz run of the session's receive path with guard words around the node. Each is
-built with ``g++ -std=c++11 -Wall -Wextra -Werror``, plain and under ASan/UBSan.
+built with ``g++ -std=c++11 -Wall -Wextra -Werror``, plain and under ASan/UBSan, and again with
+the fixed-RTO reliable sender of the hello-world profile.
 """
 
 from __future__ import annotations
@@ -43,12 +44,14 @@ def _run(command: list[str], stdin: str, timeout: float = 120) -> str:
     return result.stdout
 
 
-@pytest.fixture(scope="module", params=["plain", "sanitized"])
+@pytest.fixture(scope="module", params=["plain", "sanitized", "fixed_rto"])
 def build(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> Builder:
     if shutil.which("g++") is None:
         pytest.skip("g++ is not installed (Debian package g++)")
     out = tmp_path_factory.mktemp(f"session_{request.param}")
     flags = CXXFLAGS + (SANITIZE if request.param == "sanitized" else [])
+    if request.param == "fixed_rto":  # the board's fixed RTO (HelloWorldProfile), sanitized
+        flags += [*SANITIZE, "-DHWBRIDGE_TEST_FIXED_RTO"]
 
     def make(name: str) -> Path:
         exe = out / name

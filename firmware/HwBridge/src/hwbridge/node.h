@@ -49,6 +49,7 @@ struct HelloWorldProfile {
   static const uint16_t kTimeSyncMs = 0;     ///< own time requests every this many ms (0: none)
   static const uint16_t kParamTimeoutMs = 2000;
   static const uint16_t kServiceTimeoutMs = 5000;
+  static const bool kFixedRto = true;  ///< 100 ms doubling per retry, no RTT estimate (2.4 allows it)
 };
 
 /** PROTOCOL.md 2.13 "comfortable": max_message 192 with reassembly, window 2, messages of up to
@@ -62,6 +63,7 @@ struct ComfortableProfile {
   static const uint16_t kTimeSyncMs = 5000;
   static const uint16_t kParamTimeoutMs = 2000;
   static const uint16_t kServiceTimeoutMs = 5000;
+  static const bool kFixedRto = false;  ///< RTO after RFC 6298, fast retransmit
 };
 
 // ---------------------------------------------------------------------------------------------
@@ -319,10 +321,14 @@ class NodeHandle_ : public NodeBase {
     return add(p);
   }
   template <class T> bool subscribe(Subscriber<T>& s) { return add(s); }
-  template <class S> bool advertiseService(ServiceServer<S>& s) { return add(s); }
+  template <class S> bool advertiseService(ServiceServer<S>& s) {
+    on_request_ = &requestThunk;
+    return add(s);
+  }
   template <class S> bool serviceClient(ServiceClient<S>& c) {
     tx_fn_ = &txThunk;
     call_fn_ = &callThunk;
+    on_response_ = &responseThunk;
     return add(c);
   }
 
@@ -445,6 +451,12 @@ class NodeHandle_ : public NodeBase {
   static uint8_t callThunk(NodeBase* n, Entry& e, size_t len, uint16_t t, void* res) {
     return static_cast<NodeHandle_*>(n)->call(e, len, t, res);
   }
+  // Handlers of what only some sketches need, set by the calls that need them (a sketch
+  // without a service, client or parameter request links none of their code).
+  typedef void (*Handler)(NodeHandle_*, const uint8_t*, size_t);
+  static void requestThunk(NodeHandle_* n, const uint8_t* p, size_t len) { n->onServiceRequest(p, len); }
+  static void responseThunk(NodeHandle_* n, const uint8_t* p, size_t len) { n->onServiceResponse(p, len); }
+  static void paramThunk(NodeHandle_* n, const uint8_t* p, size_t len) { n->onParamValue(p, len); }
 
   // Every member has an initializer, so that the implicit constructor is constexpr: a global
   // node is initialized at compile time (no static constructor on the board).
@@ -453,7 +465,7 @@ class NodeHandle_ : public NodeBase {
   Reassembler<kReassembly> reasm_{};
   BestEffortSender be_tx_{};
   BestEffortReceiver be_rx_{};
-  ReliableSender<Profile::kWindow, Profile::kMtu> rel_tx_{};
+  ReliableSender<Profile::kWindow, Profile::kMtu, Profile::kFixedRto> rel_tx_{};
   ReliableReceiver<Profile::kWindow, Profile::kMtu, 0> rel_rx_{};
   LeadTracker lead_{};
   NodeStats stats_{};
@@ -464,6 +476,9 @@ class NodeHandle_ : public NodeBase {
   ParamCallback param_cb_ = nullptr;
   ParamCallback push_cb_ = nullptr;
   LogCallback log_cb_ = nullptr;
+  Handler on_request_ = nullptr;
+  Handler on_response_ = nullptr;
+  Handler on_param_ = nullptr;
   void* sync_out_ = nullptr;  // blocking getParam: where the values go
   bool (*sync_copy_)(void*, const ParamValue&, uint16_t) = nullptr;
   void* call_res_ = nullptr;

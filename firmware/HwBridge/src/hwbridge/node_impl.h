@@ -521,13 +521,29 @@ HWB_NODE void HWB_SELF::onControl(const uint8_t* p, size_t n, bool reliable) {
       time_next_ = now_;
       break;
     case 0x20:
-      onServiceRequest(p, n);
+      if (on_request_) {
+        on_request_(this, p, n);
+      } else if (txFree()) {  // this board serves nothing: NO_SERVICE
+        memcpy(tx_, p, 4);
+        tx_[0] = 0x21;
+        tx_[4] = 2;
+        pending_ch_ = kControlChannel;
+        pending_len_ = 5;
+      }
       break;
     case 0x21:
-      onServiceResponse(p, n);
+      if (p[4] > 2) {
+        protocolError();
+      } else if (on_response_) {
+        on_response_(this, p, n);
+      }
       break;
     case 0x31:
-      onParamValue(p, n);
+      if (on_param_) {
+        on_param_(this, p, n);
+      } else if (p[3] > 3 || 5u + p[4] > n) {  // not parsed further: nothing was asked
+        protocolError();
+      }
       break;
     case 0x40:  // LOG from the host
       if (p[1] > 4) {
@@ -662,10 +678,6 @@ HWB_NODE void HWB_SELF::onServiceRequest(const uint8_t* p, size_t n) {
 }
 
 HWB_NODE void HWB_SELF::onServiceResponse(const uint8_t* p, size_t n) {
-  if (p[4] > 2) {
-    protocolError();
-    return;
-  }
   if (call_state_ != 1 || detail::get16(p + 2) != call_id_ || call_entry_ == nullptr ||
       p[1] != call_entry_->channel_) {
     return;  // late, or not ours
@@ -728,6 +740,7 @@ HWB_NODE uint16_t HWB_SELF::requestParam(const char* name, uint8_t type, ParamCa
     if (cb) cb(v);
     return 0;
   }
+  on_param_ = &paramThunk;
   param_id_ = newRequestId();
   if (subscribe) push_cb_ = cb;
   uint8_t* p = tx_;

@@ -193,7 +193,7 @@ struct ReliableSenderStats {
  * retransmission whose deadline passed (sent + RTO * 2^retries, capped), or a new frame. A frame
  * unacknowledged at the deadline after its max_retries-th retransmission makes dead() true.
  */
-template <size_t Window, size_t MaxPayload>
+template <size_t Window, size_t MaxPayload, bool FixedRto = false>
 class ReliableSender {
   static_assert(Window >= 1 && Window <= kMaxWindow, "Window must be 1..64");
   static_assert(MaxPayload >= 1, "MaxPayload must be at least 1");
@@ -255,7 +255,7 @@ class ReliableSender {
       Slot& s = slot(i);
       if (s.sacked) continue;
       const bool fast = s.fast;
-      if (!fast && !time_reached(now, s.sent + rtt_.timeout(s.retries))) continue;
+      if (!fast && !time_reached(now, s.sent + timeout(rtt_, s.retries))) continue;
       if (!fast && s.retries >= static_cast<uint8_t>(retry_delta_ + 10)) {
         dead_ = true;
         return false;
@@ -278,13 +278,23 @@ class ReliableSender {
     return false;
   }
 
+  /** FixedRto: the simplification PROTOCOL.md 2.4 allows a board: a fixed RTO (kFixedRto,
+   * doubling per retry up to rto_max), no RTT estimate, no fast retransmit. */
+  static const uint32_t kFixedRto = 100000UL;
+  static uint32_t timeout(const RttEstimator& rtt, uint8_t retries) {
+    if (!FixedRto) return rtt.timeout(retries);
+    uint32_t t = kFixedRto;
+    for (uint8_t i = 0; i < retries && t < RttEstimator::kMax; ++i) t <<= 1;
+    return t < RttEstimator::kMax ? t : RttEstimator::kMax;
+  }
+
   /** When poll() next has a retransmission to do (false: none; new frames are due at once). */
   bool next_deadline(uint32_t* at) const {
     bool any = false;
     for (uint8_t i = 0; i < released_; ++i) {
       const Slot& s = slot(i);
       if (s.sacked) continue;
-      const uint32_t d = s.fast ? s.sent : s.sent + rtt_.timeout(s.retries);
+      const uint32_t d = s.fast ? s.sent : s.sent + timeout(rtt_, s.retries);
       if (!any || static_cast<int32_t>(d - *at) < 0) *at = d;
       any = true;
     }
@@ -300,13 +310,32 @@ class ReliableSender {
       bool resent = false;
       for (uint8_t i = 0; i <= upto; ++i) resent = resent || slot(i).retries != 0;
       const Slot& last = slot(upto);
-      if (!resent && !last.sacked) rtt_.sample(now - last.sent);  // Karn's rule
+      if (!FixedRto && !resent && !last.sacked) rtt_.sample(now - last.sent);  // Karn's rule
       const uint8_t n = static_cast<uint8_t>(upto + 1);
       head_ = static_cast<uint8_t>((head_ + n) % Window);
       base_ = static_cast<uint8_t>(base_ + n);
       count_ = static_cast<uint8_t>(count_ - n);
       released_ = static_cast<uint8_t>(released_ - n);
     }
+    if (FixedRto) {  // no fast retransmit; SACK bits honoured only when frames can be held
+      if (Window > 1) sack(ack);
+      fill();
+      return;
+    }
+    const int highest = sack(ack);
+    // Fast retransmit: holes below the highest selectively acknowledged frame, at most once
+    // per SRTT (RTO before the first sample).
+    const uint32_t gap = rtt_.sampled() ? rtt_.srtt() : rtt_.rto();
+    for (int i = 0; i < highest; ++i) {
+      Slot& s = slot(static_cast<uint8_t>(i));
+      if (!s.sacked && !s.fast && static_cast<uint32_t>(now - s.sent) >= gap) s.fast = true;
+    }
+    fill();
+  }
+
+ private:
+  /** Marks the frames an ACK's bitmap names as received; the highest one's index, or -1. */
+  int sack(const Frame& ack) {
     const size_t bytes = ack.size < kMaxSackBytes ? ack.size : kMaxSackBytes;
     int highest = -1;
     for (size_t b = 0; b < bytes; ++b) {
@@ -321,16 +350,10 @@ class ReliableSender {
         }
       }
     }
-    // Fast retransmit: holes below the highest selectively acknowledged frame, at most once
-    // per SRTT (RTO before the first sample).
-    const uint32_t gap = rtt_.sampled() ? rtt_.srtt() : rtt_.rto();
-    for (int i = 0; i < highest; ++i) {
-      Slot& s = slot(static_cast<uint8_t>(i));
-      if (!s.sacked && !s.fast && static_cast<uint32_t>(now - s.sent) >= gap) s.fast = true;
-    }
-    fill();
+    return highest;
   }
 
+ public:
   const ReliableSenderStats& stats() const { return stats_; }
   const RttEstimator& rtt() const { return rtt_; }
   RttEstimator& rtt() { return rtt_; }

@@ -59,7 +59,7 @@ def running(router: Graph, tmp_path_factory: pytest.TempPathFactory) -> Iterator
     port = _udp_port()
     robot_file = tmp_path_factory.mktemp("robot") / "vehicle.yaml"
     robot_file.write_text(
-        EXAMPLE.read_text(encoding="utf-8").replace("link_timeout: 3.0", "link_timeout: 0.6"),
+        EXAMPLE.read_text(encoding="utf-8").replace("link_timeout: 3.0", "link_timeout: 1.5"),
         encoding="utf-8",
     )
     robot = load_robot(robot_file).with_links({"fc": f"mavlink://udpin:127.0.0.1:{port}"})

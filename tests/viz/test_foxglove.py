@@ -97,6 +97,9 @@ class FoxgloveClient:
         self.ws = ws
         self.channels: dict[str, dict[str, Any]] = {}
         self.server_info: dict[str, Any] = {}
+        self.log: list[str] = []
+        self.subscriptions: dict[int, dict[str, Any]] = {}
+        """The ops of the JSON messages received, in order."""
 
     def wait_for_channel(self, topic: str, timeout: float = 20.0) -> dict[str, Any]:
         deadline = time.monotonic() + timeout
@@ -111,6 +114,9 @@ class FoxgloveClient:
         frame = self.ws.recv(timeout=max(0.01, deadline - time.monotonic()))
         if isinstance(frame, str):
             message = json.loads(frame)
+            self.log.append(message.get("op", "?") if message.get("op") == "advertise" else frame)
+            if message["op"] == "status" and "Unknown channel" in message.get("message", ""):
+                self._subscribe_again(message["message"])
             if message["op"] == "serverInfo":
                 self.server_info = message
             elif message["op"] == "advertise":
@@ -119,7 +125,17 @@ class FoxgloveClient:
             return None
         return bytes(frame)
 
+    def _subscribe_again(self, status: str) -> None:
+        """foxglove-sdk (0.30) may refuse a subscription sent right after a channel's
+        advertisement ("Unknown channel ID: N") when the channel is new: a client asks again."""
+        channel_id = int(status.rsplit(":", 1)[-1])
+        for subscription, channel in self.subscriptions.items():
+            if channel["id"] == channel_id:
+                time.sleep(0.05)
+                self.subscribe(subscription, channel)
+
     def subscribe(self, subscription: int, channel: dict[str, Any]) -> None:
+        self.subscriptions[subscription] = channel
         self.ws.send(
             json.dumps(
                 {
@@ -133,14 +149,23 @@ class FoxgloveClient:
         """Payloads of the next ``count`` Message Data frames (opcode 1) of ``subscription``."""
         deadline = time.monotonic() + timeout
         payloads: list[bytes] = []
+        others: dict[int, int] = {}
         while len(payloads) < count:
-            assert time.monotonic() < deadline, f"{len(payloads)} of {count} messages"
-            frame = self._receive_one(deadline)
+            try:
+                frame = self._receive_one(deadline)
+            except TimeoutError:
+                pytest.fail(
+                    f"{len(payloads)} of {count} messages of subscription {subscription}; "
+                    f"frames of others: {others}; channels: {self.channels}; "
+                    f"log: {self.log[-10:]}"
+                )
             if frame is None or frame[0] != 0x01:
                 continue
             sub_id, _log_time = struct.unpack_from("<IQ", frame, 1)
             if sub_id == subscription:
                 payloads.append(frame[13:])
+            else:
+                others[sub_id] = others.get(sub_id, 0) + 1
         return payloads
 
 

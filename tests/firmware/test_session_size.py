@@ -1,0 +1,67 @@
+"""Footprint of the board session on the ATmega328P (issue 14's floor), as Arduino users build.
+
+``sketches/SizeHello`` (one String publisher, rosserial's HelloWorld) and ``sketches/SizePubSubSrv``
+(a publisher, a subscriber and a Trigger service) are built with ``hwbridge firmware build
+--board uno`` and measured with ``hwbridge firmware size``. The issue's floor is 7290 B flash /
+700 B SRAM for the hello world and 1000 B SRAM for the other; the hello world does not meet it
+yet (see firmware/HwBridge/README.md, Sizes), so this test holds the figures measured when it was
+written as a ceiling (no regression) and checks the part of the floor that is met. Each figure is
+printed as a JSON line.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from hwbridge.firmware.build import build_sketch, firmware_size
+
+SKETCHES = Path(__file__).parent / "sketches"
+
+pytestmark = pytest.mark.skipif(
+    shutil.which("avr-g++") is None
+    or not Path("/usr/share/arduino/hardware/arduino/avr/cores/arduino").is_dir(),
+    reason="needs gcc-avr, avr-libc, binutils-avr and arduino-core-avr (Debian packages)",
+)
+
+# (flash, sram) measured, and the issue's floor (None: none given)
+CEILING = {"SizeHello": (11800, 810), "SizePubSubSrv": (13250, 890)}
+FLOOR = {"SizeHello": (7290, 700), "SizePubSubSrv": (None, 1000)}
+
+
+@pytest.mark.parametrize("sketch", sorted(CEILING))
+def test_footprint_on_the_uno(sketch: str, tmp_path: Path) -> None:
+    elf = build_sketch(SKETCHES / sketch, "uno", tmp_path)
+    size = firmware_size(elf)
+    floor_flash, floor_sram = FLOOR[sketch]
+    print(
+        json.dumps(
+            {
+                "sketch": sketch,
+                "board": "uno",
+                **size.as_dict(),
+                "floor_flash": floor_flash,
+                "floor_sram": floor_sram,
+            }
+        )
+    )
+    flash, sram = CEILING[sketch]
+    assert size.flash <= flash, f"{sketch}: flash {size.flash} B grew above {flash} B"
+    assert size.sram <= sram, f"{sketch}: SRAM {size.sram} B grew above {sram} B"
+    if sketch == "SizePubSubSrv":
+        assert size.sram <= floor_sram
+
+
+def test_no_heap_and_no_library_constructors(tmp_path: Path) -> None:
+    """No malloc/new in the image; the node is zero-initialized (in .bss, not .data)."""
+    elf = build_sketch(SKETCHES / "SizePubSubSrv", "uno", tmp_path)
+    symbols = subprocess.run(
+        ["avr-nm", "-C", "-S", str(elf)], capture_output=True, text=True, check=True
+    ).stdout
+    assert " malloc" not in symbols and "operator new" not in symbols
+    (node,) = [line.split() for line in symbols.splitlines() if line.endswith(" nh")]
+    assert node[2] == "b", node  # .bss: no initial values in flash, no constructor code

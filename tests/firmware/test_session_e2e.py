@@ -182,10 +182,10 @@ def test_host_sketch_through_the_bridge(
         stats = bridge.cli("board", "stats", "uno", "--json")
         assert stats.returncode == 0, stats.stderr
         host = json.loads(stats.stdout)["stats"]
-        # the loss was real: frames arrived damaged, and the board's resent frames were
-        # suppressed as duplicates by the host, within the same session
-        assert relay.damaged > 0 and host["crc_errors"] + host["be_frames_lost"] > 0, host
-        assert host["duplicates"] + host["rel_frames_received"] > 150, host
+        # the loss was real: bytes were damaged, and the host saw bad frames, gaps, duplicates
+        # (frames the board resent) or resent frames itself
+        damage = ("crc_errors", "bad_frames", "be_frames_lost", "duplicates", "retransmits")
+        assert relay.damaged > 0 and sum(host[k] for k in damage) > 0, host
         assert bridge.output().count("board 'e2e' connected") == 2, bridge.output()
     finally:
         board.kill()

@@ -313,6 +313,39 @@ class Reassembler {
   uint8_t buf_[MaxMessage ? MaxMessage : 1];  // last: the fuzz tests' guards sit right after it
 };
 
+/**
+ * No reassembly buffer: WHOLE frames are delivered, every fragmented message is refused as
+ * oversize (its FIRST counted), in little code and RAM. Repeats are not detected here (the
+ * streams drop them before: late best-effort frames, reliable duplicates).
+ */
+template <>
+class Reassembler<0> {
+ public:
+  constexpr Reassembler() : stats_() {}
+  void reset() {}
+  void reset(FrameType) {}
+  bool in_progress(FrameType) const { return false; }
+  size_t buffered() const { return 0; }
+  const ReassemblyStats& stats() const { return stats_; }
+  static size_t capacity() { return 0; }
+  bool feed(const Frame& f, Message* out) {
+    if (f.type == FrameType::Ack) return false;
+    if (f.frag != Frag::Whole) {
+      if (f.frag == Frag::First) ++stats_.oversize;
+      return false;
+    }
+    ++stats_.messages;
+    out->channel = f.channel;
+    out->seq = f.seq;
+    out->data = f.payload;
+    out->size = f.size;
+    return true;
+  }
+
+ private:
+  ReassemblyStats stats_;
+};
+
 }  // namespace hwbridge
 
 #endif  // HWBRIDGE_FRAGMENT_H

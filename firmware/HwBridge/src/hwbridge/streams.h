@@ -174,6 +174,35 @@ class RttEstimator {
   bool sampled_;
 };
 
+/** The RTO of PROTOCOL.md 2.4's board simplification: fixed (kRto), doubling per retry up to
+ * rto_max; no estimate, no state (the interface of RttEstimator). */
+class FixedRtt {
+ public:
+  static const uint32_t kRto = 100000UL;  ///< 0.1 s
+  constexpr FixedRtt() {}
+  void sample(uint32_t) {}
+  uint32_t timeout(uint8_t retries) const {
+    uint32_t t = kRto;
+    for (uint8_t i = 0; i < retries && t < RttEstimator::kMax; ++i) t <<= 1;
+    return t < RttEstimator::kMax ? t : RttEstimator::kMax;
+  }
+  uint32_t rto() const { return kRto; }
+  uint32_t srtt() const { return 0; }
+  uint32_t rttvar() const { return 0; }
+  bool sampled() const { return false; }
+};
+
+namespace detail {
+template <bool B, class T, class F>
+struct Pick {
+  typedef T type;
+};
+template <class T, class F>
+struct Pick<false, T, F> {
+  typedef F type;
+};
+}  // namespace detail
+
 struct ReliableSenderStats {
   Counter frames_sent;  ///< first transmissions
   Counter messages_sent;
@@ -255,7 +284,7 @@ class ReliableSender {
       Slot& s = slot(i);
       if (s.sacked) continue;
       const bool fast = s.fast;
-      if (!fast && !time_reached(now, s.sent + timeout(rtt_, s.retries))) continue;
+      if (!fast && !time_reached(now, s.sent + rtt_.timeout(s.retries))) continue;
       if (!fast && s.retries >= static_cast<uint8_t>(retry_delta_ + 10)) {
         dead_ = true;
         return false;
@@ -278,15 +307,9 @@ class ReliableSender {
     return false;
   }
 
-  /** FixedRto: the simplification PROTOCOL.md 2.4 allows a board: a fixed RTO (kFixedRto,
-   * doubling per retry up to rto_max), no RTT estimate, no fast retransmit. */
-  static const uint32_t kFixedRto = 100000UL;
-  static uint32_t timeout(const RttEstimator& rtt, uint8_t retries) {
-    if (!FixedRto) return rtt.timeout(retries);
-    uint32_t t = kFixedRto;
-    for (uint8_t i = 0; i < retries && t < RttEstimator::kMax; ++i) t <<= 1;
-    return t < RttEstimator::kMax ? t : RttEstimator::kMax;
-  }
+  /** FixedRto: the simplification PROTOCOL.md 2.4 allows a board: a fixed RTO (FixedRtt),
+   * no RTT estimate, no fast retransmit. */
+  typedef typename detail::Pick<FixedRto, FixedRtt, RttEstimator>::type Rtt;
 
   /** When poll() next has a retransmission to do (false: none; new frames are due at once). */
   bool next_deadline(uint32_t* at) const {
@@ -294,7 +317,7 @@ class ReliableSender {
     for (uint8_t i = 0; i < released_; ++i) {
       const Slot& s = slot(i);
       if (s.sacked) continue;
-      const uint32_t d = s.fast ? s.sent : s.sent + timeout(rtt_, s.retries);
+      const uint32_t d = s.fast ? s.sent : s.sent + rtt_.timeout(s.retries);
       if (!any || static_cast<int32_t>(d - *at) < 0) *at = d;
       any = true;
     }
@@ -355,8 +378,8 @@ class ReliableSender {
 
  public:
   const ReliableSenderStats& stats() const { return stats_; }
-  const RttEstimator& rtt() const { return rtt_; }
-  RttEstimator& rtt() { return rtt_; }
+  const Rtt& rtt() const { return rtt_; }
+  Rtt& rtt() { return rtt_; }
 
  private:
   struct Slot {
@@ -404,7 +427,7 @@ class ReliableSender {
   Slot slots_[Window];
   Fragmenter cursor_;
   ReliableSenderStats stats_;
-  RttEstimator rtt_;
+  Rtt rtt_;
   size_t mtu_;        // 0: MaxPayload (every member zero: no constructor code for a global one)
   uint8_t base_;      // oldest unacknowledged seq (slot head_)
   uint8_t next_seq_;  // seq of the next frame put in a slot

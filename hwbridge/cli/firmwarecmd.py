@@ -9,10 +9,13 @@ from typing import Annotated
 
 import typer
 
+from hwbridge.cli.simcmd import sim
+
 __all__ = ["firmware_app"]
 
 firmware_app = typer.Typer(
-    help="Firmware: build sketches, measure them, generate headers.", no_args_is_help=True
+    help="Firmware: build sketches, measure them, generate headers, run them in simavr.",
+    no_args_is_help=True,
 )
 
 
@@ -120,3 +123,6 @@ def generate(
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(text, encoding="utf-8")
     sys.stdout.write(f"{len(files)} headers written to {outdir}\n")
+
+
+firmware_app.command("sim")(sim)

@@ -212,6 +212,89 @@ void restarts(const Transcript& tr) {
   printf("restarts: host restart detected, pending requests fail\n");
 }
 
+/** A board with a service client: calls answered, refused (NO_SERVICE), timed out. The host's
+ * answers are queued before the call: request ids and sequence numbers are deterministic. */
+struct ClientBoard {
+  harness::Node node;
+  hwbridge::ServiceClient<std_srvs::Trigger> client{"/host_reset"};
+  hwbridge::Publisher<harness::Raw> chatter{"/chatter", true};
+  ClientBoard() : node() {}
+};
+
+void service_client() {
+  ClientBoard b;
+  harness::FakeHardware& hw = b.node.getHardware();
+  b.node.setIdentity(0xcafef00dUL, 0);
+  b.node.serviceClient(b.client);
+  b.node.advertise(b.chatter);
+  hw.clock = 1000000;
+  b.node.begin("client", "");
+  Host host;
+  // handshake: the host's HELLO (session 0x12345678, ISN 0), then ESTABLISHED
+  Bytes hello{0x01, 1, 0, 0, 0x78, 0x56, 0x34, 0x12, 0, 0, 0, 0, 0, 4, 0, 0, 0x10, 0, 16, 0, 7};
+  hw.feed(host.be(0, hello));
+  b.node.processInput();
+  hello[3] = 1;
+  hello[8] = 0x0d;
+  hello[9] = 0xf0;
+  hello[10] = 0xfe;
+  hello[11] = 0xca;
+  hw.feed(host.be(0, hello));
+  // the table: ACK every reliable frame, accept every TOPIC, READY after TABLE_END
+  for (int round = 0; round < 20 && !b.node.connected(); ++round) {
+    b.node.processInput();
+    b.node.runTimers();
+    std::vector<std::pair<hwbridge::Frame, Bytes> > fr = harness::frames_of(hw.take());
+    for (size_t i = 0; i < fr.size(); ++i) {
+      if (fr[i].first.type != FrameType::Reliable) continue;
+      hw.feed(host.ack(fr[i].first.seq));
+      const Bytes& m = fr[i].second;
+      if (m[0] == 0x11) hw.feed(host.rel(0, Bytes{0x13, m[1], 0}));
+      if (m[0] == 0x12) hw.feed(host.rel(0, Bytes{0x14, m[1]}));
+    }
+  }
+  b.node.processInput();
+  hw.take();
+  CHECK(b.node.connected() && b.client.accepted() && b.chatter.accepted(), "client board not connected");
+  uint8_t next_seq = 4;  // BOARD_INFO, 2 TOPICs, TABLE_END
+  std_srvs::TriggerRequest req;
+  std_srvs::TriggerResponse res;
+  // answered: the host ACKs the request and answers OK
+  hw.feed(host.ack(next_seq++));
+  hw.feed(host.rel(0, Bytes{0x21, 1, 1, 0, 0, 1, 3, 0, 0, 0, 'y', 'e', 's'}));
+  uint8_t st = b.client.call(req, res);
+  CHECK(st == hwbridge::kCallOk && res.success && strcmp(res.message.c_str(), "yes") == 0, "call: %u", st);
+  // NO_SERVICE
+  hw.take();
+  hw.feed(host.ack(next_seq++));
+  hw.feed(host.rel(0, Bytes{0x21, 1, 2, 0, 2}));
+  st = b.client.call(req, res);
+  CHECK(st == hwbridge::kCallNoService, "NO_SERVICE: %u", st);
+  // a response that does not deserialize
+  hw.feed(host.ack(next_seq++));
+  hw.feed(host.rel(0, Bytes{0x21, 1, 3, 0, 0, 9}));
+  st = b.client.call(req, res);
+  CHECK(st == hwbridge::kCallBadResponse, "bad response: %u", st);
+  // no answer within 300 ms (the host keeps the link alive, its ACK came)
+  hw.feed(host.ack(next_seq++));
+  hw.step_us = 200;
+  for (int i = 0; i < 8; ++i) hw.feed(host.be(0, Bytes{0x02}));
+  st = b.client.call(req, res, 300);
+  CHECK(st == hwbridge::kCallTimeout, "timeout: %u", st);
+  // a late answer to the timed-out call is ignored; the next call still works
+  hw.feed(host.rel(0, Bytes{0x21, 1, 4, 0, 0, 0, 0, 0, 0, 0}));
+  hw.feed(host.ack(next_seq++));
+  hw.feed(host.rel(0, Bytes{0x21, 1, 5, 0, 0, 1, 0, 0, 0, 0}));
+  st = b.client.call(req, res);
+  CHECK(st == hwbridge::kCallOk && res.success, "call after a timeout: %u", st);
+  // the link dies during a call: the call ends with the session
+  hw.feed(host.ack(next_seq++));
+  hw.step_us = 1000;
+  st = b.client.call(req, res);
+  CHECK(st == hwbridge::kCallSessionReset && !b.node.connected(), "call at link loss: %u", st);
+  printf("service client: answered, NO_SERVICE, bad response, timeout, session reset\n");
+}
+
 }  // namespace
 
 int main() {
@@ -221,6 +304,7 @@ int main() {
   bad_input(tr);
   liveness(tr);
   restarts(tr);
+  service_client();
   printf("test_session: %lu checks passed\n", check::count());
   return 0;
 }

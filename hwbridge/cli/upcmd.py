@@ -21,6 +21,7 @@ if TYPE_CHECKING:
     from hwbridge.gateway.launch import GatewayProcess
     from hwbridge.graph import GraphConfig
     from hwbridge.robot.model import Robot
+    from hwbridge.viz.foxglove import VizServer
 
 __all__ = ["up"]
 
@@ -90,6 +91,16 @@ def up(
             "its boards' namespaces' parameters from the ROS parameter server.",
         ),
     ] = False,
+    viz: Annotated[
+        bool,
+        typer.Option(
+            "--viz", help="Also serve the graph's topics to Foxglove (see 'hwbridge viz')."
+        ),
+    ] = False,
+    viz_port: Annotated[
+        int,
+        typer.Option("--viz-port", min=0, max=65535, help="Foxglove WebSocket port (0: any)."),
+    ] = 8765,
 ) -> None:
     """Bring a robot up: its boards and every host node its devices need, until Ctrl-C."""
     from hwbridge.graph import Graph
@@ -106,17 +117,25 @@ def up(
         runtime = RobotRuntime(robot, graph, params=initial, wait_for_boards=wait)
         runtime.start()
         gateways: list[GatewayProcess] = []
+        server: VizServer | None = None
         try:
             sys.stderr.write(
                 f"hwbridge: robot {robot.name} up on {config.describe()}; Ctrl-C stops\n"
                 f"{runtime.summary()}\n"
             )
+            if viz:
+                from hwbridge.viz.foxglove import start_viz
+
+                server = start_viz(graph, port=viz_port)
+                sys.stderr.write(f"hwbridge: Foxglove WebSocket on {server.url}\n")
             sys.stderr.flush()
             gateways = _start_gateways(ctx, config, robot, ros2=ros2, ros1=ros1)
             wait_for_signal()
         finally:
             for gateway in reversed(gateways):
                 gateway.stop()
+            if server is not None:
+                server.close()
             runtime.stop()
     finally:
         graph.close()

@@ -122,16 +122,35 @@ def demo(
         ),
     ] = None,
     no_plot: Annotated[bool, typer.Option("--no-plot", help="Write no path plot.")] = False,
+    firmware: Annotated[
+        bool,
+        typer.Option(
+            "--firmware",
+            help="Run the real firmware (the DiffDriveBase sketch built for an ATmega328P) in "
+            "simavr instead of the Python board; needs gcc-avr, arduino-core-avr and simavr.",
+        ),
+    ] = False,
 ) -> None:
     """Drive an emulated diffbot through the real bridge and show what the graph sees."""
-    from hwbridge.emulator.demo import run_demo
-
     options = ctx.find_root().obj
     endpoint = options.endpoint if isinstance(options, Context) else None
     if plot is None:
         import tempfile
 
         plot = Path(tempfile.gettempdir()) / f"hwbridge-demo-{seed}.svg"
+    if firmware:
+        from hwbridge.emulator.firmware_demo import run_firmware_demo
+
+        run_firmware_demo(
+            duration=duration,
+            seed=seed,
+            endpoint=endpoint,
+            keep=keep,
+            plot=None if no_plot else plot,
+        )
+        return
+    from hwbridge.emulator.demo import run_demo
+
     run_demo(
         duration=duration, seed=seed, endpoint=endpoint, keep=keep, plot=None if no_plot else plot
     )

@@ -15,9 +15,6 @@ POSIX ``Hardware``. The program opens the link given as its first argument or in
 ``$HWBRIDGE_LINK`` (a pty or serial path, ``socket://HOST:PORT``, ``listen://PORT``), or else a new
 pseudo-terminal, and prints the URL to connect to as its first line.
 
-The Arduino core's own libraries (``Wire``, ``SoftwareSerial``, ``SPI``, ``EEPROM``) are added
-when the sketch includes their header, as the IDE adds them.
-
 A sketch is compiled as the IDE compiles one: ``#include <Arduino.h>`` is put before it; unlike
 the IDE, no function prototypes are generated, so a sketch declares a function before it uses it.
 """
@@ -193,20 +190,6 @@ def _sketch_source(sketch: Path) -> tuple[str, Path]:
     return ino.stem, ino
 
 
-_INCLUDE: Final = re.compile(r'^\s*#\s*include\s*[<"]([A-Za-z0-9_]+)\.h[>"]', re.M)
-
-
-def _bundled_libraries(text: str) -> list[Path]:
-    """The Arduino core's own libraries (Wire, SoftwareSerial, SPI, EEPROM...) whose main
-    header the sketch includes, as the IDE adds them."""
-    found: list[Path] = []
-    for name in _INCLUDE.findall(text):
-        folder = CORE_DIR / "libraries" / name
-        if (folder / "src" / f"{name}.h").is_file() and folder not in found:
-            found.append(folder)
-    return found
-
-
 def build_sketch(
     sketch: Path,
     board_name: str = "uno",
@@ -231,8 +214,7 @@ def build_sketch(
     out = out_dir or (ino.parent / "build" / board.name)
     out.mkdir(parents=True, exist_ok=True)
     libs = libraries if libraries is not None else [LIBRARY_DIR]
-    bundled = _bundled_libraries(ino.read_text(encoding="utf-8"))
-    includes = [f"-I{lib / 'src'}" for lib in [*libs, *bundled]] + [f"-I{ino.parent}"]
+    includes = [f"-I{lib / 'src'}" for lib in libs] + [f"-I{ino.parent}"]
     extra = [f"-D{d}" for d in defines or []]
     cpp = out / f"{name}.ino.cpp"
     cpp.write_text(f'#include <Arduino.h>\n#line 1 "{ino}"\n' + ino.read_text(encoding="utf-8"))
@@ -243,17 +225,6 @@ def build_sketch(
         for source in sorted((lib / "src").rglob("*.cpp")):
             obj = out / f"{lib.name}-{source.name}.o"
             _run([*compile_cpp, str(source), "-o", str(obj)], f"compiling {source}")
-            objects.append(obj)
-    # the core's libraries: compiled with the core's flags (their own warnings are not ours)
-    for lib in bundled:
-        for source in sorted((lib / "src").rglob("*.c*")):
-            if source.suffix not in (".c", ".cpp"):
-                continue
-            obj = out / f"{lib.name}-{source.name}.o"
-            flags = _C_FLAGS if source.suffix == ".c" else _CPP_FLAGS
-            tool = gcc if source.suffix == ".c" else gpp
-            command = [tool, *flags, *_flags(board), *includes, *extra, str(source), "-o", str(obj)]
-            _run(command, f"compiling {source}")
             objects.append(obj)
     elf = out / f"{name}.elf"
     _run(

@@ -29,6 +29,8 @@ if TYPE_CHECKING:
     from hwbridge.graph import Graph, GraphEntity
 
 __all__ = [
+    "ROSOUT",
+    "Announcer",
     "GraphChange",
     "GraphWatcher",
     "Reporter",
@@ -39,6 +41,7 @@ __all__ = [
 log = logging.getLogger("hwbridge.gateway")
 
 ANY: Final = "*"
+ROSOUT: Final = "/rosout"
 GATEWAY_NODE: Final = "hwbridge_gateway"
 """Graph nodes whose names start with this are gateways: their entities are never mirrored, so
 two gateways on one graph do not feed each other's mirrors back."""
@@ -216,3 +219,32 @@ def open_graph_with_retry(
                 told = True
             stop.wait(retry)
     return None
+
+
+class Announcer:
+    """Says what a gateway mirrors, one line each: to ``announce`` (the command's stderr) or,
+    without one, to the log at INFO."""
+
+    def __init__(self, announce: Callable[[str], None] | None, logger: logging.Logger) -> None:
+        self._announce = announce
+        self._log = logger
+
+    def __call__(self, text: str, *args: object) -> None:
+        line = text % args
+        if self._announce is not None:
+            self._announce(f"hwbridge: {line}")
+        else:
+            self._log.info("%s", line)
+
+
+def claim_rosout(
+    rosout: bool,
+    exclude: Sequence[str],
+    watcher: GraphWatcher,
+    apply: Callable[[GraphChange], None],
+) -> None:
+    """Mirror the board logs to ``/rosout`` from the start (unless turned off or excluded), so
+    the watcher never mirrors that topic the other way."""
+    if rosout and Selection(exclude=tuple(exclude))(ROSOUT):
+        watcher.claim(ROSOUT)
+        apply(GraphChange("to_ros", ROSOUT, "rosgraph_msgs/Log"))

@@ -29,10 +29,12 @@ from typing import TYPE_CHECKING, Any, Final
 from hwbridge.errors import HwBridgeError
 from hwbridge.gateway.common import (
     ANY,
+    Announcer,
     GraphChange,
     GraphWatcher,
     Reporter,
     Selection,
+    claim_rosout,
     open_graph_with_retry,
 )
 from hwbridge.gateway.tcpros import (
@@ -57,7 +59,6 @@ __all__ = ["Ros1Gateway", "Ros1Options", "run_ros1_gateway"]
 log = logging.getLogger("hwbridge.gateway.ros1")
 
 _CHECK_PERIOD: Final = 1.0
-ROSOUT: Final = "/rosout"
 _SEND_TIMEOUT: Final = 2.0
 """Seconds a ROS subscriber may keep a message waiting before it is disconnected."""
 
@@ -217,7 +218,7 @@ class Ros1Gateway:
         announce: Callable[[str], None] | None = None,
     ) -> None:
         self.graph = graph
-        self._announce = announce
+        self._say = Announcer(announce, log)
         self.options = options or Ros1Options()
         self.caller_id = "/" + self.options.node_name.strip("/")
         self.report = Reporter()
@@ -247,19 +248,9 @@ class Ros1Gateway:
         self._main = threading.Thread(target=self._run, name="ros1-gateway", daemon=True)
         self.bridged: dict[str, str] = {}
 
-    def _say(self, text: str, *args: object) -> None:
-        """What is mirrored: one line each, to ``announce`` (the command's stderr) or the log."""
-        line = text % args
-        if self._announce is not None:
-            self._announce(f"hwbridge: {line}")
-        else:
-            log.info("%s", line)
-
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> Ros1Gateway:
-        if self.options.rosout and Selection(exclude=self.options.topics.exclude)(ROSOUT):
-            self._watcher.claim(ROSOUT)
-            self._apply(GraphChange("to_ros", ROSOUT, "rosgraph_msgs/Log"))
+        claim_rosout(self.options.rosout, self.options.topics.exclude, self._watcher, self._apply)
         self.slave.start()
         self._watcher.start()
         self._main.start()

@@ -27,10 +27,13 @@ from typing import TYPE_CHECKING, Any, Final
 
 from hwbridge.errors import HwBridgeError
 from hwbridge.gateway.common import (
+    ROSOUT,
+    Announcer,
     GraphChange,
     GraphWatcher,
     Reporter,
     Selection,
+    claim_rosout,
     open_graph_with_retry,
 )
 from hwbridge.gateway.types import CdrConverter, TypeMapError, ros1_type_name, ros2_type_name
@@ -49,7 +52,6 @@ __all__ = [
 
 log = logging.getLogger("hwbridge.gateway.ros2")
 
-ROSOUT: Final = "/rosout"
 ROS1_LOG_LEVELS: Final = {1: 10, 2: 20, 4: 30, 8: 40, 16: 50}
 """rosgraph_msgs/Log levels (DEBUG=1 ... FATAL=16) -> rcl_interfaces/msg/Log (10 ... 50)."""
 _SENSOR_PACKAGES: Final = ("sensor_msgs/",)
@@ -179,7 +181,7 @@ class Ros2Gateway:
         announce: Callable[[str], None] | None = None,
     ) -> None:
         self.graph = graph
-        self._announce = announce
+        self._say = Announcer(announce, log)
         self.options = options or Ros2Options()
         self.report = Reporter()
         self.counters = _Counters()
@@ -212,19 +214,9 @@ class Ros2Gateway:
         self._main = threading.Thread(target=self._run, name="ros2-gateway", daemon=True)
         self._stop = threading.Event()
 
-    def _say(self, text: str, *args: object) -> None:
-        """What is mirrored: one line each, to ``announce`` (the command's stderr) or the log."""
-        line = text % args
-        if self._announce is not None:
-            self._announce(f"hwbridge: {line}")
-        else:
-            log.info("%s", line)
-
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> Ros2Gateway:
-        if self.options.rosout and Selection(exclude=self.options.topics.exclude)(ROSOUT):
-            self._watcher.claim(ROSOUT)
-            self._apply(GraphChange("to_ros", ROSOUT, "rosgraph_msgs/Log"))
+        claim_rosout(self.options.rosout, self.options.topics.exclude, self._watcher, self._apply)
         self._spin.start()
         self._watcher.start()
         self._main.start()

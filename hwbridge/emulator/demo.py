@@ -15,7 +15,7 @@ import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 from rich.console import Console
 from rich.live import Live
@@ -46,6 +46,32 @@ class DemoResult:
     @property
     def error_percent(self) -> float:
         return 100.0 * self.error / self.distance if self.distance > 0 else 0.0
+
+
+class Outcome(Protocol):
+    """What both demos report at their end."""
+
+    @property
+    def distance(self) -> float: ...
+    @property
+    def error(self) -> float: ...
+    @property
+    def error_percent(self) -> float: ...
+
+
+def print_ending(
+    out: Console, result: Outcome, path_plot: PathPlot, plot: Path | None, note: str = ""
+) -> None:
+    """The demos' last lines: the path plot written to ``plot`` (if any) and ``odometry error:
+    E% of D m`` (the line scripts and tests read)."""
+    if plot is not None:
+        path_plot.notes.append(
+            f"{note}drove {result.distance:.2f} m; final odometry error {result.error:.3f} m "
+            f"({result.error_percent:.3f}%)"
+        )
+        written = write_svg(path_plot, plot)
+        out.print(f"path plot: {written}", soft_wrap=True, highlight=False, markup=False)
+    out.print(f"odometry error: {result.error_percent:.3f}% of {result.distance:.2f} m")
 
 
 class _Latest:
@@ -156,14 +182,7 @@ def run_demo(
             f"drove {result.distance:.2f} m in {board.world.time:.1f} s of board time; "
             f"{board.published} board messages; link: {_link_summary(runtime)}"
         )
-        if plot is not None:
-            path_plot.notes.append(
-                f"drove {result.distance:.2f} m; final odometry error {result.error:.3f} m "
-                f"({result.error_percent:.3f}%)"
-            )
-            written = write_svg(path_plot, plot)
-            out.print(f"path plot: {written}", soft_wrap=True, highlight=False, markup=False)
-        out.print(f"odometry error: {result.error_percent:.3f}% of {result.distance:.2f} m")
+        print_ending(out, result, path_plot, plot)
         return result
     finally:
         if runtime is not None:

@@ -26,6 +26,7 @@ from rich.console import Console
 
 from hwbridge.devices.pins import PinWorld
 from hwbridge.emulator.board import ROBOTS_DIR, load_board
+from hwbridge.emulator.demo import print_ending
 from hwbridge.errors import HwBridgeError
 from hwbridge.firmware.sim import SimAvr
 from hwbridge.firmware.sim.examples import build_example
@@ -33,7 +34,7 @@ from hwbridge.graph import Graph, GraphConfig
 from hwbridge.robot.config import load_robot
 from hwbridge.robot.model import Robot
 from hwbridge.robot.runtime import RobotRuntime
-from hwbridge.viz.pathplot import PathPlot, write_svg
+from hwbridge.viz.pathplot import PathPlot
 
 __all__ = ["FirmwareDemoResult", "run_firmware_demo", "uno_robot"]
 
@@ -192,14 +193,7 @@ def run_firmware_demo(
             f"drove {result.distance:.2f} m in {sim.time:.1f} s of AVR time; messages {counts}; "
             f"AVR resets {sim.resets}"
         )
-        if plot is not None:
-            path_plot.notes.append(
-                f"firmware in simavr; drove {result.distance:.2f} m; final odometry error "
-                f"{result.error:.3f} m ({result.error_percent:.3f}%)"
-            )
-            written = write_svg(path_plot, plot)
-            out.print(f"path plot: {written}", soft_wrap=True, highlight=False, markup=False)
-        out.print(f"odometry error: {result.error_percent:.3f}% of {result.distance:.2f} m")
+        print_ending(out, result, path_plot, plot, note="firmware in simavr; ")
         return result
     finally:
         if runtime is not None:

@@ -37,7 +37,11 @@ def build(
     prints first)."""
     from hwbridge.firmware.build import BOARDS, HOST_BOARD, build_sketch, firmware_size
 
-    elf = build_sketch(sketch, board, out)
+    def progress(line: str) -> None:
+        sys.stderr.write(f"hwbridge: {line}\n")
+        sys.stderr.flush()
+
+    elf = build_sketch(sketch, board, out, progress=progress)
     if board == HOST_BOARD:
         sys.stdout.write(f"{elf}: a native program; it prints the URL to connect to\n")
         return

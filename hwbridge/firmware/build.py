@@ -15,6 +15,9 @@ POSIX ``Hardware``. The program opens the link given as its first argument or in
 ``$HWBRIDGE_LINK`` (a pty or serial path, ``socket://HOST:PORT``, ``listen://PORT``), or else a new
 pseudo-terminal, and prints the URL to connect to as its first line.
 
+The Arduino core's own libraries (``Wire``, ``SoftwareSerial``, ``SPI``, ``EEPROM``) are added
+when the sketch includes their header, as the IDE adds them.
+
 A sketch is compiled as the IDE compiles one: ``#include <Arduino.h>`` is put before it; unlike
 the IDE, no function prototypes are generated, so a sketch declares a function before it uses it.
 """
@@ -27,6 +30,7 @@ import os
 import re
 import shutil
 import subprocess
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Final
@@ -146,7 +150,15 @@ def _cache_dir() -> Path:
     return Path(base) / "hwbridge" / "arduino-core"
 
 
-def _core_archive(board: Board) -> Path:
+Progress = Callable[[str], None]
+"""Told one line per step of a build (``[3/9] compiling Wire.cpp``)."""
+
+
+def _no_progress(_line: str) -> None:
+    pass
+
+
+def _core_archive(board: Board, progress: Progress = _no_progress) -> Path:
     """The Arduino core compiled for ``board``, built on first use and cached."""
     gcc, gpp, ar = _tool("avr-gcc"), _tool("avr-g++"), _tool("avr-gcc-ar")
     sources = sorted(
@@ -166,7 +178,11 @@ def _core_archive(board: Board) -> Path:
     out.mkdir(parents=True, exist_ok=True)
     log.info("compiling the Arduino core for %s (once; cached in %s)", board.name, out)
     objects = []
-    for source in sources:
+    for number, source in enumerate(sources, 1):
+        progress(
+            f"[core {number}/{len(sources)}] compiling the Arduino core's {source.name} for "
+            f"{board.name} (once; cached)"
+        )
         obj = out / (source.name + ".o")
         if source.suffix == ".c":
             command = [gcc, *_C_FLAGS, *_flags(board)]
@@ -190,6 +206,20 @@ def _sketch_source(sketch: Path) -> tuple[str, Path]:
     return ino.stem, ino
 
 
+_INCLUDE: Final = re.compile(r'^\s*#\s*include\s*[<"]([A-Za-z0-9_]+)\.h[>"]', re.M)
+
+
+def _bundled_libraries(text: str) -> list[Path]:
+    """The Arduino core's own libraries (Wire, SoftwareSerial, SPI, EEPROM...) whose main
+    header the sketch includes, as the IDE adds them."""
+    found: list[Path] = []
+    for name in _INCLUDE.findall(text):
+        folder = CORE_DIR / "libraries" / name
+        if (folder / "src" / f"{name}.h").is_file() and folder not in found:
+            found.append(folder)
+    return found
+
+
 def build_sketch(
     sketch: Path,
     board_name: str = "uno",
@@ -197,11 +227,14 @@ def build_sketch(
     *,
     libraries: list[Path] | None = None,
     defines: list[str] | None = None,
+    progress: Progress = _no_progress,
 ) -> Path:
     """Compile and link ``sketch`` for ``board_name``; returns the ELF (an Intel HEX is written
     next to it). ``libraries`` are folders of Arduino libraries (their ``src/`` is on the include
-    path, and their ``.cpp`` files are compiled); default: the HwBridge library."""
+    path, and their ``.cpp`` files are compiled); default: the HwBridge library. ``progress``
+    is told each step as it starts."""
     if board_name == HOST_BOARD:
+        progress(f"[1/1] compiling {sketch.name} as a native program (g++)")
         return build_host_sketch(sketch, out_dir, libraries=libraries, defines=defines)
     board = BOARDS.get(board_name)
     if board is None:
@@ -210,23 +243,43 @@ def build_sketch(
         )
     name, ino = _sketch_source(sketch)
     gpp, gcc, objcopy = _tool("avr-g++"), _tool("avr-gcc"), _tool("avr-objcopy")
-    core = _core_archive(board)
+    core = _core_archive(board, progress)
     out = out_dir or (ino.parent / "build" / board.name)
     out.mkdir(parents=True, exist_ok=True)
     libs = libraries if libraries is not None else [LIBRARY_DIR]
-    includes = [f"-I{lib / 'src'}" for lib in libs] + [f"-I{ino.parent}"]
+    bundled = _bundled_libraries(ino.read_text(encoding="utf-8"))
+    includes = [f"-I{lib / 'src'}" for lib in [*libs, *bundled]] + [f"-I{ino.parent}"]
     extra = [f"-D{d}" for d in defines or []]
     cpp = out / f"{name}.ino.cpp"
     cpp.write_text(f'#include <Arduino.h>\n#line 1 "{ino}"\n' + ino.read_text(encoding="utf-8"))
     objects = [out / f"{name}.ino.cpp.o"]
     compile_cpp = [gpp, *_CPP_FLAGS, *_WARNINGS, *_flags(board), *includes, *extra]
+    own = [(lib, src) for lib in libs for src in sorted((lib / "src").rglob("*.cpp"))]
+    theirs = [
+        (lib, src)
+        for lib in bundled
+        for src in sorted((lib / "src").rglob("*.c*"))
+        if src.suffix in (".c", ".cpp")
+    ]
+    total = len(own) + len(theirs) + 2
+    progress(f"[1/{total}] compiling {ino.name} for {board.name}")
     _run([*compile_cpp, str(cpp), "-o", str(objects[0])], f"compiling {ino}")
-    for lib in libs:
-        for source in sorted((lib / "src").rglob("*.cpp")):
-            obj = out / f"{lib.name}-{source.name}.o"
-            _run([*compile_cpp, str(source), "-o", str(obj)], f"compiling {source}")
-            objects.append(obj)
+    for number, (lib, source) in enumerate(own, 2):
+        progress(f"[{number}/{total}] compiling {lib.name}/{source.name}")
+        obj = out / f"{lib.name}-{source.name}.o"
+        _run([*compile_cpp, str(source), "-o", str(obj)], f"compiling {source}")
+        objects.append(obj)
+    # the core's libraries: compiled with the core's flags (their own warnings are not ours)
+    for number, (lib, source) in enumerate(theirs, 2 + len(own)):
+        progress(f"[{number}/{total}] compiling {lib.name}/{source.name} (the core's library)")
+        obj = out / f"{lib.name}-{source.name}.o"
+        flags = _C_FLAGS if source.suffix == ".c" else _CPP_FLAGS
+        tool = gcc if source.suffix == ".c" else gpp
+        command = [tool, *flags, *_flags(board), *includes, *extra, str(source), "-o", str(obj)]
+        _run(command, f"compiling {source}")
+        objects.append(obj)
     elf = out / f"{name}.elf"
+    progress(f"[{total}/{total}] linking {elf.name} (LTO)")
     _run(
         [
             gcc,

@@ -88,6 +88,16 @@ def test_the_cli_builds_and_measures(tmp_path: Path) -> None:
     )
     assert built.returncode == 0, built.stderr
     assert "flash" in built.stdout and "SRAM" in built.stdout
+    # progress on stderr, a line per step: the core's files once (a fresh cache), then the
+    # sketch, each library file, the link
+    steps = [line for line in built.stderr.splitlines() if line.startswith("hwbridge: [")]
+    core = [line for line in steps if line.startswith("hwbridge: [core ")]
+    assert core and core[-1].startswith(f"hwbridge: [core {len(core)}/{len(core)}]"), steps
+    own = steps[len(core) :]
+    assert own[0].startswith("hwbridge: [1/") and "Blink.ino" in own[0], steps
+    assert own[-1].endswith("linking Blink.elf (LTO)"), steps
+    total = int(own[0].split("/")[1].split("]")[0])
+    assert len(own) == total, steps
     elf = folder / "build" / "uno" / "Blink.elf"
     measured = subprocess.run(
         [sys.executable, "-m", "hwbridge", "firmware", "size", str(elf), "--json"],

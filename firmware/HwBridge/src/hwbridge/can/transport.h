@@ -1,0 +1,451 @@
+// The CAN transport of the native protocol (protocols/can/CAN.md) for boards: the 29-bit id,
+// tail bytes, single- and multi-frame transfers with their CRC, and the receiver's checks
+// (malformed, foreign, unexpected, duplicate, CRC, abandoned, timeout, oversize). Header-only
+// C++11, no heap: every buffer is a member sized by template arguments.
+#ifndef HWBRIDGE_CAN_TRANSPORT_H
+#define HWBRIDGE_CAN_TRANSPORT_H
+
+#include <stddef.h>
+#include <stdint.h>
+#include <string.h>
+
+#include "../crc16.h"
+
+namespace hwbridge {
+namespace can {
+
+static const uint8_t kHostNode = 0;
+static const uint8_t kMaxNode = 127;
+static const uint8_t kClassicMtu = 8;
+static const uint8_t kFdMtu = 64;
+static const uint8_t kUidSize = 6;
+static const uint8_t kNodeClaim = 1;
+static const uint8_t kTidModulo = 32;
+
+enum Kind { kBestEffort = 0, kReliable = 1, kAck = 2, kNode = 3 };
+
+static const uint8_t kPriorityAck = 1;
+static const uint8_t kPriorityControl = 2;
+static const uint8_t kPriorityNode = 3;
+static const uint8_t kPriorityReliable = 4;
+static const uint8_t kPriorityBestEffort = 5;
+
+static const uint8_t kStart = 0x80;
+static const uint8_t kEnd = 0x40;
+static const uint8_t kToggle = 0x20;
+static const uint8_t kTidMask = 0x1F;
+static const uint32_t kReservedMask = 0x3UL << 14;
+
+/** id = priority << 26 | kind << 24 | channel << 16 | destination << 7 | source. */
+inline uint32_t encode_id(uint8_t priority, uint8_t kind, uint8_t channel, uint8_t destination,
+                          uint8_t source) {
+  return (static_cast<uint32_t>(priority & 7) << 26) | (static_cast<uint32_t>(kind & 3) << 24) |
+         (static_cast<uint32_t>(channel) << 16) | (static_cast<uint32_t>(destination & 0x7F) << 7) |
+         (source & 0x7F);
+}
+
+/** The fields of a 29-bit id. */
+struct CanId {
+  uint8_t priority;
+  uint8_t kind;
+  uint8_t channel;
+  uint8_t destination;
+  uint8_t source;
+};
+
+/** Decodes id into out; false when it is not one of ours (over 29 bits or reserved bits set). */
+inline bool decode_id(uint32_t id, CanId* out) {
+  if (id >= (1UL << 29) || (id & kReservedMask) != 0) return false;
+  out->priority = static_cast<uint8_t>(id >> 26);
+  out->kind = static_cast<uint8_t>((id >> 24) & 3);
+  out->channel = static_cast<uint8_t>(id >> 16);
+  out->destination = static_cast<uint8_t>((id >> 7) & 0x7F);
+  out->source = static_cast<uint8_t>(id & 0x7F);
+  return true;
+}
+
+/** True for a data length a CAN FD frame can have (0-8, 12, 16, 20, 24, 32, 48, 64). */
+inline bool valid_length(size_t n) {
+  return n <= 8 || n == 12 || n == 16 || n == 20 || n == 24 || n == 32 || n == 48 || n == 64;
+}
+
+/** The largest valid length not above n. */
+inline uint8_t round_down_length(size_t n) {
+  if (n >= 64) return 64;
+  while (!valid_length(n)) --n;
+  return static_cast<uint8_t>(n);
+}
+
+/** The kind and channel of a bare native datagram (its flags and channel bytes). */
+inline void kind_of(const uint8_t* datagram, size_t n, uint8_t* kind, uint8_t* channel) {
+  if (n < 2) {
+    *kind = kBestEffort;
+    *channel = 0;
+    return;
+  }
+  const uint8_t type = static_cast<uint8_t>((datagram[0] >> 4) & 3);
+  *kind = type < 3 ? type : static_cast<uint8_t>(kBestEffort);
+  *channel = datagram[1];
+}
+
+/** The priority a datagram of this kind on this channel is sent with (CAN.md 3). */
+inline uint8_t priority_of(uint8_t kind, uint8_t channel) {
+  if (kind == kAck) return kPriorityAck;
+  if (kind == kNode) return kPriorityNode;
+  if (channel == 0) return kPriorityControl;
+  return kind == kReliable ? kPriorityReliable : kPriorityBestEffort;
+}
+
+/** One CAN frame (data up to Mtu bytes). */
+template <uint8_t Mtu>
+struct FrameT {
+  uint32_t id;
+  bool extended;
+  uint8_t len;
+  uint8_t data[Mtu];
+};
+typedef FrameT<kClassicMtu> Frame;
+
+/**
+ * Cuts one transfer of n payload bytes into frames of at most mtu bytes (8, or an FD length
+ * 12..64 when the frame type has room) and hands each to sink(const FrameT<Mtu>&), which returns
+ * false to stop (the transfer is then incomplete: false is returned). The frames of one
+ * transfer come out in order.
+ */
+template <uint8_t Mtu, class Sink>
+bool send_transfer(uint32_t id, const uint8_t* payload, size_t n, uint8_t tid, uint8_t mtu,
+                   Sink& sink) {
+  FrameT<Mtu> f;
+  f.id = id;
+  f.extended = true;
+  if (mtu > Mtu) mtu = Mtu;
+  tid &= kTidMask;
+  if (n + 1 <= mtu && valid_length(n + 1)) {
+    if (n) memcpy(f.data, payload, n);
+    f.data[n] = static_cast<uint8_t>(kStart | kEnd | kToggle | tid);
+    f.len = static_cast<uint8_t>(n + 1);
+    return sink(f);
+  }
+  const uint16_t crc = hwbridge::crc16(payload, n);
+  const size_t total = n + 2;  // payload and CRC
+  size_t offset = 0;
+  uint8_t toggle = kToggle;
+  bool first = true;
+  while (offset < total) {
+    const size_t left = total - offset;
+    size_t room = first ? left : left + 1;
+    if (room > mtu) room = mtu;
+    const uint8_t len = round_down_length(room);
+    const size_t body = static_cast<size_t>(len - 1);
+    for (size_t i = 0; i < body; ++i) {
+      const size_t k = offset + i;
+      f.data[i] = k < n ? payload[k] : static_cast<uint8_t>(k == n ? crc >> 8 : crc & 0xFF);
+    }
+    offset += body;
+    uint8_t tail = static_cast<uint8_t>(toggle | tid);
+    if (first) tail |= kStart;
+    if (offset >= total) tail |= kEnd;
+    f.data[body] = tail;
+    f.len = len;
+    if (!sink(f)) return false;
+    toggle ^= kToggle;
+    first = false;
+  }
+  return true;
+}
+
+/**
+ * A sender's transfer ids: one counter per CAN id, 0..31, for up to Ids ids at once (the ids a
+ * board sends on are few: a kind and channel each; past Ids the least recently used is
+ * forgotten and its id starts again at 0).
+ */
+template <uint8_t Ids>
+class TidTable {
+ public:
+  TidTable() : used_(0), clock_(0) {}
+  /** The transfer id for the next transfer on id (and counts it). */
+  uint8_t next(uint32_t id) {
+    ++clock_;
+    uint8_t victim = 0;
+    for (uint8_t i = 0; i < used_; ++i) {
+      if (ids_[i] == id) {
+        const uint8_t tid = tids_[i];
+        tids_[i] = static_cast<uint8_t>((tid + 1) % kTidModulo);
+        stamp_[i] = clock_;
+        return tid;
+      }
+      if (stamp_[i] < stamp_[victim]) victim = i;
+    }
+    const uint8_t slot = used_ < Ids ? used_++ : victim;
+    ids_[slot] = id;
+    tids_[slot] = 1;
+    stamp_[slot] = clock_;
+    return 0;
+  }
+
+ private:
+  uint32_t ids_[Ids];
+  uint8_t tids_[Ids];
+  uint32_t stamp_[Ids];
+  uint8_t used_;
+  uint32_t clock_;
+};
+
+/** The receiver's counters (CanStats of transport.py; they only grow). */
+struct CanStats {
+  uint32_t frames;
+  uint32_t transfers;
+  uint32_t foreign;
+  uint32_t malformed;
+  uint32_t unexpected;
+  uint32_t duplicate_frames;
+  uint32_t duplicate_transfers;
+  uint32_t crc_errors;
+  uint32_t abandoned;
+  uint32_t timeouts;
+  uint32_t oversize;
+  uint32_t error_frames;
+  uint32_t dropped() const {
+    return malformed + unexpected + duplicate_frames + duplicate_transfers + crc_errors +
+           abandoned + timeouts + oversize;
+  }
+};
+
+/** A transfer returned by TransferReceiver::feed (valid until the next feed). */
+struct Transfer {
+  CanId id;
+  const uint8_t* payload;
+  size_t size;
+};
+
+/**
+ * Reassembles the transfers addressed to local (and NODE messages, whatever their destination)
+ * from CAN frames, as CAN.md 5: Slots transfers in progress at once (one per CAN id, the oldest
+ * abandoned for a new one), each of at most MaxTransfer bytes; the last completed transfer of
+ * up to 2 * Slots ids remembered for 1 s to drop repeats. Times are wrapping microseconds.
+ */
+template <size_t MaxTransfer, uint8_t Slots = 2>
+class TransferReceiver {
+ public:
+  static const uint32_t kTimeoutUs = 1000000UL;
+  static const uint32_t kTidTimeoutUs = 1000000UL;
+
+  explicit TransferReceiver(uint8_t local = 0) : local_(local), done_next_(0) {
+    memset(&stats, 0, sizeof(stats));
+    for (uint8_t i = 0; i < Slots; ++i) rx_[i].busy = false;
+    for (uint8_t i = 0; i < 2 * Slots; ++i) done_[i].valid = false;
+  }
+  void setLocal(uint8_t local) { local_ = local; }
+  uint8_t local() const { return local_; }
+
+  /** An error frame seen by the controller. */
+  void errorFrame() { ++stats.error_frames; }
+
+  /**
+   * Takes one received frame; true when it completes a transfer (then *out describes it: its
+   * payload stays valid until the next call, and points into data for a single frame).
+   */
+  bool feed(uint32_t id, bool extended, const uint8_t* data, size_t len, uint32_t now,
+            Transfer* out) {
+    ++stats.frames;
+    CanId ident;
+    if (!extended || !decode_id(id, &ident) || len == 0 || len > kFdMtu || !valid_length(len)) {
+      ++stats.malformed;
+      return false;
+    }
+    if (ident.destination != local_ && ident.kind != kNode) {
+      ++stats.foreign;
+      return false;
+    }
+    const uint8_t tail = data[len - 1];
+    const uint8_t tid = tail & kTidMask;
+    const uint8_t* body = data;
+    const size_t body_len = len - 1;
+    Rx* rx = find(id);
+    if (tail & kStart) {
+      if (!(tail & kToggle)) {
+        ++stats.malformed;
+        return false;
+      }
+      if (rx != nullptr) {
+        if (rx->frames == 1 && rx->tid == tid && rx->len == body_len &&
+            memcmp(rx->buf, body, body_len) == 0) {
+          ++stats.duplicate_frames;
+          return false;
+        }
+        rx->busy = false;
+        ++stats.abandoned;
+      }
+      if (tail & kEnd) return finish(id, ident, tid, body, body_len, now, out);
+      if (body_len > MaxTransfer + 2) {
+        ++stats.oversize;
+        return false;
+      }
+      rx = slot(now);
+      rx->busy = true;
+      rx->id = id;
+      rx->tid = tid;
+      rx->toggle = kToggle;
+      rx->frames = 1;
+      rx->started = now;
+      rx->len = body_len;
+      memcpy(rx->buf, body, body_len);
+      return false;
+    }
+    if (rx == nullptr) {
+      Done* d = findDone(id);
+      if (d != nullptr && d->tid == tid && (tail & kEnd)) {
+        ++stats.duplicate_frames;
+      } else {
+        ++stats.unexpected;
+      }
+      return false;
+    }
+    if (tid != rx->tid) {
+      ++stats.unexpected;
+      return false;
+    }
+    const uint8_t toggle = tail & kToggle;
+    if (toggle == rx->toggle) {
+      ++stats.duplicate_frames;
+      return false;
+    }
+    if (rx->len + body_len > MaxTransfer + 2) {
+      rx->busy = false;
+      ++stats.oversize;
+      return false;
+    }
+    rx->toggle = toggle;
+    memcpy(rx->buf + rx->len, body, body_len);
+    rx->len += body_len;
+    ++rx->frames;
+    if (!(tail & kEnd)) return false;
+    rx->busy = false;
+    if (rx->len < 2 || hwbridge::crc16(rx->buf, rx->len) != 0) {
+      ++stats.crc_errors;
+      return false;
+    }
+    return finish(id, ident, tid, rx->buf, rx->len - 2, now, out);
+  }
+
+  /** Drops (and counts) the transfers in progress for a second or more; how many. */
+  uint8_t expire(uint32_t now) {
+    uint8_t n = 0;
+    for (uint8_t i = 0; i < Slots; ++i) {
+      if (rx_[i].busy && now - rx_[i].started >= kTimeoutUs) {
+        rx_[i].busy = false;
+        ++n;
+      }
+    }
+    stats.timeouts += n;
+    return n;
+  }
+
+  /** Transfers in progress. */
+  uint8_t pending() const {
+    uint8_t n = 0;
+    for (uint8_t i = 0; i < Slots; ++i) n += rx_[i].busy ? 1 : 0;
+    return n;
+  }
+
+  CanStats stats;
+
+ private:
+  struct Rx {
+    uint32_t id;
+    uint32_t started;
+    size_t len;
+    uint8_t tid;
+    uint8_t toggle;
+    uint8_t frames;
+    bool busy;
+    uint8_t buf[MaxTransfer + 2];
+  };
+  struct Done {
+    uint32_t id;
+    uint32_t when;
+    uint16_t check;
+    uint8_t tid;
+    bool valid;
+  };
+
+  Rx* find(uint32_t id) {
+    for (uint8_t i = 0; i < Slots; ++i) {
+      if (rx_[i].busy && rx_[i].id == id) return &rx_[i];
+    }
+    return nullptr;
+  }
+  Rx* slot(uint32_t now) {
+    Rx* oldest = &rx_[0];
+    for (uint8_t i = 0; i < Slots; ++i) {
+      if (!rx_[i].busy) return &rx_[i];
+      if (now - rx_[i].started > now - oldest->started) oldest = &rx_[i];
+    }
+    oldest->busy = false;
+    ++stats.abandoned;
+    return oldest;
+  }
+  Done* findDone(uint32_t id) {
+    for (uint8_t i = 0; i < 2 * Slots; ++i) {
+      if (done_[i].valid && done_[i].id == id) return &done_[i];
+    }
+    return nullptr;
+  }
+  bool finish(uint32_t id, const CanId& ident, uint8_t tid, const uint8_t* payload, size_t n,
+              uint32_t now, Transfer* out) {
+    const uint16_t check = hwbridge::crc16(payload, n);
+    Done* d = findDone(id);
+    if (d != nullptr && d->tid == tid && d->check == check && now - d->when < kTidTimeoutUs) {
+      ++stats.duplicate_transfers;
+      return false;
+    }
+    if (n > MaxTransfer) {
+      ++stats.oversize;
+      return false;
+    }
+    if (d == nullptr) {
+      d = &done_[done_next_];
+      done_next_ = static_cast<uint8_t>((done_next_ + 1) % (2 * Slots));
+    }
+    d->valid = true;
+    d->id = id;
+    d->tid = tid;
+    d->when = now;
+    d->check = check;
+    ++stats.transfers;
+    out->id = ident;
+    out->payload = payload;
+    out->size = n;
+    return true;
+  }
+
+  uint8_t local_;
+  uint8_t done_next_;
+  Rx rx_[Slots];
+  Done done_[2 * Slots];
+};
+
+/**
+ * Node-id claims heard on the bus (CAN.md 2): counts a claim of the watched node id (this
+ * board's own) with a unique id other than ours, and any node id claimed by two unique ids
+ * within 3 s among the last Nodes node ids heard.
+ */
+class OwnClaimWatch {
+ public:
+  OwnClaimWatch() : conflicts(0), last_conflict(0) {}
+  /** A claim of node with unique id uid (kUidSize bytes); true if it contradicts ours. */
+  bool claim(uint8_t node, uint8_t own_node, const uint8_t* uid, const uint8_t* own_uid,
+             uint32_t now) {
+    if (node != own_node || memcmp(uid, own_uid, kUidSize) == 0) return false;
+    ++conflicts;
+    last_conflict = now;
+    return true;
+  }
+  uint32_t conflicts;
+  uint32_t last_conflict;
+};
+
+}  // namespace can
+}  // namespace hwbridge
+
+#endif  // HWBRIDGE_CAN_TRANSPORT_H

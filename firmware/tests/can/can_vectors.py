@@ -1,0 +1,62 @@
+"""Writes protocols/vectors/can_frames.json as the lines test_can_vectors.cpp reads on stdin
+(standard library only; "-" stands for no bytes):
+
+    crc INPUT CRC
+    id PRIORITY KIND CHANNEL DESTINATION SOURCE ID
+    tx NAME MTU TID PAYLOAD N FRAME...
+    dg NAME SOURCE DESTINATION MTU DATAGRAM N ID:DATA...
+    bad NAME LOCAL EXPECT N ID:EXTENDED:DATA...
+
+    python3 firmware/tests/can/can_vectors.py | BUILD/test_can_vectors
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[3]
+
+
+def _hex(text: str) -> str:
+    return text or "-"
+
+
+def _name(text: str) -> str:
+    return text.replace(" ", "_")
+
+
+def lines(path: Path = ROOT / "protocols" / "vectors" / "can_frames.json") -> list[str]:
+    doc = json.loads(path.read_text())
+    out = [f"crc {doc['crc_check']['input_hex']} {doc['crc_check']['crc16']}"]
+    for v in doc["ids"]:
+        f = v["fields"]
+        out.append(
+            f"id {f['priority']} {f['kind']} {f['channel']} {f['destination']} {f['source']} "
+            f"{v['id']}"
+        )
+    for v in doc["transfers"]:
+        frames = " ".join(_hex(x) for x in v["frames_hex"])
+        out.append(
+            f"tx {_name(v['name'])} {v['mtu']} {v['tid']} {_hex(v['payload_hex'])} "
+            f"{len(v['frames_hex'])} {frames}"
+        )
+    for v in doc["datagrams"]:
+        frames = " ".join(f"{f['id']}:{_hex(f['data_hex'])}" for f in v["frames"])
+        out.append(
+            f"dg {_name(v['name'])} {v['source']} {v['destination']} {v['mtu']} "
+            f"{_hex(v['datagram_hex'])} {len(v['frames'])} {frames}"
+        )
+    for v in doc["bad"]:
+        frames = " ".join(
+            f"{f['id']}:{int(f['extended'])}:{_hex(f['data_hex'])}" for f in v["frames"]
+        )
+        out.append(
+            f"bad {_name(v['name'])} {v['local']} {v['expect']} {len(v['frames'])} {frames}"
+        )
+    return out
+
+
+if __name__ == "__main__":
+    sys.stdout.write("\n".join(lines()) + "\n")

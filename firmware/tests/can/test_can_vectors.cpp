@@ -1,0 +1,291 @@
+// The CAN transport against protocols/vectors/can_frames.json (fed by can_vectors.py on stdin),
+// then CanHardware with a scripted driver: the session's COBS bytes out as transfers, the
+// host's transfers in as COBS bytes, claims, foreign and oversize traffic counted.
+#include <hwbridge/can/can_hardware.h>
+#include <hwbridge/can/transport.h>
+#include <hwbridge/cobs.h>
+
+#include <deque>
+#include <iostream>
+#include <sstream>
+
+#include "can_check.h"
+
+using namespace hwbridge::can;
+
+namespace {
+
+struct Collect {
+  std::vector<std::pair<uint32_t, Bytes> >* out;
+  bool operator()(const FrameT<kFdMtu>& f) {
+    out->push_back(std::make_pair(f.id, Bytes(f.data, f.data + f.len)));
+    return true;
+  }
+};
+
+typedef TransferReceiver<256, 4> Receiver;
+
+uint32_t counter(const CanStats& s, const std::string& name) {
+  if (name == "malformed") return s.malformed;
+  if (name == "unexpected") return s.unexpected;
+  if (name == "duplicate_frames") return s.duplicate_frames;
+  if (name == "duplicate_transfers") return s.duplicate_transfers;
+  if (name == "crc_errors") return s.crc_errors;
+  if (name == "abandoned") return s.abandoned;
+  if (name == "timeouts") return s.timeouts;
+  if (name == "oversize") return s.oversize;
+  if (name == "foreign") return s.foreign;
+  CHECK(false, "unknown counter %s", name.c_str());
+  return 0;
+}
+
+int vectors() {
+  std::string line;
+  int n = 0;
+  while (std::getline(std::cin, line)) {
+    std::istringstream in(line);
+    std::string kind;
+    in >> kind;
+    if (kind == "crc") {
+      std::string input, crc;
+      in >> input >> crc;
+      const Bytes b = from_hex(input);
+      CHECK(hwbridge::crc16(b.data(), b.size()) == strtoul(crc.c_str(), nullptr, 16), "crc");
+    } else if (kind == "id") {
+      unsigned p, k, c, d, s;
+      std::string id;
+      in >> p >> k >> c >> d >> s >> id;
+      const uint32_t want = static_cast<uint32_t>(strtoul(id.c_str(), nullptr, 16));
+      CHECK(encode_id(p, k, c, d, s) == want, "encode %s", id.c_str());
+      CanId f;
+      CHECK(decode_id(want, &f), "decode %s", id.c_str());
+      CHECK(f.priority == p && f.kind == k && f.channel == c && f.destination == d &&
+                f.source == s,
+            "fields of %s", id.c_str());
+    } else if (kind == "tx") {
+      std::string name, payload_hex;
+      unsigned mtu, tid, count;
+      in >> name >> mtu >> tid >> payload_hex >> count;
+      const Bytes payload = from_hex(payload_hex);
+      std::vector<std::pair<uint32_t, Bytes> > got;
+      Collect sink = {&got};
+      CHECK(send_transfer<kFdMtu>(0x14010005UL, payload.data(), payload.size(), tid, mtu, sink),
+            "%s", name.c_str());
+      CHECK(got.size() == count, "%s: %zu frames", name.c_str(), got.size());
+      Receiver rx(0);
+      Transfer t;
+      bool done = false;
+      std::vector<Bytes> keep;  // a single frame's payload points into its data
+      for (unsigned i = 0; i < count; ++i) {
+        std::string frame;
+        in >> frame;
+        CHECK(to_hex(got[i].second) == frame, "%s frame %u: %s", name.c_str(), i,
+              to_hex(got[i].second).c_str());
+        keep.push_back(from_hex(frame));
+        const Bytes& data = keep.back();
+        done = rx.feed(0x14010005UL, true, data.data(), data.size(), 1000, &t);
+        CHECK(done == (i + 1 == count), "%s: completion at frame %u", name.c_str(), i);
+      }
+      CHECK(to_hex(t.payload, t.size) == to_hex(payload), "%s: received", name.c_str());
+      CHECK(rx.stats.dropped() == 0, "%s: drops", name.c_str());
+    } else if (kind == "dg") {
+      std::string name, dg_hex;
+      unsigned src, dst, mtu, count;
+      in >> name >> src >> dst >> mtu >> dg_hex >> count;
+      const Bytes dg = from_hex(dg_hex);
+      uint8_t k, c;
+      kind_of(dg.data(), dg.size(), &k, &c);
+      const uint32_t id = encode_id(priority_of(k, c), k, c, dst, src);
+      std::vector<std::pair<uint32_t, Bytes> > got;
+      Collect sink = {&got};
+      TidTable<4> tids;
+      CHECK(send_transfer<kFdMtu>(id, dg.data(), dg.size(), tids.next(id), mtu, sink), "%s",
+            name.c_str());
+      CHECK(got.size() == count, "%s: %zu frames", name.c_str(), got.size());
+      Receiver rx(static_cast<uint8_t>(dst));
+      Transfer t;
+      std::vector<Bytes> keep;
+      for (unsigned i = 0; i < count; ++i) {
+        std::string frame;
+        in >> frame;
+        const size_t colon = frame.find(':');
+        const uint32_t want_id = static_cast<uint32_t>(strtoul(frame.substr(0, colon).c_str(),
+                                                               nullptr, 16));
+        CHECK(got[i].first == want_id, "%s id %08lx", name.c_str(),
+              static_cast<unsigned long>(got[i].first));
+        CHECK(to_hex(got[i].second) == frame.substr(colon + 1), "%s frame %u", name.c_str(), i);
+        keep.push_back(from_hex(frame.substr(colon + 1)));
+        const Bytes& data = keep.back();
+        const bool done = rx.feed(want_id, true, data.data(), data.size(), 5, &t);
+        CHECK(done == (i + 1 == count), "%s: completion", name.c_str());
+      }
+      CHECK(to_hex(t.payload, t.size) == dg_hex && t.id.source == src, "%s: received",
+            name.c_str());
+    } else if (kind == "bad") {
+      std::string name, expect;
+      unsigned local, count;
+      in >> name >> local >> expect >> count;
+      Receiver rx(static_cast<uint8_t>(local));
+      Transfer t;
+      uint32_t delivered = 0;
+      for (unsigned i = 0; i < count; ++i) {
+        std::string frame;
+        in >> frame;
+        const size_t a = frame.find(':');
+        const size_t b = frame.find(':', a + 1);
+        const uint32_t id = static_cast<uint32_t>(strtoul(frame.substr(0, a).c_str(), nullptr, 16));
+        const bool ext = frame.substr(a + 1, b - a - 1) == "1";
+        const Bytes data = from_hex(frame.substr(b + 1));
+        if (rx.feed(id, ext, data.data(), data.size(), 7, &t)) ++delivered;
+        if (i + 2 == count) delivered = 0;  // what comes before the last frame may deliver
+      }
+      CHECK(delivered == 0, "%s: delivered", name.c_str());
+      const uint32_t want = expect == "foreign" ? rx.stats.dropped() + 1 : rx.stats.dropped();
+      CHECK(counter(rx.stats, expect) == 1, "%s: %s", name.c_str(), expect.c_str());
+      CHECK(want == 1, "%s: other drops", name.c_str());
+    } else if (!kind.empty()) {
+      CHECK(false, "unknown line %s", kind.c_str());
+    }
+    ++n;
+  }
+  return n;
+}
+
+// A scripted driver: frames sent are kept, frames to receive are queued by the test.
+struct ScriptDriver {
+  std::deque<Frame> inbox;
+  std::vector<Frame> sent;
+  uint32_t now;
+  bool refuse;
+  ScriptDriver() : now(1000), refuse(false) {}
+  bool begin() { return true; }
+  bool receive(Frame* f) {
+    if (inbox.empty()) return false;
+    *f = inbox.front();
+    inbox.pop_front();
+    return true;
+  }
+  bool send(const Frame& f, uint8_t) {
+    if (refuse) return false;
+    sent.push_back(f);
+    return true;
+  }
+  uint32_t micros() { return now; }
+  uint32_t seed() { return 42; }
+};
+
+typedef CanHardware<ScriptDriver, 72, 2, 160> Hw;
+
+void queue_transfer(Hw& hw, uint32_t id, const Bytes& payload, uint8_t tid) {
+  struct Q {
+    ScriptDriver* d;
+    bool operator()(const Frame& f) {
+      d->inbox.push_back(f);
+      return true;
+    }
+  } q = {&hw.driver()};
+  send_transfer<kClassicMtu>(id, payload.data(), payload.size(), tid, kClassicMtu, q);
+}
+
+Bytes read_all(Hw& hw) {
+  Bytes out;
+  for (int c = hw.read(); c >= 0; c = hw.read()) out.push_back(static_cast<uint8_t>(c));
+  return out;
+}
+
+void hardware() {
+  Hw hw;
+  hw.setNode(5);
+  CHECK(hw.init(115200), "init");
+  CHECK(hw.read() == -1, "nothing yet");
+  // The first poll sent a claim: NODE kind, channel 1, priority 3, to 0, from 5.
+  ScriptDriver& d = hw.driver();
+  CHECK(d.sent.size() == 1 && d.sent[0].id == encode_id(3, kNode, 1, 0, 5) && d.sent[0].len == 7,
+        "claim");
+  d.sent.clear();
+
+  // The session writes a HEARTBEAT datagram, COBS-framed: one single-frame transfer.
+  const Bytes hb = from_hex("400009028670");
+  uint8_t enc[16];
+  size_t n = hwbridge::cobs_encode(hb.data(), hb.size(), enc, sizeof(enc));
+  for (size_t i = 0; i < n; ++i) hw.put(enc[i]);
+  CHECK(d.sent.empty(), "nothing before the delimiter");
+  hw.put(0);
+  CHECK(d.sent.size() == 1 && d.sent[0].id == 0x08000005UL, "heartbeat id");
+  CHECK(to_hex(d.sent[0].data, d.sent[0].len) == "400009028670e0", "heartbeat frame");
+  // A reliable datagram with zeros inside: two frames, tid 0 then 1 on the next.
+  const Bytes rel = from_hex("5003c82a000000c9bb");
+  n = hwbridge::cobs_encode(rel.data(), rel.size(), enc, sizeof(enc));
+  for (int round = 0; round < 2; ++round) {
+    for (size_t i = 0; i < n; ++i) hw.put(enc[i]);
+    hw.put(0);
+  }
+  CHECK(d.sent.size() == 5, "frames %zu", d.sent.size());
+  CHECK(to_hex(d.sent[1].data, d.sent[1].len) == "5003c82a000000a0", "reliable frame 1");
+  CHECK(to_hex(d.sent[2].data, d.sent[2].len) == "c9bb30ee40", "reliable frame 2");
+  CHECK((d.sent[3].data[7] & kTidMask) == 1, "the next transfer id");
+  CHECK(hw.stats.tx_transfers == 4, "transfers");
+  // Too long a datagram is dropped and counted, and the next one goes.
+  for (int i = 0; i < 100; ++i) hw.put(1);
+  hw.put(0);
+  CHECK(hw.stats.tx_oversize == 1, "oversize out");
+  // A refusing driver: counted.
+  d.refuse = true;
+  for (size_t i = 0; i < n; ++i) hw.put(enc[i]);
+  hw.put(0);
+  CHECK(hw.stats.tx_errors == 1, "tx errors");
+  d.refuse = false;
+
+  // The host's transfers to node 5 come out COBS-encoded and delimited.
+  const Bytes ack = from_hex("6000110000837c");
+  queue_transfer(hw, encode_id(1, kAck, 0, 5, 0), ack, 0);
+  const Bytes big = from_hex("400100000102030405060708090a0b0c0d0e0f101112131415161718191a1b");
+  queue_transfer(hw, encode_id(5, kBestEffort, 1, 5, 0), big, 0);
+  // Another board's traffic, a transfer to node 6 and one from node 9 to us: none of it ours.
+  queue_transfer(hw, encode_id(5, kBestEffort, 1, 0, 6), big, 0);
+  queue_transfer(hw, encode_id(5, kBestEffort, 1, 6, 0), big, 0);
+  queue_transfer(hw, encode_id(5, kBestEffort, 1, 5, 9), big, 0);
+  Bytes want;
+  for (int k = 0; k < 2; ++k) {
+    const Bytes& b = k == 0 ? ack : big;
+    uint8_t tmp[80];
+    const size_t m = hwbridge::cobs_encode(b.data(), b.size(), tmp, sizeof(tmp));
+    want.insert(want.end(), tmp, tmp + m);
+    want.push_back(0);
+  }
+  Bytes got;
+  for (int spins = 0; spins < 10; ++spins) {
+    const Bytes part = read_all(hw);
+    got.insert(got.end(), part.begin(), part.end());
+  }
+  CHECK(to_hex(got) == to_hex(want), "read %s", to_hex(got).c_str());
+  CHECK(hw.rxStats().foreign > 0 && hw.stats.rx_ignored == 1, "foreign %u ignored %u",
+        hw.rxStats().foreign, hw.stats.rx_ignored);
+  // A claim of node 5 by another unique id: a conflict; our own uid: none.
+  const uint8_t other[6] = {1, 2, 3, 4, 5, 6};
+  queue_transfer(hw, encode_id(3, kNode, 1, 0, 5), Bytes(other, other + 6), 0);
+  queue_transfer(hw, encode_id(3, kNode, 1, 0, 5), Bytes(hw.uid(), hw.uid() + 6), 1);
+  read_all(hw);
+  CHECK(hw.ownConflicts() == 1, "conflicts %u", hw.ownConflicts());
+  // Claims every second.
+  d.sent.clear();
+  d.now += 1000001UL;
+  read_all(hw);
+  CHECK(d.sent.size() == 1 && d.sent[0].id == encode_id(3, kNode, 1, 0, 5), "second claim");
+  // A full read buffer drops whole datagrams (counted), never a part of one.
+  for (uint8_t i = 0; i < 8; ++i) queue_transfer(hw, encode_id(5, 0, 1, 5, 0), big, i);
+  for (int i = 0; i < 4; ++i) hw.poll();
+  CHECK(hw.stats.rx_overflow > 0, "overflow");
+  got = read_all(hw);
+  CHECK(!got.empty() && got.back() == 0, "whole datagrams");
+}
+
+}  // namespace
+
+int main() {
+  const int n = vectors();
+  CHECK(n >= 30, "only %d vector lines", n);
+  hardware();
+  printf("test_can_vectors: %d vector lines, %lu checks passed\n", n, g_checks);
+  return 0;
+}

@@ -52,9 +52,7 @@ def lines(path: Path = ROOT / "protocols" / "vectors" / "can_frames.json") -> li
         frames = " ".join(
             f"{f['id']}:{int(f['extended'])}:{_hex(f['data_hex'])}" for f in v["frames"]
         )
-        out.append(
-            f"bad {_name(v['name'])} {v['local']} {v['expect']} {len(v['frames'])} {frames}"
-        )
+        out.append(f"bad {_name(v['name'])} {v['local']} {v['expect']} {len(v['frames'])} {frames}")
     return out
 
 

@@ -2,6 +2,7 @@
 // then CanHardware with a scripted driver: the session's COBS bytes out as transfers, the
 // host's transfers in as COBS bytes, claims, foreign and oversize traffic counted.
 #include <hwbridge/can/can_hardware.h>
+#include <hwbridge/can/posix_driver.h>  // compiled with the test's warnings
 #include <hwbridge/can/transport.h>
 #include <hwbridge/cobs.h>
 

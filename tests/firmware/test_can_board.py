@@ -10,7 +10,9 @@
   own) bridges it and an emulated board (node 2, ``hwbridge.emulator.can_bus``) on the same bus:
   a topic each way, a service and a parameter work on the sketch, and the emulated board's
   service and topic keep working, its session never renegotiated.
-- The MCP2515 driver and ``CanHardware`` compile with avr-g++ for the Uno and the Mega.
+
+``examples/CanNode`` (the MCP2515 driver and ``CanHardware`` on an AVR) is built for the Uno and
+the Mega by both tools in ``test_examples.py`` like every example.
 """
 
 from __future__ import annotations
@@ -71,6 +73,15 @@ def test_transport_vectors_can_fail(tmp_path: Path) -> None:
     lines = _vector_lines().replace("01020304050607e1", "01020304050607e2", 1)
     done = subprocess.run([str(exe)], input=lines, capture_output=True, text=True, check=False)
     assert done.returncode == 1 and "check failed" in done.stderr
+
+
+@needs_gpp
+@pytest.mark.parametrize("sanitize", [False, True], ids=["plain", "asan"])
+def test_mcp2515_against_a_register_level_fake(tmp_path: Path, sanitize: bool) -> None:
+    exe = _build("test_mcp2515", tmp_path, sanitize)
+    done = subprocess.run([str(exe)], capture_output=True, text=True, check=False)
+    assert done.returncode == 0, done.stderr
+    assert "checks passed" in done.stdout
 
 
 @needs_gpp

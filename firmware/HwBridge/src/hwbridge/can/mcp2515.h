@@ -1,0 +1,365 @@
+// A Driver (see can_hardware.h) for the Microchip MCP2515 CAN controller on SPI, register level:
+// reset, bit timing computed for the crystal (8 or 16 MHz, 125k..1M bit/s), extended ids, both
+// receive buffers (RXB0 rolling over into RXB1, filters off: the transport filters), and two
+// transmit buffers by priority: ACK, control and claim frames (CAN priority 0..3) in TXB1 at the
+// highest TXP, data in TXB0 at a lower one; each buffer sends its frames in order, one at a time,
+// so a transfer's frames never overtake each other. A frame not sent within the send timeout
+// (no other node acknowledging, bus off) is aborted and the send fails.
+//
+// Mcp2515T<Port> talks through Port: select(), deselect(), uint8_t transfer(uint8_t),
+// uint32_t micros(), uint32_t seed(). On Arduino, Mcp2515 is Mcp2515T<ArduinoSpiPort> (the SPI
+// library, mode 0, 8 MHz at most; the chip-select pin given to port().setPin()).
+#ifndef HWBRIDGE_CAN_MCP2515_H
+#define HWBRIDGE_CAN_MCP2515_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "transport.h"
+
+namespace hwbridge {
+namespace can {
+
+namespace mcp {
+// SPI instructions
+static const uint8_t kReset = 0xC0;
+static const uint8_t kRead = 0x03;
+static const uint8_t kWrite = 0x02;
+static const uint8_t kBitModify = 0x05;
+static const uint8_t kReadStatus = 0xA0;
+static const uint8_t kLoadTx = 0x40;     // | 0 (TXB0 from SIDH), 2 (TXB1), 4 (TXB2)
+static const uint8_t kRts = 0x80;        // | 1 << buffer
+static const uint8_t kReadRx = 0x90;     // | 0 (RXB0 from SIDH), 4 (RXB1 from SIDH)
+// Registers
+static const uint8_t kCanStat = 0x0E;
+static const uint8_t kCanCtrl = 0x0F;
+static const uint8_t kTec = 0x1C;
+static const uint8_t kRec = 0x1D;
+static const uint8_t kCnf3 = 0x28;
+static const uint8_t kCnf2 = 0x29;
+static const uint8_t kCnf1 = 0x2A;
+static const uint8_t kCanIntE = 0x2B;
+static const uint8_t kCanIntF = 0x2C;
+static const uint8_t kEflg = 0x2D;
+static const uint8_t kTxb0Ctrl = 0x30;
+static const uint8_t kTxb1Ctrl = 0x40;
+static const uint8_t kRxb0Ctrl = 0x60;
+static const uint8_t kRxb1Ctrl = 0x70;
+// Bits
+static const uint8_t kModeMask = 0xE0;
+static const uint8_t kModeNormal = 0x00;
+static const uint8_t kModeConfig = 0x80;
+static const uint8_t kTxReq = 0x08;
+static const uint8_t kExide = 0x08;  // SIDL: extended identifier
+static const uint8_t kRtr = 0x40;    // DLC: remote frame (extended frames)
+static const uint8_t kSrr = 0x10;    // RX SIDL: remote request (standard frames)
+static const uint8_t kRx0If = 0x01;
+static const uint8_t kRx1If = 0x02;
+static const uint8_t kErrIf = 0x20;
+static const uint8_t kMerrF = 0x80;
+static const uint8_t kRx0Ovr = 0x40;
+static const uint8_t kRx1Ovr = 0x80;
+static const uint8_t kTxBo = 0x20;
+}  // namespace mcp
+
+/** CNF1..CNF3 of a bit rate. */
+struct BitTiming {
+  uint8_t cnf1;
+  uint8_t cnf2;
+  uint8_t cnf3;
+};
+
+/**
+ * The bit timing of bitrate with a crystal of crystal_hz: the smallest prescaler giving a whole
+ * number of 4..25 time quanta a bit, the sample point near 75 %, SJW 1, one sample. False when
+ * the rate cannot be made exactly.
+ */
+inline bool mcp2515_timing(uint32_t crystal_hz, uint32_t bitrate, BitTiming* out) {
+  if (bitrate == 0) return false;
+  for (uint8_t brp = 0; brp < 64; ++brp) {
+    const uint32_t div = 2UL * (brp + 1UL) * bitrate;
+    if (crystal_hz % div != 0) continue;
+    const uint32_t ntq = crystal_hz / div;
+    if (ntq > 25) continue;
+    if (ntq < 4) return false;
+    uint8_t ps2;
+    if (ntq < 5) {
+      ps2 = 1;  // 4 quanta (8 MHz at 1 Mbit/s): below the data sheet's minimum, common practice
+    } else {
+      ps2 = static_cast<uint8_t>((ntq + 2) / 4);
+      if (ps2 < 2) ps2 = 2;
+      if (ps2 > 8) ps2 = 8;
+    }
+    const uint8_t rest = static_cast<uint8_t>(ntq - 1 - ps2);  // propagation + phase 1
+    uint8_t ps1 = static_cast<uint8_t>(rest / 2);
+    if (ps1 > 8) ps1 = 8;
+    uint8_t prop = static_cast<uint8_t>(rest - ps1);
+    if (prop > 8) {
+      ps1 = static_cast<uint8_t>(ps1 + prop - 8);
+      prop = 8;
+    }
+    if (ps1 < 1 || ps1 > 8 || prop < 1) return false;
+    out->cnf1 = brp;  // SJW 1
+    out->cnf2 = static_cast<uint8_t>(0x80 | (ps1 - 1) << 3 | (prop - 1));  // BTLMODE: PS2 in CNF3
+    out->cnf3 = static_cast<uint8_t>(ps2 - 1);
+    return true;
+  }
+  return false;
+}
+
+/** Counters of an Mcp2515T (they only grow). */
+struct Mcp2515Stats {
+  uint32_t rx_frames;
+  uint32_t tx_frames;
+  uint32_t tx_timeouts;   ///< frames aborted: not sent within the send timeout
+  uint32_t rx_overflow;   ///< frames the chip lost, both receive buffers full (RXnOVR)
+  uint32_t remote;        ///< remote frames received (not ours, dropped)
+  uint32_t bus_off;       ///< times the chip was seen bus off
+  uint32_t errors;        ///< error interrupts (ERRIF, MERRF)
+};
+
+template <class Port>
+class Mcp2515T {
+ public:
+  Mcp2515T() : crystal_(16000000UL), bitrate_(500000UL), timeout_us_(10000UL), ok_(false) {
+    memset(&stats, 0, sizeof(stats));
+  }
+
+  /** The bus's bit rate and the chip's crystal (before begin()). */
+  void configure(uint32_t bitrate, uint32_t crystal_hz = 16000000UL) {
+    bitrate_ = bitrate;
+    crystal_ = crystal_hz;
+  }
+  /** How long send() waits for a transmit buffer before aborting its frame (default 10 ms). */
+  void setSendTimeout(uint32_t us) { timeout_us_ = us; }
+  Port& port() { return port_; }
+
+  /** Resets the chip, sets the bit timing and receive buffers, enters normal mode. */
+  bool begin() {
+    ok_ = false;
+    BitTiming t;
+    if (!mcp2515_timing(crystal_, bitrate_, &t)) return false;
+    port_.begin();
+    port_.select();
+    port_.transfer(mcp::kReset);
+    port_.deselect();
+    if (!waitMode(mcp::kModeConfig)) return false;
+    const uint8_t cnf[3] = {t.cnf3, t.cnf2, t.cnf1};
+    writeRegs(mcp::kCnf3, cnf, 3);
+    writeReg(mcp::kCanIntE, 0);
+    writeReg(mcp::kRxb0Ctrl, 0x64);  // any frame (filters off), roll over into RXB1
+    writeReg(mcp::kRxb1Ctrl, 0x60);
+    writeReg(mcp::kTxb0Ctrl, 0x01);  // TXP 1: data
+    writeReg(mcp::kTxb1Ctrl, 0x03);  // TXP 3: ACK, control, claims
+    writeReg(mcp::kCanIntF, 0);
+    modify(mcp::kCanCtrl, mcp::kModeMask, mcp::kModeNormal);
+    ok_ = waitMode(mcp::kModeNormal);
+    return ok_;
+  }
+
+  bool receive(Frame* f) {
+    if (!ok_) return false;
+    for (;;) {
+      const uint8_t status = readStatus();
+      if (status & (mcp::kRx0If | mcp::kRx1If)) {
+        if (readRx(status & mcp::kRx0If ? 0 : 4, f)) return true;
+        continue;  // a remote frame: counted, next one
+      }
+      checkErrors();
+      return false;
+    }
+  }
+
+  bool send(const Frame& f, uint8_t priority) {
+    if (!ok_) return false;
+    const uint8_t buffer = priority <= kPriorityNode ? 1 : 0;
+    const uint8_t ctrl = buffer ? mcp::kTxb1Ctrl : mcp::kTxb0Ctrl;
+    const uint32_t start = port_.micros();
+    while (readReg(ctrl) & mcp::kTxReq) {
+      if (port_.micros() - start >= timeout_us_) {
+        modify(ctrl, mcp::kTxReq, 0);  // abort the frame that does not go
+        ++stats.tx_timeouts;
+        checkErrors();
+        return false;
+      }
+    }
+    uint8_t regs[13];
+    if (f.extended) {
+      regs[0] = static_cast<uint8_t>(f.id >> 21);
+      regs[1] = static_cast<uint8_t>(((f.id >> 13) & 0xE0) | mcp::kExide | ((f.id >> 16) & 0x03));
+      regs[2] = static_cast<uint8_t>(f.id >> 8);
+      regs[3] = static_cast<uint8_t>(f.id);
+    } else {
+      regs[0] = static_cast<uint8_t>(f.id >> 3);
+      regs[1] = static_cast<uint8_t>((f.id & 0x07) << 5);
+      regs[2] = 0;
+      regs[3] = 0;
+    }
+    const uint8_t len = f.len > 8 ? 8 : f.len;
+    regs[4] = len;
+    for (uint8_t i = 0; i < len; ++i) regs[5 + i] = f.data[i];
+    port_.select();
+    port_.transfer(static_cast<uint8_t>(mcp::kLoadTx | (buffer << 1)));
+    for (uint8_t i = 0; i < 5 + len; ++i) port_.transfer(regs[i]);
+    port_.deselect();
+    port_.select();
+    port_.transfer(static_cast<uint8_t>(mcp::kRts | (1 << buffer)));
+    port_.deselect();
+    ++stats.tx_frames;
+    return true;
+  }
+
+  uint32_t micros() { return port_.micros(); }
+  uint32_t seed() { return port_.seed() ^ (static_cast<uint32_t>(readReg(mcp::kTec)) << 8); }
+
+  /** The transmit and receive error counters (TEC, REC). */
+  uint8_t txErrors() { return readReg(mcp::kTec); }
+  uint8_t rxErrors() { return readReg(mcp::kRec); }
+
+  Mcp2515Stats stats;
+
+ private:
+  bool waitMode(uint8_t mode) {
+    const uint32_t start = port_.micros();
+    while ((readReg(mcp::kCanStat) & mcp::kModeMask) != mode) {
+      if (port_.micros() - start >= 20000UL) return false;
+    }
+    return true;
+  }
+  uint8_t readReg(uint8_t addr) {
+    port_.select();
+    port_.transfer(mcp::kRead);
+    port_.transfer(addr);
+    const uint8_t v = port_.transfer(0);
+    port_.deselect();
+    return v;
+  }
+  void writeRegs(uint8_t addr, const uint8_t* v, uint8_t n) {
+    port_.select();
+    port_.transfer(mcp::kWrite);
+    port_.transfer(addr);
+    for (uint8_t i = 0; i < n; ++i) port_.transfer(v[i]);
+    port_.deselect();
+  }
+  void writeReg(uint8_t addr, uint8_t v) { writeRegs(addr, &v, 1); }
+  void modify(uint8_t addr, uint8_t mask, uint8_t v) {
+    port_.select();
+    port_.transfer(mcp::kBitModify);
+    port_.transfer(addr);
+    port_.transfer(mask);
+    port_.transfer(v);
+    port_.deselect();
+  }
+  uint8_t readStatus() {
+    port_.select();
+    port_.transfer(mcp::kReadStatus);
+    const uint8_t v = port_.transfer(0);
+    port_.deselect();
+    return v;
+  }
+  // Reads RXB0 (at 0) or RXB1 (at 4) from SIDH; the chip clears its RXnIF when CS rises.
+  bool readRx(uint8_t at, Frame* f) {
+    uint8_t regs[13];
+    port_.select();
+    port_.transfer(static_cast<uint8_t>(mcp::kReadRx | at));
+    for (uint8_t i = 0; i < 13; ++i) regs[i] = port_.transfer(0);
+    port_.deselect();
+    const uint8_t sidl = regs[1];
+    const uint32_t sid = (static_cast<uint32_t>(regs[0]) << 3) | (sidl >> 5);
+    const uint8_t dlc = regs[4];
+    if (sidl & mcp::kExide) {
+      f->extended = true;
+      f->id = (sid << 18) | (static_cast<uint32_t>(sidl & 0x03) << 16) |
+              (static_cast<uint32_t>(regs[2]) << 8) | regs[3];
+      if (dlc & mcp::kRtr) {
+        ++stats.remote;
+        return false;
+      }
+    } else {
+      f->extended = false;
+      f->id = sid;
+      if (sidl & mcp::kSrr) {
+        ++stats.remote;
+        return false;
+      }
+    }
+    f->len = static_cast<uint8_t>((dlc & 0x0F) > 8 ? 8 : (dlc & 0x0F));
+    for (uint8_t i = 0; i < f->len; ++i) f->data[i] = regs[5 + i];
+    ++stats.rx_frames;
+    return true;
+  }
+  void checkErrors() {
+    const uint8_t flags = readReg(mcp::kCanIntF);
+    if (!(flags & (mcp::kErrIf | mcp::kMerrF))) return;
+    ++stats.errors;
+    const uint8_t eflg = readReg(mcp::kEflg);
+    if (eflg & (mcp::kRx0Ovr | mcp::kRx1Ovr)) {
+      ++stats.rx_overflow;
+      modify(mcp::kEflg, mcp::kRx0Ovr | mcp::kRx1Ovr, 0);
+    }
+    if (eflg & mcp::kTxBo) ++stats.bus_off;  // the chip recovers by itself after 128 x 11 bits
+    modify(mcp::kCanIntF, mcp::kErrIf | mcp::kMerrF, 0);
+  }
+
+  Port port_;
+  uint32_t crystal_;
+  uint32_t bitrate_;
+  uint32_t timeout_us_;
+  bool ok_;
+};
+
+}  // namespace can
+}  // namespace hwbridge
+
+#if defined(ARDUINO) && !defined(HWBRIDGE_HOST_BUILD)
+#include <Arduino.h>
+#include <SPI.h>
+
+namespace hwbridge {
+namespace can {
+
+/**
+ * The MCP2515 on the Arduino SPI bus, chip select on a pin of its own (setPin(), default 10).
+ * Each transaction sets mode 0, MSB first and the clock (F_CPU / 2, at most 8 MHz; the chip takes
+ * 10), so other SPI devices may share the bus outside interrupts. (Register writes rather than
+ * SPI.beginTransaction(): the same image from hwbridge firmware build and the Arduino IDE.)
+ */
+class ArduinoSpiPort {
+ public:
+  ArduinoSpiPort() : cs_(10) {}
+  void setPin(uint8_t cs) { cs_ = cs; }
+  void begin() {
+    pinMode(cs_, OUTPUT);
+    digitalWrite(cs_, HIGH);
+    SPI.begin();
+  }
+  void select() {
+    SPI.setBitOrder(MSBFIRST);
+    SPI.setDataMode(SPI_MODE0);
+#if F_CPU > 16000000UL
+    SPI.setClockDivider(SPI_CLOCK_DIV4);
+#else
+    SPI.setClockDivider(SPI_CLOCK_DIV2);
+#endif
+    digitalWrite(cs_, LOW);
+  }
+  void deselect() { digitalWrite(cs_, HIGH); }
+  uint8_t transfer(uint8_t b) { return SPI.transfer(b); }
+  uint32_t micros() { return ::micros(); }
+  uint32_t seed() {
+    uint32_t s = ::micros();
+    for (uint8_t i = 0; i < 8; ++i) s = (s << 3) ^ static_cast<uint32_t>(analogRead(A0)) ^ ::micros();
+    return s;
+  }
+
+ private:
+  uint8_t cs_;
+};
+
+typedef Mcp2515T<ArduinoSpiPort> Mcp2515;
+
+}  // namespace can
+}  // namespace hwbridge
+#endif
+
+#endif  // HWBRIDGE_CAN_MCP2515_H

@@ -1,0 +1,304 @@
+// The MCP2515 driver against a register-level fake of the chip: the fake decodes the SPI
+// transactions (RESET, READ, WRITE, BIT MODIFY, READ STATUS, LOAD TX BUFFER, RTS, READ RX
+// BUFFER) on a register file as the data sheet describes them, "transmits" a requested buffer by
+// decoding its registers into a frame, and "receives" by writing a frame into RXB0/RXB1.
+// Checked: the bit timing of 8/16 MHz crystals at 125k..1M, reset and the modes, frames both
+// ways (extended and standard ids, every length), receive buffer order, the priority buffers,
+// a frame nobody acknowledges aborted after the timeout, overflow and remote frames counted,
+// and CanHardware running over it.
+#include <hwbridge/can/can_hardware.h>
+#include <hwbridge/can/mcp2515.h>
+
+#include <deque>
+
+#include "can_check.h"
+
+using namespace hwbridge::can;
+
+namespace {
+
+struct Chip {
+  uint8_t reg[128];
+  std::vector<uint8_t> cmd;  // bytes of the current transaction
+  bool selected;
+  bool acked;          // another node acknowledges: a requested frame goes at once
+  uint32_t clock;
+  std::vector<std::pair<Frame, uint8_t> > sent;  // frame, buffer
+  unsigned transactions;
+  uint8_t pending_clear;
+
+  Chip() : selected(false), acked(true), clock(0), transactions(0), pending_clear(0) {
+    memset(reg, 0xAA, sizeof(reg));
+  }
+  void reset() {
+    memset(reg, 0, sizeof(reg));
+    reg[0x0F] = 0x87;  // CANCTRL: configuration mode, CLKOUT
+    reg[0x0E] = 0x80;  // CANSTAT: configuration mode
+  }
+  void write(uint8_t addr, uint8_t v) {
+    addr &= 0x7F;
+    if (addr == 0x0E) return;  // CANSTAT is read-only
+    if ((addr & 0x0F) == 0x0E) return;
+    reg[addr] = v;
+    if (addr == 0x0F) reg[0x0E] = static_cast<uint8_t>((reg[0x0E] & 0x1F) | (v & 0xE0));
+    if ((addr == 0x30 || addr == 0x40 || addr == 0x50) && (v & 0x08)) transmit(addr);
+  }
+  bool configMode() const { return (reg[0x0E] & 0xE0) == 0x80; }
+  void transmit(uint8_t ctrl) {
+    if (configMode() || !acked) return;  // TXREQ stays set
+    const uint8_t* r = &reg[ctrl + 1];
+    Frame f;
+    const uint32_t sid = static_cast<uint32_t>(r[0]) << 3 | r[1] >> 5;
+    f.extended = (r[1] & 0x08) != 0;
+    f.id = f.extended ? (sid << 18 | static_cast<uint32_t>(r[1] & 3) << 16 |
+                         static_cast<uint32_t>(r[2]) << 8 | r[3])
+                      : sid;
+    f.len = r[4] & 0x0F;
+    memcpy(f.data, r + 5, 8);
+    sent.push_back(std::make_pair(f, static_cast<uint8_t>((ctrl - 0x30) >> 4)));
+    reg[ctrl] = static_cast<uint8_t>(reg[ctrl] & ~0x08);
+    reg[0x2C] |= static_cast<uint8_t>(0x04 << ((ctrl - 0x30) >> 4));
+  }
+  // The bus delivers a frame: into RXB0, or RXB1 when RXB0 is full (rollover), else overflow.
+  bool deliver(uint32_t id, bool ext, const uint8_t* data, uint8_t len, bool remote = false) {
+    uint8_t base;
+    if (!(reg[0x2C] & 1)) {
+      base = 0x60;
+    } else if (!(reg[0x2C] & 2) && (reg[0x60] & 0x04)) {
+      base = 0x70;
+    } else {
+      reg[0x2D] |= (reg[0x2C] & 2) ? 0x80 : 0x40;
+      reg[0x2C] |= 0x20;
+      return false;
+    }
+    uint8_t* r = &reg[base + 1];
+    if (ext) {
+      r[0] = static_cast<uint8_t>(id >> 21);
+      r[1] = static_cast<uint8_t>(((id >> 13) & 0xE0) | 0x08 | ((id >> 16) & 3));
+      r[2] = static_cast<uint8_t>(id >> 8);
+      r[3] = static_cast<uint8_t>(id);
+      r[4] = static_cast<uint8_t>(len | (remote ? 0x40 : 0));
+    } else {
+      r[0] = static_cast<uint8_t>(id >> 3);
+      r[1] = static_cast<uint8_t>((id & 7) << 5 | (remote ? 0x10 : 0));
+      r[2] = r[3] = 0;
+      r[4] = len;
+    }
+    memcpy(r + 5, data, len);
+    reg[0x2C] |= base == 0x60 ? 1 : 2;
+    return true;
+  }
+
+  // --- Port
+  void begin() {}
+  void select() {
+    CHECK(!selected, "select twice");
+    selected = true;
+    cmd.clear();
+  }
+  void deselect() {
+    CHECK(selected, "deselect without select");
+    selected = false;
+    ++transactions;
+    if (!cmd.empty()) {
+      const uint8_t op = cmd[0];
+      if (op == 0xC0) reset();
+      if ((op & 0xF0) == 0x80) {  // RTS
+        for (uint8_t b = 0; b < 3; ++b) {
+          if (op & (1 << b)) write(static_cast<uint8_t>(0x30 + 0x10 * b), reg[0x30 + 0x10 * b] | 0x08);
+        }
+      }
+      if ((op & 0xF9) == 0x90 && cmd.size() > 1) reg[0x2C] &= static_cast<uint8_t>(~pending_clear);
+    }
+  }
+  uint8_t transfer(uint8_t b) {
+    CHECK(selected, "SPI byte with CS high");
+    cmd.push_back(b);
+    const size_t n = cmd.size();
+    const uint8_t op = cmd[0];
+    if (n == 1) {
+      if ((op & 0xF9) == 0x90) pending_clear = (op & 4) ? 2 : 1;
+      return 0xFF;
+    }
+    if (op == 0x03) {  // READ addr, then data with auto-increment
+      if (n == 2) return 0xFF;
+      return reg[(cmd[1] + n - 3) & 0x7F];
+    }
+    if (op == 0x02) {  // WRITE addr, data...
+      if (n >= 3) write(static_cast<uint8_t>(cmd[1] + n - 3), b);
+      return 0xFF;
+    }
+    if (op == 0x05) {  // BIT MODIFY addr mask data
+      if (n == 4) {
+        const uint8_t a = cmd[1];
+        const uint8_t v = static_cast<uint8_t>((reg[a] & ~cmd[2]) | (cmd[3] & cmd[2]));
+        if (a == 0x0F || a == 0x2C || a == 0x2D || a == 0x30 || a == 0x40 || a == 0x50) {
+          if (a == 0x0F) {
+            write(a, v);
+          } else {
+            reg[a] = v;
+          }
+        } else {
+          CHECK(false, "bit modify of register %02x", a);
+        }
+      }
+      return 0xFF;
+    }
+    if (op == 0xA0) {  // READ STATUS
+      const uint8_t f = reg[0x2C];
+      return static_cast<uint8_t>((f & 3) | ((reg[0x30] & 8) ? 0x04 : 0) | ((f & 4) ? 0x08 : 0) |
+                                  ((reg[0x40] & 8) ? 0x10 : 0) | ((f & 8) ? 0x20 : 0) |
+                                  ((reg[0x50] & 8) ? 0x40 : 0) | ((f & 0x10) ? 0x80 : 0));
+    }
+    if ((op & 0xF8) == 0x40) {  // LOAD TX BUFFER from SIDH (0, 2, 4) or D0 (1, 3, 5)
+      const uint8_t base = static_cast<uint8_t>(0x31 + 0x10 * ((op & 7) >> 1) + ((op & 1) ? 5 : 0));
+      CHECK(!(reg[base & 0xF0] & 0x08), "load of a buffer waiting to send");
+      reg[base + n - 2] = b;
+      return 0xFF;
+    }
+    if ((op & 0xF9) == 0x90) {  // READ RX BUFFER
+      const uint8_t base = static_cast<uint8_t>(((op & 4) ? 0x71 : 0x61) + ((op & 2) ? 5 : 0));
+      return reg[base + n - 2];
+    }
+    CHECK(false, "unknown instruction %02x", op);
+    return 0;
+  }
+  uint32_t micros() { return clock += 50; }
+  uint32_t seed() { return 7; }
+};
+
+typedef Mcp2515T<Chip> Driver;
+
+void timing() {
+  const uint32_t crystals[2] = {8000000UL, 16000000UL};
+  const uint32_t rates[4] = {125000UL, 250000UL, 500000UL, 1000000UL};
+  for (int c = 0; c < 2; ++c) {
+    for (int r = 0; r < 4; ++r) {
+      BitTiming t;
+      CHECK(mcp2515_timing(crystals[c], rates[r], &t), "%lu at %lu", (unsigned long)crystals[c],
+            (unsigned long)rates[r]);
+      const uint32_t brp = t.cnf1 & 0x3F;
+      const uint32_t prop = (t.cnf2 & 7) + 1u;
+      const uint32_t ps1 = ((t.cnf2 >> 3) & 7) + 1u;
+      const uint32_t ps2 = (t.cnf3 & 7) + 1u;
+      const uint32_t ntq = 1 + prop + ps1 + ps2;
+      CHECK(t.cnf2 & 0x80, "BTLMODE");
+      CHECK(crystals[c] / (2 * (brp + 1) * ntq) == rates[r] &&
+                crystals[c] % (2 * (brp + 1) * ntq) == 0,
+            "rate");
+      CHECK(prop + ps1 >= ps2, "PS1 + PropSeg >= PS2");
+      if (ntq > 4) {
+        CHECK(ps2 >= 2 && (1 + prop + ps1) * 100 / ntq >= 60 && (1 + prop + ps1) * 100 / ntq <= 85,
+              "sample point %lu%% (%lu tq)", (unsigned long)((1 + prop + ps1) * 100 / ntq),
+              (unsigned long)ntq);
+      }
+    }
+  }
+  BitTiming t;
+  CHECK(mcp2515_timing(16000000UL, 500000UL, &t) && t.cnf1 == 0 && t.cnf3 == 3, "16 MHz 500k");
+  CHECK(!mcp2515_timing(16000000UL, 0, &t) && !mcp2515_timing(8000000UL, 3000000UL, &t), "bad");
+}
+
+void frames() {
+  Driver d;
+  d.configure(250000UL, 8000000UL);
+  CHECK(d.begin(), "begin");
+  Chip& chip = d.port();
+  CHECK((chip.reg[0x0E] & 0xE0) == 0, "normal mode");
+  BitTiming t;
+  mcp2515_timing(8000000UL, 250000UL, &t);
+  CHECK(chip.reg[0x2A] == t.cnf1 && chip.reg[0x29] == t.cnf2 && chip.reg[0x28] == t.cnf3, "CNF");
+  CHECK((chip.reg[0x60] & 0x64) == 0x64, "RXB0: any frame, rollover");
+  Frame f;
+  CHECK(!d.receive(&f), "nothing received");
+
+  // Sending: every length, extended and standard ids, priorities to their buffers.
+  Rng rng(3);
+  for (uint8_t len = 0; len <= 8; ++len) {
+    Frame s;
+    s.extended = len != 3;
+    s.id = s.extended ? (rng.next() & 0x1FFFFFFFUL) : (rng.next() & 0x7FF);
+    s.len = len;
+    for (uint8_t i = 0; i < 8; ++i) s.data[i] = static_cast<uint8_t>(rng.next());
+    const uint8_t priority = static_cast<uint8_t>(len % 8);
+    CHECK(d.send(s, priority), "send %u", len);
+    const Frame& g = chip.sent.back().first;
+    CHECK(g.id == s.id && g.extended == s.extended && g.len == len &&
+              memcmp(g.data, s.data, len) == 0,
+          "sent frame %u: %08lx", len, (unsigned long)g.id);
+    CHECK(chip.sent.back().second == (priority <= 3 ? 1 : 0), "buffer of priority %u", priority);
+  }
+  CHECK((chip.reg[0x40] & 3) > (chip.reg[0x30] & 3), "TXB1 before TXB0");
+
+  // Receiving: RXB0 then RXB1 (rollover), ids and data intact; a third overflows.
+  const uint8_t a[8] = {1, 2, 3, 4, 5, 6, 7, 0xE0};
+  CHECK(chip.deliver(0x14010005UL, true, a, 8), "rxb0");
+  CHECK(chip.deliver(0x123, false, a, 3), "rxb1");
+  CHECK(!chip.deliver(0x1, true, a, 1), "overflow");
+  CHECK(d.receive(&f) && f.id == 0x14010005UL && f.extended && f.len == 8 &&
+            memcmp(f.data, a, 8) == 0,
+        "first frame");
+  CHECK(d.receive(&f) && f.id == 0x123 && !f.extended && f.len == 3, "second frame");
+  CHECK(!d.receive(&f), "no third");
+  CHECK(d.stats.rx_overflow == 1 && d.stats.errors == 1, "overflow counted");
+  CHECK((chip.reg[0x2C] & 0x23) == 0, "flags cleared");
+  // Remote frames are not ours.
+  chip.deliver(0x14010005UL, true, a, 0, true);
+  chip.deliver(0x14010006UL, true, a, 2);
+  CHECK(d.receive(&f) && f.id == 0x14010006UL && d.stats.remote == 1, "remote skipped");
+
+  // Nobody acknowledges: the frame is aborted after the timeout, and the next one waits its turn.
+  chip.acked = false;
+  Frame s;
+  s.extended = true;
+  s.id = 0x14000005UL;
+  s.len = 1;
+  s.data[0] = 0xE0;
+  CHECK(d.send(s, 5), "queued");  // TXB0 was free
+  CHECK(!d.send(s, 5), "times out");
+  CHECK(d.stats.tx_timeouts == 1 && !(chip.reg[0x30] & 0x08), "aborted");
+  chip.acked = true;
+  CHECK(d.send(s, 5), "sends again");
+}
+
+void over_can_hardware() {
+  CanHardware<Driver, 72, 2, 160> hw;
+  hw.setNode(9);
+  hw.driver().configure(1000000UL, 16000000UL);
+  CHECK(hw.init(0), "init");
+  CHECK(hw.read() == -1, "nothing");
+  Chip& chip = hw.driver().port();
+  CHECK(chip.sent.size() == 1 && chip.sent[0].first.id == encode_id(3, kNode, 1, 0, 9) &&
+            chip.sent[0].second == 1,
+        "claim through TXB1");
+  // A two-frame transfer from the host arrives as one COBS run.
+  const uint8_t dg[9] = {0x50, 0x03, 0xc8, 0x2a, 0, 0, 0, 0xc9, 0xbb};
+  struct Q {
+    Chip* chip;
+    bool operator()(const Frame& f) { return chip->deliver(f.id, true, f.data, f.len); }
+  } q = {&chip};
+  send_transfer<kClassicMtu>(encode_id(4, kReliable, 3, 9, 0), dg, 9, 0, kClassicMtu, q);
+  std::vector<uint8_t> got;
+  for (int c = hw.read(); c >= 0; c = hw.read()) got.push_back(static_cast<uint8_t>(c));
+  uint8_t want[16];
+  const size_t n = hwbridge::cobs_encode(dg, 9, want, sizeof want);
+  CHECK(got.size() == n + 1 && memcmp(got.data(), want, n) == 0 && got[n] == 0, "read %s",
+        to_hex(got).c_str());
+  // And the same datagram written by the session leaves as two frames in TXB0.
+  for (size_t i = 0; i < n; ++i) hw.put(want[i]);
+  hw.put(0);
+  CHECK(chip.sent.size() == 3 && chip.sent[1].second == 0 &&
+            chip.sent[1].first.id == encode_id(4, kReliable, 3, 0, 9) &&
+            to_hex(chip.sent[2].first.data, chip.sent[2].first.len) == "c9bb30ee40",
+        "sent %zu", chip.sent.size());
+}
+
+}  // namespace
+
+int main() {
+  timing();
+  frames();
+  over_can_hardware();
+  printf("test_mcp2515: %lu checks passed\n", g_checks);
+  return 0;
+}

@@ -53,20 +53,20 @@ class CanHardware {
   static const uint32_t kClaimPeriodUs = 1000000UL;
   static const size_t kOutCap = MaxDatagram + MaxDatagram / 254 + 1;
 
-  CanHardware()
-      : node_(1), out_len_(0), out_overflow_(false), head_(0), tail_(0), count_(0),
-        last_claim_(0), claimed_(false), started_(false) {
-    memset(&stats, 0, sizeof(stats));
-    memset(uid_, 0, sizeof(uid_));
-    receiver_.setLocal(node_);
-  }
+  // constexpr and all zero: a global node lies in .bss, with neither start-up code nor a copy of
+  // initial values in flash (node 0 stands for "not set": node 1)
+  constexpr CanHardware()
+      : stats(), driver_(), receiver_(0), tids_(), watch_(), node_(0), uid_(), out_(), out_len_(0),
+        out_overflow_(false), ring_(), head_(0), tail_(0), count_(0), last_claim_(0),
+        claimed_(false), started_(false) {}
 
   /** This board's node id (1..127); the host names it in its link (can://.../nodeN). */
   void setNode(uint8_t node) {
     node_ = node & 0x7F;
+    if (node_ == 0) node_ = 1;
     receiver_.setLocal(node_);
   }
-  uint8_t node() const { return node_; }
+  uint8_t node() const { return node_ ? node_ : 1; }
   /** Sets the 6-byte unique id of the claims (else one is drawn from seed() at init). */
   void setUid(const uint8_t* uid) { memcpy(uid_, uid, kUidSize); }
   const uint8_t* uid() const { return uid_; }
@@ -76,6 +76,7 @@ class CanHardware {
   /** Hardware: opens the driver (baud is unused: the bit rate is the driver's). */
   bool init(uint32_t baud = 0) {
     (void)baud;
+    if (node_ == 0) setNode(1);
     bool zero = true;
     for (uint8_t i = 0; i < kUidSize; ++i) zero = zero && uid_[i] == 0;
     if (zero) {

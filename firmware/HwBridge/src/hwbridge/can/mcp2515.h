@@ -121,9 +121,8 @@ struct Mcp2515Stats {
 template <class Port>
 class Mcp2515T {
  public:
-  Mcp2515T() : crystal_(16000000UL), bitrate_(500000UL), timeout_us_(10000UL), ok_(false) {
-    memset(&stats, 0, sizeof(stats));
-  }
+  // all zero (the defaults: 16 MHz, 500 kbit/s, 10 ms): a global node lies in .bss
+  constexpr Mcp2515T() : stats(), port_(), crystal_(0), bitrate_(0), timeout_us_(0), ok_(false) {}
 
   /** The bus's bit rate and the chip's crystal (before begin()). */
   void configure(uint32_t bitrate, uint32_t crystal_hz = 16000000UL) {
@@ -138,7 +137,9 @@ class Mcp2515T {
   bool begin() {
     ok_ = false;
     BitTiming t;
-    if (!mcp2515_timing(crystal_, bitrate_, &t)) return false;
+    if (!mcp2515_timing(crystal_ ? crystal_ : 16000000UL, bitrate_ ? bitrate_ : 500000UL, &t)) {
+      return false;
+    }
     port_.begin();
     port_.select();
     port_.transfer(mcp::kReset);
@@ -176,7 +177,7 @@ class Mcp2515T {
     const uint8_t ctrl = buffer ? mcp::kTxb1Ctrl : mcp::kTxb0Ctrl;
     const uint32_t start = port_.micros();
     while (readReg(ctrl) & mcp::kTxReq) {
-      if (port_.micros() - start >= timeout_us_) {
+      if (port_.micros() - start >= (timeout_us_ ? timeout_us_ : 10000UL)) {
         modify(ctrl, mcp::kTxReq, 0);  // abort the frame that does not go
         ++stats.tx_timeouts;
         checkErrors();
@@ -326,9 +327,10 @@ namespace can {
  */
 class ArduinoSpiPort {
  public:
-  ArduinoSpiPort() : cs_(10) {}
+  constexpr ArduinoSpiPort() : cs_(0) {}  // 0: pin 10 (pin 0 is the serial port's RX)
   void setPin(uint8_t cs) { cs_ = cs; }
   void begin() {
+    if (cs_ == 0) cs_ = 10;
     pinMode(cs_, OUTPUT);
     digitalWrite(cs_, HIGH);
     SPI.begin();

@@ -162,7 +162,7 @@ bool send_transfer(uint32_t id, const uint8_t* payload, size_t n, uint8_t tid, u
 template <uint8_t Ids>
 class TidTable {
  public:
-  TidTable() : used_(0), clock_(0) {}
+  constexpr TidTable() : ids_(), tids_(), stamp_(), used_(0), clock_(0) {}
   /** The transfer id for the next transfer on id (and counts it). */
   uint8_t next(uint32_t id) {
     ++clock_;
@@ -230,11 +230,9 @@ class TransferReceiver {
   static const uint32_t kTimeoutUs = 1000000UL;
   static const uint32_t kTidTimeoutUs = 1000000UL;
 
-  explicit TransferReceiver(uint8_t local = 0) : local_(local), done_next_(0) {
-    memset(&stats, 0, sizeof(stats));
-    for (uint8_t i = 0; i < Slots; ++i) rx_[i].busy = false;
-    for (uint8_t i = 0; i < 2 * Slots; ++i) done_[i].valid = false;
-  }
+  // constexpr: a global node holding one is initialized at compile time (in .bss), not by code
+  constexpr explicit TransferReceiver(uint8_t local = 0)
+      : stats(), local_(local), done_next_(0), rx_(), done_() {}
   void setLocal(uint8_t local) { local_ = local; }
   uint8_t local() const { return local_; }
 
@@ -432,7 +430,7 @@ class TransferReceiver {
  */
 class OwnClaimWatch {
  public:
-  OwnClaimWatch() : conflicts(0), last_conflict(0) {}
+  constexpr OwnClaimWatch() : conflicts(0), last_conflict(0) {}
   /** A claim of node with unique id uid (kUidSize bytes); true if it contradicts ours. */
   bool claim(uint8_t node, uint8_t own_node, const uint8_t* uid, const uint8_t* own_uid,
              uint32_t now) {

@@ -70,7 +70,7 @@ class CanRelay:
             threading.Thread(target=self._board_to_bus, args=(client,), daemon=True).start()
 
     def _board_to_bus(self, client: socket.socket) -> None:
-        with client.makefile("rb") as stream:
+        with client, client.makefile("rb") as stream:
             try:
                 for raw in stream:
                     message = parse_line(raw.decode("ascii", "replace"))

@@ -9,7 +9,8 @@
   ``udp_multicast`` bus; ``hwbridge connect can://udp_multicast/.../node5`` (a process of its
   own) bridges it and an emulated board (node 2, ``hwbridge.emulator.can_bus``) on the same bus:
   a topic each way, a service and a parameter work on the sketch, and the emulated board's
-  service and topic keep working, its session never renegotiated.
+  service and topic keep working, its session never renegotiated; the sketch restarted is
+  taken back.
 
 ``examples/CanNode`` (the MCP2515 driver and ``CanHardware`` on an AVR) is built for the Uno and
 the Mega by both tools in ``test_examples.py`` like every example.
@@ -157,17 +158,14 @@ def test_host_sketch_on_a_can_bus_with_an_emulated_board(
     program: Path, bus: Bus, tmp_path: Path
 ) -> None:
     bridge = BridgeProcess(bus.url(NODE), tmp_path, f"canfw{free_port()}", bus.url(OTHER))
-    board: subprocess.Popen[str] | None = None
+    board: subprocess.Popen[bytes] | None = None
+    log = (tmp_path / "board.log").open("w")
     try:
         bridge.wait_ready()
         assert bridge.cli("param", "set", "/rate", "9").returncode == 0
         env = {"HWBRIDGE_CAN": f"127.0.0.1:{bus.relay.port}", "HWBRIDGE_CAN_NODE": str(NODE)}
         board = subprocess.Popen(
-            [str(program)],
-            env={**bridge.env, **env},
-            stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT,
-            text=True,
+            [str(program)], env={**bridge.env, **env}, stdout=log, stderr=subprocess.STDOUT
         )
         assert wait_until(lambda: "board 'canboard' connected" in bridge.output(), 30), (
             bridge.output()
@@ -203,10 +201,22 @@ def test_host_sketch_on_a_can_bus_with_an_emulated_board(
         assert output.count("board 'node2' connected") == 1, output
         assert output.count("board 'canboard' connected") == 1, output
         assert bus.relay.to_bus > 0 and bus.relay.from_bus > 0
+
+        # the board restarts (new session, transfer ids from 0 again): the bridge takes it back
+        board.kill()
+        board.wait(10)
+        board = subprocess.Popen(
+            [str(program)], env={**bridge.env, **env}, stdout=log, stderr=subprocess.STDOUT
+        )
+        assert wait_until(lambda: bridge.output().count("board 'canboard' connected") >= 2, 30), (
+            bridge.output()
+        )
+        call = bridge.cli("service", "call", ping)
+        assert yaml.safe_load(call.stdout) == {"success": True, "message": "pong 1"}, call.stderr
+        assert bridge.output().count("board 'node2' connected") == 1, bridge.output()
     finally:
         if board is not None:
             board.kill()
             board.wait(10)
-            if board.stdout is not None:
-                board.stdout.close()
         bridge.stop()
+        log.close()

@@ -8,7 +8,8 @@
 //
 // Mcp2515T<Port> talks through Port: select(), deselect(), uint8_t transfer(uint8_t),
 // uint32_t micros(), uint32_t seed(). On Arduino, Mcp2515 is Mcp2515T<ArduinoSpiPort> (the SPI
-// library, mode 0, 8 MHz at most; the chip-select pin given to port().setPin()).
+// library, mode 0, 8 MHz at most; the chip-select pin given to port().setPin()): include <SPI.h>
+// before this header, as examples/CanNode does.
 #ifndef HWBRIDGE_CAN_MCP2515_H
 #define HWBRIDGE_CAN_MCP2515_H
 
@@ -312,9 +313,10 @@ class Mcp2515T {
 }  // namespace can
 }  // namespace hwbridge
 
-#if defined(ARDUINO) && !defined(HWBRIDGE_HOST_BUILD)
+// Mcp2515 (the chip on the Arduino SPI library) exists when the sketch included <SPI.h> first.
+#if defined(ARDUINO) && !defined(HWBRIDGE_HOST_BUILD) && \
+    (defined(_SPI_H_INCLUDED) || defined(SPI_MODE0))
 #include <Arduino.h>
-#include <SPI.h>
 
 namespace hwbridge {
 namespace can {

@@ -2,8 +2,10 @@
 // interleaved, with frames dropped, repeated, reordered, corrupted, and random frames mixed in.
 // Checked: no crash or out-of-bounds access (run under ASan/UBSan), every delivered transfer is
 // one that was sent on its id and no larger than the receiver allows, the counters add up,
-// and a clean stream (no damage) delivers every transfer exactly once.
+// and a clean stream (no damage) delivers every transfer exactly once. CanHardware gets random
+// session bytes and bus frames too (hardware_round).
 //   fuzz_can_receiver SEED SECONDS
+#include <hwbridge/can/can_hardware.h>
 #include <hwbridge/can/transport.h>
 #include <time.h>
 
@@ -125,6 +127,96 @@ void round(Rng& rng, bool clean, unsigned long* delivered_total) {
   *delivered_total += delivered;
 }
 
+// CanHardware with random session bytes (valid COBS runs, garbage, runs too long) and random
+// bus frames (the host's transfers, damaged ones, others'): nothing out of bounds, every
+// transfer sent carries at most MaxDatagram bytes, every datagram read is a whole COBS run.
+struct FuzzDriver {
+  Rng* rng;
+  std::vector<Frame> inbox;
+  size_t next;
+  std::vector<Frame> sent;
+  uint32_t now;
+  bool begin() { return true; }
+  bool receive(Frame* f) {
+    if (next >= inbox.size()) return false;
+    *f = inbox[next++];
+    return true;
+  }
+  bool send(const Frame& f, uint8_t) {
+    CHECK(f.len >= 1 && f.len <= 8 && f.extended, "frame sent");
+    if (rng->below(50) == 0) return false;  // the bus refuses now and then
+    sent.push_back(f);
+    return true;
+  }
+  uint32_t micros() { return now += rng->below(20000); }
+  uint32_t seed() { return rng->next(); }
+};
+
+unsigned long g_read_datagrams = 0;
+unsigned long g_sent_transfers = 0;
+
+void hardware_round(Rng& rng) {
+  typedef CanHardware<FuzzDriver, 40, 2, 90> Hw;
+  static Hw hw;
+  hw = Hw();
+  FuzzDriver& d = hw.driver();
+  d.rng = &rng;
+  d.next = 0;
+  d.now = rng.next();
+  hw.setNode(static_cast<uint8_t>(1 + rng.below(127)));
+  CHECK(hw.init(0), "init");
+  const uint8_t node = hw.node();
+  TidTable<4> tids;
+  for (unsigned k = 0; k < 20; ++k) {
+    Bytes p(rng.below(50));
+    for (size_t i = 0; i < p.size(); ++i) p[i] = static_cast<uint8_t>(rng.below(3) ? rng.next() : 0);
+    const uint8_t src = rng.below(4) ? 0 : static_cast<uint8_t>(rng.below(128));
+    const uint8_t dst = rng.below(4) ? node : static_cast<uint8_t>(rng.below(128));
+    const uint32_t id = encode_id(static_cast<uint8_t>(rng.below(8)),
+                                  static_cast<uint8_t>(rng.below(4)),
+                                  static_cast<uint8_t>(rng.below(4)), dst, src);
+    std::vector<Frame> fs;
+    Out o = {&fs};
+    send_transfer<kClassicMtu>(id, p.data(), p.size(), tids.next(id), kClassicMtu, o);
+    for (size_t i = 0; i < fs.size(); ++i) {
+      if (rng.below(30) == 0) fs[i].data[rng.below(8)] ^= 0x10;
+      if (rng.below(40) != 0) d.inbox.push_back(fs[i]);
+    }
+  }
+  Bytes readback;
+  for (unsigned step = 0; step < 400; ++step) {
+    if (rng.below(3) == 0) {
+      const int c = hw.read();
+      if (c >= 0) readback.push_back(static_cast<uint8_t>(c));
+    } else {
+      const unsigned what = rng.below(10);
+      hw.put(what == 0 ? 0 : static_cast<uint8_t>(what < 3 ? rng.next() : 1 + rng.below(255)));
+    }
+  }
+  for (int c = hw.read(); c >= 0; c = hw.read()) readback.push_back(static_cast<uint8_t>(c));
+  // Whole COBS runs only, each a datagram of at most 40 bytes.
+  size_t start = 0;
+  for (size_t i = 0; i < readback.size(); ++i) {
+    if (readback[i] != 0) continue;
+    uint8_t out[64];
+    size_t n = 0;
+    CHECK(i > start && i - start <= sizeof(out) &&
+              hwbridge::cobs_decode(&readback[start], i - start, out, &n) && n <= 40,
+          "a bad run in the read bytes");
+    ++g_read_datagrams;
+    start = i + 1;
+  }
+  // The transfers sent reassemble to at most 40 bytes each.
+  TransferReceiver<64, 8> rx(0);
+  for (size_t i = 0; i < d.sent.size(); ++i) {
+    Transfer t;
+    if (rx.feed(d.sent[i].id, true, d.sent[i].data, d.sent[i].len, 0, &t)) {
+      CHECK(t.size <= 40, "a transfer of %zu bytes sent", t.size);
+      ++g_sent_transfers;
+    }
+  }
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -136,10 +228,12 @@ int main(int argc, char** argv) {
   unsigned long delivered = 0;
   while (rounds < 200 || difftime(time(nullptr), start) < seconds) {
     round(rng, rounds % 3 == 0, &delivered);
+    if (rounds % 8 == 0) hardware_round(rng);
     ++rounds;
     if (difftime(time(nullptr), start) >= seconds && rounds >= 200) break;
   }
-  printf("fuzz_can_receiver: seed %u, %lu rounds, %lu transfers delivered, %lu checks\n", seed,
-         rounds, delivered, g_checks);
+  printf("fuzz_can_receiver: seed %u, %lu rounds, %lu transfers delivered, %lu checks; "
+         "CanHardware: %lu datagrams read, %lu transfers sent\n",
+         seed, rounds, delivered, g_checks, g_read_datagrams, g_sent_transfers);
   return 0;
 }

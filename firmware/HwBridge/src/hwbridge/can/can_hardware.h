@@ -11,10 +11,12 @@
 // Driver concept:
 //   bool begin()                                   opens the controller (bit rate set before)
 //   bool receive(hwbridge::can::Frame* f)          a received frame, if any (never blocks)
-//   bool send(const hwbridge::can::Frame& f, uint8_t priority)
+//   bool send(const hwbridge::can::Frame& f, uint8_t queue_class)
 //                                                  queues one frame (may wait briefly for room;
 //                                                  false when it cannot: counted, the transfer
-//                                                  is abandoned)
+//                                                  is abandoned); frames of one queue_class
+//                                                  (queue_class() in transport.h) must leave in
+//                                                  the order given
 //   uint32_t micros(), uint32_t seed()             a wrapping microsecond clock, some entropy
 #ifndef HWBRIDGE_CAN_HARDWARE_H
 #define HWBRIDGE_CAN_HARDWARE_H
@@ -155,9 +157,12 @@ class CanHardware {
     uint8_t kind;
     uint8_t channel;
     kind_of(datagram, n, &kind, &channel);
-    const uint8_t priority = priority_of(kind, channel);
-    return sendTransfer(encode_id(priority, kind, channel, kHostNode, node_), priority, datagram,
-                        n);
+    // The id carries the datagram's priority (arbitration between nodes); the driver is given
+    // its stream's place instead, so that a control datagram never overtakes data queued before
+    // it on the same stream (CAN.md 3: the receiver would drop that data as late).
+    const uint8_t id_priority = priority_of(kind, channel);
+    return sendTransfer(encode_id(id_priority, kind, channel, kHostNode, node_),
+                        queue_class(kind), datagram, n);
   }
 
   /** The receiver's counters (CAN.md 5). */

@@ -1,7 +1,7 @@
 // A Driver (see can_hardware.h) for the Microchip MCP2515 CAN controller on SPI, register level:
 // reset, bit timing computed for the crystal (8 or 16 MHz, 125k..1M bit/s), extended ids, both
 // receive buffers (RXB0 rolling over into RXB1, filters off: the transport filters), and two
-// transmit buffers by priority: ACK, control and claim frames (CAN priority 0..3) in TXB1 at the
+// transmit buffers by queue class: ACK and claim frames (class 0..3) in TXB1 at the
 // highest TXP, data in TXB0 at a lower one; each buffer sends its frames in order, one at a time,
 // so a transfer's frames never overtake each other. A frame not sent within the send timeout
 // (no other node acknowledging, bus off) is aborted and the send fails.

@@ -96,6 +96,14 @@ inline uint8_t priority_of(uint8_t kind, uint8_t channel) {
   return kind == kReliable ? kPriorityReliable : kPriorityBestEffort;
 }
 
+/** A sender's queue order for a transfer of `kind` (CAN.md 3): ACKs, NODE messages, then the
+ * reliable and the best-effort streams, each in its own order whatever its ids' priorities. */
+inline uint8_t queue_class(uint8_t kind) {
+  if (kind == kAck) return kPriorityAck;
+  if (kind == kNode) return kPriorityNode;
+  return kind == kReliable ? kPriorityReliable : kPriorityBestEffort;
+}
+
 /** One CAN frame (data up to Mtu bytes). */
 template <uint8_t Mtu>
 struct FrameT {

@@ -102,9 +102,15 @@ struct String {
   static const uint16_t capacity = N;
   char data[N + 1];
   uint16_t size;
-  String() : size(0) { data[0] = '\0'; }
+  /** Empty; constexpr, so a global message needs no static constructor. */
+  constexpr String() : data(), size(0) {}
   /** Copies s; false (and the string left as it was) if it has more than N bytes. */
   bool assign(const char* s) { return assign(s, strlen(s)); }
+  /** msg.data = "hello": as assign(s) (a string above N bytes leaves it as it was). */
+  String& operator=(const char* s) {
+    assign(s);
+    return *this;
+  }
   bool assign(const char* s, size_t n) {
     if (n > N) return false;
     if (n) memcpy(data, s, n);
@@ -121,7 +127,7 @@ struct Array {
   static const uint16_t capacity = N;
   T data[N];
   uint16_t size;
-  Array() : data(), size(0) {}
+  constexpr Array() : data(), size(0) {}
   /** Appends v; false if the array is full. */
   bool push_back(const T& v) {
     if (size >= N) return false;
@@ -198,8 +204,8 @@ class Writer {
   void i16(int16_t v) { le(static_cast<uint16_t>(v), 2); }
   void u32(uint32_t v) { le(v, 4); }
   void i32(int32_t v) { le(static_cast<uint32_t>(v), 4); }
-  void u64(uint64_t v) { le(v, 8); }
-  void i64(int64_t v) { le(static_cast<uint64_t>(v), 8); }
+  void u64(uint64_t v) { le64(v); }
+  void i64(int64_t v) { le64(static_cast<uint64_t>(v)); }
   void f32(float v) {
     uint32_t u;
     memcpy(&u, &v, 4);
@@ -209,11 +215,11 @@ class Writer {
 #ifdef HWBRIDGE_SOFT_FLOAT64
     uint32_t u;
     memcpy(&u, &v, 4);
-    le(detail::f32_to_f64(u), 8);
+    le64(detail::f32_to_f64(u));
 #else
     uint64_t u;
     memcpy(&u, &v, 8);
-    le(u, 8);
+    le64(u);
 #endif
   }
   void time(const Time& t) {
@@ -248,9 +254,15 @@ class Writer {
     if (!ok_ || cap_ - pos_ < n) ok_ = false;
     return ok_;
   }
-  void le(uint64_t v, uint8_t n) {
+  // 32-bit words (no 64-bit shifts on an 8-bit board); 64-bit values as two words
+  void le(uint32_t v, uint8_t n) {
     if (!room(n)) return;
-    for (uint8_t i = 0; i < n; ++i) buf_[pos_++] = static_cast<uint8_t>(v >> (8 * i));
+    for (uint8_t i = 0; i < n; ++i, v >>= 8) buf_[pos_++] = static_cast<uint8_t>(v);
+  }
+  void le64(uint64_t v) {
+    if (!room(8)) return;
+    le(static_cast<uint32_t>(v), 4);
+    le(static_cast<uint32_t>(v >> 32), 4);
   }
   uint8_t* buf_;
   size_t cap_;
@@ -269,8 +281,12 @@ class Reader {
   int16_t i16() { return static_cast<int16_t>(le(2)); }
   uint32_t u32() { return static_cast<uint32_t>(le(4)); }
   int32_t i32() { return static_cast<int32_t>(le(4)); }
-  uint64_t u64() { return le(8); }
-  int64_t i64() { return static_cast<int64_t>(le(8)); }
+  uint64_t u64() {
+    if (!have(8)) return 0;
+    const uint32_t lo = le(4);
+    return static_cast<uint64_t>(le(4)) << 32 | lo;
+  }
+  int64_t i64() { return static_cast<int64_t>(u64()); }
   float f32() {
     uint32_t u = static_cast<uint32_t>(le(4));
     float v;
@@ -278,7 +294,7 @@ class Reader {
     return v;
   }
   float64 f64() {
-    uint64_t u = le(8);
+    uint64_t u = u64();
     float64 v;
 #ifdef HWBRIDGE_SOFT_FLOAT64
     uint32_t f = detail::f64_to_f32(u);
@@ -322,10 +338,10 @@ class Reader {
     if (!ok_ || len_ - pos_ < n) ok_ = false;
     return ok_;
   }
-  uint64_t le(uint8_t n) {
+  uint32_t le(uint8_t n) {
     if (!have(n)) return 0;
-    uint64_t v = 0;
-    for (uint8_t i = 0; i < n; ++i) v |= static_cast<uint64_t>(buf_[pos_++]) << (8 * i);
+    uint32_t v = 0;
+    for (uint8_t i = 0; i < n; ++i) v |= static_cast<uint32_t>(buf_[pos_++]) << (8 * i);
     return v;
   }
   const uint8_t* buf_;

@@ -136,7 +136,7 @@ class ParamValue {
 typedef void (*ParamCallback)(const ParamValue& value);
 typedef void (*LogCallback)(uint8_t level, const char* text, size_t len);
 
-/** Counters of a node (cumulative over sessions; 16-bit, wrapping). */
+/** Counters of a node (cumulative over sessions; `Counter`: 8-bit on AVR, 16-bit elsewhere, wrapping). */
 struct NodeStats {
   Counter sessions;          ///< sessions established
   Counter link_losses;       ///< ended by the link timeout or the retry limit
@@ -345,7 +345,7 @@ class NodeHandle_ : public NodeBase {
   /** Host time now (ROS time; zeros before the first time sync answer). */
   void now(uint32_t* sec, uint32_t* nsec);
   /** True once a time sync answer arrived in this session. */
-  bool timeSynced() const { return time_synced_; }
+  bool timeSynced() const { return flag(kTimeSynced); }
   /** Asks the host for its time now (a profile with kTimeSyncMs > 0 also does it periodically;
    * with kTimeSyncMs 0 the board reads no answers and host time comes from the host's own
    * time requests). */
@@ -395,7 +395,7 @@ class NodeHandle_ : public NodeBase {
   /** The unique id sent in BOARD_INFO (kept as a pointer; at most 255 bytes). */
   void setUniqueId(const uint8_t* id, uint8_t len) { uid_ = id; uid_len_ = len; }
   /** Fixes the session id and ISN instead of random ones (tests; before begin/initNode). */
-  void setIdentity(uint32_t session_id, uint8_t isn) { fixed_id_ = session_id; fixed_isn_ = isn; has_fixed_ = true; }
+  void setIdentity(uint32_t session_id, uint8_t isn) { id_ = session_id; fixed_isn_ = isn; setFlag(kFixed, true); }
 
   // what entries call through NodeBase
   uint8_t* takeTxBuffer(size_t* cap);
@@ -406,8 +406,9 @@ class NodeHandle_ : public NodeBase {
  private:
   enum State : uint8_t { kOff = 0, kHandshake, kConfiguring, kConnected };
   static const uint16_t kMinMtu = 24;
-  static const uint32_t kHelloFirstUs = 50000UL;
-  static const uint32_t kHelloIntervalUs = 250000UL;
+  static const uint8_t kHelloFirstMs = 50;
+  static const uint8_t kHelloIntervalMs = 250;
+  static const uint32_t kHelloIntervalUs = 1000UL * kHelloIntervalMs;
   static const uint32_t kHeartbeatUs = 100000UL;
   static const uint32_t kLinkTimeoutUs = 800000UL;
   static const uint32_t kHandshakeTimeoutUs = 3000000UL;
@@ -417,7 +418,7 @@ class NodeHandle_ : public NodeBase {
 
   bool add(Entry& e);
   bool established() const { return state_ >= kConfiguring; }
-  uint32_t random32();
+  static uint32_t xorshift(uint32_t x);
   void onFrame(const Frame& f);
   void onBestEffort(const Frame& f);
   void onMessage(const Message& m, bool reliable);
@@ -466,7 +467,9 @@ class NodeHandle_ : public NodeBase {
   BestEffortSender be_tx_{};
   BestEffortReceiver be_rx_{};
   ReliableSender<Profile::kWindow, Profile::kMtu, Profile::kFixedRto> rel_tx_{};
-  ReliableReceiver<Profile::kWindow, Profile::kMtu, 0> rel_rx_{};
+  // A window above 1 holds early frames (window - 1 of them): a receiver that drops them makes
+  // the host's per-frame backoff grow for every frame after a gap (PROTOCOL.md 2.4).
+  ReliableReceiver<Profile::kWindow, Profile::kMtu, Profile::kWindow - 1> rel_rx_{};
   LeadTracker lead_{};
   NodeStats stats_{};
   Entry* entries_ = nullptr;
@@ -484,12 +487,16 @@ class NodeHandle_ : public NodeBase {
   void* call_res_ = nullptr;
   Entry* call_entry_ = nullptr;
   uint32_t now_ = 0;
-  uint32_t id_ = 0, peer_ = 0, be_peer_ = 0, fixed_id_ = 0, rng_ = 0;
-  uint32_t peer_max_ = 0;  // the host's max_message
-  uint32_t next_hello_ = 0, hello_wait_ = 0, last_rx_ = 0, last_tx_ = 0, since_ = 0, time_next_ = 0;
-  uint32_t param_deadline_ = 0, call_deadline_ = 0;
+  uint32_t id_ = 0, peer_ = 0, be_peer_ = 0;
+  // timer_, by state: the next HELLO (handshake), the start of the table (configuring), the
+  // pending service call's deadline (connected)
+  uint32_t timer_ = 0, last_rx_ = 0, last_tx_ = 0;
+  // own time requests only with kTimeSyncMs (a byte otherwise)
+  typename detail::Pick<Profile::kTimeSyncMs != 0, uint32_t, uint8_t>::type time_next_ = 0;
+  uint32_t param_deadline_ = 0;
   uint32_t board_ref_ = 0, host_sec_ = 0, host_nsec_ = 0;  // time sync reference pair
   uint16_t mtu_ = 0;
+  uint16_t peer_max_ = 0;  // the host's max_message (65535 for anything above)
   uint16_t pending_len_ = 0;  // a reliable message in tx_ waiting for a free slot
   uint16_t next_request_ = 0;
   uint16_t param_id_ = 0, call_id_ = 0;
@@ -501,12 +508,14 @@ class NodeHandle_ : public NodeBase {
   uint8_t entry_count_ = 0;
   uint8_t table_pos_ = 0;
   uint8_t uid_len_ = 0;
+  uint8_t hello_wait_ = 0;  // ms until the next HELLO: 50, 100, 200, then 250
   uint8_t call_state_ = 0;   // 0 none, 1 waiting, 2 answered
   uint8_t call_status_ = 0;
   uint8_t sync_state_ = 0;   // 0 none, 1 waiting, 2 answered ok, 3 failed
-  bool has_fixed_ = false;
-  bool in_input_ = false;
-  bool time_synced_ = false;
+  uint8_t flags_ = 0;  // kFixed | kInInput | kTimeSynced
+  enum Flag : uint8_t { kFixed = 1, kInInput = 2, kTimeSynced = 4 };
+  bool flag(uint8_t f) const { return (flags_ & f) != 0; }
+  void setFlag(uint8_t f, bool on) { flags_ = static_cast<uint8_t>(on ? flags_ | f : flags_ & ~f); }
   uint8_t tx_[Profile::kTxBuffer] = {};
 };
 

@@ -157,11 +157,10 @@ HWB_NODE void HWB_SELF::initNode(uint32_t baud, const char* name, const char* fi
 HWB_NODE void HWB_SELF::begin(const char* name, const char* firmware) {
   name_ = name;
   firmware_ = firmware;
-  rng_ = hw_.seed() | 1u;
-  rng_ ^= 0x9E3779B9UL;
-  if (rng_ == 0) rng_ = 1;
-  id_ = has_fixed_ ? fixed_id_ : 0;
-  while (id_ == 0) id_ = random32();
+  uint32_t r = (hw_.seed() | 1u) ^ 0x9E3779B9UL;
+  if (r == 0) r = 1;
+  if (!flag(kFixed)) id_ = 0;
+  while (id_ == 0) id_ = r = xorshift(r);
   now_ = hw_.micros();
   peer_max_ = kMinMtu;
   mtu_ = Profile::kMtu;
@@ -173,12 +172,11 @@ HWB_NODE void HWB_SELF::begin(const char* name, const char* firmware) {
   teardown();  // draws the ISN, schedules the first HELLO now
 }
 
-HWB_NODE uint32_t HWB_SELF::random32() {
-  uint32_t x = rng_;  // xorshift32
+HWB_NODE uint32_t HWB_SELF::xorshift(uint32_t x) {  // xorshift32
   x ^= x << 13;
   x ^= x >> 17;
   x ^= x << 5;
-  return rng_ = x;
+  return x;
 }
 
 HWB_NODE bool HWB_SELF::add(Entry& e) {
@@ -208,32 +206,32 @@ HWB_NODE void HWB_SELF::spinOnce() {
 }
 
 HWB_NODE void HWB_SELF::processInput() {
-  if (state_ == kOff || in_input_) return;
-  in_input_ = true;
+  if (state_ == kOff || flag(kInInput)) return;
+  setFlag(kInInput, true);
   now_ = hw_.micros();
   for (uint16_t budget = 2 * FrameDecoder<Profile::kMtu, false>::kCapacity + 8; budget; --budget) {
     const int c = hw_.read();
     if (c < 0) break;
     if (dec_.push(static_cast<uint8_t>(c)) == Decoded::Frame) onFrame(dec_.frame());
   }
-  in_input_ = false;
+  setFlag(kInInput, false);
   flushOut();
 }
 
 HWB_NODE void HWB_SELF::runTimers() {
-  if (state_ == kOff || in_input_) return;
+  if (state_ == kOff || flag(kInInput)) return;
   now_ = hw_.micros();
   if (!established()) {
-    if (time_reached(now_, next_hello_)) {
+    if (time_reached(now_, timer_)) {
       sendHello();
-      next_hello_ = now_ + hello_wait_;
-      hello_wait_ = hello_wait_ * 2 < kHelloIntervalUs ? hello_wait_ * 2 : kHelloIntervalUs;
+      timer_ = now_ + 1000UL * hello_wait_;
+      hello_wait_ = hello_wait_ < kHelloIntervalMs / 2 ? static_cast<uint8_t>(hello_wait_ * 2) : kHelloIntervalMs;
     }
     hw_.flush();
     return;
   }
   if (now_ - last_rx_ >= kLinkTimeoutUs ||
-      (state_ == kConfiguring && now_ - since_ >= kHandshakeTimeoutUs)) {
+      (state_ == kConfiguring && now_ - timer_ >= kHandshakeTimeoutUs)) {
     ++stats_.link_losses;
     teardown();
     runTimers();
@@ -245,14 +243,14 @@ HWB_NODE void HWB_SELF::runTimers() {
     return;
   }
   if (state_ == kConnected) {
-    if (call_state_ == 1 && time_reached(now_, call_deadline_)) {
+    if (call_state_ == 1 && time_reached(now_, timer_)) {
       call_status_ = kCallTimeout;
       call_state_ = 2;
     }
     if (param_id_ && time_reached(now_, param_deadline_)) finishParam(kParamTimeout, nullptr);
     if (Profile::kTimeSyncMs && (features_ & 1) && time_reached(now_, time_next_)) {
       requestSyncTime();
-      time_next_ = now_ + kTimeRetryUs;
+      time_next_ = static_cast<decltype(time_next_)>(now_ + kTimeRetryUs);
     }
   }
   if (now_ - last_tx_ >= kHeartbeatUs) {
@@ -264,7 +262,7 @@ HWB_NODE void HWB_SELF::runTimers() {
 }
 
 HWB_NODE void HWB_SELF::spinFor() {
-  in_input_ = false;
+  setFlag(kInInput, false);
   processInput();
   runTimers();
 }
@@ -272,7 +270,7 @@ HWB_NODE void HWB_SELF::spinFor() {
 /** Waits (spinning) until the transmit buffer is free, for at most limit_us. */
 HWB_NODE bool HWB_SELF::waitTx(uint32_t limit_us) {
   if (txFree()) return true;
-  if (in_input_ || !established()) return false;
+  if (flag(kInInput) || !established()) return false;
   const uint32_t start = hw_.micros();
   while (!txFree() && established()) {
     if (hw_.micros() - start >= limit_us) return false;
@@ -409,6 +407,12 @@ HWB_NODE void HWB_SELF::onFrame(const Frame& f) {
   if (rel_rx_.receive(f) != Received::Deliver) return;
   Message m;
   if (reasm_.feed(f, &m)) onMessage(m, true);
+  // frames held early (a window above 1) that are now in order; a teardown in onMessage
+  // empties the receiver, which ends this
+  Frame h;
+  while (rel_rx_.pop(&h)) {
+    if (reasm_.feed(h, &m)) onMessage(m, true);
+  }
 }
 
 HWB_NODE void HWB_SELF::onBestEffort(const Frame& f) {
@@ -494,7 +498,7 @@ HWB_NODE void HWB_SELF::onControl(const uint8_t* p, size_t n, bool reliable) {
       break;
     case 0x06: {  // HOST_TIME_REQUEST: t1 echoed, t2 = t3 = now
       if (!(Profile::kFeatures & 1)) break;
-      if (!time_synced_) {  // a first estimate of host time: t1 plus the one-way delay
+      if (!flag(kTimeSynced)) {  // a first estimate of host time: t1 plus the one-way delay
         host_sec_ = detail::get32(p + 1);
         host_nsec_ = detail::get32(p + 5);
         board_ref_ = now_;
@@ -584,7 +588,8 @@ HWB_NODE void HWB_SELF::establish(const uint8_t* h) {
   mtu_ = host_mtu < Profile::kMtu ? host_mtu : Profile::kMtu;
   uint8_t window = h[18] < Profile::kWindow ? h[18] : Profile::kWindow;
   if (window > kMaxWindow) window = kMaxWindow;
-  peer_max_ = detail::get32(h + 14);
+  const uint32_t peer_max = detail::get32(h + 14);
+  peer_max_ = peer_max > 0xFFFFUL ? 0xFFFFu : static_cast<uint16_t>(peer_max);
   features_ = static_cast<uint8_t>(h[20] & Profile::kFeatures);
   rel_tx_.reset(isn_, window, mtu_);
   rel_rx_.reset(h[19], window);
@@ -594,7 +599,7 @@ HWB_NODE void HWB_SELF::establish(const uint8_t* h) {
   table_pos_ = 0;
   pending_len_ = 0;
   state_ = kConfiguring;
-  since_ = last_rx_ = now_;
+  timer_ = last_rx_ = now_;
   ++stats_.sessions;
 }
 
@@ -609,12 +614,13 @@ HWB_NODE void HWB_SELF::teardown() {
   dec_.set_max_payload(Profile::kMtu);
   if (was) reasm_.reset(FrameType::Reliable);
   pending_len_ = 0;
-  time_synced_ = false;
+  setFlag(kTimeSynced, false);
   features_ = 0;
-  isn_ = has_fixed_ ? fixed_isn_ : static_cast<uint8_t>(random32());
+  // a new ISN per session: the random session id mixed with the time (no generator state kept)
+  isn_ = flag(kFixed) ? fixed_isn_ : static_cast<uint8_t>(xorshift(id_ ^ now_ ^ 0x5bd1e995UL));
   rel_tx_.reset(isn_, Profile::kWindow, Profile::kMtu);
-  next_hello_ = now_;
-  hello_wait_ = kHelloFirstUs;
+  timer_ = now_;
+  hello_wait_ = kHelloFirstMs;
   for (Entry* e = entries_; e; e = e->next_) e->accepted_ = false;
   if (call_state_ == 1) {
     call_status_ = kCallSessionReset;
@@ -658,7 +664,7 @@ HWB_NODE void HWB_SELF::onServiceRequest(const uint8_t* p, size_t n) {
   size_t len = 0;
   if (e != nullptr) {
     const size_t cap = Profile::kTxBuffer - 5;
-    const size_t limit = peer_max_ - 5 < cap ? peer_max_ - 5 : cap;
+    const size_t limit = static_cast<size_t>(peer_max_) - 5 < cap ? static_cast<size_t>(peer_max_) - 5 : cap;
     ServiceOut out = {tx_ + 5, limit};
     len = n - 4;
     const char* err = e->hook_(e, Entry::kOpDeliver, p + 4, &len, &out);
@@ -693,7 +699,7 @@ HWB_NODE void HWB_SELF::onServiceResponse(const uint8_t* p, size_t n) {
 }
 
 HWB_NODE uint8_t HWB_SELF::call(Entry& e, size_t len, uint16_t timeout_ms, void* res) {
-  if (state_ != kConnected || !e.accepted_ || call_state_ == 1 || in_input_ ||
+  if (state_ != kConnected || !e.accepted_ || call_state_ == 1 || flag(kInInput) ||
       len + 4 > peer_max_) {
     ++stats_.tx_refused;
     return kCallNotConnected;
@@ -707,7 +713,7 @@ HWB_NODE uint8_t HWB_SELF::call(Entry& e, size_t len, uint16_t timeout_ms, void*
   call_entry_ = &e;
   call_res_ = res;
   call_state_ = 1;
-  call_deadline_ = hw_.micros() + 1000UL * (timeout_ms ? timeout_ms : Profile::kServiceTimeoutMs);
+  timer_ = hw_.micros() + 1000UL * (timeout_ms ? timeout_ms : Profile::kServiceTimeoutMs);
   pump();
   hw_.flush();
   while (call_state_ == 1) spinFor();
@@ -825,7 +831,7 @@ HWB_NODE void HWB_SELF::onParamValue(const uint8_t* p, size_t n) {
 HWB_NODE bool HWB_SELF::blockingParam(const char* name, uint8_t type, void* out, uint16_t length,
                                        uint16_t timeout_ms,
                                        bool (*copy)(void*, const ParamValue&, uint16_t)) {
-  if (in_input_ || param_id_ || length == 0) return false;
+  if (flag(kInInput) || param_id_ || length == 0) return false;
   sync_out_ = out;
   sync_copy_ = copy;
   sync_len_ = length;
@@ -938,7 +944,7 @@ HWB_NODE void HWB_SELF::onTimeResponse(const uint8_t* p) {
     ++host_sec_;
   }
   board_ref_ = now_;
-  time_synced_ = true;
+  setFlag(kTimeSynced, true);
   time_next_ = now_ + 1000UL * Profile::kTimeSyncMs;
 }
 

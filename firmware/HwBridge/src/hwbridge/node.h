@@ -434,7 +434,8 @@ class NodeHandle_ : public NodeBase {
   void teardown();
   void protocolError() { ++stats_.protocol_errors; }
   void sendHello();
-  void sendControlBe(const uint8_t* p, size_t n);
+  void sendControlBe(const uint8_t* p, size_t n) { sendBe(kControlChannel, p, n); }
+  void sendBe(uint8_t channel, const uint8_t* p, size_t n);
   void emit(const Frame& f);
   void flushOut();
   void pump();
@@ -457,7 +458,14 @@ class NodeHandle_ : public NodeBase {
   typedef void (*Handler)(NodeHandle_*, const uint8_t*, size_t);
   static void requestThunk(NodeHandle_* n, const uint8_t* p, size_t len) { n->onServiceRequest(p, len); }
   static void responseThunk(NodeHandle_* n, const uint8_t* p, size_t len) { n->onServiceResponse(p, len); }
-  static void paramThunk(NodeHandle_* n, const uint8_t* p, size_t len) { n->onParamValue(p, len); }
+  // p nullptr: the pending request ends with the status len (timeout, session reset)
+  static void paramThunk(NodeHandle_* n, const uint8_t* p, size_t len) {
+    if (p == nullptr) {
+      n->finishParam(static_cast<uint8_t>(len), nullptr);
+    } else {
+      n->onParamValue(p, len);
+    }
+  }
 
   // Every member has an initializer, so that the implicit constructor is constexpr: a global
   // node is initialized at compile time (no static constructor on the board).

@@ -247,7 +247,7 @@ HWB_NODE void HWB_SELF::runTimers() {
       call_status_ = kCallTimeout;
       call_state_ = 2;
     }
-    if (param_id_ && time_reached(now_, param_deadline_)) finishParam(kParamTimeout, nullptr);
+    if (param_id_ && on_param_ && time_reached(now_, param_deadline_)) on_param_(this, nullptr, kParamTimeout);
     if (Profile::kTimeSyncMs && (features_ & 1) && time_reached(now_, time_next_)) {
       requestSyncTime();
       time_next_ = static_cast<decltype(time_next_)>(now_ + kTimeRetryUs);
@@ -292,8 +292,9 @@ HWB_NODE void HWB_SELF::emit(const Frame& f) {
   last_tx_ = now_;
 }
 
-HWB_NODE void HWB_SELF::sendControlBe(const uint8_t* p, size_t n) {
-  be_tx_.send(hw_, kControlChannel, p, n, established() ? mtu_ : kMinMtu, lead_.lead(now_));
+/** One best-effort message (the node's only call of the sender: one copy of it in flash). */
+HWB_NODE void HWB_SELF::sendBe(uint8_t channel, const uint8_t* p, size_t n) {
+  be_tx_.send(hw_, channel, p, n, established() ? mtu_ : kMinMtu, lead_.lead(now_));
   last_tx_ = now_;
 }
 
@@ -626,7 +627,8 @@ HWB_NODE void HWB_SELF::teardown() {
     call_status_ = kCallSessionReset;
     call_state_ = 2;
   }
-  if (param_id_) finishParam(kParamSessionReset, nullptr);
+  // through the pointer requestParam sets: a sketch without parameters links none of it
+  if (param_id_ && on_param_) on_param_(this, nullptr, kParamSessionReset);
 }
 
 HWB_NODE void HWB_SELF::onTopicAck(const uint8_t* p, size_t n) {
@@ -984,8 +986,8 @@ HWB_NODE bool HWB_SELF::sendOn(Entry& e, size_t len) {
     pending_len_ = static_cast<uint16_t>(len);
     pump();
   } else {
-    be_tx_.send(hw_, e.channel_, tx_, len, mtu_, lead_.lead(now_ = hw_.micros()));
-    last_tx_ = now_;
+    now_ = hw_.micros();
+    sendBe(e.channel_, tx_, len);
   }
   hw_.flush();
   return true;

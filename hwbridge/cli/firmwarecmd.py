@@ -65,10 +65,14 @@ def size(
     if as_json:
         sys.stdout.write(json.dumps(found.as_dict()) + "\n")
         return
+    sketch = found.sram - found.core_sram - found.library_sram
     sys.stdout.write(
         f"flash {found.flash} B, SRAM {found.sram} B (of which the HwBridge library's static "
-        f"objects {found.library_sram} B)\n"
+        f"objects {found.library_sram} B, the sketch's objects {sketch} B, the Arduino core's "
+        f"{found.core_sram} B)\n"
     )
+    for name, size_of, owner in found.objects:
+        sys.stdout.write(f"  {size_of:6} B  {owner:8}  {name}\n")
 
 
 @firmware_app.command("generate")

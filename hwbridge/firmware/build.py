@@ -33,7 +33,7 @@ import subprocess
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Final
+from typing import Any, Final
 
 from hwbridge.errors import HwBridgeError
 
@@ -96,9 +96,22 @@ class FirmwareSize:
     """.data + .bss (static RAM; the stack and heap come on top)."""
     library_sram: int
     """Static RAM of objects from the HwBridge library (symbols in namespace hwbridge)."""
+    core_sram: int = 0
+    """Static RAM of the Arduino core's objects (``Serial``, the timer counters, ...)."""
+    objects: tuple[tuple[str, int, str], ...] = ()
+    """Every object in static RAM, largest first: (name, bytes, owner), owner ``core`` (the
+    Arduino core and the C runtime), ``hwbridge`` (the library's own statics) or ``sketch``
+    (the sketch's globals: its node handle, publishers and messages are the library's types)."""
 
-    def as_dict(self) -> dict[str, int]:
-        return {"flash": self.flash, "sram": self.sram, "library_sram": self.library_sram}
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "flash": self.flash,
+            "sram": self.sram,
+            "library_sram": self.library_sram,
+            "core_sram": self.core_sram,
+            "sketch_sram": self.sram - self.core_sram - self.library_sram,
+            "objects": [list(item) for item in self.objects],
+        }
 
 
 def _tool(name: str) -> str:
@@ -364,9 +377,39 @@ def firmware_size(elf: Path) -> FirmwareSize:
     symbols = subprocess.run(
         [nm, "-C", "--size-sort", "-S", str(elf)], capture_output=True, text=True, check=False
     ).stdout
-    library = 0
+    core_names = _core_symbols(shutil.which("avr-gcc-nm") or nm)
+    objects: list[tuple[str, int, str]] = []
     for line in symbols.splitlines():
         parts = line.split(None, 3)
-        if len(parts) == 4 and parts[2] in "bBdD" and "hwbridge::" in parts[3]:
-            library += int(parts[1], 16)
-    return FirmwareSize(flash=text + data, sram=data + bss, library_sram=library)
+        if len(parts) == 4 and parts[2] in "bBdD":
+            name, size_of = parts[3], int(parts[1], 16)
+            if "hwbridge::" in name:
+                owner = "hwbridge"
+            elif name in core_names or name.startswith("__") or "HardwareSerial" in name:
+                owner = "core"
+            else:
+                owner = "sketch"
+            objects.append((name, size_of, owner))
+    objects.sort(key=lambda item: (-item[1], item[0]))
+    return FirmwareSize(
+        flash=text + data,
+        sram=data + bss,
+        library_sram=sum(n for _, n, owner in objects if owner == "hwbridge"),
+        core_sram=sum(n for _, n, owner in objects if owner == "core"),
+        objects=tuple(objects),
+    )
+
+
+def _core_symbols(nm: str) -> frozenset[str]:
+    """Names the Arduino core defines, from the core archives this machine has built (LTO
+    objects: ``nm`` is gcc's wrapper with the LTO plugin)."""
+    names: set[str] = set()
+    for archive in sorted(_cache_dir().glob("*/core.a")):
+        listed = subprocess.run(
+            [nm, "-C", "--defined-only", str(archive)], capture_output=True, text=True, check=False
+        ).stdout
+        for line in listed.splitlines():
+            parts = line.split(None, 2)
+            if len(parts) == 3:
+                names.add(parts[2])
+    return frozenset(names)

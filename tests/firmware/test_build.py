@@ -52,6 +52,10 @@ def test_a_sketch_builds_and_is_measured(board: str, tmp_path: Path) -> None:
     assert 1000 < size.flash < BOARDS[board].flash
     assert 0 < size.sram < BOARDS[board].sram
     assert size.library_sram == 0  # no HwBridge objects in this sketch
+    owners = {name: owner for name, _, owner in size.objects}
+    assert owners["Serial"] == "core" and owners["last"] == "sketch", size.objects
+    assert sum(n for _, n, _ in size.objects) <= size.sram
+    assert 150 < size.core_sram < size.sram  # Serial's rings and state
 
 
 def test_warnings_in_a_sketch_are_errors(tmp_path: Path) -> None:

@@ -418,7 +418,7 @@ class NodeHandle_ : public NodeBase {
 
   bool add(Entry& e);
   bool established() const { return state_ >= kConfiguring; }
-  static uint32_t xorshift(uint32_t x);
+  __attribute__((noinline)) static uint32_t xorshift(uint32_t x);
   void onFrame(const Frame& f);
   void onBestEffort(const Frame& f);
   void onMessage(const Message& m, bool reliable);

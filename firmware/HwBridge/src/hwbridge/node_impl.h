@@ -9,6 +9,27 @@ namespace hwbridge {
 
 namespace detail {
 
+#if defined(__BYTE_ORDER__) && __BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__
+// little-endian targets (AVR, ARM, x86): the wire order is the memory order, plain copies
+inline uint16_t get16(const uint8_t* p) {
+  uint16_t v;
+  memcpy(&v, p, 2);
+  return v;
+}
+inline uint32_t get32(const uint8_t* p) {
+  uint32_t v;
+  memcpy(&v, p, 4);
+  return v;
+}
+inline uint8_t* put16(uint8_t* p, uint16_t v) {
+  memcpy(p, &v, 2);
+  return p + 2;
+}
+inline uint8_t* put32(uint8_t* p, uint32_t v) {
+  memcpy(p, &v, 4);
+  return p + 4;
+}
+#else
 inline uint16_t get16(const uint8_t* p) { return static_cast<uint16_t>(p[0] | p[1] << 8); }
 inline uint32_t get32(const uint8_t* p) {
   return static_cast<uint32_t>(get16(p)) | static_cast<uint32_t>(get16(p + 2)) << 16;
@@ -22,6 +43,7 @@ inline uint8_t* put32(uint8_t* p, uint32_t v) {
   put16(p, static_cast<uint16_t>(v));
   return put16(p + 2, static_cast<uint16_t>(v >> 16));
 }
+#endif
 /** Copies up to cap bytes of a RAM string; returns the end. */
 inline uint8_t* put_str(uint8_t* p, const char* s, size_t cap) {
   while (cap-- && *s) *p++ = static_cast<uint8_t>(*s++);

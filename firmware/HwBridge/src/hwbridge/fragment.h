@@ -45,32 +45,35 @@ struct Fragment {
  */
 class Fragmenter {
  public:
-  constexpr Fragmenter() : msg_(nullptr), len_(0), pos_(0), mtu_(0), left_(0), type_(FrameType::BestEffort), channel_(0) {}
+  constexpr Fragmenter() : msg_(nullptr), len_(0), pos_(0), mtu_(0), type_(FrameType::BestEffort), channel_(0), active_(false) {}
 
   /**
    * Starts a message. False (nothing started) for an ACK type, or for a message larger than the
    * MTU when the MTU is below kMinFragmentPayload.
    */
   bool begin(FrameType type, uint8_t channel, const uint8_t* msg, size_t len, size_t mtu) {
-    const size_t count = fragment_count(len, mtu);
-    if (type == FrameType::Ack || count == 0) return false;
+    // fragment_count(len, mtu) == 0, without its division (a board's sender never counts)
+    if (type == FrameType::Ack || (len > mtu && mtu < kMinFragmentPayload)) return false;
     msg_ = msg;
     len_ = len;
     pos_ = 0;
     mtu_ = mtu;
-    left_ = count;
     type_ = type;
     channel_ = channel;
+    active_ = true;
     return true;
   }
   /** Fragments still to take. */
-  size_t remaining() const { return left_; }
-  bool done() const { return left_ == 0; }
-  void cancel() { left_ = 0; }
+  size_t remaining() const {
+    if (!active_) return 0;
+    return pos_ == 0 ? fragment_count(len_, mtu_) : (len_ - pos_ + mtu_ - 1) / mtu_;
+  }
+  bool done() const { return !active_; }
+  void cancel() { active_ = false; }
 
   /** Takes the next fragment, numbered seq; false when the message is done. */
   bool next(uint8_t seq, Fragment* out) {
-    if (left_ == 0) return false;
+    if (!active_) return false;
     out->header.type = type_;
     out->header.channel = channel_;
     out->header.seq = seq;
@@ -91,7 +94,7 @@ class Fragmenter {
       out->size = rest <= mtu_ ? rest : mtu_;
     }
     pos_ += out->size;
-    --left_;
+    if (pos_ >= len_) active_ = false;  // the WHOLE or LAST fragment was taken
     return true;
   }
 
@@ -100,9 +103,9 @@ class Fragmenter {
   size_t len_;
   size_t pos_;
   size_t mtu_;
-  size_t left_;
   FrameType type_;
   uint8_t channel_;
+  bool active_;  // a fragment is still to take
 };
 
 /** Counters of a Reassembler. */

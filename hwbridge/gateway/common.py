@@ -21,7 +21,7 @@ import queue
 import threading
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Final
+from typing import TYPE_CHECKING, Final, Protocol, TypeVar
 
 from hwbridge.errors import HwBridgeError
 
@@ -36,6 +36,7 @@ __all__ = [
     "Reporter",
     "Selection",
     "open_graph_with_retry",
+    "run_until_stopped",
 ]
 
 log = logging.getLogger("hwbridge.gateway")
@@ -248,3 +249,35 @@ def claim_rosout(
     if rosout and Selection(exclude=tuple(exclude))(ROSOUT):
         watcher.claim(ROSOUT)
         apply(GraphChange("to_ros", ROSOUT, "rosgraph_msgs/Log"))
+
+
+class _Gateway(Protocol):
+    def close(self) -> None: ...
+
+
+_G = TypeVar("_G", bound=_Gateway)
+
+
+def run_until_stopped(
+    open_graph: Callable[[], Graph],
+    start: Callable[[Graph], _G],
+    up_line: Callable[[_G, Graph], str],
+    stop: threading.Event,
+    retry: float,
+    announce: Callable[[str], None] | None,
+) -> None:
+    """A gateway's life: join the graph (retrying while it is not there), ``start(graph)``,
+    announce ``up_line``, mirror until ``stop``, then close the gateway and the graph."""
+    graph = open_graph_with_retry(open_graph, stop, retry, announce)
+    if graph is None:
+        return
+    try:
+        gateway = start(graph)
+        try:
+            if announce is not None:
+                announce(f"hwbridge: {up_line(gateway, graph)}; Ctrl-C stops")
+            stop.wait()
+        finally:
+            gateway.close()
+    finally:
+        graph.close()

@@ -35,7 +35,7 @@ from hwbridge.gateway.common import (
     Reporter,
     Selection,
     claim_rosout,
-    open_graph_with_retry,
+    run_until_stopped,
 )
 from hwbridge.gateway.tcpros import (
     MasterDown,
@@ -652,19 +652,18 @@ def run_ros1_gateway(
     announce: Callable[[str], None] | None = None,
 ) -> None:
     """Join the graph (retrying while it is not there), mirror into ROS 1 until ``stop``."""
-    graph = open_graph_with_retry(open_graph, stop, retry, announce)
-    if graph is None:
-        return
-    try:
-        gateway = Ros1Gateway(graph, options, announce).start()
-        try:
-            if announce is not None:
-                announce(
-                    f"hwbridge: ROS 1 gateway up (node {gateway.caller_id}, master "
-                    f"{options.master_uri}, graph {graph.config.describe()}); Ctrl-C stops"
-                )
-            stop.wait()
-        finally:
-            gateway.close()
-    finally:
-        graph.close()
+
+    def up_line(gateway: Ros1Gateway, graph: Graph) -> str:
+        return (
+            f"ROS 1 gateway up (node {gateway.caller_id}, master {options.master_uri}, "
+            f"graph {graph.config.describe()})"
+        )
+
+    run_until_stopped(
+        open_graph,
+        lambda graph: Ros1Gateway(graph, options, announce).start(),
+        up_line,
+        stop,
+        retry,
+        announce,
+    )

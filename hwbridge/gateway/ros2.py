@@ -34,7 +34,7 @@ from hwbridge.gateway.common import (
     Reporter,
     Selection,
     claim_rosout,
-    open_graph_with_retry,
+    run_until_stopped,
 )
 from hwbridge.gateway.types import CdrConverter, TypeMapError, ros1_type_name, ros2_type_name
 
@@ -497,23 +497,22 @@ def run_ros2_gateway(
     announce: Callable[[str], None] | None = None,
 ) -> None:
     """Join the graph (retrying every ``retry`` s while it is not there), mirror until ``stop``."""
-    graph = open_graph_with_retry(open_graph, stop, retry, announce)
-    if graph is None:
-        return
-    try:
-        gateway = Ros2Gateway(graph, options, announce).start()
-        try:
-            if announce is not None:
-                domain = os.environ.get("ROS_DOMAIN_ID", "0")
-                announce(
-                    f"hwbridge: ROS 2 gateway up (node {options.node_name}, ROS_DOMAIN_ID "
-                    f"{domain}, graph {graph.config.describe()}); Ctrl-C stops"
-                )
-            stop.wait()
-        finally:
-            gateway.close()
-    finally:
-        graph.close()
+
+    def up_line(_gateway: Ros2Gateway, graph: Graph) -> str:
+        domain = os.environ.get("ROS_DOMAIN_ID", "0")
+        return (
+            f"ROS 2 gateway up (node {options.node_name}, ROS_DOMAIN_ID {domain}, "
+            f"graph {graph.config.describe()})"
+        )
+
+    run_until_stopped(
+        open_graph,
+        lambda graph: Ros2Gateway(graph, options, announce).start(),
+        up_line,
+        stop,
+        retry,
+        announce,
+    )
 
 
 def describe_bridged(bridged: dict[str, str]) -> Sequence[str]:

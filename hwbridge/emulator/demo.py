@@ -141,7 +141,7 @@ def run_demo(
             f"{BOARD} on a virtual board at {path}; graph on {graph.config.describe()}; "
             f"topics under {namespace}"
         )
-        _wait_connected(runtime, 20.0)
+        wait_connected(runtime, 20.0)
         driver = _Driver()
         world = board.world.config
         path_plot = PathPlot(
@@ -192,12 +192,15 @@ def run_demo(
         link.close()
 
 
-def _wait_connected(runtime: RobotRuntime, timeout: float) -> None:
+def wait_connected(
+    runtime: RobotRuntime, timeout: float, what: str = "the virtual board", board_name: str = BOARD
+) -> None:
+    """Wait until the demo's board is connected; an error naming ``what`` after ``timeout``."""
     deadline = time.monotonic() + timeout
-    board = runtime.bridge.boards[BOARD]
+    board = runtime.bridge.boards[board_name]
     while board.state != "connected":
         if time.monotonic() > deadline:
-            raise HwBridgeError(f"the virtual board did not connect (state {board.state})")
+            raise HwBridgeError(f"{what} did not connect (state {board.state})")
         time.sleep(0.05)
 
 

@@ -26,7 +26,7 @@ from rich.console import Console
 
 from hwbridge.devices.pins import PinWorld
 from hwbridge.emulator.board import ROBOTS_DIR, load_board
-from hwbridge.emulator.demo import print_ending
+from hwbridge.emulator.demo import print_ending, wait_connected
 from hwbridge.errors import HwBridgeError
 from hwbridge.firmware.sim import SimAvr
 from hwbridge.firmware.sim.examples import build_example
@@ -148,7 +148,7 @@ def run_firmware_demo(
         )
         if pins.skipped:
             out.print(f"no pins on the Uno for: {', '.join(pins.skipped)}")
-        _wait_connected(runtime, 30.0)
+        wait_connected(runtime, 30.0, "the firmware in simavr")
         world = pins.world.config
         path_plot = PathPlot(
             room=world.room,
@@ -201,15 +201,6 @@ def run_firmware_demo(
         if graph is not None:
             graph.close()
         sim.close()
-
-
-def _wait_connected(runtime: RobotRuntime, timeout: float) -> None:
-    deadline = time.monotonic() + timeout
-    board = runtime.bridge.boards[BOARD]
-    while board.state != "connected":
-        if time.monotonic() > deadline:
-            raise HwBridgeError(f"the firmware in simavr did not connect (state {board.state})")
-        time.sleep(0.05)
 
 
 def _status(pins: PinWorld, seen: _Seen, namespace: str, elapsed: float) -> str:

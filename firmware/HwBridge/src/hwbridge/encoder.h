@@ -38,7 +38,7 @@ class BodyView {
     crc_[0] = static_cast<uint8_t>(crc);
     crc_[1] = static_cast<uint8_t>(crc >> 8);
   }
-  uint8_t at(size_t i) const {
+  __attribute__((noinline)) uint8_t at(size_t i) const {
     if (i < kHeaderSize) return head_[i];
     i -= kHeaderSize;
     if (i < n1_) return p1_[i];

@@ -184,14 +184,11 @@ HWB_NODE void HWB_SELF::begin(const char* name, const char* firmware) {
   if (!flag(kFixed)) id_ = 0;
   while (id_ == 0) id_ = r = xorshift(r);
   now_ = hw_.micros();
-  peer_max_ = kMinMtu;
-  mtu_ = Profile::kMtu;
-  dec_.set_max_payload(Profile::kMtu);
   be_peer_ = 0;
   be_rx_.resync();
   lead_.reset();
   state_ = kHandshake;
-  teardown();  // draws the ISN, schedules the first HELLO now
+  teardown();  // the MTUs, a new ISN, the first HELLO now
 }
 
 HWB_NODE uint32_t HWB_SELF::xorshift(uint32_t x) {  // xorshift32

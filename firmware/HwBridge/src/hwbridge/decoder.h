@@ -67,7 +67,7 @@ class FrameDecoder {
   void reset() { clear_run(); }
 
   /** Consumes one byte. A Frame stays valid (its payload in this buffer) until the next push. */
-  Decoded push(uint8_t byte) {
+  __attribute__((noinline)) Decoded push(uint8_t byte) {
     if (byte != 0) {
       if (len_ < (limit_ ? limit_ : kCapacity)) {
         buf_[len_++] = byte;
@@ -111,7 +111,7 @@ class FrameDecoder {
            static_cast<uint32_t>(printable_) * 10u >= static_cast<uint32_t>(total_) * 9u;
   }
 
-  FrameError check_run() {
+  __attribute__((noinline)) FrameError check_run() {
     if (overflow_) return looks_like_text() ? FrameError::Text : FrameError::Oversize;
     size_t body_len = 0;
     if (!cobs_decode(buf_, len_, buf_, &body_len)) {

@@ -114,7 +114,7 @@ class LeadTracker {
   /** The link (re)opened: the next frame gets a lead. */
   void reset() { sent_ = false; }
   /** Whether a frame sent at now_us needs a leading 0x00; records the send. */
-  bool lead(uint32_t now_us) {
+  __attribute__((noinline)) bool lead(uint32_t now_us) {
     const bool need = !sent_ || static_cast<uint32_t>(now_us - last_) >= kIdleMicros;
     sent_ = true;
     last_ = now_us;

@@ -419,7 +419,7 @@ class NodeHandle_ : public NodeBase {
   bool add(Entry& e);
   bool established() const { return state_ >= kConfiguring; }
   __attribute__((noinline)) static uint32_t xorshift(uint32_t x);
-  void onFrame(const Frame& f);
+  __attribute__((noinline)) void onFrame(const Frame& f);
   void onBestEffort(const Frame& f);
   void onMessage(const Message& m, bool reliable);
   void onControl(const uint8_t* p, size_t n, bool reliable);
@@ -430,7 +430,7 @@ class NodeHandle_ : public NodeBase {
   void onServiceResponse(const uint8_t* p, size_t n);
   void onParamValue(const uint8_t* p, size_t n);
   void onTimeResponse(const uint8_t* p);
-  void establish(const uint8_t* hello);
+  __attribute__((noinline)) void establish(const uint8_t* hello);
   void teardown();
   void protocolError() { ++stats_.protocol_errors; }
   void sendHello();

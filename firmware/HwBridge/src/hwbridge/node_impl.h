@@ -472,7 +472,7 @@ HWB_NODE void HWB_SELF::onData(const Message& m) {
 
 HWB_NODE void HWB_SELF::onControl(const uint8_t* p, size_t n, bool reliable) {
   // the fixed size of each opcode's fields (0: unknown); variable ones give their minimum
-  static const uint8_t kBe[8] = {0, 21, 1, 0, 21, 1, 9, 0};  // opcodes 0x00..0x07 (board's view)
+  static const uint8_t kBe[8] HWBRIDGE_PROGMEM = {0, 21, 1, 0, 21, 1, 9, 0};  // opcodes 0x00..0x07 (board's view)
   if (n == 0) {
     protocolError();
     return;
@@ -480,7 +480,7 @@ HWB_NODE void HWB_SELF::onControl(const uint8_t* p, size_t n, bool reliable) {
   const uint8_t op = p[0];
   uint8_t need = 0;
   if (op < 8) {
-    need = kBe[op];
+    need = flash_byte(reinterpret_cast<const char*>(kBe) + op);
   } else if (op == 0x13) {
     need = 3;
   } else if (op == 0x14) {

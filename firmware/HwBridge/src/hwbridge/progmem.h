@@ -9,6 +9,13 @@
 #include <avr/pgmspace.h>
 #endif
 
+/** Puts a constant table in flash on AVR (read it with flash_byte); plain const elsewhere. */
+#ifdef __AVR__
+#define HWBRIDGE_PROGMEM PROGMEM
+#else
+#define HWBRIDGE_PROGMEM
+#endif
+
 namespace hwbridge {
 
 /** Byte i of a string that the generated headers keep in flash on AVR. */

@@ -243,7 +243,7 @@ HWB_NODE void HWB_SELF::runTimers() {
   if (!established()) {
     if (time_reached(now_, timer_)) {
       sendHello();
-      timer_ = now_ + 1000UL * hello_wait_;
+      timer_ = now_ + static_cast<uint16_t>(hello_wait_ * 125u) * 8UL;  // ms * 1000 (250 * 125 fits 16 bits)
       hello_wait_ = hello_wait_ < kHelloIntervalMs / 2 ? static_cast<uint8_t>(hello_wait_ * 2) : kHelloIntervalMs;
     }
     hw_.flush();
@@ -616,7 +616,7 @@ HWB_NODE void HWB_SELF::establish(const uint8_t* h) {
   rel_rx_.reset(h[19], window);
   reasm_.reset(FrameType::Reliable);
   dec_.set_max_payload(mtu_);
-  for (Entry* e = entries_; e; e = e->next_) e->accepted_ = false;
+  // every entry is unaccepted: teardown cleared them, and only a session accepts one
   table_pos_ = 0;
   pending_len_ = 0;
   state_ = kConfiguring;

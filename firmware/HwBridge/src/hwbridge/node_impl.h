@@ -378,7 +378,8 @@ HWB_NODE bool HWB_SELF::queueTable() {
     const size_t room = cap - static_cast<size_t>(p - tx_) - 1;
     const uint8_t ul = uid_len_ <= room ? uid_len_ : static_cast<uint8_t>(room);
     *p++ = ul;
-    for (uint8_t i = 0; i < ul; ++i) *p++ = uid_[i];
+    if (ul) memcpy(p, uid_, ul);  // uid_ may be null when ul is 0
+    p += ul;
     p = detail::put_str(p, firmware_, cap - static_cast<size_t>(p - tx_));
   } else if (table_pos_ <= entry_count_) {  // TOPIC
     Entry* e = entries_;

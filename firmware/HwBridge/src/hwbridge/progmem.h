@@ -27,12 +27,10 @@ inline uint8_t flash_byte(const char* p) {
 #endif
 }
 
-/** Value of one hex digit (0 for anything else). */
+/** Value of one hex digit, either case (the generated md5 sums are valid hex: anything else
+ * gives some value below 16). */
 inline uint8_t hex_value(uint8_t c) {
-  if (c >= '0' && c <= '9') return static_cast<uint8_t>(c - '0');
-  c = static_cast<uint8_t>(c | 0x20);
-  if (c >= 'a' && c <= 'f') return static_cast<uint8_t>(c - 'a' + 10);
-  return 0;
+  return static_cast<uint8_t>((c <= '9' ? c - '0' : (c | 0x20) - 'a' + 10) & 0x0F);
 }
 
 }  // namespace hwbridge

@@ -351,12 +351,13 @@ class SimAvr:
         except subprocess.TimeoutExpired:
             process.kill()
             process.wait(3)
+        # The runner has exited: its stdout ends, so the reader finishes before we close it.
+        if self._reader is not None and self._reader is not threading.current_thread():
+            self._reader.join(3)
         for stream in (process.stdin, process.stdout, process.stderr):
             if stream is not None:
                 with contextlib.suppress(OSError):
                     stream.close()
-        if self._reader is not None and self._reader is not threading.current_thread():
-            self._reader.join(3)
 
     def __enter__(self) -> SimAvr:
         return self
@@ -366,13 +367,19 @@ class SimAvr:
 
     # ------------------------------------------------------------------ events
     def _read(self, stdout: IO[str]) -> None:
-        for line in stdout:
-            try:
-                self._event(line.split())
-            except Exception:
-                self.callback_errors += 1
-                if self.callback_errors == 1:
-                    log.exception("simavr: handling %r failed", line.strip())
+        try:
+            for line in stdout:
+                self._handle(line)
+        except (ValueError, OSError):  # closed under us (a stop from another thread)
+            return
+
+    def _handle(self, line: str) -> None:
+        try:
+            self._event(line.split())
+        except Exception:
+            self.callback_errors += 1
+            if self.callback_errors == 1:
+                log.exception("simavr: handling %r failed", line.strip())
 
     def _event(self, words: list[str]) -> None:
         if not words:

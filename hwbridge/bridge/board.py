@@ -188,6 +188,7 @@ class BoardConnection:
             "session": adapter.describe() if adapter else {},
             "stats": adapter.stats() if adapter else {},
             "link": self.link.stats.as_dict() if self.link is not None else {},
+            "transport": self.link.transport_stats() if self.link is not None else {},
             **self.state_detail,
         }
 

@@ -232,6 +232,7 @@ def board_info(ctx: typer.Context, board: BoardArg, as_json: JsonOpt = False) ->
     info = _board_info(ctx, board, 2.0)
     info.pop("stats", None)
     info.pop("link", None)
+    info.pop("transport", None)
     _print(info, as_json)
 
 
@@ -245,6 +246,7 @@ def board_stats(ctx: typer.Context, board: BoardArg, as_json: JsonOpt = False) -
             "protocol": info.get("protocol"),
             "stats": info.get("stats"),
             "link": info.get("link"),
+            **({"transport": info["transport"]} if info.get("transport") else {}),
         },
         as_json,
     )

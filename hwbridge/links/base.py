@@ -229,6 +229,11 @@ class Link(abc.ABC):
             self.stats.writes += 1
             self.stats.bytes_out += len(view)
 
+    def transport_stats(self) -> dict[str, Any]:
+        """Counters of the transport under the link beyond :attr:`stats` (a CAN bus's error
+        frames, bus-off and drops); empty for most links. Shown by ``hwbridge board stats``."""
+        return {}
+
     def close(self) -> None:
         """Close the link; idempotent. A ``read`` or ``write`` blocked in another thread returns
         promptly with :class:`LinkClosedError`."""

@@ -477,6 +477,9 @@ class CanLink(Link):
         hub = self._hub
         return hub.describe() if hub is not None else {}
 
+    def transport_stats(self) -> dict[str, Any]:
+        return {"can": self.can_stats()}
+
     def _key(self) -> tuple[Any, ...]:
         if self._given_bus is not None:
             return ("bus", id(self._given_bus), self.local, self.fd)

@@ -150,3 +150,9 @@ def test_eight_boards_from_the_cli_at_once(bridge: BridgeProcess, emulator: Emul
     imu = json.loads(results[1].stdout.splitlines()[0])
     assert "node3_base" in json.dumps(odom)
     assert "node8_imu" in json.dumps(imu)
+    # the shared bus's own counters reach 'hwbridge board stats'
+    stats = bridge.cli("board", "stats", "node5", "--json")
+    assert stats.returncode == 0, stats.stderr
+    can = json.loads(stats.stdout)["transport"]["can"]
+    assert can["frames_in"] > 0 and can["frames_out"] > 0, can
+    assert set(can["claims"]) >= {str(n) for n in NODES}, can

@@ -389,10 +389,8 @@ HWB_NODE bool HWB_SELF::queueTable() {
     *p++ = e->kind_;
     *p++ = e->reliable_ ? 1 : 0;
     const char* md5 = e->hook_(e, Entry::kOpMd5, nullptr, nullptr, nullptr);
-    uint8_t v = 0;  // the 32 hex digits, two to a byte
-    for (uint8_t i = 0; i < 32; ++i) {
-      v = static_cast<uint8_t>(v << 4 | hex_value(flash_byte(md5 + i)));
-      if (i & 1) *p++ = v;
+    for (uint8_t i = 0; i < 16; ++i, md5 += 2) {  // the 32 hex digits, two to a byte
+      *p++ = static_cast<uint8_t>(hex_value(flash_byte(md5)) << 4 | hex_value(flash_byte(md5 + 1)));
     }
     uint8_t* len = p++;
     p = detail::put_str(p, e->name_, cap - 21);

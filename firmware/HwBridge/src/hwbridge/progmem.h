@@ -27,10 +27,10 @@ inline uint8_t flash_byte(const char* p) {
 #endif
 }
 
-/** Value of one hex digit, either case (the generated md5 sums are valid hex: anything else
- * gives some value below 16). */
+/** Value of one hex digit, either case: letters (bit 6 set) are 9 above their low nibble (the
+ * generated md5 sums are valid hex: anything else gives some value below 16). */
 inline uint8_t hex_value(uint8_t c) {
-  return static_cast<uint8_t>((c <= '9' ? c - '0' : (c | 0x20) - 'a' + 10) & 0x0F);
+  return static_cast<uint8_t>((c & 0x40 ? c + 9 : c) & 0x0F);
 }
 
 }  // namespace hwbridge

@@ -228,7 +228,8 @@ HWB_NODE void HWB_SELF::processInput() {
   if (state_ == kOff || flag(kInInput)) return;
   setFlag(kInInput, true);
   now_ = hw_.micros();
-  for (uint16_t budget = 2 * FrameDecoder<Profile::kMtu, false>::kCapacity + 8; budget; --budget) {
+  const size_t kBudget = 2 * FrameDecoder<Profile::kMtu, false>::kCapacity + 8;  // bytes read per call
+  for (typename detail::Pick<(kBudget < 256), uint8_t, uint16_t>::type budget = kBudget; budget; --budget) {
     const int c = hw_.read();
     if (c < 0) break;
     if (dec_.push(static_cast<uint8_t>(c)) == Decoded::Frame) onFrame(dec_.frame());

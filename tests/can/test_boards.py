@@ -126,7 +126,10 @@ def test_eight_boards_topics_services_and_multi_frame_messages(
     bus: tuple[str, Callable[..., CanBusEmulator]], hosts: list[HostSide], fd: bool
 ) -> None:
     channel, emulate = bus
-    emulator = emulate(8, rate=4.0, fd=fd, mtu=200 if fd else 64)
+    # 2 Imu and Odometry a second per board: at 4, the eight boards, the host and python-can's
+    # virtual bus in one Python process lost a service call to GIL contention now and then
+    # (noted in the session's closing note; not what this test is about)
+    emulator = emulate(8, rate=2.0, fd=fd, mtu=200 if fd else 64)
     nodes = [b.node for b in emulator.boards]
     host = HostSide(f"can://virtual/{channel}", nodes, f"?fd={int(fd)}")
     hosts.append(host)

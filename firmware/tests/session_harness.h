@@ -209,6 +209,37 @@ inline std::vector<std::pair<hwbridge::Frame, Bytes> > frames_of(const Bytes& wi
   return out;
 }
 
+/** Brings a board that has begun (session 0xcafef00d) to CONNECTED against a scripted host
+ * (session 0x12345678, ISN 0, MTU 1024, window 16, `features`): the HELLO exchange, then every
+ * reliable frame ACKed, every TOPIC accepted and READY after TABLE_END. The board's output is
+ * taken; `host` keeps its numbering for what the test sends next. */
+template <class NodeT>
+void connect_scripted(NodeT& node, FakeHardware& hw, Host& host, uint8_t features) {
+  Bytes hello{0x01, 1, 0, 0, 0x78, 0x56, 0x34, 0x12, 0, 0, 0, 0, 0, 4, 0, 0, 0x10, 0, 16, 0, features};
+  hw.feed(host.be(0, hello));
+  node.processInput();
+  hello[3] = 1;  // ESTABLISHED, echoing the board's session
+  hello[8] = 0x0d;
+  hello[9] = 0xf0;
+  hello[10] = 0xfe;
+  hello[11] = 0xca;
+  hw.feed(host.be(0, hello));
+  for (int round = 0; round < 20 && !node.connected(); ++round) {
+    node.processInput();
+    node.runTimers();
+    std::vector<std::pair<hwbridge::Frame, Bytes> > fr = frames_of(hw.take());
+    for (size_t i = 0; i < fr.size(); ++i) {
+      if (fr[i].first.type != hwbridge::FrameType::Reliable) continue;
+      hw.feed(host.ack(fr[i].first.seq));
+      const Bytes& m = fr[i].second;
+      if (m[0] == 0x11) hw.feed(host.rel(0, Bytes{0x13, m[1], 0}));
+      if (m[0] == 0x12) hw.feed(host.rel(0, Bytes{0x14, m[1]}));
+    }
+  }
+  node.processInput();
+  hw.take();
+}
+
 }  // namespace harness
 
 #endif  // HWBRIDGE_TESTS_SESSION_HARNESS_H

@@ -230,31 +230,7 @@ void service_client() {
   hw.clock = 1000000;
   b.node.begin("client", "");
   Host host;
-  // handshake: the host's HELLO (session 0x12345678, ISN 0), then ESTABLISHED
-  Bytes hello{0x01, 1, 0, 0, 0x78, 0x56, 0x34, 0x12, 0, 0, 0, 0, 0, 4, 0, 0, 0x10, 0, 16, 0, 7};
-  hw.feed(host.be(0, hello));
-  b.node.processInput();
-  hello[3] = 1;
-  hello[8] = 0x0d;
-  hello[9] = 0xf0;
-  hello[10] = 0xfe;
-  hello[11] = 0xca;
-  hw.feed(host.be(0, hello));
-  // the table: ACK every reliable frame, accept every TOPIC, READY after TABLE_END
-  for (int round = 0; round < 20 && !b.node.connected(); ++round) {
-    b.node.processInput();
-    b.node.runTimers();
-    std::vector<std::pair<hwbridge::Frame, Bytes> > fr = harness::frames_of(hw.take());
-    for (size_t i = 0; i < fr.size(); ++i) {
-      if (fr[i].first.type != FrameType::Reliable) continue;
-      hw.feed(host.ack(fr[i].first.seq));
-      const Bytes& m = fr[i].second;
-      if (m[0] == 0x11) hw.feed(host.rel(0, Bytes{0x13, m[1], 0}));
-      if (m[0] == 0x12) hw.feed(host.rel(0, Bytes{0x14, m[1]}));
-    }
-  }
-  b.node.processInput();
-  hw.take();
+  harness::connect_scripted(b.node, hw, host, 7);
   CHECK(b.node.connected() && b.client.accepted() && b.chatter.accepted(), "client board not connected");
   uint8_t next_seq = 4;  // BOARD_INFO, 2 TOPICs, TABLE_END
   std_srvs::TriggerRequest req;
@@ -323,29 +299,7 @@ void early_frames() {
   hw.clock = 1000000;
   b.node.begin("window", "");
   Host host;
-  Bytes hello{0x01, 1, 0, 0, 0x78, 0x56, 0x34, 0x12, 0, 0, 0, 0, 0, 4, 0, 0, 0x10, 0, 16, 0, 3};
-  hw.feed(host.be(0, hello));
-  b.node.processInput();
-  hello[3] = 1;
-  hello[8] = 0x0d;
-  hello[9] = 0xf0;
-  hello[10] = 0xfe;
-  hello[11] = 0xca;
-  hw.feed(host.be(0, hello));
-  for (int round = 0; round < 20 && !b.node.connected(); ++round) {
-    b.node.processInput();
-    b.node.runTimers();
-    std::vector<std::pair<hwbridge::Frame, Bytes> > fr = harness::frames_of(hw.take());
-    for (size_t i = 0; i < fr.size(); ++i) {
-      if (fr[i].first.type != FrameType::Reliable) continue;
-      hw.feed(host.ack(fr[i].first.seq));
-      const Bytes& m = fr[i].second;
-      if (m[0] == 0x11) hw.feed(host.rel(0, Bytes{0x13, m[1], 0}));
-      if (m[0] == 0x12) hw.feed(host.rel(0, Bytes{0x14, m[1]}));
-    }
-  }
-  b.node.processInput();
-  hw.take();
+  harness::connect_scripted(b.node, hw, host, 3);
   CHECK(b.node.connected() && b.cmd.accepted(), "window board not connected");
   const uint8_t first = host.rel_seq;
   const Bytes one = host.rel(1, string_msg("one"));

@@ -59,15 +59,13 @@ from hwbridge.protocols.can.transport import (
     MAX_NODE,
     MIN_NODE,
     NODE_CLAIM,
-    PRIORITY_ACK,
-    PRIORITY_BEST_EFFORT,
-    PRIORITY_NODE,
     PRIORITY_RELIABLE,
     UID_SIZE,
     ConflictMonitor,
     Kind,
     TransferDecoder,
     TransferEncoder,
+    queue_class,
 )
 
 __all__ = ["CLAIM_INTERVAL", "CanHub", "CanLink", "HubStats", "frame_bits"]
@@ -76,13 +74,6 @@ log = logging.getLogger("hwbridge.links.can")
 
 CLAIM_INTERVAL: Final = 1.0
 """Seconds between two node-id claims of one end."""
-_QUEUE_CLASS: Final = {
-    Kind.BEST_EFFORT: PRIORITY_BEST_EFFORT,
-    Kind.RELIABLE: PRIORITY_RELIABLE,
-    Kind.ACK: PRIORITY_ACK,
-    Kind.NODE: PRIORITY_NODE,
-}
-"""The place of a transfer in a sender's queue, by the kind bits of its id (CAN.md §3)."""
 _RECOVERY_DELAY: Final = 0.05
 """Seconds a sender waits after a failed send before trying the next frame (bus-off)."""
 _NODE_SEGMENT: Final = re.compile(r"^node(\d+)$", re.IGNORECASE)
@@ -233,10 +224,8 @@ class CanHub:
         self._queue(frames)
 
     def _queue(self, frames: list[tuple[int, bytes]]) -> None:
-        # Queued by stream, not by the id's priority: a control datagram (HEARTBEAT, a service
-        # request) must not overtake the data queued before it on its own stream, or the
-        # receiver counts that data late and drops it. Its priority still wins arbitration.
-        priority = _QUEUE_CLASS[Kind((frames[0][0] >> 24) & 0x3)]
+        # Queued by stream, not by the id's priority, which still wins arbitration.
+        priority = queue_class(Kind((frames[0][0] >> 24) & 0x3))
         with self._tx_ready:
             if len(self._tx) + len(frames) > self.tx_limit and priority > PRIORITY_RELIABLE:
                 self.stats.tx_dropped += len(frames)

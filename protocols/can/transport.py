@@ -51,6 +51,7 @@ __all__ = [
     "frame_lengths",
     "kind_of",
     "priority_of",
+    "queue_class",
     "split_transfer",
 ]
 
@@ -159,6 +160,17 @@ def priority_of(kind: Kind, channel: int) -> int:
         return PRIORITY_NODE
     if channel == 0:
         return PRIORITY_CONTROL
+    return PRIORITY_RELIABLE if kind is Kind.RELIABLE else PRIORITY_BEST_EFFORT
+
+
+def queue_class(kind: Kind) -> int:
+    """A sender's queue order for a transfer of ``kind`` (CAN.md §3): ACKs, NODE messages, then
+    the reliable and the best-effort streams, each kept in its own order whatever the priorities
+    of its ids (a control datagram must not overtake the data queued before it on its stream)."""
+    if kind is Kind.ACK:
+        return PRIORITY_ACK
+    if kind is Kind.NODE:
+        return PRIORITY_NODE
     return PRIORITY_RELIABLE if kind is Kind.RELIABLE else PRIORITY_BEST_EFFORT
 
 

@@ -25,6 +25,7 @@ from hwbridge.protocols.can.transport import (
     encode_id,
     frame_lengths,
     priority_of,
+    queue_class,
     split_transfer,
 )
 
@@ -280,3 +281,13 @@ def test_faults_never_deliver_what_was_not_sent(
                 or stats.dropped + decoder.pending > 0
                 or (len(damaged) < len(frames))
             )
+
+
+def test_a_stream_keeps_one_queue_class_whatever_its_channel() -> None:
+    """Control datagrams (channel 0) have a higher id priority than data, but the same queue
+    class as their stream, so a sender never lets them overtake that stream's queued data."""
+    for kind in (Kind.BEST_EFFORT, Kind.RELIABLE):
+        assert priority_of(kind, 0) < priority_of(kind, 1)
+        assert queue_class(kind) == priority_of(kind, 1)
+    order = [queue_class(k) for k in (Kind.ACK, Kind.NODE, Kind.RELIABLE, Kind.BEST_EFFORT)]
+    assert order == sorted(order) and len(set(order)) == 4

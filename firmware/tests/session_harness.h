@@ -50,12 +50,16 @@ struct GoldenProfile {
   static const uint16_t kMtu = 64;
   static const uint16_t kMaxMessage = 64;
   static const uint8_t kWindow = 1;
+#ifdef HWBRIDGE_TEST_HELLO
+  static const uint16_t kTxBuffer = 64;  // fits the MTU: no fragmentation, the one-slot sender
+#else
   static const uint16_t kTxBuffer = 80;
+#endif
   static const uint8_t kFeatures = 3;
   static const uint16_t kTimeSyncMs = 5000;
   static const uint16_t kParamTimeoutMs = 2000;
   static const uint16_t kServiceTimeoutMs = 5000;
-#ifdef HWBRIDGE_TEST_FIXED_RTO
+#if defined(HWBRIDGE_TEST_FIXED_RTO) || defined(HWBRIDGE_TEST_HELLO)
   static const bool kFixedRto = true;  // the hello-world simplification (same bytes on a clean link)
 #else
   static const bool kFixedRto = false;

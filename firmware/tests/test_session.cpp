@@ -56,8 +56,14 @@ void golden(const Transcript& tr) {
   for (int i = 44; i < 70; ++i) big[i] = '!';
   m.p = big;
   m.n = sizeof(big);
+#ifdef HWBRIDGE_TEST_HELLO
+  // the hello-world build holds no message above its MTU: publish() says so, nothing is written
+  CHECK(!b.chatter.publish(m), "a 70-byte publish was sent without fragmentation");
+  expect_bytes("topic_data_fragments (refused)", b.hw().take(), Bytes());
+#else
   CHECK(b.chatter.publish(m), "publish of 70 bytes refused");
   expect_bytes("topic_data_fragments", b.hw().take(), tr.get("topic_data_fragments", 'd'));
+#endif
 
   expect_bytes("service_response", b.input(tr.get("service_request", 'h'), t + 0.005),
                tr.get("service_response", 'd'));
@@ -322,6 +328,24 @@ void early_frames() {
         "cumulative ACK after the gap closed");
   printf("early frames: a window-2 board holds the early frame and delivers both in order\n");
 }
+/** A host MTU below what the board sends whole: a board that never fragments (kTxBuffer within
+ * its MTU) refuses the host as invalid limits, counted; one that fragments establishes. */
+void small_mtu_host() {
+  harness::Node node;
+  harness::FakeHardware& hw = node.getHardware();
+  node.setIdentity(0xcafef00dUL, 0);
+  hw.clock = 1000000;
+  node.begin("mtu", "");
+  Host host;
+  // session 0x12345678 already echoing the board, MTU 32
+  Bytes hello{0x01, 1, 0, 0, 0x78, 0x56, 0x34, 0x12, 0x0d, 0xf0, 0xfe, 0xca, 32, 0, 0, 0, 0x10, 0, 16, 0, 3};
+  hw.feed(host.be(0, hello));
+  node.processInput();
+  const bool fragments = harness::GoldenProfile::kTxBuffer > harness::GoldenProfile::kMtu;
+  CHECK(node.stats().sessions == (fragments ? 1 : 0) && node.stats().protocol_errors == (fragments ? 0 : 1),
+        "MTU 32: sessions %u, errors %u", node.stats().sessions, node.stats().protocol_errors);
+  printf("small host MTU: %s\n", fragments ? "established (the board fragments)" : "refused (no fragmentation)");
+}
 }  // namespace
 
 int main() {
@@ -333,6 +357,7 @@ int main() {
   restarts(tr);
   service_client();
   early_frames();
+  small_mtu_host();
   printf("test_session: %lu checks passed\n", check::count());
   return 0;
 }

@@ -5,8 +5,9 @@
 then checks bad input (counted, dropped, session kept), heartbeats, the link timeout and HELLO
 backoff, host restarts and pending requests failing; ``fuzz_session.cpp`` is a seeded,
 time-bounded fuzz run of the session's receive path with guard words around the node. Each is
-built with ``g++ -std=c++11 -Wall -Wextra -Werror``, plain and under ASan/UBSan, and again with
-the fixed-RTO reliable sender of the hello-world profile.
+built with ``g++ -std=c++11 -Wall -Wextra -Werror``, plain and under ASan/UBSan, again with
+the fixed-RTO reliable sender, and again in the hello-world profile's shape (no fragmentation,
+the one-slot reliable sender).
 """
 
 from __future__ import annotations
@@ -44,7 +45,7 @@ def _run(command: list[str], stdin: str, timeout: float = 120) -> str:
     return result.stdout
 
 
-@pytest.fixture(scope="module", params=["plain", "sanitized", "fixed_rto"])
+@pytest.fixture(scope="module", params=["plain", "sanitized", "fixed_rto", "hello"])
 def build(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> Builder:
     if shutil.which("g++") is None:
         pytest.skip("g++ is not installed (Debian package g++)")
@@ -52,6 +53,8 @@ def build(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFacto
     flags = CXXFLAGS + (SANITIZE if request.param == "sanitized" else [])
     if request.param == "fixed_rto":  # the board's fixed RTO (HelloWorldProfile), sanitized
         flags += [*SANITIZE, "-DHWBRIDGE_TEST_FIXED_RTO"]
+    if request.param == "hello":  # HelloWorldProfile's shape: no fragmentation, one-slot sender
+        flags += [*SANITIZE, "-DHWBRIDGE_TEST_HELLO"]
 
     def make(name: str) -> Path:
         exe = out / name

@@ -439,7 +439,7 @@ class NodeHandle_ : public NodeBase {
   void emit(const Frame& f);
   void flushOut();
   void pump();
-  bool queueTable();
+  __attribute__((noinline)) bool queueTable();
   bool txFree() const { return pending_len_ == 0 && !rel_tx_.sending(); }
   bool waitTx(uint32_t limit_us);
   void spinFor();
@@ -474,7 +474,12 @@ class NodeHandle_ : public NodeBase {
   Reassembler<kReassembly> reasm_{};
   BestEffortSender be_tx_{};
   BestEffortReceiver be_rx_{};
-  ReliableSender<Profile::kWindow, Profile::kMtu, Profile::kFixedRto> rel_tx_{};
+  // A board whose largest message fits its own MTU never fragments: with window 1 and the fixed
+  // RTO, its reliable sender is one slot (SingleFrameSender).
+  static const bool kFragments = Profile::kTxBuffer > Profile::kMtu;
+  typename detail::Pick<!kFragments && Profile::kWindow == 1 && Profile::kFixedRto,
+                        SingleFrameSender<Profile::kMtu>,
+                        ReliableSender<Profile::kWindow, Profile::kMtu, Profile::kFixedRto> >::type rel_tx_{};
   // A window above 1 holds early frames (window - 1 of them): a receiver that drops them makes
   // the host's per-frame backoff grow for every frame after a gap (PROTOCOL.md 2.4).
   ReliableReceiver<Profile::kWindow, Profile::kMtu, Profile::kWindow - 1> rel_rx_{};

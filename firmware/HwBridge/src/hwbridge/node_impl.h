@@ -314,8 +314,19 @@ HWB_NODE void HWB_SELF::emit(const Frame& f) {
 
 /** One best-effort message (the node's only call of the sender: one copy of it in flash). */
 HWB_NODE void HWB_SELF::sendBe(uint8_t channel, const uint8_t* p, size_t n) {
-  be_tx_.send(hw_, channel, p, n, established() ? mtu_ : kMinMtu, lead_.lead(now_));
+  const bool lead = lead_.lead(now_);
   last_tx_ = now_;
+  if (kFragments) {
+    be_tx_.send(hw_, channel, p, n, established() ? mtu_ : kMinMtu, lead);
+    return;
+  }
+  // a board that never fragments: one WHOLE frame (sendOn refused anything above the MTU)
+  FrameHeader h;
+  h.type = FrameType::BestEffort;
+  h.frag = Frag::Whole;
+  h.channel = channel;
+  h.seq = be_tx_.take();
+  write_frame(hw_, h, p, n, nullptr, 0, lead);
 }
 
 HWB_NODE void HWB_SELF::sendHello() {
@@ -594,7 +605,7 @@ HWB_NODE void HWB_SELF::onHello(const uint8_t* p) {
     teardown();
   }
   if (!established()) {
-    if (detail::get16(p + 12) < kMinMtu || p[18] == 0 || detail::get32(p + 14) == 0 || session == 0) {
+    if (detail::get16(p + 12) < (kFragments ? kMinMtu : Profile::kTxBuffer) || p[18] == 0 || detail::get32(p + 14) == 0 || session == 0) {
       protocolError();
       return;
     }
@@ -997,7 +1008,7 @@ HWB_NODE uint8_t* HWB_SELF::takeTxBuffer(size_t* cap) {
 }
 
 HWB_NODE bool HWB_SELF::sendOn(Entry& e, size_t len) {
-  if (state_ != kConnected || !e.accepted_ || len > peer_max_ || !txFree()) {
+  if (state_ != kConnected || !e.accepted_ || len > peer_max_ || !txFree() || (!kFragments && len > mtu_)) {
     ++stats_.tx_refused;
     return false;
   }

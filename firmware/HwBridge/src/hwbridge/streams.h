@@ -438,6 +438,106 @@ class ReliableSender {
   bool dead_;
 };
 
+/**
+ * The reliable sender of the smallest boards: window 1, the fixed RTO of FixedRtt, and no
+ * fragmentation (a message above the MTU is refused). The interface of ReliableSender, in a
+ * fraction of its code: one slot, one deadline, no fragmenter.
+ */
+template <size_t MaxPayload>
+class SingleFrameSender {
+ public:
+  typedef FixedRtt Rtt;
+
+  constexpr SingleFrameSender() : stats_(), rtt_(), sent_(0), size_(0), mtu_(0), next_seq_(0),
+                                  channel_(0), retries_(0), queued_(false), released_(false),
+                                  dead_(false), payload_() {}
+
+  void reset(uint8_t isn, uint8_t = 1, size_t mtu = MaxPayload) {
+    next_seq_ = isn;
+    queued_ = released_ = dead_ = false;
+    mtu_ = static_cast<uint16_t>(mtu > MaxPayload ? MaxPayload : mtu);
+  }
+
+  bool send(uint8_t channel, const uint8_t* msg, size_t len) {
+    if (queued_ || dead_ || len > mtu()) {
+      ++stats_.refused;
+      return false;
+    }
+    ++stats_.messages_sent;
+    channel_ = channel;
+    size_ = static_cast<uint16_t>(len);
+    if (len) memcpy(payload_, msg, len);
+    retries_ = 0;
+    queued_ = true;
+    return true;
+  }
+
+  bool sending() const { return false; }  // a message is copied whole, or refused
+  bool idle() const { return !queued_; }
+  uint8_t free_slots() const { return queued_ ? 0 : 1; }
+  uint8_t in_flight() const { return released_ ? 1 : 0; }
+  bool dead() const { return dead_; }
+  uint8_t base() const { return next_seq_; }
+  uint8_t window() const { return 1; }
+  size_t mtu() const { return mtu_ ? mtu_ : MaxPayload; }
+
+  bool poll(uint32_t now, Frame* out) {
+    if (dead_ || !queued_) return false;
+    if (released_) {
+      if (!time_reached(now, sent_ + rtt_.timeout(retries_))) return false;
+      if (retries_ >= 10) {
+        dead_ = true;
+        return false;
+      }
+      ++retries_;
+      ++stats_.retransmits;
+    } else {
+      released_ = true;
+      ++stats_.frames_sent;
+    }
+    sent_ = now;
+    out->type = FrameType::Reliable;
+    out->frag = Frag::Whole;
+    out->channel = channel_;
+    out->seq = next_seq_;
+    out->payload = payload_;
+    out->size = size_;
+    return true;
+  }
+
+  bool next_deadline(uint32_t* at) const {
+    if (!released_) return false;
+    *at = sent_ + rtt_.timeout(retries_);
+    return true;
+  }
+
+  /** An ACK of the frame in flight frees the slot (a bitmap says nothing at window 1). */
+  void on_ack(const Frame& ack, uint32_t) {
+    ++stats_.acks_received;
+    if (released_ && ack.seq == next_seq_) {
+      ++next_seq_;
+      queued_ = released_ = false;
+    }
+  }
+
+  const ReliableSenderStats& stats() const { return stats_; }
+  const Rtt& rtt() const { return rtt_; }
+
+ private:
+  ReliableSenderStats stats_;
+  Rtt rtt_;
+  uint32_t sent_;
+  uint16_t size_;
+  uint16_t mtu_;  // 0: MaxPayload
+  uint8_t next_seq_;  // the frame in the slot, or the next one
+  uint8_t channel_;
+  uint8_t retries_;
+  bool queued_;    // the slot holds a frame
+  bool released_;  // ... that was transmitted
+  bool dead_;
+  uint8_t payload_[MaxPayload];
+};
+
 struct ReliableReceiverStats {
   Counter frames_received;  ///< accepted (each seq once)
   Counter duplicates;       ///< behind the window or already held

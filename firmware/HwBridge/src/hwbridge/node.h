@@ -408,12 +408,17 @@ class NodeHandle_ : public NodeBase {
   static const uint16_t kMinMtu = 24;
   static const uint8_t kHelloFirstMs = 50;
   static const uint8_t kHelloIntervalMs = 250;
-  static const uint32_t kHelloIntervalUs = 1000UL * kHelloIntervalMs;
-  static const uint32_t kHeartbeatUs = 100000UL;
-  static const uint32_t kLinkTimeoutUs = 800000UL;
-  static const uint32_t kHandshakeTimeoutUs = 3000000UL;
-  static const uint32_t kTimeRetryUs = 1000000UL;
   static const uint32_t kMaxTimeAgeUs = 10000000UL;
+  // The session's timers run on a 16-bit millisecond clock (ms_): deadlines up to 32 s ahead.
+  typedef uint16_t Ms;
+  static const Ms kHeartbeatMs = 100;
+  static const Ms kIdleMs = 100;  // a leading 0x00 after this long without sending (1.3)
+  static const Ms kLinkTimeoutMs = 800;
+  static const Ms kHandshakeTimeoutMs = 3000;
+  static const Ms kTimeRetryMs = 1000;
+  static const Ms kMaxTimeoutMs = 30000;
+  static bool reached(Ms now, Ms at) { return static_cast<int16_t>(now - at) >= 0; }
+  static Ms capMs(uint16_t ms) { return ms < kMaxTimeoutMs ? ms : kMaxTimeoutMs; }
   static const uint16_t kReassembly = Profile::kMaxMessage > Profile::kMtu ? Profile::kMaxMessage : 0;
 
   bool add(Entry& e);
@@ -437,11 +442,13 @@ class NodeHandle_ : public NodeBase {
   void sendControlBe(const uint8_t* p, size_t n) { sendBe(kControlChannel, p, n); }
   void sendBe(uint8_t channel, const uint8_t* p, size_t n);
   void emit(const Frame& f);
+  void clock();
+  __attribute__((noinline)) bool markTx();
   void flushOut();
   void pump();
-  __attribute__((noinline)) bool queueTable();
+  bool queueTable();
   bool txFree() const { return pending_len_ == 0 && !rel_tx_.sending(); }
-  bool waitTx(uint32_t limit_us);
+  bool waitTx();
   void spinFor();
   Entry* entryOn(uint8_t channel, uint8_t kind);
   uint16_t newRequestId();
@@ -477,13 +484,13 @@ class NodeHandle_ : public NodeBase {
   // A board whose largest message fits its own MTU never fragments: with window 1 and the fixed
   // RTO, its reliable sender is one slot (SingleFrameSender).
   static const bool kFragments = Profile::kTxBuffer > Profile::kMtu;
-  typename detail::Pick<!kFragments && Profile::kWindow == 1 && Profile::kFixedRto,
-                        SingleFrameSender<Profile::kMtu>,
-                        ReliableSender<Profile::kWindow, Profile::kMtu, Profile::kFixedRto> >::type rel_tx_{};
+  typedef typename detail::Pick<!kFragments && Profile::kWindow == 1 && Profile::kFixedRto,
+                                SingleFrameSender<Profile::kMtu>,
+                                ReliableSender<Profile::kWindow, Profile::kMtu, Profile::kFixedRto> >::type RelTx;
+  RelTx rel_tx_{};
   // A window above 1 holds early frames (window - 1 of them): a receiver that drops them makes
   // the host's per-frame backoff grow for every frame after a gap (PROTOCOL.md 2.4).
   ReliableReceiver<Profile::kWindow, Profile::kMtu, Profile::kWindow - 1> rel_rx_{};
-  LeadTracker lead_{};
   NodeStats stats_{};
   Entry* entries_ = nullptr;
   const char* name_ = nullptr;
@@ -499,14 +506,16 @@ class NodeHandle_ : public NodeBase {
   bool (*sync_copy_)(void*, const ParamValue&, uint16_t) = nullptr;
   void* call_res_ = nullptr;
   Entry* call_entry_ = nullptr;
-  uint32_t now_ = 0;
+  uint32_t now_ = 0;   // microseconds, at the last clock()
+  uint32_t mark_ = 0;  // microseconds of ms_'s last whole millisecond
+  Ms ms_ = 0;
   uint32_t id_ = 0, peer_ = 0, be_peer_ = 0;
   // timer_, by state: the next HELLO (handshake), the start of the table (configuring), the
   // pending service call's deadline (connected)
-  uint32_t timer_ = 0, last_rx_ = 0, last_tx_ = 0;
+  Ms timer_ = 0, last_rx_ = 0, last_tx_ = 0;
   // own time requests only with kTimeSyncMs (a byte otherwise)
-  typename detail::Pick<Profile::kTimeSyncMs != 0, uint32_t, uint8_t>::type time_next_ = 0;
-  uint32_t param_deadline_ = 0;
+  typename detail::Pick<Profile::kTimeSyncMs != 0, Ms, uint8_t>::type time_next_ = 0;
+  Ms param_deadline_ = 0;
   uint32_t board_ref_ = 0, host_sec_ = 0, host_nsec_ = 0;  // time sync reference pair
   uint16_t mtu_ = 0;
   uint16_t peer_max_ = 0;  // the host's max_message (65535 for anything above)
@@ -525,8 +534,8 @@ class NodeHandle_ : public NodeBase {
   uint8_t call_state_ = 0;   // 0 none, 1 waiting, 2 answered
   uint8_t call_status_ = 0;
   uint8_t sync_state_ = 0;   // 0 none, 1 waiting, 2 answered ok, 3 failed
-  uint8_t flags_ = 0;  // kFixed | kInInput | kTimeSynced
-  enum Flag : uint8_t { kFixed = 1, kInInput = 2, kTimeSynced = 4 };
+  uint8_t flags_ = 0;  // kFixed | kInInput | kTimeSynced | kLead
+  enum Flag : uint8_t { kFixed = 1, kInInput = 2, kTimeSynced = 4, kLead = 8 };
   bool flag(uint8_t f) const { return (flags_ & f) != 0; }
   void setFlag(uint8_t f, bool on) { flags_ = static_cast<uint8_t>(on ? flags_ | f : flags_ & ~f); }
   uint8_t tx_[Profile::kTxBuffer] = {};

@@ -183,12 +183,28 @@ HWB_NODE void HWB_SELF::begin(const char* name, const char* firmware) {
   if (r == 0) r = 1;
   if (!flag(kFixed)) id_ = 0;
   while (id_ == 0) id_ = r = xorshift(r);
-  now_ = hw_.micros();
+  clock();
   be_peer_ = 0;
   be_rx_.resync();
-  lead_.reset();
+  setFlag(kLead, true);
   state_ = kHandshake;
   teardown();  // the MTUs, a new ISN, the first HELLO now
+}
+
+/** Reads the microsecond clock into now_ and advances the millisecond clock ms_ by the whole
+ * milliseconds since the last one (no division: a board calls this every few ms). */
+HWB_NODE void HWB_SELF::clock() {
+  now_ = hw_.micros();
+  uint32_t d = now_ - mark_;
+  while (d >= 16000UL) {
+    d -= 16000UL;
+    ms_ = static_cast<Ms>(ms_ + 16);
+  }
+  while (d >= 1000u) {
+    d -= 1000u;
+    ++ms_;
+  }
+  mark_ = now_ - d;
 }
 
 HWB_NODE uint32_t HWB_SELF::xorshift(uint32_t x) {  // xorshift32
@@ -227,7 +243,7 @@ HWB_NODE void HWB_SELF::spinOnce() {
 HWB_NODE void HWB_SELF::processInput() {
   if (state_ == kOff || flag(kInInput)) return;
   setFlag(kInInput, true);
-  now_ = hw_.micros();
+  clock();
   const size_t kBudget = 2 * FrameDecoder<Profile::kMtu, false>::kCapacity + 8;  // bytes read per call
   for (typename detail::Pick<(kBudget < 256), uint8_t, uint16_t>::type budget = kBudget; budget; --budget) {
     const int c = hw_.read();
@@ -240,18 +256,18 @@ HWB_NODE void HWB_SELF::processInput() {
 
 HWB_NODE void HWB_SELF::runTimers() {
   if (state_ == kOff || flag(kInInput)) return;
-  now_ = hw_.micros();
+  clock();
   if (!established()) {
-    if (time_reached(now_, timer_)) {
+    if (reached(ms_, timer_)) {
       sendHello();
-      timer_ = now_ + static_cast<uint16_t>(hello_wait_ * 125u) * 8UL;  // ms * 1000 (250 * 125 fits 16 bits)
+      timer_ = static_cast<Ms>(ms_ + hello_wait_);
       hello_wait_ = hello_wait_ < kHelloIntervalMs / 2 ? static_cast<uint8_t>(hello_wait_ * 2) : kHelloIntervalMs;
     }
     hw_.flush();
     return;
   }
-  if (now_ - last_rx_ >= kLinkTimeoutUs ||
-      (state_ == kConfiguring && now_ - timer_ >= kHandshakeTimeoutUs)) {
+  if (static_cast<Ms>(ms_ - last_rx_) >= kLinkTimeoutMs ||
+      (state_ == kConfiguring && static_cast<Ms>(ms_ - timer_) >= kHandshakeTimeoutMs)) {
     ++stats_.link_losses;
     teardown();
     runTimers();
@@ -263,17 +279,17 @@ HWB_NODE void HWB_SELF::runTimers() {
     return;
   }
   if (state_ == kConnected) {
-    if (call_state_ == 1 && time_reached(now_, timer_)) {
+    if (call_state_ == 1 && reached(ms_, timer_)) {
       call_status_ = kCallTimeout;
       call_state_ = 2;
     }
-    if (param_id_ && on_param_ && time_reached(now_, param_deadline_)) on_param_(this, nullptr, kParamTimeout);
-    if (Profile::kTimeSyncMs && (features_ & 1) && time_reached(now_, time_next_)) {
+    if (param_id_ && on_param_ && reached(ms_, param_deadline_)) on_param_(this, nullptr, kParamTimeout);
+    if (Profile::kTimeSyncMs && (features_ & 1) && reached(ms_, time_next_)) {
       requestSyncTime();
-      time_next_ = static_cast<decltype(time_next_)>(now_ + kTimeRetryUs);
+      time_next_ = static_cast<decltype(time_next_)>(ms_ + kTimeRetryMs);
     }
   }
-  if (now_ - last_tx_ >= kHeartbeatUs) {
+  if (static_cast<Ms>(ms_ - last_tx_) >= kHeartbeatMs) {
     ++stats_.heartbeats_sent;
     const uint8_t hb = 0x02;
     sendControlBe(&hb, 1);
@@ -287,13 +303,14 @@ HWB_NODE void HWB_SELF::spinFor() {
   runTimers();
 }
 
-/** Waits (spinning) until the transmit buffer is free, for at most limit_us. */
-HWB_NODE bool HWB_SELF::waitTx(uint32_t limit_us) {
+/** Waits (spinning) until the transmit buffer is free, for at most 250 ms. */
+HWB_NODE bool HWB_SELF::waitTx() {
   if (txFree()) return true;
   if (flag(kInInput) || !established()) return false;
-  const uint32_t start = hw_.micros();
+  clock();
+  const Ms until = static_cast<Ms>(ms_ + kHelloIntervalMs);
   while (!txFree() && established()) {
-    if (hw_.micros() - start >= limit_us) return false;
+    if (reached(ms_, until)) return false;
     spinFor();
   }
   return txFree();
@@ -308,14 +325,21 @@ HWB_NODE void HWB_SELF::emit(const Frame& f) {
   h.frag = f.frag;
   h.channel = f.channel;
   h.seq = f.seq;
-  write_frame(hw_, h, f.payload, f.size, nullptr, 0, lead_.lead(now_));
-  last_tx_ = now_;
+  write_frame(hw_, h, f.payload, f.size, nullptr, 0, markTx());
+}
+
+/** Records a frame going out now; true when it needs a leading 0x00 (1.3): the first after
+ * the link opened or a HELLO, or after 100 ms without sending. */
+HWB_NODE bool HWB_SELF::markTx() {
+  const bool lead = flag(kLead) || static_cast<Ms>(ms_ - last_tx_) >= kIdleMs;
+  setFlag(kLead, false);
+  last_tx_ = ms_;
+  return lead;
 }
 
 /** One best-effort message (the node's only call of the sender: one copy of it in flash). */
 HWB_NODE void HWB_SELF::sendBe(uint8_t channel, const uint8_t* p, size_t n) {
-  const bool lead = lead_.lead(now_);
-  last_tx_ = now_;
+  const bool lead = markTx();
   if (kFragments) {
     be_tx_.send(hw_, channel, p, n, established() ? mtu_ : kMinMtu, lead);
     return;
@@ -343,7 +367,7 @@ HWB_NODE void HWB_SELF::sendHello() {
   h[18] = Profile::kWindow;
   h[19] = isn_;
   h[20] = Profile::kFeatures;
-  lead_.reset();  // 1.3: a HELLO is always led by 0x00
+  setFlag(kLead, true);  // 1.3: a HELLO is always led by 0x00
   sendControlBe(h, 21);
 }
 
@@ -351,8 +375,7 @@ HWB_NODE void HWB_SELF::sendHello() {
  * then what the reliable window lets out. */
 HWB_NODE void HWB_SELF::flushOut() {
   if (established() && rel_rx_.ack_needed()) {
-    rel_rx_.write_ack(hw_, lead_.lead(now_));
-    last_tx_ = now_;
+    rel_rx_.write_ack(hw_, markTx());
   }
   pump();
   hw_.flush();
@@ -368,7 +391,7 @@ HWB_NODE void HWB_SELF::pump() {
     pending_len_ = 0;
   }
   Frame f;
-  while (rel_tx_.poll(now_, &f)) emit(f);
+  while (rel_tx_.poll(RelTx::kMillis ? ms_ : now_, &f)) emit(f);
   if (rel_tx_.dead()) {
     ++stats_.link_losses;
     teardown();
@@ -431,7 +454,7 @@ HWB_NODE void HWB_SELF::onFrame(const Frame& f) {
     ++stats_.ignored_frames;
     return;
   }
-  last_rx_ = now_;
+  last_rx_ = ms_;
   if (f.type == FrameType::Ack) {
     rel_tx_.on_ack(f, now_);
     return;
@@ -466,7 +489,7 @@ HWB_NODE void HWB_SELF::onMessage(const Message& m, bool reliable) {
   if (m.channel == kControlChannel) {
     onControl(m.data, m.size, reliable);
   } else if (established()) {
-    last_rx_ = now_;
+    last_rx_ = ms_;
     onData(m);
   } else {
     ++stats_.ignored_frames;
@@ -517,7 +540,7 @@ HWB_NODE void HWB_SELF::onControl(const uint8_t* p, size_t n, bool reliable) {
     ++stats_.ignored_frames;
     return;
   }
-  last_rx_ = now_;
+  last_rx_ = ms_;
   switch (op) {
     case 0x02:  // HEARTBEAT
       break;
@@ -554,7 +577,7 @@ HWB_NODE void HWB_SELF::onControl(const uint8_t* p, size_t n, bool reliable) {
         if (accepted != p[1]) protocolError();
       }
       state_ = kConnected;
-      time_next_ = now_;
+      time_next_ = static_cast<decltype(time_next_)>(ms_);
       break;
     case 0x20:
       if (on_request_) {
@@ -631,7 +654,7 @@ HWB_NODE void HWB_SELF::establish(const uint8_t* h) {
   table_pos_ = 0;
   pending_len_ = 0;
   state_ = kConfiguring;
-  timer_ = last_rx_ = now_;
+  timer_ = last_rx_ = ms_;
   ++stats_.sessions;
 }
 
@@ -651,7 +674,7 @@ HWB_NODE void HWB_SELF::teardown() {
   // a new ISN per session: the random session id mixed with the time (no generator state kept)
   isn_ = flag(kFixed) ? fixed_isn_ : static_cast<uint8_t>(xorshift(id_ ^ now_ ^ 0x5bd1e995UL));
   rel_tx_.reset(isn_, Profile::kWindow, Profile::kMtu);
-  timer_ = now_;
+  timer_ = ms_;
   hello_wait_ = kHelloFirstMs;
   for (Entry* e = entries_; e; e = e->next_) e->accepted_ = false;
   if (call_state_ == 1) {
@@ -746,7 +769,8 @@ HWB_NODE uint8_t HWB_SELF::call(Entry& e, size_t len, uint16_t timeout_ms, void*
   call_entry_ = &e;
   call_res_ = res;
   call_state_ = 1;
-  timer_ = hw_.micros() + 1000UL * (timeout_ms ? timeout_ms : Profile::kServiceTimeoutMs);
+  clock();
+  timer_ = static_cast<Ms>(ms_ + capMs(timeout_ms ? timeout_ms : Profile::kServiceTimeoutMs));
   pump();
   hw_.flush();
   while (call_state_ == 1) spinFor();
@@ -770,7 +794,7 @@ HWB_NODE uint16_t HWB_SELF::requestParam(const char* name, uint8_t type, ParamCa
                                           bool subscribe, uint16_t max_count) {
   const size_t len = strlen(name);
   param_cb_ = cb;
-  if (param_id_ || state_ != kConnected || !waitTx(kHelloIntervalUs) || len + 7 > Profile::kTxBuffer ||
+  if (param_id_ || state_ != kConnected || !waitTx() || len + 7 > Profile::kTxBuffer ||
       len + 7 > peer_max_) {
     ++stats_.tx_refused;
     ParamValue v;
@@ -791,7 +815,7 @@ HWB_NODE uint16_t HWB_SELF::requestParam(const char* name, uint8_t type, ParamCa
   memcpy(p, name, len);
   pending_ch_ = kControlChannel;
   pending_len_ = static_cast<uint16_t>(7 + len);
-  param_deadline_ = now_ + 1000UL * Profile::kParamTimeoutMs;
+  param_deadline_ = static_cast<Ms>(ms_ + Profile::kParamTimeoutMs);
   pump();
   hw_.flush();
   return param_id_;
@@ -875,7 +899,7 @@ HWB_NODE bool HWB_SELF::blockingParam(const char* name, uint8_t type, void* out,
     sync_state_ = 0;
     return false;
   }
-  if (timeout_ms) param_deadline_ = now_ + 1000UL * timeout_ms;
+  if (timeout_ms) param_deadline_ = static_cast<Ms>(ms_ + capMs(timeout_ms));
   while (sync_state_ == 1) spinFor();
   const bool ok = sync_state_ == 2;
   sync_state_ = 0;
@@ -932,7 +956,7 @@ HWB_NODE bool HWB_SELF::getParam(const char* name, bool* value, uint16_t length,
 // Logs, time, publishing
 
 HWB_NODE bool HWB_SELF::log(uint8_t level, const char* text) {
-  if (state_ != kConnected || !waitTx(kHelloIntervalUs)) {
+  if (state_ != kConnected || !waitTx()) {
     ++stats_.tx_refused;
     return false;
   }
@@ -978,7 +1002,7 @@ HWB_NODE void HWB_SELF::onTimeResponse(const uint8_t* p) {
   }
   board_ref_ = now_;
   setFlag(kTimeSynced, true);
-  time_next_ = now_ + 1000UL * Profile::kTimeSyncMs;
+  time_next_ = static_cast<decltype(time_next_)>(ms_ + Profile::kTimeSyncMs);
 }
 
 HWB_NODE void HWB_SELF::now(uint32_t* sec, uint32_t* nsec) {
@@ -1000,7 +1024,7 @@ HWB_NODE void HWB_SELF::now(uint32_t* sec, uint32_t* nsec) {
 
 HWB_NODE uint8_t* HWB_SELF::takeTxBuffer(size_t* cap) {
   *cap = Profile::kTxBuffer;
-  if (state_ != kConnected || !waitTx(kHelloIntervalUs)) {
+  if (state_ != kConnected || !waitTx()) {
     ++stats_.tx_refused;
     return nullptr;
   }
@@ -1017,7 +1041,7 @@ HWB_NODE bool HWB_SELF::sendOn(Entry& e, size_t len) {
     pending_len_ = static_cast<uint16_t>(len);
     pump();
   } else {
-    now_ = hw_.micros();
+    clock();
     sendBe(e.channel_, tx_, len);
   }
   hw_.flush();

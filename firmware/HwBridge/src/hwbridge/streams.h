@@ -227,6 +227,7 @@ class ReliableSender {
   static_assert(MaxPayload >= 1, "MaxPayload must be at least 1");
 
  public:
+  static const bool kMillis = false;  ///< times are microseconds
   constexpr explicit ReliableSender(uint8_t isn = 0, uint8_t max_retries = 10)
       : slots_(), cursor_(), stats_(), rtt_(), mtu_(0), base_(isn), next_seq_(isn), head_(0),
         count_(0), released_(0), window_(0), retry_delta_(static_cast<uint8_t>(max_retries - 10)),
@@ -441,12 +442,18 @@ class ReliableSender {
 /**
  * The reliable sender of the smallest boards: window 1, the fixed RTO of FixedRtt, and no
  * fragmentation (a message above the MTU is refused). The interface of ReliableSender, in a
- * fraction of its code: one slot, one deadline, no fragmenter.
+ * fraction of its code (one slot, one deadline, no fragmenter), except that times are the
+ * node's 16-bit milliseconds (kMillis) instead of microseconds.
  */
 template <size_t MaxPayload>
 class SingleFrameSender {
  public:
   typedef FixedRtt Rtt;
+  static const bool kMillis = true;
+  /** RTO * 2^retries in ms: 100, 200, 400, 800, then 1000. */
+  static uint16_t timeout(uint8_t retries) {
+    return retries >= 4 ? 1000 : static_cast<uint16_t>(100u << retries);
+  }
 
   constexpr SingleFrameSender() : stats_(), rtt_(), sent_(0), size_(0), mtu_(0), next_seq_(0),
                                   channel_(0), retries_(0), queued_(false), released_(false),
@@ -481,10 +488,10 @@ class SingleFrameSender {
   uint8_t window() const { return 1; }
   size_t mtu() const { return mtu_ ? mtu_ : MaxPayload; }
 
-  bool poll(uint32_t now, Frame* out) {
+  bool poll(uint16_t now, Frame* out) {
     if (dead_ || !queued_) return false;
     if (released_) {
-      if (!time_reached(now, sent_ + rtt_.timeout(retries_))) return false;
+      if (static_cast<int16_t>(now - static_cast<uint16_t>(sent_ + timeout(retries_))) < 0) return false;
       if (retries_ >= 10) {
         dead_ = true;
         return false;
@@ -505,9 +512,9 @@ class SingleFrameSender {
     return true;
   }
 
-  bool next_deadline(uint32_t* at) const {
+  bool next_deadline(uint16_t* at) const {
     if (!released_) return false;
-    *at = sent_ + rtt_.timeout(retries_);
+    *at = static_cast<uint16_t>(sent_ + timeout(retries_));
     return true;
   }
 
@@ -526,7 +533,7 @@ class SingleFrameSender {
  private:
   ReliableSenderStats stats_;
   Rtt rtt_;
-  uint32_t sent_;
+  uint16_t sent_;  // ms
   uint16_t size_;
   uint16_t mtu_;  // 0: MaxPayload
   uint8_t next_seq_;  // the frame in the slot, or the next one

@@ -474,25 +474,53 @@ class NodeHandle_ : public NodeBase {
     }
   }
 
-  // Every member has an initializer, so that the implicit constructor is constexpr: a global
-  // node is initialized at compile time (no static constructor on the board).
-  Hardware hw_{};
-  FrameDecoder<Profile::kMtu, false> dec_{};
-  Reassembler<kReassembly> reasm_{};
-  BestEffortSender be_tx_{};
-  BestEffortReceiver be_rx_{};
   // A board whose largest message fits its own MTU never fragments: with window 1 and the fixed
   // RTO, its reliable sender is one slot (SingleFrameSender).
   static const bool kFragments = Profile::kTxBuffer > Profile::kMtu;
   typedef typename detail::Pick<!kFragments && Profile::kWindow == 1 && Profile::kFixedRto,
                                 SingleFrameSender<Profile::kMtu>,
                                 ReliableSender<Profile::kWindow, Profile::kMtu, Profile::kFixedRto> >::type RelTx;
-  RelTx rel_tx_{};
+
+  // Every member has an initializer, so that the implicit constructor is constexpr: a global
+  // node is initialized at compile time (no static constructor on the board). The members used
+  // most come first: on AVR a member within 63 bytes of the object's start is one instruction
+  // away (ldd/std), one further needs the address computed first.
+  uint8_t state_ = 0;
+  uint8_t flags_ = 0;  // kFixed | kInInput | kTimeSynced | kLead
+  Ms ms_ = 0;
+  // timer_, by state: the next HELLO (handshake), the start of the table (configuring), the
+  // pending service call's deadline (connected)
+  Ms timer_ = 0, last_rx_ = 0, last_tx_ = 0;
+  uint16_t mtu_ = 0;
+  uint16_t peer_max_ = 0;  // the host's max_message (65535 for anything above)
+  uint16_t pending_len_ = 0;  // a reliable message in tx_ waiting for a free slot
+  uint8_t pending_ch_ = 0;
+  uint8_t features_ = 0;
+  uint8_t isn_ = 0, fixed_isn_ = 0;
+  uint8_t entry_count_ = 0;
+  uint8_t table_pos_ = 0;
+  uint8_t hello_wait_ = 0;  // ms until the next HELLO: 50, 100, 200, then 250
+  uint8_t call_state_ = 0;   // 0 none, 1 waiting, 2 answered
+  uint8_t call_status_ = 0;
+  uint8_t sync_state_ = 0;   // 0 none, 1 waiting, 2 answered ok, 3 failed
+  uint8_t uid_len_ = 0;
+  uint32_t now_ = 0;   // microseconds, at the last clock()
+  uint32_t mark_ = 0;  // microseconds of ms_'s last whole millisecond
+  Entry* entries_ = nullptr;
+  NodeStats stats_{};
+  Hardware hw_{};
+  BestEffortSender be_tx_{};
+  BestEffortReceiver be_rx_{};
   // A window above 1 holds early frames (window - 1 of them): a receiver that drops them makes
   // the host's per-frame backoff grow for every frame after a gap (PROTOCOL.md 2.4).
   ReliableReceiver<Profile::kWindow, Profile::kMtu, Profile::kWindow - 1> rel_rx_{};
-  NodeStats stats_{};
-  Entry* entries_ = nullptr;
+  uint32_t id_ = 0, peer_ = 0, be_peer_ = 0;
+  // own time requests only with kTimeSyncMs (a byte otherwise)
+  typename detail::Pick<Profile::kTimeSyncMs != 0, Ms, uint8_t>::type time_next_ = 0;
+  Ms param_deadline_ = 0;
+  uint16_t next_request_ = 0;
+  uint16_t param_id_ = 0, call_id_ = 0;
+  uint16_t sync_len_ = 0;
   const char* name_ = nullptr;
   const char* firmware_ = nullptr;
   const uint8_t* uid_ = nullptr;
@@ -506,39 +534,15 @@ class NodeHandle_ : public NodeBase {
   bool (*sync_copy_)(void*, const ParamValue&, uint16_t) = nullptr;
   void* call_res_ = nullptr;
   Entry* call_entry_ = nullptr;
-  uint32_t now_ = 0;   // microseconds, at the last clock()
-  uint32_t mark_ = 0;  // microseconds of ms_'s last whole millisecond
-  Ms ms_ = 0;
-  uint32_t id_ = 0, peer_ = 0, be_peer_ = 0;
-  // timer_, by state: the next HELLO (handshake), the start of the table (configuring), the
-  // pending service call's deadline (connected)
-  Ms timer_ = 0, last_rx_ = 0, last_tx_ = 0;
-  // own time requests only with kTimeSyncMs (a byte otherwise)
-  typename detail::Pick<Profile::kTimeSyncMs != 0, Ms, uint8_t>::type time_next_ = 0;
-  Ms param_deadline_ = 0;
   uint32_t board_ref_ = 0, host_sec_ = 0, host_nsec_ = 0;  // time sync reference pair
-  uint16_t mtu_ = 0;
-  uint16_t peer_max_ = 0;  // the host's max_message (65535 for anything above)
-  uint16_t pending_len_ = 0;  // a reliable message in tx_ waiting for a free slot
-  uint16_t next_request_ = 0;
-  uint16_t param_id_ = 0, call_id_ = 0;
-  uint16_t sync_len_ = 0;
-  uint8_t pending_ch_ = 0;
-  uint8_t state_ = 0;
-  uint8_t isn_ = 0, fixed_isn_ = 0;
-  uint8_t features_ = 0;
-  uint8_t entry_count_ = 0;
-  uint8_t table_pos_ = 0;
-  uint8_t uid_len_ = 0;
-  uint8_t hello_wait_ = 0;  // ms until the next HELLO: 50, 100, 200, then 250
-  uint8_t call_state_ = 0;   // 0 none, 1 waiting, 2 answered
-  uint8_t call_status_ = 0;
-  uint8_t sync_state_ = 0;   // 0 none, 1 waiting, 2 answered ok, 3 failed
-  uint8_t flags_ = 0;  // kFixed | kInInput | kTimeSynced | kLead
+  Reassembler<kReassembly> reasm_{};
+  RelTx rel_tx_{};
+  FrameDecoder<Profile::kMtu, false> dec_{};
+  uint8_t tx_[Profile::kTxBuffer] = {};
+
   enum Flag : uint8_t { kFixed = 1, kInInput = 2, kTimeSynced = 4, kLead = 8 };
   bool flag(uint8_t f) const { return (flags_ & f) != 0; }
   void setFlag(uint8_t f, bool on) { flags_ = static_cast<uint8_t>(on ? flags_ | f : flags_ & ~f); }
-  uint8_t tx_[Profile::kTxBuffer] = {};
 };
 
 #if defined(ARDUINO)

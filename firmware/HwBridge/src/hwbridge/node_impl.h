@@ -195,16 +195,10 @@ HWB_NODE void HWB_SELF::begin(const char* name, const char* firmware) {
  * milliseconds since the last one (no division: a board calls this every few ms). */
 HWB_NODE void HWB_SELF::clock() {
   now_ = hw_.micros();
-  uint32_t d = now_ - mark_;
-  while (d >= 16000UL) {
-    d -= 16000UL;
-    ms_ = static_cast<Ms>(ms_ + 16);
-  }
-  while (d >= 1000u) {
-    d -= 1000u;
+  while (now_ - mark_ >= 1000u) {
+    mark_ += 1000u;
     ++ms_;
   }
-  mark_ = now_ - d;
 }
 
 HWB_NODE uint32_t HWB_SELF::xorshift(uint32_t x) {  // xorshift32

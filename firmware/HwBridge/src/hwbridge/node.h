@@ -423,7 +423,6 @@ class NodeHandle_ : public NodeBase {
 
   bool add(Entry& e);
   bool established() const { return state_ >= kConfiguring; }
-  __attribute__((noinline)) static uint32_t xorshift(uint32_t x);
   __attribute__((noinline)) void onFrame(const Frame& f);
   void onBestEffort(const Frame& f);
   void onMessage(const Message& m, bool reliable);

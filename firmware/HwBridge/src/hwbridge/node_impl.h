@@ -179,10 +179,7 @@ HWB_NODE void HWB_SELF::initNode(uint32_t baud, const char* name, const char* fi
 HWB_NODE void HWB_SELF::begin(const char* name, const char* firmware) {
   name_ = name;
   firmware_ = firmware;
-  uint32_t r = (hw_.seed() | 1u) ^ 0x9E3779B9UL;
-  if (r == 0) r = 1;
-  if (!flag(kFixed)) id_ = 0;
-  while (id_ == 0) id_ = r = xorshift(r);
+  if (!flag(kFixed)) id_ = hw_.seed() | 1u;  // a new random session id (never 0) per boot
   clock();
   be_peer_ = 0;
   be_rx_.resync();
@@ -199,13 +196,6 @@ HWB_NODE void HWB_SELF::clock() {
     mark_ += 1000u;
     ++ms_;
   }
-}
-
-HWB_NODE uint32_t HWB_SELF::xorshift(uint32_t x) {  // xorshift32
-  x ^= x << 13;
-  x ^= x >> 17;
-  x ^= x << 5;
-  return x;
 }
 
 HWB_NODE bool HWB_SELF::add(Entry& e) {
@@ -251,25 +241,22 @@ HWB_NODE void HWB_SELF::processInput() {
 HWB_NODE void HWB_SELF::runTimers() {
   if (state_ == kOff || flag(kInInput)) return;
   clock();
-  if (!established()) {
+  if (established()) {
+    if (static_cast<Ms>(ms_ - last_rx_) >= kLinkTimeoutMs ||
+        (state_ == kConfiguring && static_cast<Ms>(ms_ - timer_) >= kHandshakeTimeoutMs)) {
+      ++stats_.link_losses;
+      teardown();
+    } else {
+      pump();  // retransmissions (the retry limit may end the session)
+    }
+  }
+  if (!established()) {  // the handshake, also right after a session ended: a HELLO at once
     if (reached(ms_, timer_)) {
       sendHello();
       timer_ = static_cast<Ms>(ms_ + hello_wait_);
       hello_wait_ = hello_wait_ < kHelloIntervalMs / 2 ? static_cast<uint8_t>(hello_wait_ * 2) : kHelloIntervalMs;
     }
     hw_.flush();
-    return;
-  }
-  if (static_cast<Ms>(ms_ - last_rx_) >= kLinkTimeoutMs ||
-      (state_ == kConfiguring && static_cast<Ms>(ms_ - timer_) >= kHandshakeTimeoutMs)) {
-    ++stats_.link_losses;
-    teardown();
-    runTimers();
-    return;
-  }
-  pump();
-  if (!established()) {  // the retry limit ended the session
-    runTimers();
     return;
   }
   if (state_ == kConnected) {
@@ -666,7 +653,7 @@ HWB_NODE void HWB_SELF::teardown() {
   setFlag(kTimeSynced, false);
   features_ = 0;
   // a new ISN per session: the random session id mixed with the time (no generator state kept)
-  isn_ = flag(kFixed) ? fixed_isn_ : static_cast<uint8_t>(xorshift(id_ ^ now_ ^ 0x5bd1e995UL));
+  isn_ = flag(kFixed) ? fixed_isn_ : static_cast<uint8_t>(id_ ^ now_ ^ now_ >> 8);
   rel_tx_.reset(isn_, Profile::kWindow, Profile::kMtu);
   timer_ = ms_;
   hello_wait_ = kHelloFirstMs;

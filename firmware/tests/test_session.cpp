@@ -182,12 +182,20 @@ void liveness(const Transcript& tr) {
   CHECK(!b.node.connected() && b.node.stats().link_losses == 1, "no link loss after 0.8 s");
   fr = harness::frames_of(out);
   CHECK(fr.size() == 1 && fr[0].second[0] == 0x01, "a HELLO at once after the link loss: %s", check::hex(out).c_str());
-  // the backoff: 50, 100, 200, then every 250 ms
-  const double at[] = {11.36, 11.46, 11.66, 11.91, 12.16};
-  for (size_t i = 0; i < 5; ++i) {
-    CHECK(b.timers(at[i] - 0.002).empty(), "HELLO too early (%zu)", i);
-    CHECK(!b.timers(at[i]).empty(), "no HELLO at %.2f", at[i]);
+  // the backoff: 50, 100, 200, then every 250 ms (the board's timers count ticks of 1.024 ms:
+  // each wait within 2 ms), the timers run every millisecond
+  const double waits[] = {0.050, 0.100, 0.200, 0.250, 0.250};
+  double last = 11.31;
+  size_t i = 0;
+  for (int ms = 1; ms <= 1000 && i < 5; ++ms) {
+    const double t = 11.31 + ms * 0.001;
+    if (b.timers(t).empty()) continue;
+    CHECK(t - last > waits[i] - 0.0025 && t - last < waits[i] + 0.0025, "HELLO %zu after %.4f s, not %.3f",
+          i, t - last, waits[i]);
+    last = t;
+    ++i;
   }
+  CHECK(i == 5, "%zu HELLOs in a second", i);
   printf("liveness: heartbeat, link timeout, HELLO backoff\n");
 }
 

@@ -331,7 +331,7 @@ class Reassembler<0> {
   size_t buffered() const { return 0; }
   const ReassemblyStats& stats() const { return stats_; }
   static size_t capacity() { return 0; }
-  __attribute__((noinline)) bool feed(const Frame& f, Message* out) {
+  bool feed(const Frame& f, Message* out) {
     if (f.type == FrameType::Ack) return false;
     if (f.frag != Frag::Whole) {
       if (f.frag == Frag::First) ++stats_.oversize;

@@ -406,25 +406,33 @@ class NodeHandle_ : public NodeBase {
  private:
   enum State : uint8_t { kOff = 0, kHandshake, kConfiguring, kConnected };
   static const uint16_t kMinMtu = 24;
-  static const uint8_t kHelloFirstMs = 50;
-  static const uint8_t kHelloIntervalMs = 250;
   static const uint32_t kMaxTimeAgeUs = 10000000UL;
-  // The session's timers run on a 16-bit millisecond clock (ms_): deadlines up to 32 s ahead.
-  typedef uint16_t Ms;
-  static const Ms kHeartbeatMs = 100;
-  static const Ms kIdleMs = 100;  // a leading 0x00 after this long without sending (1.3)
-  static const Ms kLinkTimeoutMs = 800;
-  static const Ms kHandshakeTimeoutMs = 3000;
-  static const Ms kTimeRetryMs = 1000;
-  static const Ms kMaxTimeoutMs = 30000;
-  static bool reached(Ms now, Ms at) { return static_cast<int16_t>(now - at) >= 0; }
-  static Ms capMs(uint16_t ms) { return ms < kMaxTimeoutMs ? ms : kMaxTimeoutMs; }
+  // The session's timers count 16-bit ticks of 1.024 ms, the microsecond clock shifted right by
+  // 10 (no division on the board): deadlines up to 33 s ahead. Intervals are the protocol's
+  // milliseconds in ticks, rounded (PROTOCOL.md 2.11).
+  typedef uint16_t Tick;
+  static constexpr Tick ticks(uint32_t ms) { return static_cast<Tick>((ms * 125 + 64) / 128); }
+  static const uint8_t kHelloFirst = ticks(50);     // the first HELLO retry; doubling up to
+  static const uint8_t kHelloInterval = ticks(250);  // ... hello_interval
+  static const Tick kHeartbeat = ticks(100);
+  static const Tick kIdle = ticks(100);  // a leading 0x00 after this long without sending (1.3)
+  static const Tick kLinkTimeout = ticks(800);
+  static const Tick kHandshakeTimeout = ticks(3000);
+  static const Tick kTimeRetry = ticks(1000);
+  static const uint16_t kMaxTimeoutMs = 30000;
+  static bool reached(Tick now, Tick at) { return static_cast<int16_t>(now - at) >= 0; }
+  /** A timeout in ms as ticks (ms * 125 / 128 by shifts), at most kMaxTimeoutMs. */
+  static Tick msTicks(uint16_t ms) {
+    if (ms > kMaxTimeoutMs) ms = kMaxTimeoutMs;
+    return static_cast<Tick>(ms - (ms >> 6) - (ms >> 7));
+  }
   static const uint16_t kReassembly = Profile::kMaxMessage > Profile::kMtu ? Profile::kMaxMessage : 0;
 
   bool add(Entry& e);
   bool established() const { return state_ >= kConfiguring; }
   __attribute__((noinline)) void onFrame(const Frame& f);
   void onBestEffort(const Frame& f);
+  __attribute__((noinline)) void deliver(const Frame& f);
   void onMessage(const Message& m, bool reliable);
   void onControl(const uint8_t* p, size_t n, bool reliable);
   void onHello(const uint8_t* p);
@@ -486,10 +494,10 @@ class NodeHandle_ : public NodeBase {
   // away (ldd/std), one further needs the address computed first.
   uint8_t state_ = 0;
   uint8_t flags_ = 0;  // kFixed | kInInput | kTimeSynced | kLead
-  Ms ms_ = 0;
+  Tick tick_ = 0;  // now_ >> 10
   // timer_, by state: the next HELLO (handshake), the start of the table (configuring), the
   // pending service call's deadline (connected)
-  Ms timer_ = 0, last_rx_ = 0, last_tx_ = 0;
+  Tick timer_ = 0, last_rx_ = 0, last_tx_ = 0;
   uint16_t mtu_ = 0;
   uint16_t peer_max_ = 0;  // the host's max_message (65535 for anything above)
   uint16_t pending_len_ = 0;  // a reliable message in tx_ waiting for a free slot
@@ -498,15 +506,15 @@ class NodeHandle_ : public NodeBase {
   uint8_t isn_ = 0, fixed_isn_ = 0;
   uint8_t entry_count_ = 0;
   uint8_t table_pos_ = 0;
-  uint8_t hello_wait_ = 0;  // ms until the next HELLO: 50, 100, 200, then 250
+  uint8_t hello_wait_ = 0;  // ticks until the next HELLO: 50, 100, 200, then 250 ms
   uint8_t call_state_ = 0;   // 0 none, 1 waiting, 2 answered
   uint8_t call_status_ = 0;
   uint8_t sync_state_ = 0;   // 0 none, 1 waiting, 2 answered ok, 3 failed
   uint8_t uid_len_ = 0;
-  uint32_t now_ = 0;   // microseconds, at the last clock()
-  uint32_t mark_ = 0;  // microseconds of ms_'s last whole millisecond
   Entry* entries_ = nullptr;
   NodeStats stats_{};
+  RelTx rel_tx_{};
+  uint32_t now_ = 0;   // microseconds, at the last clock()
   Hardware hw_{};
   BestEffortSender be_tx_{};
   BestEffortReceiver be_rx_{};
@@ -515,8 +523,8 @@ class NodeHandle_ : public NodeBase {
   ReliableReceiver<Profile::kWindow, Profile::kMtu, Profile::kWindow - 1> rel_rx_{};
   uint32_t id_ = 0, peer_ = 0, be_peer_ = 0;
   // own time requests only with kTimeSyncMs (a byte otherwise)
-  typename detail::Pick<Profile::kTimeSyncMs != 0, Ms, uint8_t>::type time_next_ = 0;
-  Ms param_deadline_ = 0;
+  typename detail::Pick<Profile::kTimeSyncMs != 0, Tick, uint8_t>::type time_next_ = 0;
+  Tick param_deadline_ = 0;
   uint16_t next_request_ = 0;
   uint16_t param_id_ = 0, call_id_ = 0;
   uint16_t sync_len_ = 0;
@@ -535,7 +543,6 @@ class NodeHandle_ : public NodeBase {
   Entry* call_entry_ = nullptr;
   uint32_t board_ref_ = 0, host_sec_ = 0, host_nsec_ = 0;  // time sync reference pair
   Reassembler<kReassembly> reasm_{};
-  RelTx rel_tx_{};
   FrameDecoder<Profile::kMtu, false> dec_{};
   uint8_t tx_[Profile::kTxBuffer] = {};
 

@@ -188,14 +188,10 @@ HWB_NODE void HWB_SELF::begin(const char* name, const char* firmware) {
   teardown();  // the MTUs, a new ISN, the first HELLO now
 }
 
-/** Reads the microsecond clock into now_ and advances the millisecond clock ms_ by the whole
- * milliseconds since the last one (no division: a board calls this every few ms). */
+/** Reads the microsecond clock into now_, and the session's ticks of 1.024 ms from it. */
 HWB_NODE void HWB_SELF::clock() {
   now_ = hw_.micros();
-  while (now_ - mark_ >= 1000u) {
-    mark_ += 1000u;
-    ++ms_;
-  }
+  tick_ = static_cast<Tick>(now_ >> 10);
 }
 
 HWB_NODE bool HWB_SELF::add(Entry& e) {
@@ -242,8 +238,8 @@ HWB_NODE void HWB_SELF::runTimers() {
   if (state_ == kOff || flag(kInInput)) return;
   clock();
   if (established()) {
-    if (static_cast<Ms>(ms_ - last_rx_) >= kLinkTimeoutMs ||
-        (state_ == kConfiguring && static_cast<Ms>(ms_ - timer_) >= kHandshakeTimeoutMs)) {
+    if (static_cast<Tick>(tick_ - last_rx_) >= kLinkTimeout ||
+        (state_ == kConfiguring && static_cast<Tick>(tick_ - timer_) >= kHandshakeTimeout)) {
       ++stats_.link_losses;
       teardown();
     } else {
@@ -251,26 +247,26 @@ HWB_NODE void HWB_SELF::runTimers() {
     }
   }
   if (!established()) {  // the handshake, also right after a session ended: a HELLO at once
-    if (reached(ms_, timer_)) {
+    if (reached(tick_, timer_)) {
       sendHello();
-      timer_ = static_cast<Ms>(ms_ + hello_wait_);
-      hello_wait_ = hello_wait_ < kHelloIntervalMs / 2 ? static_cast<uint8_t>(hello_wait_ * 2) : kHelloIntervalMs;
+      timer_ = static_cast<Tick>(tick_ + hello_wait_);
+      hello_wait_ = hello_wait_ < kHelloInterval / 2 ? static_cast<uint8_t>(hello_wait_ * 2) : kHelloInterval;
     }
     hw_.flush();
     return;
   }
   if (state_ == kConnected) {
-    if (call_state_ == 1 && reached(ms_, timer_)) {
+    if (call_state_ == 1 && reached(tick_, timer_)) {
       call_status_ = kCallTimeout;
       call_state_ = 2;
     }
-    if (param_id_ && on_param_ && reached(ms_, param_deadline_)) on_param_(this, nullptr, kParamTimeout);
-    if (Profile::kTimeSyncMs && (features_ & 1) && reached(ms_, time_next_)) {
+    if (param_id_ && on_param_ && reached(tick_, param_deadline_)) on_param_(this, nullptr, kParamTimeout);
+    if (Profile::kTimeSyncMs && (features_ & 1) && reached(tick_, time_next_)) {
       requestSyncTime();
-      time_next_ = static_cast<decltype(time_next_)>(ms_ + kTimeRetryMs);
+      time_next_ = static_cast<decltype(time_next_)>(tick_ + kTimeRetry);
     }
   }
-  if (static_cast<Ms>(ms_ - last_tx_) >= kHeartbeatMs) {
+  if (static_cast<Tick>(tick_ - last_tx_) >= kHeartbeat) {
     ++stats_.heartbeats_sent;
     const uint8_t hb = 0x02;
     sendControlBe(&hb, 1);
@@ -289,9 +285,9 @@ HWB_NODE bool HWB_SELF::waitTx() {
   if (txFree()) return true;
   if (flag(kInInput) || !established()) return false;
   clock();
-  const Ms until = static_cast<Ms>(ms_ + kHelloIntervalMs);
+  const Tick until = static_cast<Tick>(tick_ + kHelloInterval);
   while (!txFree() && established()) {
-    if (reached(ms_, until)) return false;
+    if (reached(tick_, until)) return false;
     spinFor();
   }
   return txFree();
@@ -312,9 +308,9 @@ HWB_NODE void HWB_SELF::emit(const Frame& f) {
 /** Records a frame going out now; true when it needs a leading 0x00 (1.3): the first after
  * the link opened or a HELLO, or after 100 ms without sending. */
 HWB_NODE bool HWB_SELF::markTx() {
-  const bool lead = flag(kLead) || static_cast<Ms>(ms_ - last_tx_) >= kIdleMs;
+  const bool lead = flag(kLead) || static_cast<Tick>(tick_ - last_tx_) >= kIdle;
   setFlag(kLead, false);
-  last_tx_ = ms_;
+  last_tx_ = tick_;
   return lead;
 }
 
@@ -372,7 +368,7 @@ HWB_NODE void HWB_SELF::pump() {
     pending_len_ = 0;
   }
   Frame f;
-  while (rel_tx_.poll(RelTx::kMillis ? ms_ : now_, &f)) emit(f);
+  while (rel_tx_.poll(RelTx::kTicks ? tick_ : now_, &f)) emit(f);
   if (rel_tx_.dead()) {
     ++stats_.link_losses;
     teardown();
@@ -435,20 +431,23 @@ HWB_NODE void HWB_SELF::onFrame(const Frame& f) {
     ++stats_.ignored_frames;
     return;
   }
-  last_rx_ = ms_;
+  last_rx_ = tick_;
   if (f.type == FrameType::Ack) {
     rel_tx_.on_ack(f, now_);
     return;
   }
   if (rel_rx_.receive(f) != Received::Deliver) return;
-  Message m;
-  if (reasm_.feed(f, &m)) onMessage(m, true);
+  deliver(f);
   // frames held early (a window above 1) that are now in order; a teardown in onMessage
   // empties the receiver, which ends this
   Frame h;
-  while (rel_rx_.pop(&h)) {
-    if (reasm_.feed(h, &m)) onMessage(m, true);
-  }
+  while (rel_rx_.pop(&h)) deliver(h);
+}
+
+/** A frame its stream accepted: through reassembly to onMessage. */
+HWB_NODE void HWB_SELF::deliver(const Frame& f) {
+  Message m;
+  if (reasm_.feed(f, &m)) onMessage(m, f.type == FrameType::Reliable);
 }
 
 HWB_NODE void HWB_SELF::onBestEffort(const Frame& f) {
@@ -461,16 +460,14 @@ HWB_NODE void HWB_SELF::onBestEffort(const Frame& f) {
       reasm_.reset(FrameType::BestEffort);
     }
   }
-  if (!be_rx_.accept(f.seq)) return;
-  Message m;
-  if (reasm_.feed(f, &m)) onMessage(m, false);
+  if (be_rx_.accept(f.seq)) deliver(f);
 }
 
 HWB_NODE void HWB_SELF::onMessage(const Message& m, bool reliable) {
   if (m.channel == kControlChannel) {
     onControl(m.data, m.size, reliable);
   } else if (established()) {
-    last_rx_ = ms_;
+    last_rx_ = tick_;
     onData(m);
   } else {
     ++stats_.ignored_frames;
@@ -521,7 +518,7 @@ HWB_NODE void HWB_SELF::onControl(const uint8_t* p, size_t n, bool reliable) {
     ++stats_.ignored_frames;
     return;
   }
-  last_rx_ = ms_;
+  last_rx_ = tick_;
   switch (op) {
     case 0x02:  // HEARTBEAT
       break;
@@ -558,7 +555,7 @@ HWB_NODE void HWB_SELF::onControl(const uint8_t* p, size_t n, bool reliable) {
         if (accepted != p[1]) protocolError();
       }
       state_ = kConnected;
-      time_next_ = static_cast<decltype(time_next_)>(ms_);
+      time_next_ = static_cast<decltype(time_next_)>(tick_);
       break;
     case 0x20:
       if (on_request_) {
@@ -635,7 +632,7 @@ HWB_NODE void HWB_SELF::establish(const uint8_t* h) {
   table_pos_ = 0;
   pending_len_ = 0;
   state_ = kConfiguring;
-  timer_ = last_rx_ = ms_;
+  timer_ = last_rx_ = tick_;
   ++stats_.sessions;
 }
 
@@ -655,8 +652,8 @@ HWB_NODE void HWB_SELF::teardown() {
   // a new ISN per session: the random session id mixed with the time (no generator state kept)
   isn_ = flag(kFixed) ? fixed_isn_ : static_cast<uint8_t>(id_ ^ now_ ^ now_ >> 8);
   rel_tx_.reset(isn_, Profile::kWindow, Profile::kMtu);
-  timer_ = ms_;
-  hello_wait_ = kHelloFirstMs;
+  timer_ = tick_;
+  hello_wait_ = kHelloFirst;
   for (Entry* e = entries_; e; e = e->next_) e->accepted_ = false;
   if (call_state_ == 1) {
     call_status_ = kCallSessionReset;
@@ -751,7 +748,7 @@ HWB_NODE uint8_t HWB_SELF::call(Entry& e, size_t len, uint16_t timeout_ms, void*
   call_res_ = res;
   call_state_ = 1;
   clock();
-  timer_ = static_cast<Ms>(ms_ + capMs(timeout_ms ? timeout_ms : Profile::kServiceTimeoutMs));
+  timer_ = static_cast<Tick>(tick_ + msTicks(timeout_ms ? timeout_ms : Profile::kServiceTimeoutMs));
   pump();
   hw_.flush();
   while (call_state_ == 1) spinFor();
@@ -796,7 +793,7 @@ HWB_NODE uint16_t HWB_SELF::requestParam(const char* name, uint8_t type, ParamCa
   memcpy(p, name, len);
   pending_ch_ = kControlChannel;
   pending_len_ = static_cast<uint16_t>(7 + len);
-  param_deadline_ = static_cast<Ms>(ms_ + Profile::kParamTimeoutMs);
+  param_deadline_ = static_cast<Tick>(tick_ + ticks(Profile::kParamTimeoutMs));
   pump();
   hw_.flush();
   return param_id_;
@@ -880,7 +877,7 @@ HWB_NODE bool HWB_SELF::blockingParam(const char* name, uint8_t type, void* out,
     sync_state_ = 0;
     return false;
   }
-  if (timeout_ms) param_deadline_ = static_cast<Ms>(ms_ + capMs(timeout_ms));
+  if (timeout_ms) param_deadline_ = static_cast<Tick>(tick_ + msTicks(timeout_ms));
   while (sync_state_ == 1) spinFor();
   const bool ok = sync_state_ == 2;
   sync_state_ = 0;
@@ -983,7 +980,7 @@ HWB_NODE void HWB_SELF::onTimeResponse(const uint8_t* p) {
   }
   board_ref_ = now_;
   setFlag(kTimeSynced, true);
-  time_next_ = static_cast<decltype(time_next_)>(ms_ + Profile::kTimeSyncMs);
+  time_next_ = static_cast<decltype(time_next_)>(tick_ + ticks(Profile::kTimeSyncMs));
 }
 
 HWB_NODE void HWB_SELF::now(uint32_t* sec, uint32_t* nsec) {

@@ -227,7 +227,7 @@ class ReliableSender {
   static_assert(MaxPayload >= 1, "MaxPayload must be at least 1");
 
  public:
-  static const bool kMillis = false;  ///< times are microseconds
+  static const bool kTicks = false;  ///< times are microseconds
   constexpr explicit ReliableSender(uint8_t isn = 0, uint8_t max_retries = 10)
       : slots_(), cursor_(), stats_(), rtt_(), mtu_(0), base_(isn), next_seq_(isn), head_(0),
         count_(0), released_(0), window_(0), retry_delta_(static_cast<uint8_t>(max_retries - 10)),
@@ -443,21 +443,21 @@ class ReliableSender {
  * The reliable sender of the smallest boards: window 1, the fixed RTO of FixedRtt, and no
  * fragmentation (a message above the MTU is refused). The interface of ReliableSender, in a
  * fraction of its code (one slot, one deadline, no fragmenter), except that times are the
- * node's 16-bit milliseconds (kMillis) instead of microseconds.
+ * node's 16-bit ticks of 1.024 ms (kTicks) instead of microseconds.
  */
 template <size_t MaxPayload>
 class SingleFrameSender {
  public:
   typedef FixedRtt Rtt;
-  static const bool kMillis = true;
-  /** RTO * 2^retries in ms: 100, 200, 400, 800, then 1000. */
+  static const bool kTicks = true;
+  /** RTO * 2^retries in ticks: 100, 200, 400, 800 ms, then 1 s. */
   static uint16_t timeout(uint8_t retries) {
-    return retries >= 4 ? 1000 : static_cast<uint16_t>(100u << retries);
+    return retries >= 4 ? 977 : static_cast<uint16_t>(98u << retries);
   }
 
-  constexpr SingleFrameSender() : stats_(), rtt_(), sent_(0), size_(0), mtu_(0), next_seq_(0),
-                                  channel_(0), retries_(0), queued_(false), released_(false),
-                                  dead_(false), payload_() {}
+  constexpr SingleFrameSender() : queued_(false), released_(false), dead_(false), retries_(0),
+                                  next_seq_(0), channel_(0), sent_(0), size_(0), mtu_(0), stats_(),
+                                  rtt_(), payload_() {}
 
   void reset(uint8_t isn, uint8_t = 1, size_t mtu = MaxPayload) {
     next_seq_ = isn;
@@ -531,17 +531,17 @@ class SingleFrameSender {
   const Rtt& rtt() const { return rtt_; }
 
  private:
-  ReliableSenderStats stats_;
-  Rtt rtt_;
-  uint16_t sent_;  // ms
-  uint16_t size_;
-  uint16_t mtu_;  // 0: MaxPayload
-  uint8_t next_seq_;  // the frame in the slot, or the next one
-  uint8_t channel_;
-  uint8_t retries_;
   bool queued_;    // the slot holds a frame
   bool released_;  // ... that was transmitted
   bool dead_;
+  uint8_t retries_;
+  uint8_t next_seq_;  // the frame in the slot, or the next one
+  uint8_t channel_;
+  uint16_t sent_;  // ticks
+  uint16_t size_;
+  uint16_t mtu_;  // 0: MaxPayload
+  ReliableSenderStats stats_;
+  Rtt rtt_;
   uint8_t payload_[MaxPayload];
 };
 

@@ -82,6 +82,11 @@ struct Raw {
   }
   static const char* type_name() { return "std_msgs/String"; }
   static const char* md5sum() { return "992ce8a1687cec8c8bd883ec73ca41d1"; }
+  static const uint8_t* md5_bytes() {
+    static const uint8_t md5[16] = {0x99, 0x2c, 0xe8, 0xa1, 0x68, 0x7c, 0xec, 0x8c,
+                                    0x8b, 0xd8, 0x83, 0xec, 0x73, 0xca, 0x41, 0xd1};
+    return md5;
+  }
 };
 
 inline void on_reset(const std_srvs::TriggerRequest&, std_srvs::TriggerResponse& res) {

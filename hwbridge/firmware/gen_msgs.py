@@ -8,7 +8,8 @@ struct ``pkg::Type`` with its fields and constants, and:
   than its capacity; never writes past ``buf + cap``. (A message without fields is 0 bytes too.)
 - ``bool deserialize(const uint8_t* buf, size_t len)``: false unless the ``len`` bytes are exactly
   one message whose arrays and strings fit their capacities; never reads past ``buf + len``.
-- ``type_name()`` and ``md5sum()``: NUL-terminated ``static const char`` arrays, in flash
+- ``type_name()`` and ``md5sum()``: NUL-terminated ``static const char`` arrays, and
+  ``md5_bytes()``: the md5 sum's 16 bytes (what the board's topic table sends); all in flash
   (``PROGMEM``) on AVR.
 
 A service ``pkg/Srv`` gives ``SrvRequest``, ``SrvResponse`` and ``Srv`` (the pair, with the
@@ -454,7 +455,9 @@ _KEYWORDS: Final = frozenset(
         "xor",
     ]
 )
-_MEMBERS: Final = frozenset({"write", "read", "serialize", "deserialize", "type_name", "md5sum"})
+_MEMBERS: Final = frozenset(
+    {"write", "read", "serialize", "deserialize", "type_name", "md5sum", "md5_bytes"}
+)
 """Names the generated structs use themselves: a field called so gets a trailing underscore."""
 _CAPACITY_RE: Final = re.compile(
     r"^(?P<type>[A-Za-z]\w*/[A-Za-z]\w*)\.(?P<field>[A-Za-z]\w*)(?P<elem>\[\])?=(?P<n>\d+)$"
@@ -680,6 +683,8 @@ class MessageHeaders:
         yield "      pgm_read_byte, strcpy_P, ...), in RAM elsewhere. */"
         yield f"  static const char* type_name() {{ return {name}Names_<void>::type; }}"
         yield f"  static const char* md5sum() {{ return {name}Names_<void>::md5; }}"
+        yield "  /** The md5 sum as its 16 bytes (in flash on AVR), as the topic table sends it. */"
+        yield f"  static const uint8_t* md5_bytes() {{ return {name}Names_<void>::md5_bytes; }}"
 
     @staticmethod
     def _names_storage(name: str, ros_name: str, md5: str) -> Iterator[str]:
@@ -688,11 +693,15 @@ class MessageHeaders:
         yield f"struct {name}Names_ {{"
         yield "  static const char type[];"
         yield "  static const char md5[];"
+        yield "  static const uint8_t md5_bytes[16];"
         yield "};"
         yield "template <class D>"
         yield f'const char {name}Names_<D>::type[] HWBRIDGE_PROGMEM = "{ros_name}";'
         yield "template <class D>"
         yield f'const char {name}Names_<D>::md5[] HWBRIDGE_PROGMEM = "{md5}";'
+        raw = ", ".join(f"0x{md5[i : i + 2]}" for i in range(0, 32, 2))
+        yield "template <class D>"
+        yield f"const uint8_t {name}Names_<D>::md5_bytes[16] HWBRIDGE_PROGMEM = {{{raw}}};"
 
     def header(self, name: str, deps: list[str]) -> str:
         """The text of ``pkg/Type.h`` for a message or service type."""

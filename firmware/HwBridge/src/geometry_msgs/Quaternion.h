@@ -10,11 +10,14 @@ template <class D>
 struct QuaternionNames_ {
   static const char type[];
   static const char md5[];
+  static const uint8_t md5_bytes[16];
 };
 template <class D>
 const char QuaternionNames_<D>::type[] HWBRIDGE_PROGMEM = "geometry_msgs/Quaternion";
 template <class D>
 const char QuaternionNames_<D>::md5[] HWBRIDGE_PROGMEM = "a779879fadf0160734f906b8c19c7004";
+template <class D>
+const uint8_t QuaternionNames_<D>::md5_bytes[16] HWBRIDGE_PROGMEM = {0xa7, 0x79, 0x87, 0x9f, 0xad, 0xf0, 0x16, 0x07, 0x34, 0xf9, 0x06, 0xb8, 0xc1, 0x9c, 0x70, 0x04};
 
 /** geometry_msgs/Quaternion (md5 a779879fadf0160734f906b8c19c7004). */
 struct Quaternion {
@@ -53,6 +56,8 @@ struct Quaternion {
       pgm_read_byte, strcpy_P, ...), in RAM elsewhere. */
   static const char* type_name() { return QuaternionNames_<void>::type; }
   static const char* md5sum() { return QuaternionNames_<void>::md5; }
+  /** The md5 sum as its 16 bytes (in flash on AVR), as the topic table sends it. */
+  static const uint8_t* md5_bytes() { return QuaternionNames_<void>::md5_bytes; }
 };
 
 }  // namespace geometry_msgs

@@ -11,11 +11,14 @@ template <class D>
 struct TwistNames_ {
   static const char type[];
   static const char md5[];
+  static const uint8_t md5_bytes[16];
 };
 template <class D>
 const char TwistNames_<D>::type[] HWBRIDGE_PROGMEM = "geometry_msgs/Twist";
 template <class D>
 const char TwistNames_<D>::md5[] HWBRIDGE_PROGMEM = "9f195f881246fdfa2798d1d3eebca84a";
+template <class D>
+const uint8_t TwistNames_<D>::md5_bytes[16] HWBRIDGE_PROGMEM = {0x9f, 0x19, 0x5f, 0x88, 0x12, 0x46, 0xfd, 0xfa, 0x27, 0x98, 0xd1, 0xd3, 0xee, 0xbc, 0xa8, 0x4a};
 
 /** geometry_msgs/Twist (md5 9f195f881246fdfa2798d1d3eebca84a). */
 struct Twist {
@@ -48,6 +51,8 @@ struct Twist {
       pgm_read_byte, strcpy_P, ...), in RAM elsewhere. */
   static const char* type_name() { return TwistNames_<void>::type; }
   static const char* md5sum() { return TwistNames_<void>::md5; }
+  /** The md5 sum as its 16 bytes (in flash on AVR), as the topic table sends it. */
+  static const uint8_t* md5_bytes() { return TwistNames_<void>::md5_bytes; }
 };
 
 }  // namespace geometry_msgs

@@ -10,11 +10,14 @@ template <class D>
 struct Vector3Names_ {
   static const char type[];
   static const char md5[];
+  static const uint8_t md5_bytes[16];
 };
 template <class D>
 const char Vector3Names_<D>::type[] HWBRIDGE_PROGMEM = "geometry_msgs/Vector3";
 template <class D>
 const char Vector3Names_<D>::md5[] HWBRIDGE_PROGMEM = "4a842b65f413084dc2b10fb484ea7f17";
+template <class D>
+const uint8_t Vector3Names_<D>::md5_bytes[16] HWBRIDGE_PROGMEM = {0x4a, 0x84, 0x2b, 0x65, 0xf4, 0x13, 0x08, 0x4d, 0xc2, 0xb1, 0x0f, 0xb4, 0x84, 0xea, 0x7f, 0x17};
 
 /** geometry_msgs/Vector3 (md5 4a842b65f413084dc2b10fb484ea7f17). */
 struct Vector3 {
@@ -50,6 +53,8 @@ struct Vector3 {
       pgm_read_byte, strcpy_P, ...), in RAM elsewhere. */
   static const char* type_name() { return Vector3Names_<void>::type; }
   static const char* md5sum() { return Vector3Names_<void>::md5; }
+  /** The md5 sum as its 16 bytes (in flash on AVR), as the topic table sends it. */
+  static const uint8_t* md5_bytes() { return Vector3Names_<void>::md5_bytes; }
 };
 
 }  // namespace geometry_msgs

@@ -173,7 +173,7 @@ class Entry {
  public:
   /** What the node asks of the typed part (hooks, one function per entry type). */
   enum Op : uint8_t { kOpType = 0, kOpMd5 = 1, kOpDeliver = 2 };
-  /** kOpType/kOpMd5: returns the type name / md5 hex (in flash on AVR). kOpDeliver: handles a
+  /** kOpType/kOpMd5: returns the type name / the md5's 16 bytes (in flash on AVR). kOpDeliver: handles a
    * message of *len bytes at data (a subscriber's callback; a server's callback, writing the
    * response's length to *len; a client's response deserialized into obj); returns nullptr on
    * success, non-null when the bytes do not deserialize. */

@@ -123,13 +123,13 @@ bool Publisher<T>::publish(const T& msg) {
 
 template <class T>
 const char* Publisher<T>::hook(Entry*, uint8_t op, const uint8_t*, size_t*, void*) {
-  return op == kOpType ? T::type_name() : T::md5sum();
+  return op == kOpType ? T::type_name() : reinterpret_cast<const char*>(T::md5_bytes());
 }
 
 template <class T>
 const char* Subscriber<T>::hook(Entry* self, uint8_t op, const uint8_t* data, size_t* len, void*) {
   if (op == kOpType) return T::type_name();
-  if (op == kOpMd5) return T::md5sum();
+  if (op == kOpMd5) return reinterpret_cast<const char*>(T::md5_bytes());
   T msg;
   if (!msg.deserialize(data, *len)) return "bad";
   static_cast<Subscriber<T>*>(self)->cb_(msg);
@@ -139,7 +139,7 @@ const char* Subscriber<T>::hook(Entry* self, uint8_t op, const uint8_t* data, si
 template <class Srv>
 const char* ServiceServer<Srv>::hook(Entry* self, uint8_t op, const uint8_t* data, size_t* len, void* obj) {
   if (op == kOpType) return Srv::type_name();
-  if (op == kOpMd5) return Srv::md5sum();
+  if (op == kOpMd5) return reinterpret_cast<const char*>(Srv::md5_bytes());
   Request req;
   if (!req.deserialize(data, *len)) return "bad request";
   Response res;
@@ -151,7 +151,7 @@ const char* ServiceServer<Srv>::hook(Entry* self, uint8_t op, const uint8_t* dat
 template <class Srv>
 const char* ServiceClient<Srv>::hook(Entry*, uint8_t op, const uint8_t* data, size_t* len, void* obj) {
   if (op == kOpType) return Srv::type_name();
-  if (op == kOpMd5) return Srv::md5sum();
+  if (op == kOpMd5) return reinterpret_cast<const char*>(Srv::md5_bytes());
   return static_cast<Response*>(obj)->deserialize(data, *len) ? nullptr : "bad response";
 }
 
@@ -400,10 +400,8 @@ HWB_NODE bool HWB_SELF::queueTable() {
     *p++ = e->channel_;
     *p++ = e->kind_;
     *p++ = e->reliable_ ? 1 : 0;
-    const char* md5 = e->hook_(e, Entry::kOpMd5, nullptr, nullptr, nullptr);
-    for (uint8_t i = 0; i < 16; ++i, md5 += 2) {  // the 32 hex digits, two to a byte
-      *p++ = static_cast<uint8_t>(hex_value(flash_byte(md5)) << 4 | hex_value(flash_byte(md5 + 1)));
-    }
+    flash_copy(p, e->hook_(e, Entry::kOpMd5, nullptr, nullptr, nullptr), 16);
+    p += 16;
     uint8_t* len = p++;
     p = detail::put_str(p, e->name_, cap - 21);
     *len = static_cast<uint8_t>(p - len - 1);

@@ -4,6 +4,7 @@
 
 #include <stddef.h>
 #include <stdint.h>
+#include <string.h>
 
 #ifdef __AVR__
 #include <avr/pgmspace.h>
@@ -27,10 +28,13 @@ inline uint8_t flash_byte(const char* p) {
 #endif
 }
 
-/** Value of one hex digit, either case: letters (bit 6 set) are 9 above their low nibble (the
- * generated md5 sums are valid hex: anything else gives some value below 16). */
-inline uint8_t hex_value(uint8_t c) {
-  return static_cast<uint8_t>((c & 0x40 ? c + 9 : c) & 0x0F);
+/** Copies n bytes that the generated headers keep in flash on AVR. */
+inline void flash_copy(uint8_t* to, const char* from, size_t n) {
+#ifdef __AVR__
+  memcpy_P(to, from, n);
+#else
+  memcpy(to, from, n);
+#endif
 }
 
 }  // namespace hwbridge

@@ -11,11 +11,14 @@ template <class D>
 struct ImuRawNames_ {
   static const char type[];
   static const char md5[];
+  static const uint8_t md5_bytes[16];
 };
 template <class D>
 const char ImuRawNames_<D>::type[] HWBRIDGE_PROGMEM = "hwbridge_msgs/ImuRaw";
 template <class D>
 const char ImuRawNames_<D>::md5[] HWBRIDGE_PROGMEM = "6c981e78b64b0effa32433b1a061ab3f";
+template <class D>
+const uint8_t ImuRawNames_<D>::md5_bytes[16] HWBRIDGE_PROGMEM = {0x6c, 0x98, 0x1e, 0x78, 0xb6, 0x4b, 0x0e, 0xff, 0xa3, 0x24, 0x33, 0xb1, 0xa0, 0x61, 0xab, 0x3f};
 
 /** hwbridge_msgs/ImuRaw (md5 6c981e78b64b0effa32433b1a061ab3f). */
 struct ImuRaw {
@@ -71,6 +74,8 @@ struct ImuRaw {
       pgm_read_byte, strcpy_P, ...), in RAM elsewhere. */
   static const char* type_name() { return ImuRawNames_<void>::type; }
   static const char* md5sum() { return ImuRawNames_<void>::md5; }
+  /** The md5 sum as its 16 bytes (in flash on AVR), as the topic table sends it. */
+  static const uint8_t* md5_bytes() { return ImuRawNames_<void>::md5_bytes; }
 };
 
 }  // namespace hwbridge_msgs

@@ -11,11 +11,14 @@ template <class D>
 struct SonarEchoNames_ {
   static const char type[];
   static const char md5[];
+  static const uint8_t md5_bytes[16];
 };
 template <class D>
 const char SonarEchoNames_<D>::type[] HWBRIDGE_PROGMEM = "hwbridge_msgs/SonarEcho";
 template <class D>
 const char SonarEchoNames_<D>::md5[] HWBRIDGE_PROGMEM = "f33c093e99799c0e5ac1ed5dea2996a2";
+template <class D>
+const uint8_t SonarEchoNames_<D>::md5_bytes[16] HWBRIDGE_PROGMEM = {0xf3, 0x3c, 0x09, 0x3e, 0x99, 0x79, 0x9c, 0x0e, 0x5a, 0xc1, 0xed, 0x5d, 0xea, 0x29, 0x96, 0xa2};
 
 /** hwbridge_msgs/SonarEcho (md5 f33c093e99799c0e5ac1ed5dea2996a2). */
 struct SonarEcho {
@@ -51,6 +54,8 @@ struct SonarEcho {
       pgm_read_byte, strcpy_P, ...), in RAM elsewhere. */
   static const char* type_name() { return SonarEchoNames_<void>::type; }
   static const char* md5sum() { return SonarEchoNames_<void>::md5; }
+  /** The md5 sum as its 16 bytes (in flash on AVR), as the topic table sends it. */
+  static const uint8_t* md5_bytes() { return SonarEchoNames_<void>::md5_bytes; }
 };
 
 }  // namespace hwbridge_msgs

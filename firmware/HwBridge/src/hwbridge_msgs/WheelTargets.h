@@ -10,11 +10,14 @@ template <class D>
 struct WheelTargetsNames_ {
   static const char type[];
   static const char md5[];
+  static const uint8_t md5_bytes[16];
 };
 template <class D>
 const char WheelTargetsNames_<D>::type[] HWBRIDGE_PROGMEM = "hwbridge_msgs/WheelTargets";
 template <class D>
 const char WheelTargetsNames_<D>::md5[] HWBRIDGE_PROGMEM = "3a927990ab5d5c3d628e2d52b8533e52";
+template <class D>
+const uint8_t WheelTargetsNames_<D>::md5_bytes[16] HWBRIDGE_PROGMEM = {0x3a, 0x92, 0x79, 0x90, 0xab, 0x5d, 0x5c, 0x3d, 0x62, 0x8e, 0x2d, 0x52, 0xb8, 0x53, 0x3e, 0x52};
 
 /** hwbridge_msgs/WheelTargets (md5 3a927990ab5d5c3d628e2d52b8533e52). */
 struct WheelTargets {
@@ -47,6 +50,8 @@ struct WheelTargets {
       pgm_read_byte, strcpy_P, ...), in RAM elsewhere. */
   static const char* type_name() { return WheelTargetsNames_<void>::type; }
   static const char* md5sum() { return WheelTargetsNames_<void>::md5; }
+  /** The md5 sum as its 16 bytes (in flash on AVR), as the topic table sends it. */
+  static const uint8_t* md5_bytes() { return WheelTargetsNames_<void>::md5_bytes; }
 };
 
 }  // namespace hwbridge_msgs

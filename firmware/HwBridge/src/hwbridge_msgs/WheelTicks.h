@@ -11,11 +11,14 @@ template <class D>
 struct WheelTicksNames_ {
   static const char type[];
   static const char md5[];
+  static const uint8_t md5_bytes[16];
 };
 template <class D>
 const char WheelTicksNames_<D>::type[] HWBRIDGE_PROGMEM = "hwbridge_msgs/WheelTicks";
 template <class D>
 const char WheelTicksNames_<D>::md5[] HWBRIDGE_PROGMEM = "e6d9eb03ca837d823f0167c56dac343f";
+template <class D>
+const uint8_t WheelTicksNames_<D>::md5_bytes[16] HWBRIDGE_PROGMEM = {0xe6, 0xd9, 0xeb, 0x03, 0xca, 0x83, 0x7d, 0x82, 0x3f, 0x01, 0x67, 0xc5, 0x6d, 0xac, 0x34, 0x3f};
 
 /** hwbridge_msgs/WheelTicks (md5 e6d9eb03ca837d823f0167c56dac343f). */
 struct WheelTicks {
@@ -54,6 +57,8 @@ struct WheelTicks {
       pgm_read_byte, strcpy_P, ...), in RAM elsewhere. */
   static const char* type_name() { return WheelTicksNames_<void>::type; }
   static const char* md5sum() { return WheelTicksNames_<void>::md5; }
+  /** The md5 sum as its 16 bytes (in flash on AVR), as the topic table sends it. */
+  static const uint8_t* md5_bytes() { return WheelTicksNames_<void>::md5_bytes; }
 };
 
 }  // namespace hwbridge_msgs

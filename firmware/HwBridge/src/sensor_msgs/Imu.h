@@ -13,11 +13,14 @@ template <class D>
 struct ImuNames_ {
   static const char type[];
   static const char md5[];
+  static const uint8_t md5_bytes[16];
 };
 template <class D>
 const char ImuNames_<D>::type[] HWBRIDGE_PROGMEM = "sensor_msgs/Imu";
 template <class D>
 const char ImuNames_<D>::md5[] HWBRIDGE_PROGMEM = "6a62c6daae103f4ff57a132d6f95cec2";
+template <class D>
+const uint8_t ImuNames_<D>::md5_bytes[16] HWBRIDGE_PROGMEM = {0x6a, 0x62, 0xc6, 0xda, 0xae, 0x10, 0x3f, 0x4f, 0xf5, 0x7a, 0x13, 0x2d, 0x6f, 0x95, 0xce, 0xc2};
 
 /** sensor_msgs/Imu (md5 6a62c6daae103f4ff57a132d6f95cec2). */
 struct Imu {
@@ -65,6 +68,8 @@ struct Imu {
       pgm_read_byte, strcpy_P, ...), in RAM elsewhere. */
   static const char* type_name() { return ImuNames_<void>::type; }
   static const char* md5sum() { return ImuNames_<void>::md5; }
+  /** The md5 sum as its 16 bytes (in flash on AVR), as the topic table sends it. */
+  static const uint8_t* md5_bytes() { return ImuNames_<void>::md5_bytes; }
 };
 
 }  // namespace sensor_msgs

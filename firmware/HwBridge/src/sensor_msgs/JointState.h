@@ -11,11 +11,14 @@ template <class D>
 struct JointStateNames_ {
   static const char type[];
   static const char md5[];
+  static const uint8_t md5_bytes[16];
 };
 template <class D>
 const char JointStateNames_<D>::type[] HWBRIDGE_PROGMEM = "sensor_msgs/JointState";
 template <class D>
 const char JointStateNames_<D>::md5[] HWBRIDGE_PROGMEM = "3066dcd76a6cfaef579bd0f34173e9fd";
+template <class D>
+const uint8_t JointStateNames_<D>::md5_bytes[16] HWBRIDGE_PROGMEM = {0x30, 0x66, 0xdc, 0xd7, 0x6a, 0x6c, 0xfa, 0xef, 0x57, 0x9b, 0xd0, 0xf3, 0x41, 0x73, 0xe9, 0xfd};
 
 /** sensor_msgs/JointState (md5 3066dcd76a6cfaef579bd0f34173e9fd). */
 struct JointState {
@@ -65,6 +68,8 @@ struct JointState {
       pgm_read_byte, strcpy_P, ...), in RAM elsewhere. */
   static const char* type_name() { return JointStateNames_<void>::type; }
   static const char* md5sum() { return JointStateNames_<void>::md5; }
+  /** The md5 sum as its 16 bytes (in flash on AVR), as the topic table sends it. */
+  static const uint8_t* md5_bytes() { return JointStateNames_<void>::md5_bytes; }
 };
 
 }  // namespace sensor_msgs

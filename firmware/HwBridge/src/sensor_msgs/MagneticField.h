@@ -12,11 +12,14 @@ template <class D>
 struct MagneticFieldNames_ {
   static const char type[];
   static const char md5[];
+  static const uint8_t md5_bytes[16];
 };
 template <class D>
 const char MagneticFieldNames_<D>::type[] HWBRIDGE_PROGMEM = "sensor_msgs/MagneticField";
 template <class D>
 const char MagneticFieldNames_<D>::md5[] HWBRIDGE_PROGMEM = "2f3b0b43eed0c9501de0fa3ff89a45aa";
+template <class D>
+const uint8_t MagneticFieldNames_<D>::md5_bytes[16] HWBRIDGE_PROGMEM = {0x2f, 0x3b, 0x0b, 0x43, 0xee, 0xd0, 0xc9, 0x50, 0x1d, 0xe0, 0xfa, 0x3f, 0xf8, 0x9a, 0x45, 0xaa};
 
 /** sensor_msgs/MagneticField (md5 2f3b0b43eed0c9501de0fa3ff89a45aa). */
 struct MagneticField {
@@ -52,6 +55,8 @@ struct MagneticField {
       pgm_read_byte, strcpy_P, ...), in RAM elsewhere. */
   static const char* type_name() { return MagneticFieldNames_<void>::type; }
   static const char* md5sum() { return MagneticFieldNames_<void>::md5; }
+  /** The md5 sum as its 16 bytes (in flash on AVR), as the topic table sends it. */
+  static const uint8_t* md5_bytes() { return MagneticFieldNames_<void>::md5_bytes; }
 };
 
 }  // namespace sensor_msgs

@@ -11,11 +11,14 @@ template <class D>
 struct RangeNames_ {
   static const char type[];
   static const char md5[];
+  static const uint8_t md5_bytes[16];
 };
 template <class D>
 const char RangeNames_<D>::type[] HWBRIDGE_PROGMEM = "sensor_msgs/Range";
 template <class D>
 const char RangeNames_<D>::md5[] HWBRIDGE_PROGMEM = "c005c34273dc426c67a020a87bc24148";
+template <class D>
+const uint8_t RangeNames_<D>::md5_bytes[16] HWBRIDGE_PROGMEM = {0xc0, 0x05, 0xc3, 0x42, 0x73, 0xdc, 0x42, 0x6c, 0x67, 0xa0, 0x20, 0xa8, 0x7b, 0xc2, 0x41, 0x48};
 
 /** sensor_msgs/Range (md5 c005c34273dc426c67a020a87bc24148). */
 struct Range {
@@ -62,6 +65,8 @@ struct Range {
       pgm_read_byte, strcpy_P, ...), in RAM elsewhere. */
   static const char* type_name() { return RangeNames_<void>::type; }
   static const char* md5sum() { return RangeNames_<void>::md5; }
+  /** The md5 sum as its 16 bytes (in flash on AVR), as the topic table sends it. */
+  static const uint8_t* md5_bytes() { return RangeNames_<void>::md5_bytes; }
 };
 
 }  // namespace sensor_msgs

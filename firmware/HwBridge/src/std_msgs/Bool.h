@@ -10,11 +10,14 @@ template <class D>
 struct BoolNames_ {
   static const char type[];
   static const char md5[];
+  static const uint8_t md5_bytes[16];
 };
 template <class D>
 const char BoolNames_<D>::type[] HWBRIDGE_PROGMEM = "std_msgs/Bool";
 template <class D>
 const char BoolNames_<D>::md5[] HWBRIDGE_PROGMEM = "8b94c1b53db61fb6aed406028ad6332a";
+template <class D>
+const uint8_t BoolNames_<D>::md5_bytes[16] HWBRIDGE_PROGMEM = {0x8b, 0x94, 0xc1, 0xb5, 0x3d, 0xb6, 0x1f, 0xb6, 0xae, 0xd4, 0x06, 0x02, 0x8a, 0xd6, 0x33, 0x2a};
 
 /** std_msgs/Bool (md5 8b94c1b53db61fb6aed406028ad6332a). */
 struct Bool {
@@ -44,6 +47,8 @@ struct Bool {
       pgm_read_byte, strcpy_P, ...), in RAM elsewhere. */
   static const char* type_name() { return BoolNames_<void>::type; }
   static const char* md5sum() { return BoolNames_<void>::md5; }
+  /** The md5 sum as its 16 bytes (in flash on AVR), as the topic table sends it. */
+  static const uint8_t* md5_bytes() { return BoolNames_<void>::md5_bytes; }
 };
 
 }  // namespace std_msgs

@@ -10,11 +10,14 @@ template <class D>
 struct DurationNames_ {
   static const char type[];
   static const char md5[];
+  static const uint8_t md5_bytes[16];
 };
 template <class D>
 const char DurationNames_<D>::type[] HWBRIDGE_PROGMEM = "std_msgs/Duration";
 template <class D>
 const char DurationNames_<D>::md5[] HWBRIDGE_PROGMEM = "3e286caf4241d664e55f3ad380e2ae46";
+template <class D>
+const uint8_t DurationNames_<D>::md5_bytes[16] HWBRIDGE_PROGMEM = {0x3e, 0x28, 0x6c, 0xaf, 0x42, 0x41, 0xd6, 0x64, 0xe5, 0x5f, 0x3a, 0xd3, 0x80, 0xe2, 0xae, 0x46};
 
 /** std_msgs/Duration (md5 3e286caf4241d664e55f3ad380e2ae46). */
 struct Duration {
@@ -44,6 +47,8 @@ struct Duration {
       pgm_read_byte, strcpy_P, ...), in RAM elsewhere. */
   static const char* type_name() { return DurationNames_<void>::type; }
   static const char* md5sum() { return DurationNames_<void>::md5; }
+  /** The md5 sum as its 16 bytes (in flash on AVR), as the topic table sends it. */
+  static const uint8_t* md5_bytes() { return DurationNames_<void>::md5_bytes; }
 };
 
 }  // namespace std_msgs

@@ -10,11 +10,14 @@ template <class D>
 struct Float32Names_ {
   static const char type[];
   static const char md5[];
+  static const uint8_t md5_bytes[16];
 };
 template <class D>
 const char Float32Names_<D>::type[] HWBRIDGE_PROGMEM = "std_msgs/Float32";
 template <class D>
 const char Float32Names_<D>::md5[] HWBRIDGE_PROGMEM = "73fcbf46b49191e672908e50842a83d4";
+template <class D>
+const uint8_t Float32Names_<D>::md5_bytes[16] HWBRIDGE_PROGMEM = {0x73, 0xfc, 0xbf, 0x46, 0xb4, 0x91, 0x91, 0xe6, 0x72, 0x90, 0x8e, 0x50, 0x84, 0x2a, 0x83, 0xd4};
 
 /** std_msgs/Float32 (md5 73fcbf46b49191e672908e50842a83d4). */
 struct Float32 {
@@ -44,6 +47,8 @@ struct Float32 {
       pgm_read_byte, strcpy_P, ...), in RAM elsewhere. */
   static const char* type_name() { return Float32Names_<void>::type; }
   static const char* md5sum() { return Float32Names_<void>::md5; }
+  /** The md5 sum as its 16 bytes (in flash on AVR), as the topic table sends it. */
+  static const uint8_t* md5_bytes() { return Float32Names_<void>::md5_bytes; }
 };
 
 }  // namespace std_msgs

@@ -10,11 +10,14 @@ template <class D>
 struct Float64Names_ {
   static const char type[];
   static const char md5[];
+  static const uint8_t md5_bytes[16];
 };
 template <class D>
 const char Float64Names_<D>::type[] HWBRIDGE_PROGMEM = "std_msgs/Float64";
 template <class D>
 const char Float64Names_<D>::md5[] HWBRIDGE_PROGMEM = "fdb28210bfa9d7c91146260178d9a584";
+template <class D>
+const uint8_t Float64Names_<D>::md5_bytes[16] HWBRIDGE_PROGMEM = {0xfd, 0xb2, 0x82, 0x10, 0xbf, 0xa9, 0xd7, 0xc9, 0x11, 0x46, 0x26, 0x01, 0x78, 0xd9, 0xa5, 0x84};
 
 /** std_msgs/Float64 (md5 fdb28210bfa9d7c91146260178d9a584). */
 struct Float64 {
@@ -44,6 +47,8 @@ struct Float64 {
       pgm_read_byte, strcpy_P, ...), in RAM elsewhere. */
   static const char* type_name() { return Float64Names_<void>::type; }
   static const char* md5sum() { return Float64Names_<void>::md5; }
+  /** The md5 sum as its 16 bytes (in flash on AVR), as the topic table sends it. */
+  static const uint8_t* md5_bytes() { return Float64Names_<void>::md5_bytes; }
 };
 
 }  // namespace std_msgs

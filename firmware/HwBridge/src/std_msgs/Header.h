@@ -10,11 +10,14 @@ template <class D>
 struct HeaderNames_ {
   static const char type[];
   static const char md5[];
+  static const uint8_t md5_bytes[16];
 };
 template <class D>
 const char HeaderNames_<D>::type[] HWBRIDGE_PROGMEM = "std_msgs/Header";
 template <class D>
 const char HeaderNames_<D>::md5[] HWBRIDGE_PROGMEM = "2176decaecbce78abc3b96ef049fabed";
+template <class D>
+const uint8_t HeaderNames_<D>::md5_bytes[16] HWBRIDGE_PROGMEM = {0x21, 0x76, 0xde, 0xca, 0xec, 0xbc, 0xe7, 0x8a, 0xbc, 0x3b, 0x96, 0xef, 0x04, 0x9f, 0xab, 0xed};
 
 /** std_msgs/Header (md5 2176decaecbce78abc3b96ef049fabed). */
 struct Header {
@@ -50,6 +53,8 @@ struct Header {
       pgm_read_byte, strcpy_P, ...), in RAM elsewhere. */
   static const char* type_name() { return HeaderNames_<void>::type; }
   static const char* md5sum() { return HeaderNames_<void>::md5; }
+  /** The md5 sum as its 16 bytes (in flash on AVR), as the topic table sends it. */
+  static const uint8_t* md5_bytes() { return HeaderNames_<void>::md5_bytes; }
 };
 
 }  // namespace std_msgs

@@ -10,11 +10,14 @@ template <class D>
 struct Int16Names_ {
   static const char type[];
   static const char md5[];
+  static const uint8_t md5_bytes[16];
 };
 template <class D>
 const char Int16Names_<D>::type[] HWBRIDGE_PROGMEM = "std_msgs/Int16";
 template <class D>
 const char Int16Names_<D>::md5[] HWBRIDGE_PROGMEM = "8524586e34fbd7cb1c08c5f5f1ca0e57";
+template <class D>
+const uint8_t Int16Names_<D>::md5_bytes[16] HWBRIDGE_PROGMEM = {0x85, 0x24, 0x58, 0x6e, 0x34, 0xfb, 0xd7, 0xcb, 0x1c, 0x08, 0xc5, 0xf5, 0xf1, 0xca, 0x0e, 0x57};
 
 /** std_msgs/Int16 (md5 8524586e34fbd7cb1c08c5f5f1ca0e57). */
 struct Int16 {
@@ -44,6 +47,8 @@ struct Int16 {
       pgm_read_byte, strcpy_P, ...), in RAM elsewhere. */
   static const char* type_name() { return Int16Names_<void>::type; }
   static const char* md5sum() { return Int16Names_<void>::md5; }
+  /** The md5 sum as its 16 bytes (in flash on AVR), as the topic table sends it. */
+  static const uint8_t* md5_bytes() { return Int16Names_<void>::md5_bytes; }
 };
 
 }  // namespace std_msgs

@@ -10,11 +10,14 @@ template <class D>
 struct Int32Names_ {
   static const char type[];
   static const char md5[];
+  static const uint8_t md5_bytes[16];
 };
 template <class D>
 const char Int32Names_<D>::type[] HWBRIDGE_PROGMEM = "std_msgs/Int32";
 template <class D>
 const char Int32Names_<D>::md5[] HWBRIDGE_PROGMEM = "da5909fbe378aeaf85e547e830cc1bb7";
+template <class D>
+const uint8_t Int32Names_<D>::md5_bytes[16] HWBRIDGE_PROGMEM = {0xda, 0x59, 0x09, 0xfb, 0xe3, 0x78, 0xae, 0xaf, 0x85, 0xe5, 0x47, 0xe8, 0x30, 0xcc, 0x1b, 0xb7};
 
 /** std_msgs/Int32 (md5 da5909fbe378aeaf85e547e830cc1bb7). */
 struct Int32 {
@@ -44,6 +47,8 @@ struct Int32 {
       pgm_read_byte, strcpy_P, ...), in RAM elsewhere. */
   static const char* type_name() { return Int32Names_<void>::type; }
   static const char* md5sum() { return Int32Names_<void>::md5; }
+  /** The md5 sum as its 16 bytes (in flash on AVR), as the topic table sends it. */
+  static const uint8_t* md5_bytes() { return Int32Names_<void>::md5_bytes; }
 };
 
 }  // namespace std_msgs

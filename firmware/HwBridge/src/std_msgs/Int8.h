@@ -10,11 +10,14 @@ template <class D>
 struct Int8Names_ {
   static const char type[];
   static const char md5[];
+  static const uint8_t md5_bytes[16];
 };
 template <class D>
 const char Int8Names_<D>::type[] HWBRIDGE_PROGMEM = "std_msgs/Int8";
 template <class D>
 const char Int8Names_<D>::md5[] HWBRIDGE_PROGMEM = "27ffa0c9c4b8fb8492252bcad9e5c57b";
+template <class D>
+const uint8_t Int8Names_<D>::md5_bytes[16] HWBRIDGE_PROGMEM = {0x27, 0xff, 0xa0, 0xc9, 0xc4, 0xb8, 0xfb, 0x84, 0x92, 0x25, 0x2b, 0xca, 0xd9, 0xe5, 0xc5, 0x7b};
 
 /** std_msgs/Int8 (md5 27ffa0c9c4b8fb8492252bcad9e5c57b). */
 struct Int8 {
@@ -44,6 +47,8 @@ struct Int8 {
       pgm_read_byte, strcpy_P, ...), in RAM elsewhere. */
   static const char* type_name() { return Int8Names_<void>::type; }
   static const char* md5sum() { return Int8Names_<void>::md5; }
+  /** The md5 sum as its 16 bytes (in flash on AVR), as the topic table sends it. */
+  static const uint8_t* md5_bytes() { return Int8Names_<void>::md5_bytes; }
 };
 
 }  // namespace std_msgs

@@ -10,11 +10,14 @@ template <class D>
 struct StringNames_ {
   static const char type[];
   static const char md5[];
+  static const uint8_t md5_bytes[16];
 };
 template <class D>
 const char StringNames_<D>::type[] HWBRIDGE_PROGMEM = "std_msgs/String";
 template <class D>
 const char StringNames_<D>::md5[] HWBRIDGE_PROGMEM = "992ce8a1687cec8c8bd883ec73ca41d1";
+template <class D>
+const uint8_t StringNames_<D>::md5_bytes[16] HWBRIDGE_PROGMEM = {0x99, 0x2c, 0xe8, 0xa1, 0x68, 0x7c, 0xec, 0x8c, 0x8b, 0xd8, 0x83, 0xec, 0x73, 0xca, 0x41, 0xd1};
 
 /** std_msgs/String (md5 992ce8a1687cec8c8bd883ec73ca41d1). */
 struct String {
@@ -44,6 +47,8 @@ struct String {
       pgm_read_byte, strcpy_P, ...), in RAM elsewhere. */
   static const char* type_name() { return StringNames_<void>::type; }
   static const char* md5sum() { return StringNames_<void>::md5; }
+  /** The md5 sum as its 16 bytes (in flash on AVR), as the topic table sends it. */
+  static const uint8_t* md5_bytes() { return StringNames_<void>::md5_bytes; }
 };
 
 }  // namespace std_msgs

@@ -10,11 +10,14 @@ template <class D>
 struct TimeNames_ {
   static const char type[];
   static const char md5[];
+  static const uint8_t md5_bytes[16];
 };
 template <class D>
 const char TimeNames_<D>::type[] HWBRIDGE_PROGMEM = "std_msgs/Time";
 template <class D>
 const char TimeNames_<D>::md5[] HWBRIDGE_PROGMEM = "cd7166c74c552c311fbcc2fe5a7bc289";
+template <class D>
+const uint8_t TimeNames_<D>::md5_bytes[16] HWBRIDGE_PROGMEM = {0xcd, 0x71, 0x66, 0xc7, 0x4c, 0x55, 0x2c, 0x31, 0x1f, 0xbc, 0xc2, 0xfe, 0x5a, 0x7b, 0xc2, 0x89};
 
 /** std_msgs/Time (md5 cd7166c74c552c311fbcc2fe5a7bc289). */
 struct Time {
@@ -44,6 +47,8 @@ struct Time {
       pgm_read_byte, strcpy_P, ...), in RAM elsewhere. */
   static const char* type_name() { return TimeNames_<void>::type; }
   static const char* md5sum() { return TimeNames_<void>::md5; }
+  /** The md5 sum as its 16 bytes (in flash on AVR), as the topic table sends it. */
+  static const uint8_t* md5_bytes() { return TimeNames_<void>::md5_bytes; }
 };
 
 }  // namespace std_msgs

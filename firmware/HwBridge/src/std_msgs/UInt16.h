@@ -10,11 +10,14 @@ template <class D>
 struct UInt16Names_ {
   static const char type[];
   static const char md5[];
+  static const uint8_t md5_bytes[16];
 };
 template <class D>
 const char UInt16Names_<D>::type[] HWBRIDGE_PROGMEM = "std_msgs/UInt16";
 template <class D>
 const char UInt16Names_<D>::md5[] HWBRIDGE_PROGMEM = "1df79edf208b629fe6b81923a544552d";
+template <class D>
+const uint8_t UInt16Names_<D>::md5_bytes[16] HWBRIDGE_PROGMEM = {0x1d, 0xf7, 0x9e, 0xdf, 0x20, 0x8b, 0x62, 0x9f, 0xe6, 0xb8, 0x19, 0x23, 0xa5, 0x44, 0x55, 0x2d};
 
 /** std_msgs/UInt16 (md5 1df79edf208b629fe6b81923a544552d). */
 struct UInt16 {
@@ -44,6 +47,8 @@ struct UInt16 {
       pgm_read_byte, strcpy_P, ...), in RAM elsewhere. */
   static const char* type_name() { return UInt16Names_<void>::type; }
   static const char* md5sum() { return UInt16Names_<void>::md5; }
+  /** The md5 sum as its 16 bytes (in flash on AVR), as the topic table sends it. */
+  static const uint8_t* md5_bytes() { return UInt16Names_<void>::md5_bytes; }
 };
 
 }  // namespace std_msgs

@@ -10,11 +10,14 @@ template <class D>
 struct UInt32Names_ {
   static const char type[];
   static const char md5[];
+  static const uint8_t md5_bytes[16];
 };
 template <class D>
 const char UInt32Names_<D>::type[] HWBRIDGE_PROGMEM = "std_msgs/UInt32";
 template <class D>
 const char UInt32Names_<D>::md5[] HWBRIDGE_PROGMEM = "304a39449588c7f8ce2df6e8001c5fce";
+template <class D>
+const uint8_t UInt32Names_<D>::md5_bytes[16] HWBRIDGE_PROGMEM = {0x30, 0x4a, 0x39, 0x44, 0x95, 0x88, 0xc7, 0xf8, 0xce, 0x2d, 0xf6, 0xe8, 0x00, 0x1c, 0x5f, 0xce};
 
 /** std_msgs/UInt32 (md5 304a39449588c7f8ce2df6e8001c5fce). */
 struct UInt32 {
@@ -44,6 +47,8 @@ struct UInt32 {
       pgm_read_byte, strcpy_P, ...), in RAM elsewhere. */
   static const char* type_name() { return UInt32Names_<void>::type; }
   static const char* md5sum() { return UInt32Names_<void>::md5; }
+  /** The md5 sum as its 16 bytes (in flash on AVR), as the topic table sends it. */
+  static const uint8_t* md5_bytes() { return UInt32Names_<void>::md5_bytes; }
 };
 
 }  // namespace std_msgs

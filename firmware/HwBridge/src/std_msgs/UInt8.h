@@ -10,11 +10,14 @@ template <class D>
 struct UInt8Names_ {
   static const char type[];
   static const char md5[];
+  static const uint8_t md5_bytes[16];
 };
 template <class D>
 const char UInt8Names_<D>::type[] HWBRIDGE_PROGMEM = "std_msgs/UInt8";
 template <class D>
 const char UInt8Names_<D>::md5[] HWBRIDGE_PROGMEM = "7c8164229e7d2c17eb95e9231617fdee";
+template <class D>
+const uint8_t UInt8Names_<D>::md5_bytes[16] HWBRIDGE_PROGMEM = {0x7c, 0x81, 0x64, 0x22, 0x9e, 0x7d, 0x2c, 0x17, 0xeb, 0x95, 0xe9, 0x23, 0x16, 0x17, 0xfd, 0xee};
 
 /** std_msgs/UInt8 (md5 7c8164229e7d2c17eb95e9231617fdee). */
 struct UInt8 {
@@ -44,6 +47,8 @@ struct UInt8 {
       pgm_read_byte, strcpy_P, ...), in RAM elsewhere. */
   static const char* type_name() { return UInt8Names_<void>::type; }
   static const char* md5sum() { return UInt8Names_<void>::md5; }
+  /** The md5 sum as its 16 bytes (in flash on AVR), as the topic table sends it. */
+  static const uint8_t* md5_bytes() { return UInt8Names_<void>::md5_bytes; }
 };
 
 }  // namespace std_msgs

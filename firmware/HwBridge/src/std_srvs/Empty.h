@@ -10,11 +10,14 @@ template <class D>
 struct EmptyRequestNames_ {
   static const char type[];
   static const char md5[];
+  static const uint8_t md5_bytes[16];
 };
 template <class D>
 const char EmptyRequestNames_<D>::type[] HWBRIDGE_PROGMEM = "std_srvs/EmptyRequest";
 template <class D>
 const char EmptyRequestNames_<D>::md5[] HWBRIDGE_PROGMEM = "d41d8cd98f00b204e9800998ecf8427e";
+template <class D>
+const uint8_t EmptyRequestNames_<D>::md5_bytes[16] HWBRIDGE_PROGMEM = {0xd4, 0x1d, 0x8c, 0xd9, 0x8f, 0x00, 0xb2, 0x04, 0xe9, 0x80, 0x09, 0x98, 0xec, 0xf8, 0x42, 0x7e};
 
 /** std_srvs/EmptyRequest (md5 d41d8cd98f00b204e9800998ecf8427e). */
 struct EmptyRequest {
@@ -41,17 +44,22 @@ struct EmptyRequest {
       pgm_read_byte, strcpy_P, ...), in RAM elsewhere. */
   static const char* type_name() { return EmptyRequestNames_<void>::type; }
   static const char* md5sum() { return EmptyRequestNames_<void>::md5; }
+  /** The md5 sum as its 16 bytes (in flash on AVR), as the topic table sends it. */
+  static const uint8_t* md5_bytes() { return EmptyRequestNames_<void>::md5_bytes; }
 };
 
 template <class D>
 struct EmptyResponseNames_ {
   static const char type[];
   static const char md5[];
+  static const uint8_t md5_bytes[16];
 };
 template <class D>
 const char EmptyResponseNames_<D>::type[] HWBRIDGE_PROGMEM = "std_srvs/EmptyResponse";
 template <class D>
 const char EmptyResponseNames_<D>::md5[] HWBRIDGE_PROGMEM = "d41d8cd98f00b204e9800998ecf8427e";
+template <class D>
+const uint8_t EmptyResponseNames_<D>::md5_bytes[16] HWBRIDGE_PROGMEM = {0xd4, 0x1d, 0x8c, 0xd9, 0x8f, 0x00, 0xb2, 0x04, 0xe9, 0x80, 0x09, 0x98, 0xec, 0xf8, 0x42, 0x7e};
 
 /** std_srvs/EmptyResponse (md5 d41d8cd98f00b204e9800998ecf8427e). */
 struct EmptyResponse {
@@ -78,17 +86,22 @@ struct EmptyResponse {
       pgm_read_byte, strcpy_P, ...), in RAM elsewhere. */
   static const char* type_name() { return EmptyResponseNames_<void>::type; }
   static const char* md5sum() { return EmptyResponseNames_<void>::md5; }
+  /** The md5 sum as its 16 bytes (in flash on AVR), as the topic table sends it. */
+  static const uint8_t* md5_bytes() { return EmptyResponseNames_<void>::md5_bytes; }
 };
 
 template <class D>
 struct EmptyNames_ {
   static const char type[];
   static const char md5[];
+  static const uint8_t md5_bytes[16];
 };
 template <class D>
 const char EmptyNames_<D>::type[] HWBRIDGE_PROGMEM = "std_srvs/Empty";
 template <class D>
 const char EmptyNames_<D>::md5[] HWBRIDGE_PROGMEM = "d41d8cd98f00b204e9800998ecf8427e";
+template <class D>
+const uint8_t EmptyNames_<D>::md5_bytes[16] HWBRIDGE_PROGMEM = {0xd4, 0x1d, 0x8c, 0xd9, 0x8f, 0x00, 0xb2, 0x04, 0xe9, 0x80, 0x09, 0x98, 0xec, 0xf8, 0x42, 0x7e};
 
 /** The service std_srvs/Empty (md5 d41d8cd98f00b204e9800998ecf8427e). */
 struct Empty {
@@ -98,6 +111,8 @@ struct Empty {
       pgm_read_byte, strcpy_P, ...), in RAM elsewhere. */
   static const char* type_name() { return EmptyNames_<void>::type; }
   static const char* md5sum() { return EmptyNames_<void>::md5; }
+  /** The md5 sum as its 16 bytes (in flash on AVR), as the topic table sends it. */
+  static const uint8_t* md5_bytes() { return EmptyNames_<void>::md5_bytes; }
 };
 
 }  // namespace std_srvs

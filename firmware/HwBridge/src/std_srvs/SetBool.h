@@ -10,11 +10,14 @@ template <class D>
 struct SetBoolRequestNames_ {
   static const char type[];
   static const char md5[];
+  static const uint8_t md5_bytes[16];
 };
 template <class D>
 const char SetBoolRequestNames_<D>::type[] HWBRIDGE_PROGMEM = "std_srvs/SetBoolRequest";
 template <class D>
 const char SetBoolRequestNames_<D>::md5[] HWBRIDGE_PROGMEM = "8b94c1b53db61fb6aed406028ad6332a";
+template <class D>
+const uint8_t SetBoolRequestNames_<D>::md5_bytes[16] HWBRIDGE_PROGMEM = {0x8b, 0x94, 0xc1, 0xb5, 0x3d, 0xb6, 0x1f, 0xb6, 0xae, 0xd4, 0x06, 0x02, 0x8a, 0xd6, 0x33, 0x2a};
 
 /** std_srvs/SetBoolRequest (md5 8b94c1b53db61fb6aed406028ad6332a). */
 struct SetBoolRequest {
@@ -44,17 +47,22 @@ struct SetBoolRequest {
       pgm_read_byte, strcpy_P, ...), in RAM elsewhere. */
   static const char* type_name() { return SetBoolRequestNames_<void>::type; }
   static const char* md5sum() { return SetBoolRequestNames_<void>::md5; }
+  /** The md5 sum as its 16 bytes (in flash on AVR), as the topic table sends it. */
+  static const uint8_t* md5_bytes() { return SetBoolRequestNames_<void>::md5_bytes; }
 };
 
 template <class D>
 struct SetBoolResponseNames_ {
   static const char type[];
   static const char md5[];
+  static const uint8_t md5_bytes[16];
 };
 template <class D>
 const char SetBoolResponseNames_<D>::type[] HWBRIDGE_PROGMEM = "std_srvs/SetBoolResponse";
 template <class D>
 const char SetBoolResponseNames_<D>::md5[] HWBRIDGE_PROGMEM = "937c9679a518e3a18d831e57125ea522";
+template <class D>
+const uint8_t SetBoolResponseNames_<D>::md5_bytes[16] HWBRIDGE_PROGMEM = {0x93, 0x7c, 0x96, 0x79, 0xa5, 0x18, 0xe3, 0xa1, 0x8d, 0x83, 0x1e, 0x57, 0x12, 0x5e, 0xa5, 0x22};
 
 /** std_srvs/SetBoolResponse (md5 937c9679a518e3a18d831e57125ea522). */
 struct SetBoolResponse {
@@ -87,17 +95,22 @@ struct SetBoolResponse {
       pgm_read_byte, strcpy_P, ...), in RAM elsewhere. */
   static const char* type_name() { return SetBoolResponseNames_<void>::type; }
   static const char* md5sum() { return SetBoolResponseNames_<void>::md5; }
+  /** The md5 sum as its 16 bytes (in flash on AVR), as the topic table sends it. */
+  static const uint8_t* md5_bytes() { return SetBoolResponseNames_<void>::md5_bytes; }
 };
 
 template <class D>
 struct SetBoolNames_ {
   static const char type[];
   static const char md5[];
+  static const uint8_t md5_bytes[16];
 };
 template <class D>
 const char SetBoolNames_<D>::type[] HWBRIDGE_PROGMEM = "std_srvs/SetBool";
 template <class D>
 const char SetBoolNames_<D>::md5[] HWBRIDGE_PROGMEM = "09fb03525b03e7ea1fd3992bafd87e16";
+template <class D>
+const uint8_t SetBoolNames_<D>::md5_bytes[16] HWBRIDGE_PROGMEM = {0x09, 0xfb, 0x03, 0x52, 0x5b, 0x03, 0xe7, 0xea, 0x1f, 0xd3, 0x99, 0x2b, 0xaf, 0xd8, 0x7e, 0x16};
 
 /** The service std_srvs/SetBool (md5 09fb03525b03e7ea1fd3992bafd87e16). */
 struct SetBool {
@@ -107,6 +120,8 @@ struct SetBool {
       pgm_read_byte, strcpy_P, ...), in RAM elsewhere. */
   static const char* type_name() { return SetBoolNames_<void>::type; }
   static const char* md5sum() { return SetBoolNames_<void>::md5; }
+  /** The md5 sum as its 16 bytes (in flash on AVR), as the topic table sends it. */
+  static const uint8_t* md5_bytes() { return SetBoolNames_<void>::md5_bytes; }
 };
 
 }  // namespace std_srvs

@@ -10,11 +10,14 @@ template <class D>
 struct TriggerRequestNames_ {
   static const char type[];
   static const char md5[];
+  static const uint8_t md5_bytes[16];
 };
 template <class D>
 const char TriggerRequestNames_<D>::type[] HWBRIDGE_PROGMEM = "std_srvs/TriggerRequest";
 template <class D>
 const char TriggerRequestNames_<D>::md5[] HWBRIDGE_PROGMEM = "d41d8cd98f00b204e9800998ecf8427e";
+template <class D>
+const uint8_t TriggerRequestNames_<D>::md5_bytes[16] HWBRIDGE_PROGMEM = {0xd4, 0x1d, 0x8c, 0xd9, 0x8f, 0x00, 0xb2, 0x04, 0xe9, 0x80, 0x09, 0x98, 0xec, 0xf8, 0x42, 0x7e};
 
 /** std_srvs/TriggerRequest (md5 d41d8cd98f00b204e9800998ecf8427e). */
 struct TriggerRequest {
@@ -41,17 +44,22 @@ struct TriggerRequest {
       pgm_read_byte, strcpy_P, ...), in RAM elsewhere. */
   static const char* type_name() { return TriggerRequestNames_<void>::type; }
   static const char* md5sum() { return TriggerRequestNames_<void>::md5; }
+  /** The md5 sum as its 16 bytes (in flash on AVR), as the topic table sends it. */
+  static const uint8_t* md5_bytes() { return TriggerRequestNames_<void>::md5_bytes; }
 };
 
 template <class D>
 struct TriggerResponseNames_ {
   static const char type[];
   static const char md5[];
+  static const uint8_t md5_bytes[16];
 };
 template <class D>
 const char TriggerResponseNames_<D>::type[] HWBRIDGE_PROGMEM = "std_srvs/TriggerResponse";
 template <class D>
 const char TriggerResponseNames_<D>::md5[] HWBRIDGE_PROGMEM = "937c9679a518e3a18d831e57125ea522";
+template <class D>
+const uint8_t TriggerResponseNames_<D>::md5_bytes[16] HWBRIDGE_PROGMEM = {0x93, 0x7c, 0x96, 0x79, 0xa5, 0x18, 0xe3, 0xa1, 0x8d, 0x83, 0x1e, 0x57, 0x12, 0x5e, 0xa5, 0x22};
 
 /** std_srvs/TriggerResponse (md5 937c9679a518e3a18d831e57125ea522). */
 struct TriggerResponse {
@@ -84,17 +92,22 @@ struct TriggerResponse {
       pgm_read_byte, strcpy_P, ...), in RAM elsewhere. */
   static const char* type_name() { return TriggerResponseNames_<void>::type; }
   static const char* md5sum() { return TriggerResponseNames_<void>::md5; }
+  /** The md5 sum as its 16 bytes (in flash on AVR), as the topic table sends it. */
+  static const uint8_t* md5_bytes() { return TriggerResponseNames_<void>::md5_bytes; }
 };
 
 template <class D>
 struct TriggerNames_ {
   static const char type[];
   static const char md5[];
+  static const uint8_t md5_bytes[16];
 };
 template <class D>
 const char TriggerNames_<D>::type[] HWBRIDGE_PROGMEM = "std_srvs/Trigger";
 template <class D>
 const char TriggerNames_<D>::md5[] HWBRIDGE_PROGMEM = "937c9679a518e3a18d831e57125ea522";
+template <class D>
+const uint8_t TriggerNames_<D>::md5_bytes[16] HWBRIDGE_PROGMEM = {0x93, 0x7c, 0x96, 0x79, 0xa5, 0x18, 0xe3, 0xa1, 0x8d, 0x83, 0x1e, 0x57, 0x12, 0x5e, 0xa5, 0x22};
 
 /** The service std_srvs/Trigger (md5 937c9679a518e3a18d831e57125ea522). */
 struct Trigger {
@@ -104,6 +117,8 @@ struct Trigger {
       pgm_read_byte, strcpy_P, ...), in RAM elsewhere. */
   static const char* type_name() { return TriggerNames_<void>::type; }
   static const char* md5sum() { return TriggerNames_<void>::md5; }
+  /** The md5 sum as its 16 bytes (in flash on AVR), as the topic table sends it. */
+  static const uint8_t* md5_bytes() { return TriggerNames_<void>::md5_bytes; }
 };
 
 }  // namespace std_srvs

@@ -320,7 +320,10 @@ class NodeHandle_ : public NodeBase {
     send_fn_ = &sendThunk;
     return add(p);
   }
-  template <class T> bool subscribe(Subscriber<T>& s) { return add(s); }
+  template <class T> bool subscribe(Subscriber<T>& s) {
+    on_data_ = &dataThunk;
+    return add(s);
+  }
   template <class S> bool advertiseService(ServiceServer<S>& s) {
     on_request_ = &requestThunk;
     return add(s);
@@ -470,6 +473,7 @@ class NodeHandle_ : public NodeBase {
   // Handlers of what only some sketches need, set by the calls that need them (a sketch
   // without a service, client or parameter request links none of their code).
   typedef void (*Handler)(NodeHandle_*, const uint8_t*, size_t);
+  static void dataThunk(NodeHandle_* n, const Message& m) { n->onData(m); }
   static void requestThunk(NodeHandle_* n, const uint8_t* p, size_t len) { n->onServiceRequest(p, len); }
   static void responseThunk(NodeHandle_* n, const uint8_t* p, size_t len) { n->onServiceResponse(p, len); }
   // p nullptr: the pending request ends with the status len (timeout, session reset)
@@ -534,6 +538,7 @@ class NodeHandle_ : public NodeBase {
   ParamCallback param_cb_ = nullptr;
   ParamCallback push_cb_ = nullptr;
   LogCallback log_cb_ = nullptr;
+  void (*on_data_)(NodeHandle_*, const Message&) = nullptr;  // topic data: only with a subscriber
   Handler on_request_ = nullptr;
   Handler on_response_ = nullptr;
   Handler on_param_ = nullptr;

@@ -466,7 +466,11 @@ HWB_NODE void HWB_SELF::onMessage(const Message& m, bool reliable) {
     onControl(m.data, m.size, reliable);
   } else if (established()) {
     last_rx_ = tick_;
-    onData(m);
+    if (on_data_) {
+      on_data_(this, m);
+    } else {  // this board subscribes to nothing
+      ++stats_.dropped_messages;
+    }
   } else {
     ++stats_.ignored_frames;
   }
@@ -576,12 +580,12 @@ HWB_NODE void HWB_SELF::onControl(const uint8_t* p, size_t n, bool reliable) {
     case 0x31:
       if (on_param_) {
         on_param_(this, p, n);
-      } else if (p[3] > 3 || 5u + p[4] > n) {  // not parsed further: nothing was asked
+      } else {  // this board asked for no parameter
         protocolError();
       }
       break;
-    case 0x40:  // LOG from the host
-      if (p[1] > 4) {
+    case 0x40:  // LOG from the host: never sent to a board without HOST_LOG (4) in its features
+      if (!(Profile::kFeatures & 4) || p[1] > 4) {
         protocolError();
       } else if (log_cb_ != nullptr) {
         log_cb_(p[1], reinterpret_cast<const char*>(p + 2), n - 2);

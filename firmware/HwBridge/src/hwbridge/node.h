@@ -488,6 +488,8 @@ class NodeHandle_ : public NodeBase {
   // A board whose largest message fits its own MTU never fragments: with window 1 and the fixed
   // RTO, its reliable sender is one slot (SingleFrameSender).
   static const bool kFragments = Profile::kTxBuffer > Profile::kMtu;
+  // ... and if that message fills its MTU, every session's MTU is its own
+  static const bool kFixedMtu = Profile::kTxBuffer == Profile::kMtu;
   typedef typename detail::Pick<!kFragments && Profile::kWindow == 1 && Profile::kFixedRto,
                                 SingleFrameSender<Profile::kMtu>,
                                 ReliableSender<Profile::kWindow, Profile::kMtu, Profile::kFixedRto> >::type RelTx;

@@ -620,16 +620,18 @@ HWB_NODE void HWB_SELF::onHello(const uint8_t* p) {
 
 HWB_NODE void HWB_SELF::establish(const uint8_t* h) {
   const uint16_t host_mtu = detail::get16(h + 12);
-  mtu_ = host_mtu < Profile::kMtu ? host_mtu : Profile::kMtu;
+  mtu_ = kFixedMtu || host_mtu > Profile::kMtu ? Profile::kMtu : host_mtu;
   uint8_t window = h[18] < Profile::kWindow ? h[18] : Profile::kWindow;
   if (window > kMaxWindow) window = kMaxWindow;
   const uint32_t peer_max = detail::get32(h + 14);
   peer_max_ = peer_max > 0xFFFFUL ? 0xFFFFu : static_cast<uint16_t>(peer_max);
   features_ = static_cast<uint8_t>(h[20] & Profile::kFeatures);
-  rel_tx_.reset(isn_, window, mtu_);
+  rel_tx_.reset(isn_, window, kFixedMtu ? Profile::kMtu : mtu_);
   rel_rx_.reset(h[19], window);
   reasm_.reset(FrameType::Reliable);
-  dec_.set_max_payload(mtu_);
+  // the receiver's limit becomes the negotiated MTU (2.5); for a board that does not fragment
+  // and whose largest message fills its MTU, that is always its own (smaller host MTUs refused)
+  if (!kFixedMtu) dec_.set_max_payload(mtu_);
   // every entry is unaccepted: teardown cleared them, and only a session accepts one
   table_pos_ = 0;
   pending_len_ = 0;
@@ -646,7 +648,7 @@ HWB_NODE void HWB_SELF::teardown() {
   peer_ = 0;
   peer_max_ = kMinMtu;
   mtu_ = Profile::kMtu;
-  dec_.set_max_payload(Profile::kMtu);
+  if (!kFixedMtu) dec_.set_max_payload(Profile::kMtu);
   if (was) reasm_.reset(FrameType::Reliable);
   pending_len_ = 0;
   setFlag(kTimeSynced, false);
@@ -1012,7 +1014,7 @@ HWB_NODE uint8_t* HWB_SELF::takeTxBuffer(size_t* cap) {
 }
 
 HWB_NODE bool HWB_SELF::sendOn(Entry& e, size_t len) {
-  if (state_ != kConnected || !e.accepted_ || len > peer_max_ || !txFree() || (!kFragments && len > mtu_)) {
+  if (state_ != kConnected || !e.accepted_ || len > peer_max_ || !txFree() || (!kFragments && !kFixedMtu && len > mtu_)) {
     ++stats_.tx_refused;
     return false;
   }

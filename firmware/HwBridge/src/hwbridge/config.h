@@ -17,6 +17,25 @@ typedef uint8_t Counter;
 typedef uint16_t Counter;
 #endif
 
+#if !defined(HWBRIDGE_TRAFFIC_COUNTERS) && !defined(__AVR__)
+#define HWBRIDGE_TRAFFIC_COUNTERS 1
+#endif
+#if HWBRIDGE_TRAFFIC_COUNTERS
+/** A counter of traffic (frames and messages sent and received, ACKs, sessions, HELLOs,
+ * heartbeats): a Counter on hosts, and on AVR with -DHWBRIDGE_TRAFFIC_COUNTERS=1. */
+typedef Counter TrafficCounter;
+#else
+/** On AVR the traffic counters count nothing (they read 0), unless HWBRIDGE_TRAFFIC_COUNTERS is
+ * 1: their increments would take some 150 B of a 32 KB flash. Every counter of something lost,
+ * refused or rejected is a real Counter always. */
+struct NullCounter {
+  NullCounter& operator++() { return *this; }
+  NullCounter operator++(int) { return *this; }
+  NullCounter& operator=(int) { return *this; }
+  operator uint8_t() const { return 0; }
+};
+typedef NullCounter TrafficCounter;
+#endif
 }  // namespace hwbridge
 
 #endif  // HWBRIDGE_CONFIG_H

@@ -110,7 +110,7 @@ class Fragmenter {
 
 /** Counters of a Reassembler. */
 struct ReassemblyStats {
-  Counter messages;         ///< complete messages returned (WHOLE frames included)
+  TrafficCounter messages;  ///< complete messages returned (WHOLE frames included)
   Counter dropped_partial;  ///< partial messages abandoned (a gap, another channel, a new FIRST/WHOLE)
   Counter oversize;         ///< messages whose announced length is above MaxMessage
   Counter orphans;          ///< MIDDLE/LAST fragments that continue no message (dropped)

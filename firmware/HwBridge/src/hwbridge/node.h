@@ -138,7 +138,7 @@ typedef void (*LogCallback)(uint8_t level, const char* text, size_t len);
 
 /** Counters of a node (cumulative over sessions; `Counter`: 8-bit on AVR, 16-bit elsewhere, wrapping). */
 struct NodeStats {
-  Counter sessions;          ///< sessions established
+  TrafficCounter sessions;  ///< sessions established
   Counter link_losses;       ///< ended by the link timeout or the retry limit
   Counter peer_resets;       ///< ended by a host restart, GOODBYE or a dropped session
   Counter protocol_errors;   ///< malformed or unexpected control messages, refused entries
@@ -147,8 +147,8 @@ struct NodeStats {
   Counter dropped_messages;  ///< data on unknown, refused, wrong-direction channels, or too large
   Counter tx_refused;        ///< sends refused (not connected, window full, too large)
   Counter ignored_frames;    ///< frames outside a session
-  Counter hellos_sent;
-  Counter heartbeats_sent;
+  TrafficCounter hellos_sent;
+  TrafficCounter heartbeats_sent;
 };
 
 class NodeBase;

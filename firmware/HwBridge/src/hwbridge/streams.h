@@ -37,7 +37,7 @@ inline bool time_reached(uint32_t now, uint32_t at) {
 /** Numbers best-effort frames 0, 1, 2, ... from boot, over all channels; never resends. */
 class BestEffortSender {
  public:
-  constexpr explicit BestEffortSender(uint8_t first_seq = 0) : next_seq_(first_seq), frames_sent_(0), messages_sent_(0) {}
+  constexpr explicit BestEffortSender(uint8_t first_seq = 0) : next_seq_(first_seq), frames_sent_(), messages_sent_() {}
 
   uint8_t next_seq() const { return next_seq_; }
   /** Takes the next sequence number for one frame. */
@@ -70,15 +70,15 @@ class BestEffortSender {
 
  private:
   uint8_t next_seq_;
-  Counter frames_sent_;
-  Counter messages_sent_;
+  TrafficCounter frames_sent_;
+  TrafficCounter messages_sent_;
 };
 
 struct BestEffortStats {
-  Counter frames_received;  ///< accepted in order
+  TrafficCounter frames_received;  ///< accepted in order
   Counter frames_lost;      ///< counted from gaps in the peer's numbers
   Counter frames_late;      ///< reordered or duplicated, dropped
-  Counter resyncs;          ///< counting restarted on a new peer session
+  TrafficCounter resyncs;  ///< counting restarted on a new peer session
 };
 
 /**
@@ -203,11 +203,11 @@ struct Pick<false, T, F> {
 }  // namespace detail
 
 struct ReliableSenderStats {
-  Counter frames_sent;  ///< first transmissions
-  Counter messages_sent;
+  TrafficCounter frames_sent;  ///< first transmissions
+  TrafficCounter messages_sent;
   Counter retransmits;  ///< fast retransmits included
-  Counter fast_retransmits;
-  Counter acks_received;
+  TrafficCounter fast_retransmits;
+  TrafficCounter acks_received;
   Counter refused;      ///< send() calls refused (window full, or a message still being sent)
 };
 

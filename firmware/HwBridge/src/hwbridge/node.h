@@ -475,13 +475,23 @@ class NodeHandle_ : public NodeBase {
   typedef void (*Handler)(NodeHandle_*, const uint8_t*, size_t);
   static void dataThunk(NodeHandle_* n, const Message& m) { n->onData(m); }
   static void requestThunk(NodeHandle_* n, const uint8_t* p, size_t len) { n->onServiceRequest(p, len); }
-  static void responseThunk(NodeHandle_* n, const uint8_t* p, size_t len) { n->onServiceResponse(p, len); }
-  // p nullptr: the pending request ends with the status len (timeout, session reset)
+  // p nullptr: the pending call, if any, ends with the status len (a session reset; a timeout
+  // once its deadline passed)
+  static void responseThunk(NodeHandle_* n, const uint8_t* p, size_t len) {
+    if (p != nullptr) {
+      n->onServiceResponse(p, len);
+    } else if (n->call_state_ == 1 && (len != kCallTimeout || reached(n->tick_, n->timer_))) {
+      n->call_status_ = static_cast<uint8_t>(len);
+      n->call_state_ = 2;
+    }
+  }
+  // p nullptr: the pending request, if any, ends with the status len (a session reset; a
+  // timeout once its deadline passed)
   static void paramThunk(NodeHandle_* n, const uint8_t* p, size_t len) {
-    if (p == nullptr) {
-      n->finishParam(static_cast<uint8_t>(len), nullptr);
-    } else {
+    if (p != nullptr) {
       n->onParamValue(p, len);
+    } else if (n->param_id_ && (len != kParamTimeout || reached(n->tick_, n->param_deadline_))) {
+      n->finishParam(static_cast<uint8_t>(len), nullptr);
     }
   }
 

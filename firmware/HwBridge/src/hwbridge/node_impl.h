@@ -256,11 +256,9 @@ HWB_NODE void HWB_SELF::runTimers() {
     return;
   }
   if (state_ == kConnected) {
-    if (call_state_ == 1 && reached(tick_, timer_)) {
-      call_status_ = kCallTimeout;
-      call_state_ = 2;
-    }
-    if (param_id_ && on_param_ && reached(tick_, param_deadline_)) on_param_(this, nullptr, kParamTimeout);
+    // set by serviceClient and requestParam, which check their own deadlines
+    if (on_response_) on_response_(this, nullptr, kCallTimeout);
+    if (on_param_) on_param_(this, nullptr, kParamTimeout);
     if (Profile::kTimeSyncMs && (features_ & 1) && reached(tick_, time_next_)) {
       requestSyncTime();
       time_next_ = static_cast<decltype(time_next_)>(tick_ + kTimeRetry);
@@ -570,11 +568,11 @@ HWB_NODE void HWB_SELF::onControl(const uint8_t* p, size_t n, bool reliable) {
         pending_len_ = 5;
       }
       break;
-    case 0x21:
-      if (p[4] > 2) {
-        protocolError();
-      } else if (on_response_) {
+    case 0x21:  // SERVICE_RESPONSE: only to a board with a service client
+      if (on_response_ && p[4] <= 2) {
         on_response_(this, p, n);
+      } else {
+        protocolError();
       }
       break;
     case 0x31:
@@ -621,7 +619,8 @@ HWB_NODE void HWB_SELF::onHello(const uint8_t* p) {
 HWB_NODE void HWB_SELF::establish(const uint8_t* h) {
   const uint16_t host_mtu = detail::get16(h + 12);
   mtu_ = kFixedMtu || host_mtu > Profile::kMtu ? Profile::kMtu : host_mtu;
-  uint8_t window = h[18] < Profile::kWindow ? h[18] : Profile::kWindow;
+  // the host's window is at least 1 (onHello refused 0)
+  uint8_t window = Profile::kWindow == 1 || h[18] > Profile::kWindow ? Profile::kWindow : h[18];
   if (window > kMaxWindow) window = kMaxWindow;
   const uint32_t peer_max = detail::get32(h + 14);
   peer_max_ = peer_max > 0xFFFFUL ? 0xFFFFu : static_cast<uint16_t>(peer_max);
@@ -659,12 +658,10 @@ HWB_NODE void HWB_SELF::teardown() {
   timer_ = tick_;
   hello_wait_ = kHelloFirst;
   for (Entry* e = entries_; e; e = e->next_) e->accepted_ = false;
-  if (call_state_ == 1) {
-    call_status_ = kCallSessionReset;
-    call_state_ = 2;
-  }
-  // through the pointer requestParam sets: a sketch without parameters links none of it
-  if (param_id_ && on_param_) on_param_(this, nullptr, kParamSessionReset);
+  // through the pointers serviceClient and requestParam set: a sketch without service clients
+  // or parameters links none of it
+  if (on_response_) on_response_(this, nullptr, kCallSessionReset);
+  if (on_param_) on_param_(this, nullptr, kParamSessionReset);
 }
 
 HWB_NODE void HWB_SELF::onTopicAck(const uint8_t* p, size_t n) {

@@ -29,22 +29,33 @@ struct ByteSpan {
  */
 template <class Source, class Sink>
 size_t cobs_encode_to(const Source& src, Sink& sink) {
+  // One sink.put() for every byte: a group's code byte (found by scanning ahead to the next
+  // zero), then its data bytes; one copy of the sink's code in flash.
   const size_t n = src.size;
-  size_t start = 0;
+  size_t i = 0;            // the next source byte
   size_t written = 0;
+  uint8_t run = 0;         // data bytes of the current group still to write
+  uint8_t last = 0xFF;     // data bytes of the group before (0xFF: none yet)
   for (;;) {
-    size_t k = 0;
-    while (k < kCobsMaxGroup && start + k < n && src.at(start + k) != 0) ++k;
-    sink.put(static_cast<uint8_t>(k + 1));
-    for (size_t i = 0; i < k; ++i) sink.put(src.at(start + i));
-    written += k + 1;
-    start += k;
-    if (k == kCobsMaxGroup) {
-      if (start == n) break;  // canonical: a final full group takes no empty group after it
-      continue;               // 0xFF implies no zero
+    uint8_t b;
+    if (run != 0) {
+      b = src.at(i++);
+      --run;
+    } else {
+      if (last != 0xFF) {
+        if (last == kCobsMaxGroup) {
+          if (i == n) break;  // canonical: a final full group takes no empty group after it
+        } else if (i++ >= n) {  // past the zero the group's code stands for
+          break;
+        }
+      }
+      uint8_t k = 0;
+      while (k < kCobsMaxGroup && i + k < n && src.at(i + k) != 0) ++k;
+      last = run = k;
+      b = static_cast<uint8_t>(k + 1);
     }
-    if (start >= n) break;
-    ++start;  // the zero this group's code stands for
+    sink.put(b);
+    ++written;
   }
   return written;
 }

@@ -30,7 +30,8 @@ inline uint16_t crc16_update(uint16_t crc, uint8_t byte) {
 }
 
 /** The CRC of n bytes, continuing from crc (kCrcInit for a new one). */
-inline uint16_t crc16(const uint8_t* data, size_t n, uint16_t crc = kCrcInit) {
+__attribute__((noinline)) inline uint16_t crc16(const uint8_t* data, size_t n,
+                                                uint16_t crc = kCrcInit) {
   for (size_t i = 0; i < n; ++i) crc = crc16_update(crc, data[i]);
   return crc;
 }

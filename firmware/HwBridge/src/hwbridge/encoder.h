@@ -20,44 +20,45 @@ struct FrameHeader {
   uint8_t seq;
 };
 
+namespace detail {
 /**
- * A frame body seen as one run of bytes without copying it: header, a payload in up to two
- * pieces (a FIRST fragment's length prefix and its chunk), and the CRC.
+ * A frame body as pieces without copying the payload: header, the payload in up to two pieces
+ * (a FIRST fragment's length prefix and its chunk), and the CRC, computed here.
  */
-class BodyView {
- public:
-  BodyView(const FrameHeader& h, const uint8_t* p1, size_t n1, const uint8_t* p2, size_t n2)
-      : p1_(p1), p2_(p2), n1_(n1), n2_(n2) {
-    head_[0] = header_byte0(h.type, h.frag);
-    head_[1] = h.channel;
-    head_[2] = h.seq;
-    size = kEnvelope + n1 + n2;
-    uint16_t crc = crc16(head_, kHeaderSize);
-    crc = crc16(p1, n1, crc);
-    crc = crc16(p2, n2, crc);
-    crc_[0] = static_cast<uint8_t>(crc);
-    crc_[1] = static_cast<uint8_t>(crc >> 8);
-  }
-  __attribute__((noinline)) uint8_t at(size_t i) const {
-    if (i < kHeaderSize) return head_[i];
-    i -= kHeaderSize;
-    if (i < n1_) return p1_[i];
-    i -= n1_;
-    if (i < n2_) return p2_[i];
-    return crc_[i - n2_];
-  }
-  uint16_t crc() const { return static_cast<uint16_t>(crc_[0] | crc_[1] << 8); }
-
+struct Body {
+  uint8_t head[kHeaderSize];
+  uint8_t crc[kCrcSize];
+  ByteSpan pieces[4];
   size_t size;  ///< body bytes
-
- private:
-  const uint8_t* p1_;
-  const uint8_t* p2_;
-  size_t n1_;
-  size_t n2_;
-  uint8_t head_[kHeaderSize];
-  uint8_t crc_[kCrcSize];
+  Body(const FrameHeader& h, const uint8_t* p1, size_t n1, const uint8_t* p2, size_t n2) {
+    head[0] = header_byte0(h.type, h.frag);
+    head[1] = h.channel;
+    head[2] = h.seq;
+    pieces[0].data = head;
+    pieces[0].size = kHeaderSize;
+    pieces[1].data = p1;
+    pieces[1].size = n1;
+    pieces[2].data = p2;
+    pieces[2].size = n2;
+    pieces[3].data = crc;
+    pieces[3].size = kCrcSize;
+    size = kEnvelope + n1 + n2;
+    uint16_t v = kCrcInit;
+    for (const ByteSpan* s = pieces; s != pieces + 3; ++s) v = crc16(s->data, s->size, v);
+    crc[0] = static_cast<uint8_t>(v);
+    crc[1] = static_cast<uint8_t>(v >> 8);
+  }
+  /** Body byte i (i < size). */
+  __attribute__((noinline)) uint8_t at(size_t i) const {
+    const ByteSpan* s = pieces;
+    while (i >= s->size) {
+      i -= s->size;
+      ++s;
+    }
+    return s->data[i];
+  }
 };
+}  // namespace detail
 
 /**
  * Writes one frame to sink.put(uint8_t): an optional leading 0x00, COBS(body), the 0x00
@@ -67,7 +68,7 @@ class BodyView {
 template <class Sink>
 size_t write_frame(Sink& sink, const FrameHeader& h, const uint8_t* p1, size_t n1,
                    const uint8_t* p2 = nullptr, size_t n2 = 0, bool lead = false) {
-  BodyView body(h, p1, n1, p2, n2);
+  const detail::Body body(h, p1, n1, p2, n2);
   size_t n = 0;
   if (lead) {
     sink.put(0);
@@ -97,7 +98,7 @@ inline size_t encode_frame(const FrameHeader& h, const uint8_t* payload, size_t 
 inline size_t encode_datagram(const FrameHeader& h, const uint8_t* payload, size_t n, uint8_t* out,
                               size_t cap) {
   if (cap < kEnvelope || n > cap - kEnvelope) return 0;
-  BodyView body(h, payload, n, nullptr, 0);
+  const detail::Body body(h, payload, n, nullptr, 0);
   for (size_t i = 0; i < body.size; ++i) out[i] = body.at(i);
   return body.size;
 }

@@ -69,14 +69,7 @@ template <class Sink>
 size_t write_frame(Sink& sink, const FrameHeader& h, const uint8_t* p1, size_t n1,
                    const uint8_t* p2 = nullptr, size_t n2 = 0, bool lead = false) {
   const detail::Body body(h, p1, n1, p2, n2);
-  size_t n = 0;
-  if (lead) {
-    sink.put(0);
-    ++n;
-  }
-  n += cobs_encode_to(body, sink);
-  sink.put(0);
-  return n + 1;
+  return detail::cobs_write(body, sink, lead, true);
 }
 
 /**

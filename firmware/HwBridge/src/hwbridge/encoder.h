@@ -22,40 +22,38 @@ struct FrameHeader {
 
 namespace detail {
 /**
- * A frame body as pieces without copying the payload: header, the payload in up to two pieces
- * (a FIRST fragment's length prefix and its chunk), and the CRC, computed here.
+ * A frame body seen as one run of bytes without copying the payload: header, the payload in
+ * up to two pieces (a FIRST fragment's length prefix and its chunk), and the CRC, computed here.
  */
 struct Body {
-  uint8_t head[kHeaderSize];
-  uint8_t crc[kCrcSize];
-  ByteSpan pieces[4];
-  size_t size;  ///< body bytes
+  ByteSpan pieces[2];         ///< the payload
+  size_t size;                ///< body bytes
+  uint8_t env[kEnvelope];     ///< the header, then the CRC
   Body(const FrameHeader& h, const uint8_t* p1, size_t n1, const uint8_t* p2, size_t n2) {
-    head[0] = header_byte0(h.type, h.frag);
-    head[1] = h.channel;
-    head[2] = h.seq;
-    pieces[0].data = head;
-    pieces[0].size = kHeaderSize;
-    pieces[1].data = p1;
-    pieces[1].size = n1;
-    pieces[2].data = p2;
-    pieces[2].size = n2;
-    pieces[3].data = crc;
-    pieces[3].size = kCrcSize;
+    env[0] = header_byte0(h.type, h.frag);
+    env[1] = h.channel;
+    env[2] = h.seq;
+    pieces[0].data = p1;
+    pieces[0].size = n1;
+    pieces[1].data = p2;
+    pieces[1].size = n2;
     size = kEnvelope + n1 + n2;
-    uint16_t v = kCrcInit;
-    for (const ByteSpan* s = pieces; s != pieces + 3; ++s) v = crc16(s->data, s->size, v);
-    crc[0] = static_cast<uint8_t>(v);
-    crc[1] = static_cast<uint8_t>(v >> 8);
+    uint16_t v = crc16(env, kHeaderSize);
+    for (const ByteSpan* s = pieces; s != pieces + 2; ++s) v = crc16(s->data, s->size, v);
+    env[3] = static_cast<uint8_t>(v);
+    env[4] = static_cast<uint8_t>(v >> 8);
   }
   /** Body byte i (i < size). */
   __attribute__((noinline)) uint8_t at(size_t i) const {
-    const ByteSpan* s = pieces;
-    while (i >= s->size) {
-      i -= s->size;
-      ++s;
+    if (i >= kHeaderSize) {
+      i -= kHeaderSize;
+      for (const ByteSpan* s = pieces; s != pieces + 2; ++s) {
+        if (i < s->size) return s->data[i];
+        i -= s->size;
+      }
+      i += kHeaderSize;  // the CRC, after the header in env
     }
-    return s->data[i];
+    return env[i];
   }
 };
 }  // namespace detail

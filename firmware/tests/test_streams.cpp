@@ -2,7 +2,8 @@
 // reassembly) joined by an in-memory link that loses, duplicates, reorders and corrupts frames
 // in both directions, driven by a seeded generator and a simulated microsecond clock. Every
 // message must arrive exactly once, in order, intact. Also checks the best-effort count
-// (frames received + frames counted lost == frames sent) over the same kind of link.
+// (frames received + frames counted lost == frames sent) over the same kind of link, and the
+// window-1 SingleFrameReceiver against ReliableReceiver<1, N, 0> on random frame sequences.
 //
 //   test_streams [SEED]
 #include <stdio.h>
@@ -195,6 +196,77 @@ void best_effort_run(uint64_t seed) {
          static_cast<unsigned>(s.frames_late));
 }
 
+/** Both receivers' counters are equal. */
+void same_stats(const ReliableReceiverStats& a, const ReliableReceiverStats& b, int step) {
+  CHECK(a.frames_received == b.frames_received && a.duplicates == b.duplicates &&
+            a.out_of_window == b.out_of_window && a.early_dropped == b.early_dropped &&
+            a.acks_sent == b.acks_sent,
+        "single-frame receiver: stats differ at step %d", step);
+}
+
+/**
+ * SingleFrameReceiver (the node's receiver at window 1) against ReliableReceiver<1, N, 0> on
+ * seeded random sequences of frames (the expected seq, duplicates, frames ahead, anywhere),
+ * ACKs (as bytes on the wire, with and without a lead) and session resets: the same results,
+ * state, ACKs and counters at every step.
+ */
+void single_frame_receiver_run(uint64_t seed) {
+  Rng rng(seed);
+  const uint8_t isn = static_cast<uint8_t>(rng.below(256));
+  ReliableReceiver<1, 16, 0> ref(isn);
+  SingleFrameReceiver<16> rx(isn);
+  uint8_t payload[16];
+  for (int step = 0; step < 20000; ++step) {
+    const uint32_t op = rng.below(100);
+    if (op < 60) {
+      Frame f;
+      f.type = FrameType::Reliable;
+      f.frag = static_cast<Frag>(rng.below(4));
+      f.channel = static_cast<uint8_t>(rng.below(256));
+      const uint32_t kind = rng.below(4);
+      uint8_t ahead = 0;  // the expected frame
+      if (kind == 1) ahead = static_cast<uint8_t>(0 - 1 - rng.below(3));  // just behind
+      if (kind == 2) ahead = static_cast<uint8_t>(1 + rng.below(3));      // just ahead
+      if (kind == 3) ahead = static_cast<uint8_t>(rng.below(256));        // anywhere
+      f.seq = static_cast<uint8_t>(ref.expected() + ahead);
+      f.size = rng.below(sizeof payload + 1);
+      for (size_t i = 0; i < f.size; ++i) payload[i] = static_cast<uint8_t>(rng.below(256));
+      f.payload = payload;
+      const Received a = ref.receive(f);
+      const Received b = rx.receive(f);
+      CHECK(a == b, "single-frame receiver: seq %u gives %d, not %d (step %d)", f.seq,
+            static_cast<int>(b), static_cast<int>(a), step);
+      Frame pa, pb;
+      CHECK(ref.pop(&pa) == rx.pop(&pb), "single-frame receiver: pop differs (step %d)", step);
+    } else if (op < 80) {
+      const bool lead = rng.chance(50);
+      check::VecSink wa, wb;
+      const size_t na = ref.write_ack(wa, lead);
+      const size_t nb = rx.write_ack(wb, lead);
+      CHECK(na == nb && wa.bytes == wb.bytes, "single-frame receiver: ACK %s, not %s (step %d)",
+            check::hex(wb.bytes).c_str(), check::hex(wa.bytes).c_str(), step);
+    } else if (op < 95) {
+      uint8_t ba[kMaxSackBytes], bb[kMaxSackBytes];
+      size_t la = 99, lb = 99;
+      const uint8_t sa = ref.make_ack(ba, &la);
+      const uint8_t sb = rx.make_ack(bb, &lb);
+      CHECK(sa == sb && la == lb && lb == 0, "single-frame receiver: make_ack differs (step %d)",
+            step);
+    } else {
+      const uint8_t s = static_cast<uint8_t>(rng.below(256));
+      const uint8_t w = static_cast<uint8_t>(rng.below(3));  // 0 and 1 both mean 1
+      ref.reset(s, w);
+      rx.reset(s, w);
+    }
+    CHECK(ref.expected() == rx.expected() && ref.ack_needed() == rx.ack_needed() &&
+              ref.ack_urgent() == rx.ack_urgent() && ref.held() == rx.held(),
+          "single-frame receiver: state differs at step %d", step);
+    same_stats(ref.stats(), rx.stats(), step);
+  }
+  printf("single-frame receiver: 20000 steps as ReliableReceiver<1, N, 0> (%u delivered)\n",
+         static_cast<unsigned>(rx.stats().frames_received));
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -211,6 +283,7 @@ int main(int argc, char** argv) {
   // A harsh link: 30 % loss each way, more retries so that the link stays up.
   reliable_run<4, 3, 32, 128>("harsh window 4", seed + 4, 200, 30, 10, 5, 40);
   best_effort_run(seed + 5);
+  single_frame_receiver_run(seed + 7);
   printf("ok: %lu checks\n", check::count());
   return 0;
 }

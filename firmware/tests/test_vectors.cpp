@@ -322,6 +322,93 @@ void unit_crc_and_cobs() {
   CHECK(!cobs_decode(zero_code, 3, out, &m), "a 0x00 code is an error");
 }
 
+/** COBS the plain way (a buffer and a code byte patched afterwards), canonical: no empty
+ * group after a final full one. The reference of the streaming encoder. */
+Bytes ref_cobs(const Bytes& d) {
+  Bytes out(1, 0);
+  size_t code_at = 0;
+  uint8_t code = 1;
+  bool full_last = false;  // the last byte closed a full group
+  for (size_t i = 0; i < d.size(); ++i) {
+    full_last = false;
+    if (d[i] != 0) {
+      out.push_back(d[i]);
+      if (++code != 0xFF) continue;
+      full_last = true;
+    }
+    out[code_at] = code;
+    code_at = out.size();
+    out.push_back(0);
+    code = 1;
+  }
+  if (full_last) {
+    out.pop_back();
+  } else {
+    out[code_at] = code;
+  }
+  return out;
+}
+
+/** Random bytes: zeros at the given percentage (0: long runs of non-zero bytes). */
+Bytes random_bytes(check::Rng& rng, size_t n, uint32_t zeros) {
+  Bytes b(n);
+  for (size_t i = 0; i < n; ++i) b[i] = rng.chance(zeros) ? 0 : static_cast<uint8_t>(1 + rng.below(255));
+  return b;
+}
+
+/**
+ * The streaming encoder against ref_cobs(): cobs_encode() byte for byte (lengths around the
+ * 254-byte group), and write_frame() with the payload cut in two pieces anywhere, with and
+ * without a lead (the body is header + payload + CRC), its count, encode_frame() and
+ * encode_datagram().
+ */
+void unit_frame_encoder() {
+  check::Rng rng(7);
+  const size_t edges[] = {0, 1, 253, 254, 255, 256, 507, 508, 509, 762};
+  for (int round = 0; round < 3000; ++round) {
+    const size_t n = round < 100 ? edges[round % 10] : rng.below(800);
+    const uint32_t zeros = round % 3 == 0 ? 0 : rng.below(40);
+    Bytes data = random_bytes(rng, n, zeros);
+    if (round % 5 == 1 && n) data[n - 1] = 0;  // a zero last
+    const Bytes want = ref_cobs(data);
+    Bytes enc(cobs_max_encoded(n));
+    const size_t m = cobs_encode(data.data(), n, enc.data(), enc.size());
+    CHECK(m == want.size() && Bytes(enc.begin(), enc.begin() + m) == want,
+          "cobs_encode of %zu bytes (zeros %u %%): %s", n, zeros, hex(enc.data(), m).c_str());
+
+    FrameHeader h;
+    h.type = static_cast<FrameType>(rng.below(3));
+    h.frag = static_cast<Frag>(rng.below(4));
+    h.channel = static_cast<uint8_t>(rng.below(256));
+    h.seq = static_cast<uint8_t>(rng.below(256));
+    Bytes body;
+    body.push_back(header_byte0(h.type, h.frag));
+    body.push_back(h.channel);
+    body.push_back(h.seq);
+    body.insert(body.end(), data.begin(), data.end());
+    const uint16_t crc = crc16(body.data(), body.size());
+    body.push_back(static_cast<uint8_t>(crc));
+    body.push_back(static_cast<uint8_t>(crc >> 8));
+    const bool lead = rng.chance(50);
+    Bytes wire(lead ? 1 : 0, 0);
+    const Bytes cobs = ref_cobs(body);
+    wire.insert(wire.end(), cobs.begin(), cobs.end());
+    wire.push_back(0);
+    const size_t cut = rng.below(static_cast<uint32_t>(n + 1));
+    check::VecSink sink;
+    const size_t w = write_frame(sink, h, data.data(), cut, data.data() + cut, n - cut, lead);
+    CHECK(sink.bytes == wire && w == wire.size(),
+          "write_frame of %zu payload bytes cut at %zu (lead %d): %s", n, cut, lead ? 1 : 0,
+          hex(sink.bytes).c_str());
+    Bytes out(wire.size());
+    CHECK(encode_frame(h, data.data(), n, out.data(), out.size(), lead) == wire.size() && out == wire,
+          "encode_frame of %zu payload bytes", n);
+    Bytes dg(body.size());
+    CHECK(encode_datagram(h, data.data(), n, dg.data(), dg.size()) == body.size() && dg == body,
+          "encode_datagram of %zu payload bytes", n);
+  }
+}
+
 void unit_reassembly() {
   static const uint8_t msg[40] = {1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15, 16, 17, 18, 19, 20,
                                   21, 22, 23, 24, 25, 26, 27, 28, 29, 30, 31, 32, 33, 34, 35, 36, 37, 38, 39, 40};
@@ -585,6 +672,7 @@ int main(int argc, char** argv) {
                  atoi(w[5].c_str()), atoi(w[6].c_str()), unhex(w[7]));
   }
   unit_crc_and_cobs();
+  unit_frame_encoder();
   unit_reassembly();
   unit_best_effort();
   unit_rtt();

@@ -22,6 +22,55 @@ struct ByteSpan {
   uint8_t at(size_t i) const { return data[i]; }
 };
 
+namespace detail {
+/**
+ * The COBS encoder of cobs_encode_to() and write_frame(): an optional 0x00 first (lead), the
+ * encoding of src, and a 0x00 delimiter last (delimit). Every byte goes through one
+ * sink.put() (one copy of the sink's code in flash): a group's code byte, found by scanning
+ * ahead to the next zero, then its data bytes. Returns the number of bytes written.
+ */
+template <class Source, class Sink>
+inline __attribute__((always_inline)) size_t cobs_write(const Source& src, Sink& sink, bool lead,
+                                                     bool delimit) {
+  const size_t n = src.size;
+  size_t i = 0;  // the next source byte (never past n)
+  size_t written = 0;
+  uint8_t b = 0;            // the byte to write (first the lead)
+  bool put = lead;          // b is to be written
+  bool done = false;        // b is the delimiter
+  uint8_t run = 0;          // data bytes of the current group still to write
+  uint8_t last = 0xFF;      // data bytes of the group before (0xFF: none yet)
+  for (;;) {
+    if (put) {
+      sink.put(b);
+      ++written;
+    }
+    put = true;
+    if (done) break;
+    if (run != 0) {
+      b = src.at(i++);
+      --run;
+      continue;
+    }
+    if (last != 0xFF) {
+      // the source ends after a group (canonical: a final full group takes no empty group)
+      if (i == n) {
+        if (!delimit) break;
+        b = 0;
+        done = true;
+        continue;
+      }
+      if (last != kCobsMaxGroup) ++i;  // the zero the group's code stands for (0xFF: none)
+    }
+    uint8_t k = 0;
+    while (k < kCobsMaxGroup && i + k < n && src.at(i + k) != 0) ++k;
+    last = run = k;
+    b = static_cast<uint8_t>(k + 1);
+  }
+  return written;
+}
+}  // namespace detail
+
 /**
  * Encodes the src.size bytes of src (anything with `size` and `uint8_t at(size_t)`) and hands
  * each encoded byte to sink.put(uint8_t), scanning ahead for zeros so that no buffer is needed.
@@ -29,24 +78,7 @@ struct ByteSpan {
  */
 template <class Source, class Sink>
 size_t cobs_encode_to(const Source& src, Sink& sink) {
-  const size_t n = src.size;
-  size_t start = 0;
-  size_t written = 0;
-  for (;;) {
-    size_t k = 0;
-    while (k < kCobsMaxGroup && start + k < n && src.at(start + k) != 0) ++k;
-    sink.put(static_cast<uint8_t>(k + 1));
-    for (size_t i = 0; i < k; ++i) sink.put(src.at(start + i));
-    written += k + 1;
-    start += k;
-    if (k == kCobsMaxGroup) {
-      if (start == n) break;  // canonical: a final full group takes no empty group after it
-      continue;               // 0xFF implies no zero
-    }
-    if (start >= n) break;
-    ++start;  // the zero this group's code stands for
-  }
-  return written;
+  return detail::cobs_write(src, sink, false, false);
 }
 
 namespace detail {

@@ -17,8 +17,26 @@ static const uint16_t kCrcInit = 0xFFFF;
 
 /** The CRC after one more byte. */
 inline uint16_t crc16_update(uint16_t crc, uint8_t byte) {
-#if defined(__AVR__)
-  return _crc_xmodem_update(crc, byte);  // the same CRC, in a few instructions
+#if defined(__AVR__) && defined(HWBRIDGE_FAST_CRC)
+  return _crc_xmodem_update(crc, byte);  // the same CRC, unrolled: 3x faster, 32 B more flash
+#elif defined(__AVR__)
+  // The bit loop below in 9 instructions (the compiler makes 17 of it): shift the top bit out,
+  // fold the polynomial back in when it was set. About 80 cycles a byte.
+  uint8_t bits;
+  const uint8_t lo = 0x21, hi = 0x10;
+  __asm__(
+      "eor %B0, %4\n\t"
+      "ldi %1, 8\n"
+      "1:\tlsl %A0\n\t"
+      "rol %B0\n\t"
+      "brcc 2f\n\t"
+      "eor %A0, %2\n\t"
+      "eor %B0, %3\n"
+      "2:\tdec %1\n\t"
+      "brne 1b"
+      : "+r"(crc), "=&d"(bits)
+      : "r"(lo), "r"(hi), "r"(byte));
+  return crc;
 #else
   crc = static_cast<uint16_t>(crc ^ (static_cast<uint16_t>(byte) << 8));
   for (uint8_t bit = 0; bit < 8; ++bit) {
@@ -30,7 +48,8 @@ inline uint16_t crc16_update(uint16_t crc, uint8_t byte) {
 }
 
 /** The CRC of n bytes, continuing from crc (kCrcInit for a new one). */
-inline uint16_t crc16(const uint8_t* data, size_t n, uint16_t crc = kCrcInit) {
+__attribute__((noinline)) inline uint16_t crc16(const uint8_t* data, size_t n,
+                                                uint16_t crc = kCrcInit) {
   for (size_t i = 0; i < n; ++i) crc = crc16_update(crc, data[i]);
   return crc;
 }

@@ -20,44 +20,43 @@ struct FrameHeader {
   uint8_t seq;
 };
 
+namespace detail {
 /**
- * A frame body seen as one run of bytes without copying it: header, a payload in up to two
- * pieces (a FIRST fragment's length prefix and its chunk), and the CRC.
+ * A frame body seen as one run of bytes without copying the payload: header, the payload in
+ * up to two pieces (a FIRST fragment's length prefix and its chunk), and the CRC, computed here.
  */
-class BodyView {
- public:
-  BodyView(const FrameHeader& h, const uint8_t* p1, size_t n1, const uint8_t* p2, size_t n2)
-      : p1_(p1), p2_(p2), n1_(n1), n2_(n2) {
-    head_[0] = header_byte0(h.type, h.frag);
-    head_[1] = h.channel;
-    head_[2] = h.seq;
+struct Body {
+  ByteSpan pieces[2];         ///< the payload
+  size_t size;                ///< body bytes
+  uint8_t env[kEnvelope];     ///< the header, then the CRC
+  Body(const FrameHeader& h, const uint8_t* p1, size_t n1, const uint8_t* p2, size_t n2) {
+    env[0] = header_byte0(h.type, h.frag);
+    env[1] = h.channel;
+    env[2] = h.seq;
+    pieces[0].data = p1;
+    pieces[0].size = n1;
+    pieces[1].data = p2;
+    pieces[1].size = n2;
     size = kEnvelope + n1 + n2;
-    uint16_t crc = crc16(head_, kHeaderSize);
-    crc = crc16(p1, n1, crc);
-    crc = crc16(p2, n2, crc);
-    crc_[0] = static_cast<uint8_t>(crc);
-    crc_[1] = static_cast<uint8_t>(crc >> 8);
+    uint16_t v = crc16(env, kHeaderSize);
+    for (const ByteSpan* s = pieces; s != pieces + 2; ++s) v = crc16(s->data, s->size, v);
+    env[3] = static_cast<uint8_t>(v);
+    env[4] = static_cast<uint8_t>(v >> 8);
   }
+  /** Body byte i (i < size). */
   __attribute__((noinline)) uint8_t at(size_t i) const {
-    if (i < kHeaderSize) return head_[i];
-    i -= kHeaderSize;
-    if (i < n1_) return p1_[i];
-    i -= n1_;
-    if (i < n2_) return p2_[i];
-    return crc_[i - n2_];
+    if (i >= kHeaderSize) {
+      i -= kHeaderSize;
+      for (const ByteSpan* s = pieces; s != pieces + 2; ++s) {
+        if (i < s->size) return s->data[i];
+        i -= s->size;
+      }
+      i += kHeaderSize;  // the CRC, after the header in env
+    }
+    return env[i];
   }
-  uint16_t crc() const { return static_cast<uint16_t>(crc_[0] | crc_[1] << 8); }
-
-  size_t size;  ///< body bytes
-
- private:
-  const uint8_t* p1_;
-  const uint8_t* p2_;
-  size_t n1_;
-  size_t n2_;
-  uint8_t head_[kHeaderSize];
-  uint8_t crc_[kCrcSize];
 };
+}  // namespace detail
 
 /**
  * Writes one frame to sink.put(uint8_t): an optional leading 0x00, COBS(body), the 0x00
@@ -67,15 +66,8 @@ class BodyView {
 template <class Sink>
 size_t write_frame(Sink& sink, const FrameHeader& h, const uint8_t* p1, size_t n1,
                    const uint8_t* p2 = nullptr, size_t n2 = 0, bool lead = false) {
-  BodyView body(h, p1, n1, p2, n2);
-  size_t n = 0;
-  if (lead) {
-    sink.put(0);
-    ++n;
-  }
-  n += cobs_encode_to(body, sink);
-  sink.put(0);
-  return n + 1;
+  const detail::Body body(h, p1, n1, p2, n2);
+  return detail::cobs_write(body, sink, lead, true);
 }
 
 /**
@@ -97,7 +89,7 @@ inline size_t encode_frame(const FrameHeader& h, const uint8_t* payload, size_t 
 inline size_t encode_datagram(const FrameHeader& h, const uint8_t* payload, size_t n, uint8_t* out,
                               size_t cap) {
   if (cap < kEnvelope || n > cap - kEnvelope) return 0;
-  BodyView body(h, payload, n, nullptr, 0);
+  const detail::Body body(h, payload, n, nullptr, 0);
   for (size_t i = 0; i < body.size; ++i) out[i] = body.at(i);
   return body.size;
 }

@@ -536,7 +536,9 @@ class NodeHandle_ : public NodeBase {
   BestEffortReceiver be_rx_{};
   // A window above 1 holds early frames (window - 1 of them): a receiver that drops them makes
   // the host's per-frame backoff grow for every frame after a gap (PROTOCOL.md 2.4).
-  ReliableReceiver<Profile::kWindow, Profile::kMtu, Profile::kWindow - 1> rel_rx_{};
+  // Window 1 holds nothing: the one-frame receiver.
+  typename detail::Pick<Profile::kWindow == 1, SingleFrameReceiver<Profile::kMtu>,
+                        ReliableReceiver<Profile::kWindow, Profile::kMtu, Profile::kWindow - 1> >::type rel_rx_{};
   uint32_t id_ = 0, peer_ = 0, be_peer_ = 0;
   // own time requests only with kTimeSyncMs (a byte otherwise)
   typename detail::Pick<Profile::kTimeSyncMs != 0, Tick, uint8_t>::type time_next_ = 0;

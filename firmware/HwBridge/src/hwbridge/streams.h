@@ -725,6 +725,81 @@ class ReliableReceiver {
   bool ack_urgent_;
 };
 
+/**
+ * The reliable receiver of a window-1 board that holds no early frames: the interface and the
+ * behaviour of ReliableReceiver<1, MaxPayload, 0> (only the expected seq is accepted, anything
+ * behind it is a duplicate, anything ahead is outside the window, every reliable frame makes
+ * an ACK due and each one is urgent, an ACK carries expected - 1 and never a bitmap), in a
+ * fraction of its code: no slots, no window arithmetic.
+ */
+template <size_t MaxPayload>
+class SingleFrameReceiver {
+ public:
+  constexpr explicit SingleFrameReceiver(uint8_t isn = 0)
+      : stats_(), expected_(isn), ack_needed_(false) {}
+
+  /** A new session: expects the peer's isn first (any window is 1 here). */
+  void reset(uint8_t isn, uint8_t = 1) {
+    expected_ = isn;
+    ack_needed_ = false;
+  }
+
+  /** Takes one RELIABLE frame. On Deliver, expected() has moved past it. */
+  Received receive(const Frame& f) {
+    ack_needed_ = true;
+    const uint8_t ahead = seq_diff(f.seq, expected_);
+    if (ahead == 0) {
+      ++stats_.frames_received;
+      ++expected_;
+      return Received::Deliver;
+    }
+    if (ahead >= kSeqHalf) {
+      ++stats_.duplicates;
+      return Received::Duplicate;
+    }
+    ++stats_.out_of_window;
+    return Received::OutOfWindow;
+  }
+
+  /** Nothing is ever held. */
+  bool pop(Frame*) { return false; }
+
+  uint8_t expected() const { return expected_; }
+  /** An ACK is due (every reliable frame received asks for one). */
+  bool ack_needed() const { return ack_needed_; }
+  /** At window 1 every due ACK is urgent. */
+  bool ack_urgent() const { return ack_needed_; }
+  uint8_t held() const { return 0; }
+
+  /** The ACK for the current state: its seq (expected - 1); no bitmap. Clears the due flag. */
+  uint8_t make_ack(uint8_t*, size_t* bitmap_len) {
+    ack_needed_ = false;
+    ++stats_.acks_sent;
+    *bitmap_len = 0;
+    return static_cast<uint8_t>(expected_ - 1);
+  }
+
+  /** Writes the ACK frame (channel 0, frag WHOLE, empty payload); clears the due flag. */
+  template <class Sink>
+  size_t write_ack(Sink& sink, bool lead = false) {
+    ack_needed_ = false;
+    ++stats_.acks_sent;
+    FrameHeader h;
+    h.type = FrameType::Ack;
+    h.frag = Frag::Whole;
+    h.channel = kControlChannel;
+    h.seq = static_cast<uint8_t>(expected_ - 1);
+    return write_frame(sink, h, nullptr, 0, nullptr, 0, lead);
+  }
+
+  const ReliableReceiverStats& stats() const { return stats_; }
+
+ private:
+  ReliableReceiverStats stats_;
+  uint8_t expected_;
+  bool ack_needed_;
+};
+
 }  // namespace hwbridge
 
 #endif  // HWBRIDGE_STREAMS_H

@@ -136,7 +136,9 @@ class ParamValue {
 typedef void (*ParamCallback)(const ParamValue& value);
 typedef void (*LogCallback)(uint8_t level, const char* text, size_t len);
 
-/** Counters of a node (cumulative over sessions; `Counter`: 8-bit on AVR, 16-bit elsewhere, wrapping). */
+/** Counters of a node (cumulative over sessions; `Counter`: 8-bit on AVR, 16-bit elsewhere,
+ * wrapping). The traffic ones (`TrafficCounter`: sessions, HELLOs, heartbeats) read 0 on AVR
+ * unless HWBRIDGE_TRAFFIC_COUNTERS is 1 (config.h). */
 struct NodeStats {
   TrafficCounter sessions;  ///< sessions established
   Counter link_losses;       ///< ended by the link timeout or the retry limit

@@ -546,11 +546,11 @@ class SingleFrameSender {
 };
 
 struct ReliableReceiverStats {
-  Counter frames_received;  ///< accepted (each seq once)
-  Counter duplicates;       ///< behind the window or already held
-  Counter out_of_window;    ///< too far ahead
-  Counter early_dropped;    ///< ahead within the window, but no room to hold it
-  Counter acks_sent;
+  TrafficCounter frames_received;  ///< accepted (each seq once)
+  Counter duplicates;              ///< behind the window or already held
+  Counter out_of_window;           ///< too far ahead
+  Counter early_dropped;           ///< ahead within the window, but no room to hold it
+  TrafficCounter acks_sent;
 };
 
 /** What receive() did with a frame. */

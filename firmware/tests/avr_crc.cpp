@@ -1,5 +1,6 @@
-// The AVR crc16 (an inline-assembly bit loop) against avr-libc's _crc_xmodem_update, on the
-// board itself (host builds take the C loop): prints "CRC OK" or "CRC BAD" on UART 0.
+// The AVR crc16 on the chip itself (host builds take the C loop): with -DHWBRIDGE_SMALL_CRC (an
+// inline-assembly bit loop) against avr-libc's _crc_xmodem_update, and by default (avr-libc's) on
+// the check value; prints "CRC OK" or "CRC BAD" on UART 0 (tests/firmware/test_cpp_core.py).
 //   avr-g++ -mmcu=atmega328p -std=gnu++11 -Os -flto -I../HwBridge/src avr_crc.cpp -o avr_crc.elf
 //   simavr -m atmega328p -f 16000000 avr_crc.elf
 #include <avr/io.h>
@@ -19,7 +20,7 @@ int main() {
   UCSR0B = (1 << TXEN0);
   uint8_t buf[300];
   uint32_t x = 12345;
-  uint16_t bad = 0, runs = 0;
+  uint16_t bad = 0;
   for (uint16_t trial = 0; trial < 200; ++trial) {
     uint16_t n = trial < 40 ? trial : (uint16_t)(x % 300);
     for (uint16_t i = 0; i < n; ++i) {
@@ -31,7 +32,6 @@ int main() {
     for (uint16_t i = 0; i < n; ++i) ref = _crc_xmodem_update(ref, buf[i]);
     volatile uint16_t got = hwbridge::crc16(buf, n, start);
     if (got != ref) ++bad;
-    ++runs;
   }
   const uint8_t digits[] = "123456789";
   if (hwbridge::crc16(digits, 9) != 0x29B1) ++bad;

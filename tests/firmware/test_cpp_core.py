@@ -219,6 +219,27 @@ def test_avr_build_uses_no_heap(profile: str, tmp_path: Path) -> None:
     assert text < 8192, size.stdout
 
 
+@needs_avr
+@pytest.mark.skipif(shutil.which("simavr") is None, reason="simavr is not installed (Debian)")
+@pytest.mark.parametrize("variant", ["default", "small"])
+def test_crc_on_the_avr(variant: str, tmp_path: Path) -> None:
+    """crc16 as the ATmega328P runs it (simavr): avr-libc's by default, the bit loop of
+    HWBRIDGE_SMALL_CRC against it, on random runs and the check value."""
+    elf = tmp_path / "avr_crc.elf"
+    define = ["-DHWBRIDGE_SMALL_CRC"] if variant == "small" else []
+    source = TESTS / "avr_crc.cpp"
+    _compile(["avr-g++", *AVRFLAGS, "-flto", *define, f"-I{INCLUDE}", str(source), "-o", str(elf)])
+    run = subprocess.run(
+        ["simavr", "-m", "atmega328p", "-f", "16000000", str(elf)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
+    output = run.stdout + run.stderr
+    assert "CRC OK" in output and "CRC BAD" not in output, output
+
+
 def test_library_sources_allocate_nothing() -> None:
     """No heap, no exceptions, no RTTI, no STL in the library (the tests may use them)."""
     forbidden = re.compile(

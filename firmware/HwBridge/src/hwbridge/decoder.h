@@ -23,6 +23,16 @@ struct DecoderStats {
   Counter non_frame_bytes;  ///< bytes of runs reported as text (bytes, not runs)
 };
 
+// FrameDecoder::counter() finds a result's counter by its number.
+static_assert(offsetof(DecoderStats, frames) == static_cast<uint8_t>(FrameError::Ok) * sizeof(Counter) &&
+                  offsetof(DecoderStats, crc_errors) == static_cast<uint8_t>(FrameError::Crc) * sizeof(Counter) &&
+                  offsetof(DecoderStats, cobs_errors) == static_cast<uint8_t>(FrameError::Cobs) * sizeof(Counter) &&
+                  offsetof(DecoderStats, too_short) == static_cast<uint8_t>(FrameError::TooShort) * sizeof(Counter) &&
+                  offsetof(DecoderStats, version_errors) == static_cast<uint8_t>(FrameError::Version) * sizeof(Counter) &&
+                  offsetof(DecoderStats, reserved_type) == static_cast<uint8_t>(FrameError::ReservedType) * sizeof(Counter) &&
+                  offsetof(DecoderStats, oversize) == static_cast<uint8_t>(FrameError::Oversize) * sizeof(Counter),
+              "DecoderStats: one counter per FrameError, in its order");
+
 /** What one byte completed. */
 enum class Decoded : uint8_t {
   Nothing,  ///< no run ended, or an empty run (a leading delimiter)
@@ -121,16 +131,7 @@ class FrameDecoder {
       return Decoded::Nothing;
     }
     if (run_ == 0) return Decoded::Nothing;  // empty run: nothing, no event
-    FrameError e = check_run();
-    const size_t run_bytes = text_.bytes();
-    clear_run();
-    error_ = e;
-    if (e == FrameError::Ok) {
-      ++stats_.frames;
-      return Decoded::Frame;
-    }
-    count(e, run_bytes);
-    return Decoded::Bad;
+    return end_run();
   }
 
   /** The frame the last push returned Decoded::Frame for. */
@@ -144,12 +145,22 @@ class FrameDecoder {
   size_t buffered() const { return len_; }
 
  private:
+  /** The delimiter after a run: checks it, counts it, forgets it. */
+  __attribute__((noinline)) Decoded end_run() {
+    FrameError e = check_run();
+    const size_t run_bytes = text_.bytes();
+    clear_run();
+    error_ = e;
+    count(e, run_bytes);
+    return e == FrameError::Ok ? Decoded::Frame : Decoded::Bad;
+  }
+
   /** Steps 2-9 of 1.6 at the delimiter, in that order. */
-  __attribute__((noinline)) FrameError check_run() {
+  FrameError check_run() {
     if (run_ == kOverflow) return text_.text() ? FrameError::Text : FrameError::Oversize;
     // A code that pointed past the end of the run: its group is still waiting for bytes.
     if (group_ != 0) return text_.text() ? FrameError::Text : FrameError::Cobs;
-    FrameError e = parse_body(buf_, len_, max_payload(), &frame_);
+    FrameError e = parse_body(buf_, len_, kRunBoundsPayload ? kNoLimit : max_payload(), &frame_);
     if ((e == FrameError::TooShort || e == FrameError::Crc) && text_.text()) {
       return FrameError::Text;
     }
@@ -158,16 +169,17 @@ class FrameDecoder {
   }
 
   void count(FrameError e, size_t run_bytes) {
-    switch (e) {
-      case FrameError::Crc: ++stats_.crc_errors; break;
-      case FrameError::Cobs: ++stats_.cobs_errors; break;
-      case FrameError::TooShort: ++stats_.too_short; break;
-      case FrameError::Version: ++stats_.version_errors; break;
-      case FrameError::ReservedType: ++stats_.reserved_type; break;
-      case FrameError::Oversize: ++stats_.oversize; break;
-      case FrameError::Text: stats_.non_frame_bytes = static_cast<Counter>(stats_.non_frame_bytes + run_bytes); break;
-      case FrameError::Ok: break;
+    if (DetectText && e == FrameError::Text) {
+      stats_.non_frame_bytes = static_cast<Counter>(stats_.non_frame_bytes + run_bytes);
+    } else {
+      ++counter(e);
     }
+  }
+
+  /** The counter of a result (frames for Ok): DecoderStats lists them in FrameError's order. */
+  Counter& counter(FrameError e) {
+    return *reinterpret_cast<Counter*>(reinterpret_cast<char*>(&stats_) +
+                                       static_cast<uint8_t>(e) * sizeof(Counter));
   }
 
   void clear_run() {
@@ -180,6 +192,10 @@ class FrameDecoder {
 
   Frame frame_;
   DecoderStats stats_;
+  /** Below one full COBS group a body decodes from at least one byte more than it has, so a
+   * run within max_frame(m) holds at most m payload bytes: step 8 is step 2's (and skipped). */
+  static const bool kRunBoundsPayload = max_body(MaxPayload) < kCobsMaxGroup;
+  static const size_t kNoLimit = static_cast<size_t>(-1);
   /** run_ of a run that outgrew the limit. */
   static const size_t kOverflow = kCapacity + 1;
 

@@ -96,20 +96,18 @@ class FrameDecoder {
  public:
   static const size_t kCapacity = max_frame(MaxPayload);
 
-  /** Every member zero (limits 0 mean the full capacity): a global decoder is in .bss, with
+  /** Every member zero (no slack: the full MTU): a global decoder is in .bss, with
    * no constructor code. */
   constexpr FrameDecoder()
       : frame_{FrameType::BestEffort, Frag::Whole, 0, 0, nullptr, 0}, stats_(), run_(0), len_(0),
-        limit_(0), max_payload_(0), text_(), group_(0), zero_(false),
-        error_(FrameError::Ok), peer_version_(0), buf_() {}
+        slack_(0), text_(), group_(0), zero_(false),
+        error_(FrameError::Ok), peer_byte0_(0), buf_() {}
 
   /** Lowers (or restores) the payload MTU; values above MaxPayload mean MaxPayload. */
   void set_max_payload(size_t max_payload) {
-    if (max_payload > MaxPayload) max_payload = MaxPayload;
-    max_payload_ = max_payload;
-    limit_ = max_frame(max_payload);
+    slack_ = max_payload < MaxPayload ? MaxPayload - max_payload : 0;
   }
-  size_t max_payload() const { return max_payload_ ? max_payload_ : MaxPayload; }
+  size_t max_payload() const { return MaxPayload - slack_; }
 
   /** Forgets a partial run (after the link reopened). */
   void reset() { clear_run(); }
@@ -118,15 +116,20 @@ class FrameDecoder {
   __attribute__((noinline)) Decoded push(uint8_t byte) {
     if (byte != 0) {
       text_.add(byte);
-      if (run_ >= (limit_ ? limit_ : kCapacity)) {
+      if (run_ + run_slack() >= kCapacity) {  // the run outgrew max_frame
         run_ = kOverflow;  // above any limit: stays so until the delimiter
-      } else if (++run_, group_ != 0) {  // a data byte of the current group
+      } else {
+        ++run_;
+        bool keep = true;
+        if (group_ == 0) {  // a code byte: the previous group's zero, and the next group's length
+          keep = zero_;
+          group_ = byte;
+          zero_ = byte != 0xFF;  // a full group stands for no zero
+          byte = 0;
+        }
         --group_;
-        buf_[len_++] = byte;
-      } else {  // a code byte: the previous group's zero, and the next group's length
-        if (zero_) buf_[len_++] = 0;
-        group_ = static_cast<uint8_t>(byte - 1);
-        zero_ = byte != 0xFF;  // a full group stands for no zero
+        buf_[len_] = byte;  // within the buffer: fewer decoded bytes than run_ <= the limit
+        if (keep) ++len_;
       }
       return Decoded::Nothing;
     }
@@ -139,12 +142,25 @@ class FrameDecoder {
   /** Why the last run was rejected (Ok after a frame). */
   FrameError error() const { return error_; }
   /** The protocol version of the last run rejected as FrameError::Version. */
-  uint8_t peer_version() const { return peer_version_; }
+  uint8_t peer_version() const { return peer_byte0_ >> 6; }
   const DecoderStats& stats() const { return stats_; }
   /** Bytes of the current run held (decoded so far; at most kCapacity). */
   size_t buffered() const { return len_; }
 
  private:
+  /** Below one full COBS group a body decodes from at least one byte more than it has, so a
+   * run within max_frame(m) holds at most m payload bytes: step 8 is step 2's (and skipped). */
+  static const bool kRunBoundsPayload = max_body(MaxPayload) < kCobsMaxGroup;
+  static const size_t kNoLimit = static_cast<size_t>(-1);
+  /** run_ of a run that outgrew the limit. */
+  static const size_t kOverflow = kCapacity + 1;
+
+  /** kCapacity - the longest run taken, max_frame(max_payload()): the payload's slack when
+   * max_frame is payload + 6 (kRunBoundsPayload). */
+  size_t run_slack() const {
+    return kRunBoundsPayload ? slack_ : kCapacity - max_frame(max_payload());
+  }
+
   /** The delimiter after a run: checks it, counts it, forgets it. */
   __attribute__((noinline)) Decoded end_run() {
     FrameError e = check_run();
@@ -164,7 +180,7 @@ class FrameDecoder {
     if ((e == FrameError::TooShort || e == FrameError::Crc) && text_.text()) {
       return FrameError::Text;
     }
-    if (e == FrameError::Version) peer_version_ = buf_[0] >> 6;
+    if (e == FrameError::Version) peer_byte0_ = buf_[0];
     return e;
   }
 
@@ -192,27 +208,23 @@ class FrameDecoder {
 
   Frame frame_;
   DecoderStats stats_;
-  /** Below one full COBS group a body decodes from at least one byte more than it has, so a
-   * run within max_frame(m) holds at most m payload bytes: step 8 is step 2's (and skipped). */
-  static const bool kRunBoundsPayload = max_body(MaxPayload) < kCobsMaxGroup;
-  static const size_t kNoLimit = static_cast<size_t>(-1);
-  /** run_ of a run that outgrew the limit. */
-  static const size_t kOverflow = kCapacity + 1;
-
   size_t run_;    // encoded bytes of the run taken (at most the limit), or kOverflow
   size_t len_;    // decoded bytes in buf_
-  size_t limit_;
-  size_t max_payload_;
+  size_t slack_;  // MaxPayload - the payload MTU
   detail::TextCount<DetectText> text_;
   uint8_t group_;  // data bytes the current COBS group still expects
   bool zero_;      // the current group stands for a zero (written if another group follows)
   FrameError error_;
-  uint8_t peer_version_;
+  uint8_t peer_byte0_;  // header byte 0 of the last run rejected as Version
   uint8_t buf_[kCapacity];  // last: the fuzz tests' guards sit right after it
 };
 
 template <size_t MaxPayload, bool DetectText>
 const size_t FrameDecoder<MaxPayload, DetectText>::kCapacity;
+template <size_t MaxPayload, bool DetectText>
+const bool FrameDecoder<MaxPayload, DetectText>::kRunBoundsPayload;
+template <size_t MaxPayload, bool DetectText>
+const size_t FrameDecoder<MaxPayload, DetectText>::kNoLimit;
 template <size_t MaxPayload, bool DetectText>
 const size_t FrameDecoder<MaxPayload, DetectText>::kOverflow;
 

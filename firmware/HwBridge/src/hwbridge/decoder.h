@@ -162,7 +162,7 @@ class FrameDecoder {
   }
 
   /** The delimiter after a run: checks it, counts it, forgets it. */
-  __attribute__((noinline)) Decoded end_run() {
+  Decoded end_run() {
     FrameError e = check_run();
     const size_t run_bytes = text_.bytes();
     clear_run();
@@ -172,7 +172,7 @@ class FrameDecoder {
   }
 
   /** Steps 2-9 of 1.6 at the delimiter, in that order. */
-  FrameError check_run() {
+  __attribute__((noinline)) FrameError check_run() {
     if (run_ == kOverflow) return text_.text() ? FrameError::Text : FrameError::Oversize;
     // A code that pointed past the end of the run: its group is still waiting for bytes.
     if (group_ != 0) return text_.text() ? FrameError::Text : FrameError::Cobs;

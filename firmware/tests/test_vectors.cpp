@@ -324,14 +324,15 @@ void unit_crc_and_cobs() {
 
 /** The run-length rule at its edge (PROTOCOL.md 1.6 step 2 counts the encoded bytes): a frame
  * whose run is exactly max_frame long is taken, one byte more is oversize, at the full MTU and
- * at a lowered one, with and without text detection. */
-template <bool Text>
+ * at a lowered one, with and without text detection, below one full COBS group and above. */
+template <size_t Max, bool Text>
 void decoder_limits(size_t mtu) {
-  FrameDecoder<64, Text> d;
-  if (mtu != 64) d.set_max_payload(mtu);
+  FrameDecoder<Max, Text> d;
+  if (mtu != Max) d.set_max_payload(mtu);
   const size_t limit = max_frame(mtu);
   Bytes payload(mtu, 0x85);  // not text
-  payload[1] = 0;  // two groups
+  payload[1] = 0;  // two groups (three from 254 bytes on)
+  if (mtu > 200) payload[199] = 0x01;  // a CRC without a 0x00 byte (the size check below)
   check::VecSink sink;
   write_frame(sink, header(1, 3, 7, 0), payload.data(), payload.size());
   Bytes wire = sink.bytes;
@@ -358,10 +359,12 @@ void decoder_limits(size_t mtu) {
 }
 
 void unit_decoder_limits() {
-  decoder_limits<true>(64);
-  decoder_limits<false>(64);
-  decoder_limits<true>(10);
-  decoder_limits<false>(10);
+  decoder_limits<64, true>(64);
+  decoder_limits<64, false>(64);
+  decoder_limits<64, true>(10);
+  decoder_limits<64, false>(10);
+  decoder_limits<300, true>(300);
+  decoder_limits<300, false>(260);
 }
 
 void unit_reassembly() {

@@ -23,14 +23,18 @@ struct DecoderStats {
   Counter non_frame_bytes;  ///< bytes of runs reported as text (bytes, not runs)
 };
 
-// FrameDecoder::counter() finds a result's counter by its number.
-static_assert(offsetof(DecoderStats, frames) == static_cast<uint8_t>(FrameError::Ok) * sizeof(Counter) &&
-                  offsetof(DecoderStats, crc_errors) == static_cast<uint8_t>(FrameError::Crc) * sizeof(Counter) &&
-                  offsetof(DecoderStats, cobs_errors) == static_cast<uint8_t>(FrameError::Cobs) * sizeof(Counter) &&
-                  offsetof(DecoderStats, too_short) == static_cast<uint8_t>(FrameError::TooShort) * sizeof(Counter) &&
-                  offsetof(DecoderStats, version_errors) == static_cast<uint8_t>(FrameError::Version) * sizeof(Counter) &&
-                  offsetof(DecoderStats, reserved_type) == static_cast<uint8_t>(FrameError::ReservedType) * sizeof(Counter) &&
-                  offsetof(DecoderStats, oversize) == static_cast<uint8_t>(FrameError::Oversize) * sizeof(Counter),
+/** Where the counter of a result (frames for Ok) sits in DecoderStats: the counters follow
+ * FrameError's order, so that FrameDecoder finds one by number instead of by a switch. */
+inline constexpr size_t counter_offset(FrameError e) {
+  return static_cast<uint8_t>(e) * sizeof(Counter);
+}
+static_assert(offsetof(DecoderStats, frames) == counter_offset(FrameError::Ok) &&
+                  offsetof(DecoderStats, crc_errors) == counter_offset(FrameError::Crc) &&
+                  offsetof(DecoderStats, cobs_errors) == counter_offset(FrameError::Cobs) &&
+                  offsetof(DecoderStats, too_short) == counter_offset(FrameError::TooShort) &&
+                  offsetof(DecoderStats, version_errors) == counter_offset(FrameError::Version) &&
+                  offsetof(DecoderStats, reserved_type) == counter_offset(FrameError::ReservedType) &&
+                  offsetof(DecoderStats, oversize) == counter_offset(FrameError::Oversize),
               "DecoderStats: one counter per FrameError, in its order");
 
 /** What one byte completed. */
@@ -192,10 +196,9 @@ class FrameDecoder {
     }
   }
 
-  /** The counter of a result (frames for Ok): DecoderStats lists them in FrameError's order. */
+  /** The counter of a result other than Text (frames for Ok). */
   Counter& counter(FrameError e) {
-    return *reinterpret_cast<Counter*>(reinterpret_cast<char*>(&stats_) +
-                                       static_cast<uint8_t>(e) * sizeof(Counter));
+    return *reinterpret_cast<Counter*>(reinterpret_cast<char*>(&stats_) + counter_offset(e));
   }
 
   void clear_run() {

@@ -409,6 +409,51 @@ void unit_frame_encoder() {
   }
 }
 
+/** The run-length rule at its edge (PROTOCOL.md 1.6 step 2 counts the encoded bytes): a frame
+ * whose run is exactly max_frame long is taken, one byte more is oversize, at the full MTU and
+ * at a lowered one, with and without text detection, below one full COBS group and above. */
+template <size_t Max, bool Text>
+void decoder_limits(size_t mtu) {
+  FrameDecoder<Max, Text> d;
+  if (mtu != Max) d.set_max_payload(mtu);
+  const size_t limit = max_frame(mtu);
+  Bytes payload(mtu, 0x85);  // not text
+  payload[1] = 0;  // two groups (three from 254 bytes on)
+  if (mtu > 200) payload[199] = 0x01;  // a CRC without a 0x00 byte (the size check below)
+  check::VecSink sink;
+  write_frame(sink, header(1, 3, 7, 0), payload.data(), payload.size());
+  Bytes wire = sink.bytes;
+  CHECK(wire.size() == limit + 1, "MTU %zu: a run of %zu bytes, not max_frame", mtu, wire.size() - 1);
+  std::vector<Event> ev = decode_all(d, wire);
+  CHECK(ev.size() == 1 && ev[0].kind == Decoded::Frame && ev[0].payload == payload,
+        "MTU %zu: the longest frame was not taken", mtu);
+  wire.insert(wire.end() - 1, 0x01);  // one more (empty) group
+  ev = decode_all(d, wire);
+  CHECK(ev.size() == 1 && ev[0].error == FrameError::Oversize && d.stats().oversize == 1,
+        "MTU %zu: a run of max_frame + 1 bytes is not oversize", mtu);
+  // Empty groups only (valid COBS, zeros): limit bytes fail the CRC, limit + 1 are oversize.
+  Bytes ones(limit, 0x01);
+  ones.push_back(0);
+  ev = decode_all(d, ones);
+  CHECK(ev.size() == 1 && ev[0].error == FrameError::Crc, "MTU %zu: zeros: %s", mtu,
+        frame_error_name(ev[0].error));
+  ones.insert(ones.begin(), 0x01);
+  ev = decode_all(d, ones);
+  CHECK(ev.size() == 1 && ev[0].error == FrameError::Oversize, "MTU %zu: zeros + 1: %s", mtu,
+        frame_error_name(ev[0].error));
+  CHECK(d.stats().frames == 1 && d.stats().oversize == 2 && d.stats().crc_errors == 1,
+        "MTU %zu: counters", mtu);
+}
+
+void unit_decoder_limits() {
+  decoder_limits<64, true>(64);
+  decoder_limits<64, false>(64);
+  decoder_limits<64, true>(10);
+  decoder_limits<64, false>(10);
+  decoder_limits<300, true>(300);
+  decoder_limits<300, false>(260);
+}
+
 void unit_reassembly() {
   static const uint8_t msg[40] = {1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15, 16, 17, 18, 19, 20,
                                   21, 22, 23, 24, 25, 26, 27, 28, 29, 30, 31, 32, 33, 34, 35, 36, 37, 38, 39, 40};
@@ -673,6 +718,7 @@ int main(int argc, char** argv) {
   }
   unit_crc_and_cobs();
   unit_frame_encoder();
+  unit_decoder_limits();
   unit_reassembly();
   unit_best_effort();
   unit_rtt();

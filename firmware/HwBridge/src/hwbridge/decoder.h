@@ -23,6 +23,20 @@ struct DecoderStats {
   Counter non_frame_bytes;  ///< bytes of runs reported as text (bytes, not runs)
 };
 
+/** Where the counter of a result (frames for Ok) sits in DecoderStats: the counters follow
+ * FrameError's order, so that FrameDecoder finds one by number instead of by a switch. */
+inline constexpr size_t counter_offset(FrameError e) {
+  return static_cast<uint8_t>(e) * sizeof(Counter);
+}
+static_assert(offsetof(DecoderStats, frames) == counter_offset(FrameError::Ok) &&
+                  offsetof(DecoderStats, crc_errors) == counter_offset(FrameError::Crc) &&
+                  offsetof(DecoderStats, cobs_errors) == counter_offset(FrameError::Cobs) &&
+                  offsetof(DecoderStats, too_short) == counter_offset(FrameError::TooShort) &&
+                  offsetof(DecoderStats, version_errors) == counter_offset(FrameError::Version) &&
+                  offsetof(DecoderStats, reserved_type) == counter_offset(FrameError::ReservedType) &&
+                  offsetof(DecoderStats, oversize) == counter_offset(FrameError::Oversize),
+              "DecoderStats: one counter per FrameError, in its order");
+
 /** What one byte completed. */
 enum class Decoded : uint8_t {
   Nothing,  ///< no run ended, or an empty run (a leading delimiter)
@@ -30,13 +44,51 @@ enum class Decoded : uint8_t {
   Bad,      ///< a rejected run: FrameDecoder::error() says why (counted)
 };
 
+namespace detail {
+
+/** Text detection (DetectText): how many bytes of a run were printable ASCII (TAB, LF, CR
+ * included), over the first 65535 bytes of the run. */
+template <bool DetectText>
+struct TextCount {
+  uint16_t total;      // bytes of the run, also past the buffer
+  uint16_t printable;  // printable bytes among them
+  constexpr TextCount() : total(0), printable(0) {}
+  void add(uint8_t b) {
+    if (total == 0xFFFFu) return;  // the ratio of the first 65535 bytes
+    ++total;
+    if ((b >= 0x20 && b <= 0x7E) || b == 9 || b == 10 || b == 13) ++printable;
+  }
+  /** At least 90 % printable. */
+  bool text() const {
+    return total > 0 && static_cast<uint32_t>(printable) * 10u >= static_cast<uint32_t>(total) * 9u;
+  }
+  size_t bytes() const { return total; }
+  void clear() { total = printable = 0; }
+};
+
+/** Without text detection: nothing counted, nothing is text. */
+template <>
+struct TextCount<false> {
+  constexpr TextCount() {}
+  void add(uint8_t) {}
+  bool text() const { return false; }
+  size_t bytes() const { return 0; }
+  void clear() {}
+};
+
+}  // namespace detail
+
 /**
  * Cuts the byte stream at every 0x00 and checks each run between delimiters.
  *
- * The one buffer holds max_frame(MaxPayload) bytes (1.6): a run is COBS-decoded in place, and a
- * run that outgrows the buffer is dropped as oversize at its delimiter; nothing is ever written
- * past the buffer, whatever arrives. The payload MTU can be lowered at run time
- * (set_max_payload) but never raised above MaxPayload.
+ * The one buffer holds max_frame(MaxPayload) bytes (1.6). A run is COBS-decoded as its bytes
+ * arrive: a countdown of the current group's bytes, and the zero a group's code stands for
+ * written when the next group's code byte arrives (so the last group's is never written), which
+ * leaves the delimiter only the CRC and the header to check. A run whose encoded bytes outgrow
+ * the buffer (or the lowered limit) is dropped as oversize at its delimiter; the decoded bytes
+ * are always fewer than the encoded ones, so nothing is ever written past the buffer, whatever
+ * arrives. The payload MTU can be lowered at run time (set_max_payload) but never raised above
+ * MaxPayload.
  *
  * DetectText: a run that fails steps 2-5 and is at least 90 % printable ASCII (TAB, LF, CR
  * included) is reported as FrameError::Text and counted in non_frame_bytes, as a host does;
@@ -48,20 +100,18 @@ class FrameDecoder {
  public:
   static const size_t kCapacity = max_frame(MaxPayload);
 
-  /** Every member zero (limits 0 mean the full capacity): a global decoder is in .bss, with
+  /** Every member zero (no slack: the full MTU): a global decoder is in .bss, with
    * no constructor code. */
   constexpr FrameDecoder()
-      : frame_{FrameType::BestEffort, Frag::Whole, 0, 0, nullptr, 0}, stats_(), len_(0),
-        limit_(0), max_payload_(0), total_(0), printable_(0), overflow_(false),
-        error_(FrameError::Ok), peer_version_(0), buf_() {}
+      : frame_{FrameType::BestEffort, Frag::Whole, 0, 0, nullptr, 0}, stats_(), run_(0), len_(0),
+        slack_(0), text_(), group_(0), zero_(false),
+        error_(FrameError::Ok), peer_byte0_(0), buf_() {}
 
   /** Lowers (or restores) the payload MTU; values above MaxPayload mean MaxPayload. */
   void set_max_payload(size_t max_payload) {
-    if (max_payload > MaxPayload) max_payload = MaxPayload;
-    max_payload_ = max_payload;
-    limit_ = max_frame(max_payload);
+    slack_ = max_payload < MaxPayload ? MaxPayload - max_payload : 0;
   }
-  size_t max_payload() const { return max_payload_ ? max_payload_ : MaxPayload; }
+  size_t max_payload() const { return MaxPayload - slack_; }
 
   /** Forgets a partial run (after the link reopened). */
   void reset() { clear_run(); }
@@ -69,28 +119,26 @@ class FrameDecoder {
   /** Consumes one byte. A Frame stays valid (its payload in this buffer) until the next push. */
   __attribute__((noinline)) Decoded push(uint8_t byte) {
     if (byte != 0) {
-      if (len_ < (limit_ ? limit_ : kCapacity)) {
-        buf_[len_++] = byte;
+      text_.add(byte);
+      if (run_ + run_slack() >= kCapacity) {  // the run outgrew max_frame
+        run_ = kOverflow;  // above any limit: stays so until the delimiter
       } else {
-        overflow_ = true;
-      }
-      if (DetectText && total_ != 0xFFFFu) {  // the ratio of the first 65535 bytes
-        ++total_;
-        if (printable(byte)) ++printable_;
+        ++run_;
+        bool keep = true;
+        if (group_ == 0) {  // a code byte: the previous group's zero, and the next group's length
+          keep = zero_;
+          group_ = byte;
+          zero_ = byte != 0xFF;  // a full group stands for no zero
+          byte = 0;
+        }
+        --group_;
+        buf_[len_] = byte;  // within the buffer: fewer decoded bytes than run_ <= the limit
+        if (keep) ++len_;
       }
       return Decoded::Nothing;
     }
-    if (len_ == 0 && !overflow_) return Decoded::Nothing;  // empty run: nothing, no event
-    FrameError e = check_run();
-    const size_t run_bytes = DetectText ? total_ : len_;
-    clear_run();
-    error_ = e;
-    if (e == FrameError::Ok) {
-      ++stats_.frames;
-      return Decoded::Frame;
-    }
-    count(e, run_bytes);
-    return Decoded::Bad;
+    if (run_ == 0) return Decoded::Nothing;  // empty run: nothing, no event
+    return end_run();
   }
 
   /** The frame the last push returned Decoded::Frame for. */
@@ -98,68 +146,90 @@ class FrameDecoder {
   /** Why the last run was rejected (Ok after a frame). */
   FrameError error() const { return error_; }
   /** The protocol version of the last run rejected as FrameError::Version. */
-  uint8_t peer_version() const { return peer_version_; }
+  uint8_t peer_version() const { return peer_byte0_ >> 6; }
   const DecoderStats& stats() const { return stats_; }
-  /** Bytes of the current run held (at most kCapacity). */
+  /** Bytes of the current run held (decoded so far; at most kCapacity). */
   size_t buffered() const { return len_; }
 
  private:
-  static bool printable(uint8_t b) { return (b >= 0x20 && b <= 0x7E) || b == 9 || b == 10 || b == 13; }
+  /** Below one full COBS group a body decodes from at least one byte more than it has, so a
+   * run within max_frame(m) holds at most m payload bytes: step 8 is step 2's (and skipped). */
+  static const bool kRunBoundsPayload = max_body(MaxPayload) < kCobsMaxGroup;
+  static const size_t kNoLimit = static_cast<size_t>(-1);
+  /** run_ of a run that outgrew the limit. */
+  static const size_t kOverflow = kCapacity + 1;
 
-  bool looks_like_text() const {
-    return DetectText && total_ > 0 &&
-           static_cast<uint32_t>(printable_) * 10u >= static_cast<uint32_t>(total_) * 9u;
+  /** kCapacity - the longest run taken, max_frame(max_payload()): the payload's slack when
+   * max_frame is payload + 6 (kRunBoundsPayload). */
+  size_t run_slack() const {
+    return kRunBoundsPayload ? slack_ : kCapacity - max_frame(max_payload());
   }
 
+  /** The delimiter after a run: checks it, counts it, forgets it. */
+  Decoded end_run() {
+    FrameError e = check_run();
+    const size_t run_bytes = text_.bytes();
+    clear_run();
+    error_ = e;
+    count(e, run_bytes);
+    return e == FrameError::Ok ? Decoded::Frame : Decoded::Bad;
+  }
+
+  /** Steps 2-9 of 1.6 at the delimiter, in that order. */
   __attribute__((noinline)) FrameError check_run() {
-    if (overflow_) return looks_like_text() ? FrameError::Text : FrameError::Oversize;
-    size_t body_len = 0;
-    if (!cobs_decode(buf_, len_, buf_, &body_len)) {
-      return looks_like_text() ? FrameError::Text : FrameError::Cobs;
-    }
-    FrameError e = parse_body(buf_, body_len, max_payload(), &frame_);
-    if ((e == FrameError::TooShort || e == FrameError::Crc) && looks_like_text()) {
+    if (run_ == kOverflow) return text_.text() ? FrameError::Text : FrameError::Oversize;
+    // A code that pointed past the end of the run: its group is still waiting for bytes.
+    if (group_ != 0) return text_.text() ? FrameError::Text : FrameError::Cobs;
+    FrameError e = parse_body(buf_, len_, kRunBoundsPayload ? kNoLimit : max_payload(), &frame_);
+    if ((e == FrameError::TooShort || e == FrameError::Crc) && text_.text()) {
       return FrameError::Text;
     }
-    if (e == FrameError::Version) peer_version_ = buf_[0] >> 6;
+    if (e == FrameError::Version) peer_byte0_ = buf_[0];
     return e;
   }
 
   void count(FrameError e, size_t run_bytes) {
-    switch (e) {
-      case FrameError::Crc: ++stats_.crc_errors; break;
-      case FrameError::Cobs: ++stats_.cobs_errors; break;
-      case FrameError::TooShort: ++stats_.too_short; break;
-      case FrameError::Version: ++stats_.version_errors; break;
-      case FrameError::ReservedType: ++stats_.reserved_type; break;
-      case FrameError::Oversize: ++stats_.oversize; break;
-      case FrameError::Text: stats_.non_frame_bytes = static_cast<Counter>(stats_.non_frame_bytes + run_bytes); break;
-      case FrameError::Ok: break;
+    if (DetectText && e == FrameError::Text) {
+      stats_.non_frame_bytes = static_cast<Counter>(stats_.non_frame_bytes + run_bytes);
+    } else {
+      ++counter(e);
     }
   }
 
+  /** The counter of a result other than Text (frames for Ok). */
+  Counter& counter(FrameError e) {
+    return *reinterpret_cast<Counter*>(reinterpret_cast<char*>(&stats_) + counter_offset(e));
+  }
+
   void clear_run() {
+    run_ = 0;
     len_ = 0;
-    total_ = 0;
-    printable_ = 0;
-    overflow_ = false;
+    text_.clear();
+    group_ = 0;
+    zero_ = false;
   }
 
   Frame frame_;
   DecoderStats stats_;
-  size_t len_;
-  size_t limit_;
-  size_t max_payload_;
-  uint16_t total_;      // bytes of the run, also past the buffer (for text detection)
-  uint16_t printable_;  // printable bytes among them
-  bool overflow_;
+  size_t run_;    // encoded bytes of the run taken (at most the limit), or kOverflow
+  size_t len_;    // decoded bytes in buf_
+  size_t slack_;  // MaxPayload - the payload MTU
+  detail::TextCount<DetectText> text_;
+  uint8_t group_;  // data bytes the current COBS group still expects
+  bool zero_;      // the current group stands for a zero (written if another group follows)
   FrameError error_;
-  uint8_t peer_version_;
+  uint8_t peer_byte0_;  // header byte 0 of the last run rejected as Version
   uint8_t buf_[kCapacity];  // last: the fuzz tests' guards sit right after it
 };
 
 template <size_t MaxPayload, bool DetectText>
 const size_t FrameDecoder<MaxPayload, DetectText>::kCapacity;
+template <size_t MaxPayload, bool DetectText>
+const bool FrameDecoder<MaxPayload, DetectText>::kRunBoundsPayload;
+template <size_t MaxPayload, bool DetectText>
+const size_t FrameDecoder<MaxPayload, DetectText>::kNoLimit;
+template <size_t MaxPayload, bool DetectText>
+const size_t FrameDecoder<MaxPayload, DetectText>::kOverflow;
 
 }  // namespace hwbridge
 

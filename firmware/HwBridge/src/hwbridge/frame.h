@@ -79,13 +79,13 @@ inline FrameError parse_body(const uint8_t* body, size_t n, size_t max_payload, 
   const uint16_t sent = static_cast<uint16_t>(body[n - 2] | body[n - 1] << 8);
   if (crc16(body, n - kCrcSize) != sent) return FrameError::Crc;
   const uint8_t byte0 = body[0];
-  if (byte0 >> 6 != kVersion) return FrameError::Version;
-  const uint8_t type = (byte0 >> 4) & 3;
-  if (type == 3) return FrameError::ReservedType;
+  if ((byte0 & 0xC0) != kVersion << 6) return FrameError::Version;  // bits, not shifts: AVR
+  if ((byte0 & 0x30) == 0x30) return FrameError::ReservedType;      // type 3
   const size_t size = n - kEnvelope;
   if (size > max_payload) return FrameError::Oversize;
-  out->type = static_cast<FrameType>(type);
-  out->frag = static_cast<Frag>((byte0 >> 2) & 3);
+  // Bits 5-4 by a nibble swap (one instruction on AVR, where a shift by 4 is a loop).
+  out->type = static_cast<FrameType>(static_cast<uint8_t>(byte0 << 4 | byte0 >> 4) & 3);
+  out->frag = static_cast<Frag>((byte0 & 0x0C) >> 2);
   out->channel = body[1];
   out->seq = body[2];
   out->payload = body + kHeaderSize;

@@ -385,7 +385,12 @@ def firmware_size(elf: Path) -> FirmwareSize:
             name, size_of = parts[3], int(parts[1], 16)
             if "hwbridge::" in name:
                 owner = "hwbridge"
-            elif name in core_names or name.startswith("__") or "HardwareSerial" in name:
+            elif (
+                name in core_names
+                or name.startswith("__")
+                or "HardwareSerial" in name
+                or (parts[2] in "bd" and name in _core_statics())
+            ):
                 owner = "core"
             else:
                 owner = "sketch"
@@ -398,6 +403,18 @@ def firmware_size(elf: Path) -> FirmwareSize:
         core_sram=sum(n for _, n, owner in objects if owner == "core"),
         objects=tuple(objects),
     )
+
+
+def _core_statics() -> frozenset[str]:
+    """Names the Arduino core declares ``static`` at file scope (``timer0_fract``): an LTO
+    archive does not list them, so they are read from the core's sources."""
+    names: set[str] = set()
+    declared = re.compile(
+        r"^static\s+(?:volatile\s+)?[\w\s\*]*?\b(\w+)\s*(?:\[[^\]]*\])?\s*(?:=|;)", re.M
+    )
+    for source in sorted((CORE_DIR / "cores" / "arduino").glob("*.c*")):
+        names.update(declared.findall(source.read_text(errors="replace")))
+    return frozenset(names)
 
 
 def _core_symbols(nm: str) -> frozenset[str]:

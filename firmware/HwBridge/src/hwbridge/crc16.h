@@ -21,7 +21,7 @@ inline uint16_t crc16_update(uint16_t crc, uint8_t byte) {
   return _crc_xmodem_update(crc, byte);  // the same CRC, unrolled: ~25 cycles a byte
 #elif defined(__AVR__)
   // -DHWBRIDGE_SMALL_CRC: the bit loop below in 9 instructions (the compiler makes 17 of it):
-  // shift the top bit out, fold the polynomial back in when it was set. 26 B less flash than
+  // shift the top bit out, fold the polynomial back in when it was set. 12 B less flash than
   // avr-libc's, but about 80 cycles a byte (at 1 Mbaud, a third of a 16 MHz AVR's time).
   uint8_t bits;
   const uint8_t lo = 0x21, hi = 0x10;

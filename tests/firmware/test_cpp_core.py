@@ -32,6 +32,8 @@ HOST_SHIM = {h for h in HEADERS if h.startswith("hwbridge/host/")}
 HOST_ONLY = {"hwbridge/hardware_posix.h"} | HOST_SHIM
 ARDUINO_ONLY = {"hwbridge/hardware_arduino.h"}
 """Needs the Arduino core: built by the sketch builds (tests/firmware/test_session_build.py)."""
+NODE_PARTS = {h for h in HEADERS if h.startswith("hwbridge/node/")}
+"""Parts of node_impl.h, included by it only (each says so when included alone)."""
 
 CXXFLAGS = ["-std=c++11", "-Wall", "-Wextra", "-Werror", "-O1"]
 SANITIZE = ["-fsanitize=address,undefined", "-fno-sanitize-recover=all"]
@@ -182,7 +184,9 @@ def test_libfuzzer_bounded(tmp_path: Path) -> None:
 
 
 @needs_gxx
-@pytest.mark.parametrize("header", [h for h in HEADERS if h not in ARDUINO_ONLY | HOST_SHIM])
+@pytest.mark.parametrize(
+    "header", [h for h in HEADERS if h not in ARDUINO_ONLY | HOST_SHIM | NODE_PARTS]
+)
 def test_each_header_compiles_alone(header: str, tmp_path: Path) -> None:
     source = tmp_path / "one.cpp"
     source.write_text(f'#include "{header}"\n#include "{header}"\nint main() {{ return 0; }}\n')
@@ -193,11 +197,27 @@ def test_each_header_compiles_alone(header: str, tmp_path: Path) -> None:
 
 
 @needs_avr
-@pytest.mark.parametrize("header", [h for h in HEADERS if h not in HOST_ONLY | ARDUINO_ONLY])
+@pytest.mark.parametrize(
+    "header", [h for h in HEADERS if h not in HOST_ONLY | ARDUINO_ONLY | NODE_PARTS]
+)
 def test_each_header_compiles_for_avr(header: str, tmp_path: Path) -> None:
     source = tmp_path / "one.cpp"
     source.write_text(f'#include "{header}"\nint main() {{ return 0; }}\n')
     _compile(["avr-g++", *AVRFLAGS, "-fsyntax-only", f"-I{INCLUDE}", str(source)])
+
+
+@needs_gxx
+@pytest.mark.parametrize("header", sorted(NODE_PARTS))
+def test_node_parts_refuse_to_be_included_alone(header: str, tmp_path: Path) -> None:
+    source = tmp_path / "one.cpp"
+    source.write_text(f'#include "{header}"\nint main() {{ return 0; }}\n')
+    result = subprocess.run(
+        ["g++", *CXXFLAGS, "-fsyntax-only", f"-I{INCLUDE}", str(source)],
+        check=False,
+        capture_output=True,
+        text=True,
+    )
+    assert result.returncode != 0 and "include HwBridge.h" in result.stderr, result.stderr
 
 
 @needs_avr

@@ -1,0 +1,279 @@
+// The bodies of NodeHandle_, part of node_impl.h: input: frames, the control messages, the
+// handshake (2.5), the table's answers.
+// Included inside namespace hwbridge by node_impl.h only, which defines HWB_NODE and HWB_SELF.
+#ifndef HWBRIDGE_NODE_INPUT_H
+#define HWBRIDGE_NODE_INPUT_H
+#ifndef HWB_NODE
+#error "hwbridge/node/*.h are parts of node_impl.h: include HwBridge.h"
+#endif
+
+// ---------------------------------------------------------------------------------------------
+// Input
+
+HWB_NODE void HWB_SELF::onFrame(const Frame& f) {
+  if (f.type == FrameType::BestEffort) {
+    onBestEffort(f);
+    return;
+  }
+  if (!established()) {
+    ++stats_.ignored_frames;
+    return;
+  }
+  last_rx_ = tick_;
+  if (f.type == FrameType::Ack) {
+    rel_tx_.on_ack(f, now_);
+    return;
+  }
+  if (rel_rx_.receive(f) != Received::Deliver) return;
+  deliver(f);
+  // frames held early (a window above 1) that are now in order; a teardown in onMessage
+  // empties the receiver, which ends this
+  Frame h;
+  while (rel_rx_.pop(&h)) deliver(h);
+}
+
+/** A frame its stream accepted: through reassembly to onMessage. */
+HWB_NODE void HWB_SELF::deliver(const Frame& f) {
+  Message m;
+  if (reasm_.feed(f, &m)) onMessage(m, f.type == FrameType::Reliable);
+}
+
+HWB_NODE void HWB_SELF::onBestEffort(const Frame& f) {
+  const uint8_t* p = f.payload;
+  if (f.channel == kControlChannel && f.size >= 8 && p[0] == 0x01 && p[1] == 1) {
+    const uint32_t peer = detail::get32(p + 4);  // a HELLO: a new session has its own seq space
+    if (peer != be_peer_ && peer != id_) {
+      be_peer_ = peer;
+      be_rx_.resync();
+      reasm_.reset(FrameType::BestEffort);
+    }
+  }
+  if (be_rx_.accept(f.seq)) deliver(f);
+}
+
+HWB_NODE void HWB_SELF::onMessage(const Message& m, bool reliable) {
+  if (m.channel == kControlChannel) {
+    onControl(m.data, m.size, reliable);
+  } else if (established()) {
+    last_rx_ = tick_;
+    if (on_data_) {
+      on_data_(this, m);
+    } else {  // this board subscribes to nothing
+      ++stats_.dropped_messages;
+    }
+  } else {
+    ++stats_.ignored_frames;
+  }
+}
+
+HWB_NODE void HWB_SELF::onData(const Message& m) {
+  Entry* e = state_ == kConnected ? entryOn(m.channel, kSubscriber) : nullptr;
+  size_t len = m.size;
+  if (e == nullptr || e->hook_(e, Entry::kOpDeliver, m.data, &len, nullptr) != nullptr) {
+    ++stats_.dropped_messages;
+  }
+}
+
+HWB_NODE void HWB_SELF::onControl(const uint8_t* p, size_t n, bool reliable) {
+  // the fixed size of each opcode's fields (0: unknown); variable ones give their minimum
+  static const uint8_t kBe[8] HWBRIDGE_PROGMEM = {0, 21, 1, 0, 21, 1, 9, 0};  // opcodes 0x00..0x07 (board's view)
+  if (n == 0) {
+    protocolError();
+    return;
+  }
+  const uint8_t op = p[0];
+  uint8_t need = 0;
+  if (op < 8) {
+    need = flash_byte(reinterpret_cast<const char*>(kBe) + op);
+  } else if (op == 0x13) {
+    need = 3;
+  } else if (op == 0x14) {
+    need = 2;
+  } else if (op == 0x20) {
+    need = 4;
+  } else if (op == 0x21) {
+    need = 5;
+  } else if (op == 0x31) {
+    need = 5;
+  } else if (op == 0x40) {
+    need = 2;
+  }
+  if (need == 0 || n < need || (op < 0x10) == reliable) {  // unknown, short, or wrong stream
+    protocolError();
+    return;
+  }
+  if (op == 0x01) {
+    onHello(p);
+    return;
+  }
+  if (!established()) {
+    ++stats_.ignored_frames;
+    return;
+  }
+  last_rx_ = tick_;
+  switch (op) {
+    case 0x02:  // HEARTBEAT
+      break;
+    case 0x04:  // TIME_RESPONSE: only a board that asks (kTimeSyncMs) reads the answers
+      if (Profile::kTimeSyncMs) onTimeResponse(p);
+      break;
+    case 0x05:  // GOODBYE
+      ++stats_.peer_resets;
+      teardown();
+      break;
+    case 0x06: {  // HOST_TIME_REQUEST: t1 echoed, t2 = t3 = now
+      if (!(Profile::kFeatures & 1)) break;
+      if (!flag(kTimeSynced)) {  // a first estimate of host time: t1 plus the one-way delay
+        host_sec_ = detail::get32(p + 1);
+        host_nsec_ = detail::get32(p + 5);
+        board_ref_ = now_;
+      }
+      uint8_t r[17];
+      r[0] = 0x07;
+      memcpy(r + 1, p + 1, 8);
+      detail::put32(r + 9, now_);
+      detail::put32(r + 13, now_);
+      sendControlBe(r, 17);
+      break;
+    }
+    case 0x13:
+      onTopicAck(p, n);
+      break;
+    case 0x14:  // READY
+      if (state_ != kConfiguring) break;
+      {
+        uint8_t accepted = 0;
+        for (Entry* e = entries_; e; e = e->next_) accepted = static_cast<uint8_t>(accepted + e->accepted_);
+        if (accepted != p[1]) protocolError();
+      }
+      state_ = kConnected;
+      time_next_ = static_cast<decltype(time_next_)>(tick_);
+      break;
+    case 0x20:
+      if (on_request_) {
+        on_request_(this, p, n);
+      } else if (txFree()) {  // this board serves nothing: NO_SERVICE
+        memcpy(tx_, p, 4);
+        tx_[0] = 0x21;
+        tx_[4] = 2;
+        pending_ch_ = kControlChannel;
+        pending_len_ = 5;
+      }
+      break;
+    case 0x21:  // SERVICE_RESPONSE: only to a board with a service client
+      if (on_response_ && p[4] <= 2) {
+        on_response_(this, p, n);
+      } else {
+        protocolError();
+      }
+      break;
+    case 0x31:
+      if (on_param_) {
+        on_param_(this, p, n);
+      } else {  // this board asked for no parameter
+        protocolError();
+      }
+      break;
+    case 0x40:  // LOG from the host: never sent to a board without HOST_LOG (4) in its features
+      if (!(Profile::kFeatures & 4) || p[1] > 4) {
+        protocolError();
+      } else if (log_cb_ != nullptr) {
+        log_cb_(p[1], reinterpret_cast<const char*>(p + 2), n - 2);
+      }
+      break;
+    default:  // an opcode only a board sends
+      protocolError();
+  }
+}
+
+HWB_NODE void HWB_SELF::onHello(const uint8_t* p) {
+  const uint32_t session = detail::get32(p + 4);
+  const uint32_t peer_session = detail::get32(p + 8);
+  if (p[1] != 1 || p[2] != 0) {  // another version, or the peer is a board (or an echo)
+    protocolError();
+    return;
+  }
+  if (established() && (session != peer_ || peer_session != id_)) {
+    ++stats_.peer_resets;  // the host restarted, or dropped the session
+    teardown();
+  }
+  if (!established()) {
+    if (detail::get16(p + 12) < (kFragments ? kMinMtu : Profile::kTxBuffer) || p[18] == 0 || detail::get32(p + 14) == 0 || session == 0) {
+      protocolError();
+      return;
+    }
+    peer_ = session;
+    if (peer_session == id_) establish(p);
+  }
+  if (!(p[3] & 1)) sendHello();
+}
+
+HWB_NODE void HWB_SELF::establish(const uint8_t* h) {
+  const uint16_t host_mtu = detail::get16(h + 12);
+  mtu_ = kFixedMtu || host_mtu > Profile::kMtu ? Profile::kMtu : host_mtu;
+  // the host's window is at least 1 (onHello refused 0)
+  uint8_t window = Profile::kWindow == 1 || h[18] > Profile::kWindow ? Profile::kWindow : h[18];
+  if (window > kMaxWindow) window = kMaxWindow;
+  const uint32_t peer_max = detail::get32(h + 14);
+  peer_max_ = peer_max > 0xFFFFUL ? 0xFFFFu : static_cast<uint16_t>(peer_max);
+  features_ = static_cast<uint8_t>(h[20] & Profile::kFeatures);
+  rel_tx_.reset(isn_, window, kFixedMtu ? Profile::kMtu : mtu_);
+  rel_rx_.reset(h[19], window);
+  reasm_.reset(FrameType::Reliable);
+  // the receiver's limit becomes the negotiated MTU (2.5); for a board that does not fragment
+  // and whose largest message fills its MTU, that is always its own (smaller host MTUs refused)
+  if (!kFixedMtu) dec_.set_max_payload(mtu_);
+  // every entry is unaccepted: teardown cleared them, and only a session accepts one
+  table_pos_ = 0;
+  pending_len_ = 0;
+  state_ = kConfiguring;
+  timer_ = last_rx_ = tick_;
+  ++stats_.sessions;
+}
+
+/** Ends the session (2.10), or starts the first handshake: pending requests fail, the reliable
+ * stream is dropped, a new ISN is drawn, and a HELLO goes out at the next timer run. */
+HWB_NODE void HWB_SELF::teardown() {
+  const bool was = established();
+  state_ = kHandshake;
+  peer_ = 0;
+  peer_max_ = kMinMtu;
+  mtu_ = Profile::kMtu;
+  if (!kFixedMtu) dec_.set_max_payload(Profile::kMtu);
+  if (was) reasm_.reset(FrameType::Reliable);
+  pending_len_ = 0;
+  setFlag(kTimeSynced, false);
+  features_ = 0;
+  // a new ISN per session: the random session id mixed with the time (no generator state kept)
+  isn_ = flag(kFixed) ? fixed_isn_ : static_cast<uint8_t>(id_ ^ now_ ^ now_ >> 8);
+  rel_tx_.reset(isn_, Profile::kWindow, Profile::kMtu);
+  timer_ = tick_;
+  hello_wait_ = kHelloFirst;
+  for (Entry* e = entries_; e; e = e->next_) e->accepted_ = false;
+  // through the pointers serviceClient and requestParam set: a sketch without service clients
+  // or parameters links none of it
+  if (on_response_) on_response_(this, nullptr, kCallSessionReset);
+  if (on_param_) on_param_(this, nullptr, kParamSessionReset);
+}
+
+HWB_NODE void HWB_SELF::onTopicAck(const uint8_t* p, size_t n) {
+  const uint8_t status = p[2];
+  Entry* e = entries_;
+  while (e && e->channel_ != p[1]) e = e->next_;
+  if (e == nullptr || status > 2 || (status != 0 && n < 19)) {
+    protocolError();
+    return;
+  }
+  if (status == 0) {
+    e->accepted_ = true;
+    return;
+  }
+  protocolError();
+  if (status == 1) {
+    ++stats_.mismatches;
+  } else {
+    ++stats_.refused_entries;
+  }
+}
+
+#endif  // HWBRIDGE_NODE_INPUT_H

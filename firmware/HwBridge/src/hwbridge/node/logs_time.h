@@ -1,0 +1,105 @@
+// The bodies of NodeHandle_, part of node_impl.h: logs, time sync (2.8) and publishing.
+// Included inside namespace hwbridge by node_impl.h only, which defines HWB_NODE and HWB_SELF.
+#ifndef HWBRIDGE_NODE_LOGS_TIME_H
+#define HWBRIDGE_NODE_LOGS_TIME_H
+#ifndef HWB_NODE
+#error "hwbridge/node/*.h are parts of node_impl.h: include HwBridge.h"
+#endif
+
+// ---------------------------------------------------------------------------------------------
+// Logs, time, publishing
+
+HWB_NODE bool HWB_SELF::log(uint8_t level, const char* text) {
+  if (state_ != kConnected || !waitTx()) {
+    ++stats_.tx_refused;
+    return false;
+  }
+  const size_t cap = Profile::kTxBuffer < peer_max_ ? Profile::kTxBuffer : peer_max_;
+  tx_[0] = 0x40;
+  tx_[1] = level;
+  size_t n = static_cast<size_t>(detail::put_str(tx_ + 2, text, cap - 2) - tx_ - 2);
+  while (n && (static_cast<uint8_t>(text[n]) & 0xC0) == 0x80) --n;  // cut on a UTF-8 boundary
+  uint8_t* end = tx_ + 2 + n;
+  pending_ch_ = kControlChannel;
+  pending_len_ = static_cast<uint16_t>(end - tx_);
+  pump();
+  hw_.flush();
+  return true;
+}
+
+HWB_NODE void HWB_SELF::requestSyncTime() {
+  if (state_ != kConnected || !(features_ & 1)) return;
+  uint8_t r[5];
+  r[0] = 0x03;
+  detail::put32(r + 1, now_);
+  sendControlBe(r, 5);
+}
+
+HWB_NODE void HWB_SELF::onTimeResponse(const uint8_t* p) {
+  const uint32_t elapsed = now_ - detail::get32(p + 1);
+  if (elapsed > kMaxTimeAgeUs) return;
+  const uint32_t t2s = detail::get32(p + 5), t2n = detail::get32(p + 9);
+  const uint32_t t3s = detail::get32(p + 13), t3n = detail::get32(p + 17);
+  const uint32_t busy_s = t3s - t2s;
+  if (busy_s > 10 || t2n >= 1000000000UL || t3n >= 1000000000UL) return;  // nonsense: ignored
+  // host busy time t3 - t2 in us
+  const int32_t busy = static_cast<int32_t>(busy_s) * 1000000L +
+                       (static_cast<int32_t>(t3n) - static_cast<int32_t>(t2n)) / 1000;
+  int32_t rtt = static_cast<int32_t>(elapsed) - busy;
+  if (rtt < 0) rtt = 0;
+  // reference pair: board_ref = t4 (now), host_ref = t3 + rtt / 2
+  host_sec_ = t3s;
+  host_nsec_ = t3n + static_cast<uint32_t>(rtt / 2) * 1000u;
+  while (host_nsec_ >= 1000000000UL) {
+    host_nsec_ -= 1000000000UL;
+    ++host_sec_;
+  }
+  board_ref_ = now_;
+  setFlag(kTimeSynced, true);
+  time_next_ = static_cast<decltype(time_next_)>(tick_ + ticks(Profile::kTimeSyncMs));
+}
+
+HWB_NODE void HWB_SELF::now(uint32_t* sec, uint32_t* nsec) {
+  if (host_sec_ == 0 && host_nsec_ == 0) {
+    *sec = *nsec = 0;
+    return;
+  }
+  const uint32_t us = hw_.micros() - board_ref_;
+  const uint32_t whole = us / 1000000UL;
+  uint32_t ns = host_nsec_ + (us - whole * 1000000UL) * 1000UL;
+  uint32_t s = host_sec_ + whole;
+  if (ns >= 1000000000UL) {
+    ns -= 1000000000UL;
+    ++s;
+  }
+  *sec = s;
+  *nsec = ns;
+}
+
+HWB_NODE uint8_t* HWB_SELF::takeTxBuffer(size_t* cap) {
+  *cap = Profile::kTxBuffer;
+  if (state_ != kConnected || !waitTx()) {
+    ++stats_.tx_refused;
+    return nullptr;
+  }
+  return tx_;
+}
+
+HWB_NODE bool HWB_SELF::sendOn(Entry& e, size_t len) {
+  if (state_ != kConnected || !e.accepted_ || len > peer_max_ || !txFree() || (!kFragments && !kFixedMtu && len > mtu_)) {
+    ++stats_.tx_refused;
+    return false;
+  }
+  if (e.reliable_) {
+    pending_ch_ = e.channel_;
+    pending_len_ = static_cast<uint16_t>(len);
+    pump();
+  } else {
+    clock();
+    sendBe(e.channel_, tx_, len);
+  }
+  hw_.flush();
+  return true;
+}
+
+#endif  // HWBRIDGE_NODE_LOGS_TIME_H

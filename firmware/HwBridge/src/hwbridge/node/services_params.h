@@ -1,0 +1,256 @@
+// The bodies of NodeHandle_, part of node_impl.h: services (server and client) and parameters.
+// Included inside namespace hwbridge by node_impl.h only, which defines HWB_NODE and HWB_SELF.
+#ifndef HWBRIDGE_NODE_SERVICES_PARAMS_H
+#define HWBRIDGE_NODE_SERVICES_PARAMS_H
+#ifndef HWB_NODE
+#error "hwbridge/node/*.h are parts of node_impl.h: include HwBridge.h"
+#endif
+
+// ---------------------------------------------------------------------------------------------
+// Services
+
+HWB_NODE void HWB_SELF::onServiceRequest(const uint8_t* p, size_t n) {
+  const uint8_t channel = p[1];
+  const uint16_t id = detail::get16(p + 2);
+  if (!txFree()) {  // no room to answer now: the host's call times out
+    ++stats_.tx_refused;
+    return;
+  }
+  Entry* e = state_ == kConnected ? entryOn(channel, kServiceServer) : nullptr;
+  uint8_t status = 2;  // NO_SERVICE
+  size_t len = 0;
+  if (e != nullptr) {
+    const size_t cap = Profile::kTxBuffer - 5;
+    const size_t limit = static_cast<size_t>(peer_max_) - 5 < cap ? static_cast<size_t>(peer_max_) - 5 : cap;
+    ServiceOut out = {tx_ + 5, limit};
+    len = n - 4;
+    const char* err = e->hook_(e, Entry::kOpDeliver, p + 4, &len, &out);
+    status = 0;
+    if (err != nullptr) {
+      status = 1;  // ERROR, with the reason as the body
+      uint8_t* end = detail::put_str(tx_ + 5, err, limit);
+      len = static_cast<size_t>(end - tx_ - 5);
+    }
+  }
+  tx_[0] = 0x21;
+  tx_[1] = channel;
+  detail::put16(tx_ + 2, id);
+  tx_[4] = status;
+  pending_ch_ = kControlChannel;
+  pending_len_ = static_cast<uint16_t>(5 + len);
+}
+
+HWB_NODE void HWB_SELF::onServiceResponse(const uint8_t* p, size_t n) {
+  if (call_state_ != 1 || detail::get16(p + 2) != call_id_ || call_entry_ == nullptr ||
+      p[1] != call_entry_->channel_) {
+    return;  // late, or not ours
+  }
+  call_status_ = p[4];
+  if (call_status_ == kCallOk) {
+    size_t len = n - 5;
+    if (call_entry_->hook_(call_entry_, Entry::kOpDeliver, p + 5, &len, call_res_) != nullptr) {
+      call_status_ = kCallBadResponse;
+    }
+  }
+  call_state_ = 2;
+}
+
+HWB_NODE uint8_t HWB_SELF::call(Entry& e, size_t len, uint16_t timeout_ms, void* res) {
+  if (state_ != kConnected || !e.accepted_ || call_state_ == 1 || flag(kInInput) ||
+      len + 4 > peer_max_) {
+    ++stats_.tx_refused;
+    return kCallNotConnected;
+  }
+  call_id_ = newRequestId();
+  tx_[0] = 0x20;
+  tx_[1] = e.channel_;
+  detail::put16(tx_ + 2, call_id_);
+  pending_ch_ = kControlChannel;
+  pending_len_ = static_cast<uint16_t>(len + 4);
+  call_entry_ = &e;
+  call_res_ = res;
+  call_state_ = 1;
+  clock();
+  timer_ = static_cast<Tick>(tick_ + msTicks(timeout_ms ? timeout_ms : Profile::kServiceTimeoutMs));
+  pump();
+  hw_.flush();
+  while (call_state_ == 1) spinFor();
+  call_state_ = 0;
+  call_entry_ = nullptr;
+  return call_status_;
+}
+
+HWB_NODE uint16_t HWB_SELF::newRequestId() {
+  uint16_t id;
+  do {
+    id = ++next_request_;
+  } while (id == 0 || id == param_id_ || (call_state_ == 1 && id == call_id_));
+  return id;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Parameters
+
+HWB_NODE uint16_t HWB_SELF::requestParam(const char* name, uint8_t type, ParamCallback cb,
+                                          bool subscribe, uint16_t max_count) {
+  const size_t len = strlen(name);
+  param_cb_ = cb;
+  if (param_id_ || state_ != kConnected || !waitTx() || len + 7 > Profile::kTxBuffer ||
+      len + 7 > peer_max_) {
+    ++stats_.tx_refused;
+    ParamValue v;
+    memset(&v, 0, sizeof(v));
+    v.status = kParamNotConnected;
+    if (cb) cb(v);
+    return 0;
+  }
+  on_param_ = &paramThunk;
+  param_id_ = newRequestId();
+  if (subscribe) push_cb_ = cb;
+  uint8_t* p = tx_;
+  *p++ = 0x30;
+  p = detail::put16(p, param_id_);
+  *p++ = type;
+  *p++ = subscribe ? 1 : 0;
+  p = detail::put16(p, max_count);
+  memcpy(p, name, len);
+  pending_ch_ = kControlChannel;
+  pending_len_ = static_cast<uint16_t>(7 + len);
+  param_deadline_ = static_cast<Tick>(tick_ + ticks(Profile::kParamTimeoutMs));
+  pump();
+  hw_.flush();
+  return param_id_;
+}
+
+HWB_NODE void HWB_SELF::finishParam(uint8_t status, const ParamValue* v) {
+  ParamValue none;
+  if (v == nullptr) {
+    memset(&none, 0, sizeof(none));
+    none.request_id = param_id_;
+    none.status = status;
+    v = &none;
+  }
+  param_id_ = 0;
+  if (sync_state_ == 1) {  // a blocking getParam: copy the values out
+    sync_state_ = v->status == kParamOk && sync_copy_(sync_out_, *v, sync_len_) ? 2 : 3;
+    return;
+  }
+  if (param_cb_) param_cb_(*v);
+}
+
+HWB_NODE void HWB_SELF::onParamValue(const uint8_t* p, size_t n) {
+  ParamValue v;
+  v.request_id = detail::get16(p + 1);
+  v.status = p[3];
+  v.name_len = p[4];
+  v.name = reinterpret_cast<const char*>(p + 5);
+  v.type = 0;
+  v.count_ = 0;
+  v.elems_ = nullptr;
+  v.size_ = 0;
+  size_t at = 5u + v.name_len;
+  bool good = v.status <= 3 && at <= n;
+  if (good && v.status == kParamOk) {
+    good = at < n;
+    if (good) {
+      v.type = p[at++];
+      const uint8_t scalar = static_cast<uint8_t>(v.type & 0x7F);
+      good = scalar >= 1 && scalar <= 4 && (v.type & 0x80 ? at + 2 <= n : true);
+      if (good) {
+        v.count_ = 1;
+        if (v.type & 0x80) {
+          v.count_ = detail::get16(p + at);
+          at += 2;
+        }
+        v.elems_ = p + at;
+        const uint8_t es = detail::param_elem_size(scalar);
+        for (uint16_t i = 0; good && i < v.count_; ++i) {  // every element within the payload
+          size_t step = es;
+          if (es == 0) step = at + 2 <= n ? 2u + detail::get16(p + at) : n + 1;
+          good = at + step <= n;
+          at += step;
+        }
+        v.size_ = at - static_cast<size_t>(v.elems_ - p);
+      }
+    }
+  }
+  if (!good) {
+    protocolError();
+    return;
+  }
+  if (v.request_id == 0) {  // pushed: a subscribed parameter changed
+    if (v.status == kParamOk && push_cb_) push_cb_(v);
+    return;
+  }
+  if (v.request_id != param_id_) return;  // answered after its timeout
+  finishParam(v.status, &v);
+}
+
+HWB_NODE bool HWB_SELF::blockingParam(const char* name, uint8_t type, void* out, uint16_t length,
+                                       uint16_t timeout_ms,
+                                       bool (*copy)(void*, const ParamValue&, uint16_t)) {
+  if (flag(kInInput) || param_id_ || length == 0) return false;
+  sync_out_ = out;
+  sync_copy_ = copy;
+  sync_len_ = length;
+  sync_state_ = 1;
+  const bool list = length > 1 && type != kParamString;
+  if (requestParam(name, static_cast<uint8_t>(list ? (type | kParamList) : type), nullptr, false,
+                   list ? length : 0) == 0) {
+    sync_state_ = 0;
+    return false;
+  }
+  if (timeout_ms) param_deadline_ = static_cast<Tick>(tick_ + msTicks(timeout_ms));
+  while (sync_state_ == 1) spinFor();
+  const bool ok = sync_state_ == 2;
+  sync_state_ = 0;
+  return ok;
+}
+
+namespace detail {
+template <class V>
+bool copy_values(void* out, const ParamValue& v, uint16_t n);
+template <>
+inline bool copy_values<int32_t>(void* out, const ParamValue& v, uint16_t n) {
+  if (v.count() != n || (v.type & 0x7F) == kParamString) return false;
+  for (uint16_t i = 0; i < n; ++i) static_cast<int32_t*>(out)[i] = v.asInt(i);
+  return true;
+}
+template <>
+inline bool copy_values<float>(void* out, const ParamValue& v, uint16_t n) {
+  if (v.count() != n || (v.type & 0x7F) == kParamString) return false;
+  for (uint16_t i = 0; i < n; ++i) static_cast<float*>(out)[i] = v.asFloat(i);
+  return true;
+}
+template <>
+inline bool copy_values<bool>(void* out, const ParamValue& v, uint16_t n) {
+  if (v.count() != n || (v.type & 0x7F) == kParamString) return false;
+  for (uint16_t i = 0; i < n; ++i) static_cast<bool*>(out)[i] = v.asBool(i);
+  return true;
+}
+template <>
+inline bool copy_values<char>(void* out, const ParamValue& v, uint16_t cap) {
+  if (v.count() != 1 || (v.type & 0x7F) != kParamString) return false;
+  v.asString(static_cast<char*>(out), cap);
+  return true;
+}
+}  // namespace detail
+
+HWB_NODE bool HWB_SELF::getParamString(const char* name, char* out, size_t cap, uint16_t timeout_ms) {
+  if (cap == 0) return false;
+  out[0] = 0;
+  return blockingParam(name, kParamString, out, static_cast<uint16_t>(cap > 0xFFFF ? 0xFFFF : cap),
+                       timeout_ms, &detail::copy_values<char>);
+}
+
+HWB_NODE bool HWB_SELF::getParam(const char* name, int32_t* value, uint16_t length, uint16_t timeout_ms) {
+  return blockingParam(name, kParamInt32, value, length, timeout_ms, &detail::copy_values<int32_t>);
+}
+HWB_NODE bool HWB_SELF::getParam(const char* name, float* value, uint16_t length, uint16_t timeout_ms) {
+  return blockingParam(name, kParamFloat32, value, length, timeout_ms, &detail::copy_values<float>);
+}
+HWB_NODE bool HWB_SELF::getParam(const char* name, bool* value, uint16_t length, uint16_t timeout_ms) {
+  return blockingParam(name, kParamBool, value, length, timeout_ms, &detail::copy_values<bool>);
+}
+
+#endif  // HWBRIDGE_NODE_SERVICES_PARAMS_H

@@ -354,6 +354,53 @@ void small_mtu_host() {
         "MTU 32: sessions %u, errors %u", node.stats().sessions, node.stats().protocol_errors);
   printf("small host MTU: %s\n", fragments ? "established (the board fragments)" : "refused (no fragmentation)");
 }
+
+/** Time sync (2.8): of its last 4 answers the board follows the newest whose round trip is
+ * within 25 % (or 0.1 ms) of the shortest kept; a new session forgets them. */
+void time_samples() {
+  harness::Node node;
+  harness::FakeHardware& hw = node.getHardware();
+  node.setIdentity(0xcafef00dUL, 0);
+  hw.clock = 1000000;
+  node.begin("clock", "");
+  Host host;
+  harness::connect_scripted(node, hw, host, 3);
+  CHECK(node.connected() && node.timeSamples() == 0, "time board not connected");
+  // (round trip in µs, the host's second in its answer, the sample expected in use after it)
+  const struct {
+    uint32_t rtt;
+    uint32_t sec;
+    int use;
+  } steps[] = {{10000, 1000, 0}, {2000, 2000, 1},  {2400, 3000, 2}, {8000, 4000, 2},
+               {9000, 5000, 2},  {9000, 6000, 2},  {9000, 7000, 6}, {50, 8000, 7},
+               {140, 9000, 8},   {200, 10000, 8}};
+  const uint32_t busy = 500;  // the host's time between t2 and t3
+  for (int k = 0; k < 10; ++k) {
+    const uint32_t t4 = 20000000UL + static_cast<uint32_t>(k) * 1000000UL;
+    hw.clock = t4;
+    Bytes r{0x04};
+    const uint32_t fields[] = {t4 - steps[k].rtt - busy, steps[k].sec, 0, steps[k].sec, busy * 1000};
+    for (size_t f = 0; f < 5; ++f) {
+      for (int i = 0; i < 4; ++i) r.push_back(static_cast<uint8_t>(fields[f] >> (8 * i)));
+    }
+    hw.feed(host.be(0, r));
+    node.processInput();
+    hw.take();
+    const int u = steps[k].use;
+    uint32_t sec = 0, nsec = 0;
+    node.now(&sec, &nsec);  // the sample in use, carried forward by the board's clock
+    const uint32_t want_sec = steps[u].sec + static_cast<uint32_t>(k - u);
+    const uint32_t want_nsec = busy * 1000 + steps[u].rtt / 2 * 1000;
+    CHECK(sec == want_sec && nsec == want_nsec, "answer %d: host time %u.%09u, expected %u.%09u (sample %d)", k,
+          sec, nsec, want_sec, want_nsec, u);
+    CHECK(node.timeSamples() == (k < 4 ? k + 1 : 4), "answer %d: %u samples kept", k, node.timeSamples());
+  }
+  hw.feed(host.be(0, Bytes{0x05}));  // GOODBYE: the session ends, its samples with it
+  node.processInput();
+  CHECK(!node.connected() && !node.timeSynced() && node.timeSamples() == 0, "samples after GOODBYE: %u",
+        node.timeSamples());
+  printf("time samples: the newest of the shortest round trips of the last 4, forgotten with the session\n");
+}
 }  // namespace
 
 int main() {
@@ -366,6 +413,7 @@ int main() {
   service_client();
   early_frames();
   small_mtu_host();
+  time_samples();
   printf("test_session: %lu checks passed\n", check::count());
   return 0;
 }

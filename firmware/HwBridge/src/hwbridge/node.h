@@ -27,6 +27,7 @@
 #include "fragment.h"
 #include "frame.h"
 #include "streams.h"
+#include "timesync.h"
 #include "progmem.h"
 #include "../hwbridge_msg.h"
 
@@ -351,6 +352,9 @@ class NodeHandle_ : public NodeBase {
   void now(uint32_t* sec, uint32_t* nsec);
   /** True once a time sync answer arrived in this session. */
   bool timeSynced() const { return flag(kTimeSynced); }
+  /** How many answers to its own time requests the node keeps now (at most 4; 0 without
+   * kTimeSyncMs): now() follows the newest of those with the shortest round trips. */
+  uint8_t timeSamples() const { return time_.count(); }
   /** Asks the host for its time now (a profile with kTimeSyncMs > 0 also does it periodically;
    * with kTimeSyncMs 0 the board reads no answers and host time comes from the host's own
    * time requests). */
@@ -543,7 +547,7 @@ class NodeHandle_ : public NodeBase {
                         ReliableReceiver<Profile::kWindow, Profile::kMtu, Profile::kWindow - 1> >::type rel_rx_{};
   uint32_t id_ = 0, peer_ = 0, be_peer_ = 0;
   // own time requests only with kTimeSyncMs (a byte otherwise)
-  typename detail::Pick<Profile::kTimeSyncMs != 0, Tick, uint8_t>::type time_next_ = 0;
+  TimeSync<Profile::kTimeSyncMs != 0 ? 4 : 0> time_{};  // own requests: the next, the samples
   Tick param_deadline_ = 0;
   uint16_t next_request_ = 0;
   uint16_t param_id_ = 0, call_id_ = 0;

@@ -147,7 +147,7 @@ HWB_NODE void HWB_SELF::onControl(const uint8_t* p, size_t n, bool reliable) {
         if (accepted != p[1]) protocolError();
       }
       state_ = kConnected;
-      time_next_ = static_cast<decltype(time_next_)>(tick_);
+      time_.next = static_cast<decltype(time_.next)>(tick_);
       break;
     case 0x20:
       if (on_request_) {
@@ -243,6 +243,7 @@ HWB_NODE void HWB_SELF::teardown() {
   if (was) reasm_.reset(FrameType::Reliable);
   pending_len_ = 0;
   setFlag(kTimeSynced, false);
+  time_.clear();  // time samples of the last session's host
   features_ = 0;
   // a new ISN per session: the random session id mixed with the time (no generator state kept)
   isn_ = flag(kFixed) ? fixed_isn_ : static_cast<uint8_t>(id_ ^ now_ ^ now_ >> 8);

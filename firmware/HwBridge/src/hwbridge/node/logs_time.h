@@ -48,15 +48,21 @@ HWB_NODE void HWB_SELF::onTimeResponse(const uint8_t* p) {
   int32_t rtt = static_cast<int32_t>(elapsed) - busy;
   if (rtt < 0) rtt = 0;
   // reference pair: board_ref = t4 (now), host_ref = t3 + rtt / 2
-  host_sec_ = t3s;
-  host_nsec_ = t3n + static_cast<uint32_t>(rtt / 2) * 1000u;
-  while (host_nsec_ >= 1000000000UL) {
-    host_nsec_ -= 1000000000UL;
-    ++host_sec_;
+  TimeSample s;
+  s.rtt_us = static_cast<uint16_t>(rtt > 65535 ? 65535 : rtt);  // above 65 ms: poor anyway
+  s.board_ref = now_;
+  s.host_sec = t3s;
+  s.host_nsec = t3n + static_cast<uint32_t>(rtt / 2) * 1000u;
+  while (s.host_nsec >= 1000000000UL) {
+    s.host_nsec -= 1000000000UL;
+    ++s.host_sec;
   }
-  board_ref_ = now_;
+  const TimeSample& use = time_.add(s);  // the newest of the shortest round trips (2.8)
+  host_sec_ = use.host_sec;
+  host_nsec_ = use.host_nsec;
+  board_ref_ = use.board_ref;
   setFlag(kTimeSynced, true);
-  time_next_ = static_cast<decltype(time_next_)>(tick_ + ticks(Profile::kTimeSyncMs));
+  time_.next = static_cast<decltype(time_.next)>(tick_ + ticks(Profile::kTimeSyncMs));
 }
 
 HWB_NODE void HWB_SELF::now(uint32_t* sec, uint32_t* nsec) {

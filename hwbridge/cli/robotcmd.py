@@ -4,11 +4,14 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
 from hwbridge.cli.aclcmd import acl
+
+if TYPE_CHECKING:
+    from hwbridge.robot.model import Robot
 
 __all__ = ["robot_app"]
 
@@ -27,7 +30,18 @@ def check(robot_file: _FILE) -> None:
     sys.stdout.write(
         f"{robot_file}: robot {robot.name}: {_count(len(robot.boards), 'board')}"
         f"{f' ({boards})' if boards else ''}, "
-        f"{_count(len(robot.host_devices), 'host device')}\n"
+        f"{_count(len(robot.host_devices), 'host device')}"
+        f"{_gateways(robot)}\n"
+    )
+
+
+def _gateways(robot: Robot) -> str:
+    """What the robot file's ``ros:`` section has ``hwbridge up`` start, for ``robot check``."""
+    names = [name for name, on in (("ROS 2", robot.ros2), ("ROS 1", robot.ros1)) if on]
+    return (
+        f"; 'up' starts the {' and '.join(names)} gateway{'s' if len(names) > 1 else ''}"
+        if names
+        else ""
     )
 
 
@@ -75,6 +89,8 @@ def show(robot_file: _FILE) -> None:
     }
     if robot.world:
         data["world"] = dict(robot.world)
+    if robot.ros2 or robot.ros1:
+        data["ros"] = {"ros2": robot.ros2, "ros1": robot.ros1}
     sys.stdout.write(yaml.safe_dump(data, sort_keys=False))
 
 

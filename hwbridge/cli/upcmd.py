@@ -39,19 +39,30 @@ def _links(values: list[str] | None) -> dict[str, str]:
 
 
 def _start_gateways(
-    ctx: typer.Context, config: GraphConfig, robot: Robot, *, ros2: bool, ros1: bool
+    ctx: typer.Context,
+    config: GraphConfig,
+    robot: Robot,
+    *,
+    ros2: bool | None,
+    ros1: bool | None,
 ) -> list[GatewayProcess]:
-    """The gateway processes asked for, attached to this robot's graph."""
+    """The gateway processes asked for, attached to this robot's graph: by ``--ros2``/``--ros1``
+    (``--no-...``: not), else by the robot file's ``ros:`` section."""
     from hwbridge.gateway.launch import GatewayProcess
 
     msg_path = [str(p) for p in getattr(ctx.find_root().obj, "msg_path", ())]
     started: list[GatewayProcess] = []
-    if ros2:
-        started.append(GatewayProcess("ros2", config, msg_path=msg_path))
-    if ros1:
-        namespaces = sorted({b.namespace for b in robot.boards if b.namespace != "/"})
-        extra = [arg for ns in namespaces for arg in ("--param", ns)]
-        started.append(GatewayProcess("ros1", config, extra, msg_path=msg_path))
+    for kind, flag, in_file in (("ros2", ros2, robot.ros2), ("ros1", ros1, robot.ros1)):
+        if not (in_file if flag is None else flag):
+            continue
+        why = f"--{kind}" if flag is not None else f"the robot file's 'ros: {{{kind}: true}}'"
+        sys.stderr.write(f"hwbridge: starting 'hwbridge {kind}' ({why})\n")
+        sys.stderr.flush()
+        extra: list[str] = []
+        if kind == "ros1":
+            namespaces = sorted({b.namespace for b in robot.boards if b.namespace != "/"})
+            extra = [arg for ns in namespaces for arg in ("--param", ns)]
+        started.append(GatewayProcess(kind, config, extra, msg_path=msg_path))
     return started
 
 
@@ -77,20 +88,24 @@ def up(
     params: ParamsOption = None,
     listen: ListenOption = None,
     ros2: Annotated[
-        bool,
+        bool | None,
         typer.Option(
-            "--ros2",
-            help="Also start 'hwbridge ros2': the robot's topics and services in ROS 2.",
+            "--ros2/--no-ros2",
+            help="Also start 'hwbridge ros2': the robot's topics and services in ROS 2. "
+            "Default: the robot file's 'ros: {ros2: ...}' (off).",
+            show_default=False,
         ),
-    ] = False,
+    ] = None,
     ros1: Annotated[
-        bool,
+        bool | None,
         typer.Option(
-            "--ros1",
+            "--ros1/--no-ros1",
             help="Also start 'hwbridge ros1' (master from ROS_MASTER_URI): the robot in ROS 1, "
-            "its boards' namespaces' parameters from the ROS parameter server.",
+            "its boards' namespaces' parameters from the ROS parameter server. "
+            "Default: the robot file's 'ros: {ros1: ...}' (off).",
+            show_default=False,
         ),
-    ] = False,
+    ] = None,
     viz: Annotated[
         bool,
         typer.Option(

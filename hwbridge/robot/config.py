@@ -21,6 +21,9 @@
         namespace: /arm
         baud: 57600
         joints: {shoulder: 1, elbow: 2}
+    ros:                               # optional: the gateways 'hwbridge up' also starts
+      ros2: true                       # 'hwbridge ros2' (as --ros2; --no-ros2 overrides)
+      ros1: false                      # 'hwbridge ros1' (as --ros1; --no-ros1 overrides)
 
 :func:`load_robot` checks every key, link URL, protocol, namespace and device setting (against
 the plugin's :class:`~hwbridge.robot.plugin.Field` list, filling in defaults) and reports every
@@ -43,6 +46,7 @@ problem at once, each as ``FILE:LINE: what is wrong``, in file order, in one
 - a host device: ``type``, ``name`` (required), ``link`` (required), ``namespace``, ``baud`` and
   the plugin's settings.
 - board names and host-device names are unique across the robot (``--link NAME=URL`` picks one).
+- ``ros``: an optional mapping of ``ros2`` and ``ros1``, each ``true`` or ``false`` (default).
 """
 
 from __future__ import annotations
@@ -68,7 +72,8 @@ from hwbridge.robot.plugin import DevicePlugin, Field
 
 __all__ = ["check_value", "device_config", "load_robot", "parse_robot"]
 
-_TOP_KEYS: Final = ("robot", "world", "boards", "host_devices")
+_TOP_KEYS: Final = ("robot", "world", "boards", "host_devices", "ros")
+_ROS_KEYS: Final = ("ros2", "ros1")
 _BOARD_KEYS: Final = (
     "name",
     "link",
@@ -532,11 +537,37 @@ def _parse_robot(text: str, path: str) -> Robot:
         )
         if (host := _host_device(entry, index, problems)) is not None
     ]
+    gateways = _ros(top["ros"][1], problems) if "ros" in top else {}
     if not boards and not hosts and not problems.lines:
         problems.at(root, "the robot has no boards and no host_devices")
     if problems.lines:
         raise RobotFileError(problems.lines)
-    return Robot(name, Path(path), tuple(boards), tuple(hosts), world)
+    return Robot(name, Path(path), tuple(boards), tuple(hosts), world, **gateways)
+
+
+def _ros(node: yaml.Node, problems: _Problems) -> dict[str, bool]:
+    """The ``ros:`` section: which gateways ``hwbridge up`` starts with the robot."""
+    if isinstance(node, yaml.ScalarNode) and node.tag == "tag:yaml.org,2002:null":
+        return {}
+    items = _mapping(node, "ros", problems)
+    if items is None:
+        return {}
+    _unknown_keys(items, _ROS_KEYS, "ros", problems)
+    wanted: dict[str, bool] = {}
+    for key in _ROS_KEYS:
+        if key not in items:
+            continue
+        value_node = items[key][1]
+        try:
+            value = _value(value_node)
+        except _BadValue as exc:
+            problems.at_line(exc.line, f"ros: {key}: {exc}")
+            continue
+        if isinstance(value, bool):
+            wanted[key] = value
+        else:
+            problems.at(value_node, f"ros: {key} must be true or false, not {value!r}")
+    return wanted
 
 
 def device_config(entry: dict[str, Any], source: str = "<device>") -> DeviceConfig:

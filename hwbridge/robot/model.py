@@ -75,6 +75,10 @@ class Robot:
     world: Mapping[str, Any] = field(default_factory=dict)
     """The emulator's world (room, obstacles, wheel geometry); see
     :class:`hwbridge.emulator.world.WorldConfig`."""
+    ros2: bool = False
+    """``ros: {ros2: true}``: ``hwbridge up`` also starts the ROS 2 gateway (as ``--ros2``)."""
+    ros1: bool = False
+    """``ros: {ros1: true}``: ``hwbridge up`` also starts the ROS 1 gateway (as ``--ros1``)."""
 
     def board(self, name: str) -> RobotBoardConfig:
         for board in self.boards:

@@ -2,7 +2,8 @@
 
 ``hwbridge emulate diffbot`` (Imu, Odometry, cmd_vel) plus a second board on a pty, run in the
 test process (a native session with a ``reset`` std_srvs/Trigger service that logs on each call
-and on demand), both brought up by ``hwbridge up ROBOT.yaml --ros2|--ros1``.
+and on demand), both brought up by ``hwbridge up ROBOT.yaml`` with ``--ros2`` or the robot file's
+``ros: {ros1: true}``.
 """
 
 from __future__ import annotations
@@ -76,7 +77,9 @@ class Robot:
     def hwbridge(self, name: str, *argv: str) -> subprocess.Popen[str]:
         return self.start(name, [sys.executable, "-m", "hwbridge", *argv])
 
-    def up(self, *gateway_flags: str) -> None:
+    def up(self, *gateway_flags: str, ros: dict[str, bool] | None = None) -> None:
+        """``hwbridge up`` on the test robot with these flags, and ``ros`` as its robot file's
+        ``ros:`` section (none when None)."""
         emulator = self.hwbridge("emulate", "emulate", "diffbot", "--tcp", str(free_port()))
         assert emulator.stdout is not None
         url = emulator.stdout.readline().strip()
@@ -88,6 +91,8 @@ class Robot:
         robot["boards"].append(
             {"name": "aux", "link": str(aux_path), "protocol": "native", "namespace": "/aux"}
         )
+        if ros is not None:
+            robot["ros"] = ros
         robot_file = self.tmp / "gwbot.yaml"
         robot_file.write_text(yaml.safe_dump(robot))
         self.hwbridge("up", "up", str(robot_file), "--link", f"base={url}", *gateway_flags)

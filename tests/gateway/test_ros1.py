@@ -1,4 +1,5 @@
-"""``hwbridge up ROBOT.yaml --ros1`` against a real ``roscore`` and the ROS 1 command-line tools.
+"""``hwbridge up ROBOT.yaml`` with ``ros: {ros1: true}`` in the robot file (what ``--ros1``
+does) against a real ``roscore`` and the ROS 1 command-line tools.
 
 The ROS side is Debian's packages (ros-core, python3-rostopic, python3-rosservice, the message
 packages); without ``roscore`` the module is skipped, saying so. Each run uses a master port of
@@ -82,7 +83,8 @@ def robot(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Ros1Robot]:
         running.start_master()
         set_before = running.ros("rosparam", "set", "/aux/initial", "7")
         assert set_before.returncode == 0, set_before.stderr
-        running.up("--ros1")
+        running.up(ros={"ros1": True})  # the robot file's section, not a flag
+        running.wait_log("up", "starting 'hwbridge ros1' (the robot file's 'ros: {ros1: true}')")
         running.wait_log("up", "ROS 1 gateway up")
         running.wait_log("up", "/diffbot/imu: graph -> ROS 1")
         running.wait_log("up", "/aux/reset: graph service in ROS 1")

@@ -74,6 +74,7 @@ def robot(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Robot]:
     running = Robot(tmp_path_factory.mktemp("ros2"), _ros2_env())
     try:
         running.up("--ros2")
+        running.wait_log("up", "starting 'hwbridge ros2' (--ros2)")
         running.wait_log("up", "ROS 2 gateway up")
         running.wait_log("up", "/diffbot/imu: graph -> ROS 2")
         running.wait_log("up", "/aux/reset")

@@ -34,6 +34,9 @@ host_devices:
 """
 
 
+ONE_BOARD = "robot: x\nboards:\n  - {name: b, link: 'pty://'}\n"
+
+
 def problems(text: str) -> list[str]:
     with pytest.raises(RobotFileError) as info:
         parse_robot(text, "r.yaml")
@@ -101,12 +104,41 @@ def test_every_problem_is_reported_with_its_line() -> None:
         ("robot: x\nboards:\n  - {name: b, link: 'pty://', baud: -5}\n", "baud"),
         ("robot: x\nboards:\n  - {name: b, link: 'pty://', service_timeout: 0}\n", "timeout"),
         ("robot: x\nhost_devices:\n  - {type: hcsr04, name: s, link: 'pty://'}\n", "board"),
+        (f"{ONE_BOARD}ros: {{ros2: 1}}\n", "r.yaml:4: ros: ros2 must be true or false, not 1"),
+        (f"{ONE_BOARD}ros: [ros2]\n", "ros must be a mapping"),
+        (f"{ONE_BOARD}ros: {{ros3: true}}\n", "ros: unknown key 'ros3' (did you mean 'ros2'?)"),
     ],
 )
 def test_bad_files(text: str, said: str) -> None:
     found = problems(text)
     assert any(said in p for p in found), found
     assert all(p.startswith("r.yaml:") for p in found)
+
+
+@pytest.mark.parametrize(
+    ("section", "ros2", "ros1"),
+    [
+        ("", False, False),
+        ("ros:\n", False, False),
+        ("ros: {ros1: true}\n", False, True),
+        ("ros:\n  ros2: true\n  ros1: false\n", True, False),
+    ],
+)
+def test_the_ros_section_names_the_gateways_up_starts(section: str, ros2: bool, ros1: bool) -> None:
+    robot = parse_robot(ONE_BOARD + section, "r.yaml")
+    assert (robot.ros2, robot.ros1) == (ros2, ros1)
+
+
+def test_robot_check_and_show_carry_the_ros_section(tmp_path: Path) -> None:
+    path = tmp_path / "r.yaml"
+    path.write_text(ONE_BOARD + "ros: {ros2: true, ros1: true}\n")
+    run = [sys.executable, "-m", "hwbridge", "robot"]
+    checked = subprocess.run([*run, "check", str(path)], capture_output=True, text=True, check=True)
+    assert "'up' starts the ROS 2 and ROS 1 gateways" in checked.stdout
+    shown = subprocess.run([*run, "show", str(path)], capture_output=True, text=True, check=True)
+    assert yaml.safe_load(shown.stdout)["ros"] == {"ros2": True, "ros1": True}
+    path.write_text(shown.stdout)
+    assert (load_robot(path).ros2, load_robot(path).ros1) == (True, True)  # reads back
 
 
 def test_missing_and_non_utf8_files(tmp_path: Path) -> None:

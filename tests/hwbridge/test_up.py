@@ -136,6 +136,20 @@ def test_diffbot_up_against_the_emulator(procs: Processes) -> None:
     assert up.poll() is None, log.read_text()
 
 
+def test_a_flag_overrides_the_robot_files_ros_section(procs: Processes, tmp_path: Path) -> None:
+    """The file asks for the ROS 1 gateway, --no-ros1 says no: the robot comes up without it."""
+    robot = yaml.safe_load(DIFFBOT.read_text())
+    robot["ros"] = {"ros1": True}
+    robot_file = tmp_path / "diffbot_ros1.yaml"
+    robot_file.write_text(yaml.safe_dump(robot))
+    url = procs.emulate("diffbot", "--tcp", str(free_port()))
+    up, log = procs.start("up", "up", str(robot_file), "--link", f"base={url}", "--no-ros1")
+    assert wait_until(lambda: "robot diffbot up" in log.read_text(), 30), log.read_text()
+    _echo(procs, "/diffbot/odom")  # up for a while: the gateway would have been started by now
+    assert "starting 'hwbridge ros1'" not in log.read_text(), log.read_text()
+    assert up.poll() is None, log.read_text()
+
+
 def test_dxl_arm_up_against_the_emulated_bus(procs: Processes) -> None:
     url = procs.emulate("dxl-bus")
     up, log = procs.start("up", "up", str(DXL_ARM), "--link", f"arm={url}")

@@ -1,7 +1,8 @@
 """End to end: a sketch built with ``hwbridge firmware build --board host`` and the real bridge.
 
 ``sketches/SessionE2E`` (a reliable counter, a best-effort topic, a subscriber, a service server,
-a blocking and a subscribed parameter, logs) runs as a native program on a pty; ``hwbridge
+a service client of a graph service this test serves, a blocking and a subscribed parameter,
+logs) runs as a native program on a pty; ``hwbridge
 connect`` (in its own process) bridges it, and the CLI sees its topics, services, parameters and
 logs. Between the two sits a relay of two pseudo-terminals that can lose and corrupt bytes
 (seeded, per byte, as the emulator's ``LinkFaults``): killing and restarting the program
@@ -136,6 +137,38 @@ def _counts(echo: subprocess.CompletedProcess[str]) -> list[int]:
     return [int(d["data"]) for d in docs]
 
 
+def _board_calls_the_graph(bridge: BridgeProcess) -> None:
+    """The board's ServiceClient calls ``/check``, served here on the bridge's graph: an answer
+    (kCallOk, 0), then a server that fails (kCallError, 1), then no server at all (the bridge's
+    graph call fails: kCallError again)."""
+    from hwbridge.graph import Graph
+
+    calls: list[object] = []
+
+    def checked(request: object) -> dict[str, object]:
+        calls.append(request)
+        if len(calls) > 1:
+            raise RuntimeError("check failed on purpose")
+        return {"success": True, "message": f"checked {len(calls)}"}
+
+    def ask(expected: str) -> None:
+        before = bridge.output().count("asked:")
+        pub = bridge.cli("topic", "pub", "/cmd", "std_msgs/String", "{data: ask}")
+        assert pub.returncode == 0, pub.stderr
+        assert wait_until(lambda: bridge.output().count("asked:") > before, 15), bridge.output()
+        said = bridge.output().split("asked:")[-1].splitlines()[0]
+        assert expected in said, said
+
+    domain = bridge.env["HWBRIDGE_DOMAIN"]
+    with Graph.attached(connect=[bridge.endpoint], domain=domain) as graph:
+        server = graph.node("checker").service("/check", "std_srvs/Trigger", checked)
+        ask("status 0, success 'checked 1'")
+        ask("status 1, no success")
+        server.close()
+    ask("status 1, no success")  # no server on the graph: the bridge's call fails, an ERROR
+    assert len(calls) == 2
+
+
 def test_host_sketch_through_the_bridge(
     program: Path, relay: LossyRelay, bridge: BridgeProcess
 ) -> None:
@@ -162,6 +195,7 @@ def test_host_sketch_through_the_bridge(
         assert wait_until(lambda: "got hey" in bridge.output(), 10), bridge.output()
         assert bridge.cli("param", "set", "/gain", "5").returncode == 0
         assert wait_until(lambda: "gain now 5" in bridge.output(), 10), bridge.output()
+        _board_calls_the_graph(bridge)
 
         # kill and restart the board program: the bridge reconnects on its own
         board.kill()

@@ -1,8 +1,9 @@
 // The end-to-end sketch of tests/firmware/test_session_e2e.py, built with --board host:
 // a reliable counter (std_msgs/Int32 on `counter`, 0, 1, 2, ... every 20 ms while connected, each
 // number once), a best-effort `chatter`, a subscriber `cmd` whose messages are logged back, a
-// service `ping` (std_srvs/Trigger: "pong N"), the parameter `rate` read (blocking) after each
-// connection, `gain` subscribed (pushed changes logged), and logs.
+// service `ping` (std_srvs/Trigger: "pong N"), a client of the host's `check` (std_srvs/Trigger,
+// called when `cmd` says "ask", its outcome logged), the parameter `rate` read (blocking) after
+// each connection, `gain` subscribed (pushed changes logged), and logs.
 #include <HwBridge.h>
 #include <std_msgs/Int32.h>
 #include <std_msgs/String.h>
@@ -16,11 +17,14 @@ hwbridge::Publisher<std_msgs::String> chatter("chatter");
 
 char got[40];
 bool have_got = false;
+bool ask = false;
 void on_cmd(const std_msgs::String& m) {
   snprintf(got, sizeof got, "got %s", m.data.c_str());
   have_got = true;
+  if (strcmp(m.data.c_str(), "ask") == 0) ask = true;  // the call itself goes from loop()
 }
 hwbridge::Subscriber<std_msgs::String> cmd("cmd", &on_cmd);
+hwbridge::ServiceClient<std_srvs::Trigger> check("check");
 
 uint16_t pings = 0;
 void on_ping(const std_srvs::Trigger::Request&, std_srvs::Trigger::Response& res) {
@@ -49,6 +53,7 @@ void setup() {
   nh.advertise(chatter);
   nh.subscribe(cmd);
   nh.advertiseService(ping);
+  nh.serviceClient(check);
 }
 
 void loop() {
@@ -70,6 +75,16 @@ void loop() {
     nh.requestParam("gain", hwbridge::kParamInt32, &on_gain, true);
   }
   if (have_got && nh.logWarn(got)) have_got = false;
+  if (ask && !have_got) {
+    ask = false;
+    std_srvs::Trigger::Request req;
+    std_srvs::Trigger::Response res;
+    const uint8_t status = check.call(req, res, 3000);
+    char text[72];
+    snprintf(text, sizeof text, "asked: status %u, %s '%s'", status, res.success ? "success" : "no success",
+             status == hwbridge::kCallOk ? res.message.c_str() : "");
+    nh.logInfo(text);
+  }
   if (have_pushed && nh.logInfo(pushed)) have_pushed = false;
   if (millis() - last_ms >= 20) {
     last_ms = millis();

@@ -136,7 +136,7 @@ struct FuzzDriver {
   size_t next;
   std::vector<Frame> sent;
   uint32_t now;
-  bool begin() { return true; }
+  bool begin(uint8_t) { return true; }
   bool receive(Frame* f) {
     if (next >= inbox.size()) return false;
     *f = inbox[next++];

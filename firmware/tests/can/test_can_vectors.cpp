@@ -159,7 +159,7 @@ struct ScriptDriver {
   uint32_t now;
   bool refuse;
   ScriptDriver() : now(1000), refuse(false) {}
-  bool begin() { return true; }
+  bool begin(uint8_t) { return true; }
   bool receive(Frame* f) {
     if (inbox.empty()) return false;
     *f = inbox.front();

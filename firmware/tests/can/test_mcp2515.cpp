@@ -1,9 +1,11 @@
 // The MCP2515 driver against a register-level fake of the chip: the fake decodes the SPI
 // transactions (RESET, READ, WRITE, BIT MODIFY, READ STATUS, LOAD TX BUFFER, RTS, READ RX
 // BUFFER) on a register file as the data sheet describes them, "transmits" a requested buffer by
-// decoding its registers into a frame, and "receives" by writing a frame into RXB0/RXB1.
+// decoding its registers into a frame, and "receives" by writing a frame into RXB0/RXB1 as the
+// acceptance filters and masks allow (filters and masks written in configuration mode only).
 // Checked: the bit timing of 8/16 MHz crystals at 125k..1M, reset and the modes, frames both
-// ways (extended and standard ids, every length), receive buffer order, the priority buffers,
+// ways (extended and standard ids, every length), receive buffer order, the acceptance filters
+// a node sets (its transfers and claims through, other nodes' traffic kept off SPI), the priority buffers,
 // a frame nobody acknowledges aborted after the timeout, overflow and remote frames counted,
 // and CanHardware running over it.
 #include <hwbridge/can/can_hardware.h>
@@ -37,6 +39,8 @@ struct Chip {
   }
   void write(uint8_t addr, uint8_t v) {
     addr &= 0x7F;
+    const bool filter_or_mask = addr < 0x28 && (addr & 0x0F) < 0x0C && addr != 0x0C && addr != 0x0D;
+    CHECK(!filter_or_mask || configMode(), "filter/mask register %02x written outside configuration mode", addr);
     if (addr == 0x0E) return;  // CANSTAT is read-only
     if ((addr & 0x0F) == 0x0E) return;
     reg[addr] = v;
@@ -59,17 +63,53 @@ struct Chip {
     reg[ctrl] = static_cast<uint8_t>(reg[ctrl] & ~0x08);
     reg[0x2C] |= static_cast<uint8_t>(0x04 << ((ctrl - 0x30) >> 4));
   }
-  // The bus delivers a frame: into RXB0, or RXB1 when RXB0 is full (rollover), else overflow.
-  bool deliver(uint32_t id, bool ext, const uint8_t* data, uint8_t len, bool remote = false) {
+  // Filter (at f) and mask (at m) registers against a frame: the masked id bits must be equal,
+  // and the filter's EXIDE must match the frame's kind (standard frames: the 11 bits only).
+  bool matches(uint8_t f, uint8_t m, uint32_t id, bool ext) const {
+    if (((reg[f + 1] & 0x08) != 0) != ext) return false;
+    const uint32_t fid = static_cast<uint32_t>(reg[f]) << 21 | static_cast<uint32_t>(reg[f + 1] >> 5) << 18 |
+                         static_cast<uint32_t>(reg[f + 1] & 3) << 16 | static_cast<uint32_t>(reg[f + 2]) << 8 |
+                         reg[f + 3];
+    const uint32_t mid = static_cast<uint32_t>(reg[m]) << 21 | static_cast<uint32_t>(reg[m + 1] >> 5) << 18 |
+                         static_cast<uint32_t>(reg[m + 1] & 3) << 16 | static_cast<uint32_t>(reg[m + 2]) << 8 |
+                         reg[m + 3];
+    const uint32_t frame = ext ? id : id << 18;
+    const uint32_t used = ext ? mid : (mid & 0x1FFC0000UL);
+    return ((fid ^ frame) & used) == 0;
+  }
+  // A receive buffer's acceptance: RXM bits 11 take any frame, 00 the filters'.
+  bool accepts(uint8_t ctrl, uint32_t id, bool ext) const {
+    if ((reg[ctrl] & 0x60) == 0x60) return true;
+    static const uint8_t rxb0[2] = {0x00, 0x04};
+    static const uint8_t rxb1[4] = {0x08, 0x10, 0x14, 0x18};
+    const uint8_t* f = ctrl == 0x60 ? rxb0 : rxb1;
+    const uint8_t n = ctrl == 0x60 ? 2 : 4;
+    for (uint8_t i = 0; i < n; ++i) {
+      if (matches(f[i], ctrl == 0x60 ? 0x20 : 0x24, id, ext)) return true;
+    }
+    return false;
+  }
+  // The bus delivers a frame: RXB0 when its filters take it and it is free (else RXB1 when
+  // rollover is on), RXB1 when only its filters take it; 1 or 2 (the buffer), 0 (no filter took
+  // it: gone, not an error), -1 (overflow).
+  int deliver(uint32_t id, bool ext, const uint8_t* data, uint8_t len, bool remote = false) {
     uint8_t base;
-    if (!(reg[0x2C] & 1)) {
+    const bool to0 = accepts(0x60, id, ext);
+    if (to0 && !(reg[0x2C] & 1)) {
       base = 0x60;
-    } else if (!(reg[0x2C] & 2) && (reg[0x60] & 0x04)) {
+    } else if ((to0 && (reg[0x60] & 0x04)) || (!to0 && accepts(0x70, id, ext))) {
+      if (reg[0x2C] & 2) {
+        reg[0x2D] |= to0 && !(reg[0x60] & 0x04) ? 0x40 : 0x80;
+        reg[0x2C] |= 0x20;
+        return -1;
+      }
       base = 0x70;
-    } else {
-      reg[0x2D] |= (reg[0x2C] & 2) ? 0x80 : 0x40;
+    } else if (to0) {
+      reg[0x2D] |= 0x40;
       reg[0x2C] |= 0x20;
-      return false;
+      return -1;
+    } else {
+      return 0;
     }
     uint8_t* r = &reg[base + 1];
     if (ext) {
@@ -86,7 +126,7 @@ struct Chip {
     }
     memcpy(r + 5, data, len);
     reg[0x2C] |= base == 0x60 ? 1 : 2;
-    return true;
+    return base == 0x60 ? 1 : 2;
   }
 
   // --- Port
@@ -232,9 +272,9 @@ void frames() {
 
   // Receiving: RXB0 then RXB1 (rollover), ids and data intact; a third overflows.
   const uint8_t a[8] = {1, 2, 3, 4, 5, 6, 7, 0xE0};
-  CHECK(chip.deliver(0x14010005UL, true, a, 8), "rxb0");
-  CHECK(chip.deliver(0x123, false, a, 3), "rxb1");
-  CHECK(!chip.deliver(0x1, true, a, 1), "overflow");
+  CHECK(chip.deliver(0x14010005UL, true, a, 8) == 1, "rxb0");
+  CHECK(chip.deliver(0x123, false, a, 3) == 2, "rxb1");
+  CHECK(chip.deliver(0x1, true, a, 1) == -1, "overflow");
   CHECK(d.receive(&f) && f.id == 0x14010005UL && f.extended && f.len == 8 &&
             memcmp(f.data, a, 8) == 0,
         "first frame");
@@ -261,6 +301,46 @@ void frames() {
   CHECK(d.send(s, 5), "sends again");
 }
 
+/** A node's acceptance filters: transfers to it in RXB0 (rolling over into RXB1), NODE messages
+ * to anyone in RXB1, everything else (other nodes' traffic, standard ids) never on SPI. */
+void filters() {
+  Driver d;
+  d.configure(500000UL, 16000000UL);
+  CHECK(d.begin(5), "begin");
+  Chip& chip = d.port();
+  CHECK(chip.reg[0x60] == 0x04 && chip.reg[0x70] == 0x00, "filters on, rollover: %02x %02x",
+        chip.reg[0x60], chip.reg[0x70]);
+  const uint8_t a[8] = {1, 2, 3, 4, 5, 6, 7, 0xE0};
+  const uint32_t to_me = encode_id(4, kReliable, 3, 5, 0);
+  const uint32_t claim = encode_id(3, kNode, 1, 0, 9);
+  // other nodes' traffic and standard ids: filtered out by the chip (not overflow, not received)
+  CHECK(chip.deliver(encode_id(4, kReliable, 3, 6, 0), true, a, 8) == 0, "to node 6");
+  CHECK(chip.deliver(encode_id(5, kBestEffort, 1, 0, 7), true, a, 8) == 0, "node 7 to the host");
+  CHECK(chip.deliver(encode_id(2, kBestEffort, 0, 0x45, 5), true, a, 8) == 0, "another destination");
+  CHECK(chip.deliver(5 << 7, false, a, 3) == 0, "a standard id");
+  Frame f;
+  CHECK(!d.receive(&f) && d.stats.rx_frames == 0 && d.stats.rx_overflow == 0, "nothing came");
+  // every field but the destination may vary; claims to the host reach RXB1
+  CHECK(chip.deliver(to_me, true, a, 8) == 1, "to me: RXB0");
+  CHECK(chip.deliver(claim, true, a, 7) == 2, "a claim: RXB1");
+  CHECK(d.receive(&f) && f.id == to_me, "first");
+  CHECK(d.receive(&f) && f.id == claim && f.len == 7, "the claim");
+  const uint32_t node_msg = encode_id(3, kNode, 2, 0x33, 9);  // NODE messages: any destination
+  CHECK(chip.deliver(node_msg, true, a, 3) == 2 && d.receive(&f) && f.id == node_msg, "NODE to 0x33");
+  const uint32_t ack = encode_id(1, kAck, 0, 5, 0);
+  CHECK(chip.deliver(ack, true, a, 2) == 1 && chip.deliver(to_me | 0x7F, true, a, 1) == 2, "rollover");
+  CHECK(chip.deliver(claim, true, a, 7) == -1 && chip.deliver(to_me, true, a, 1) == -1, "both full");
+  CHECK(d.receive(&f) && f.id == ack && d.receive(&f) && f.id == (to_me | 0x7F) && !d.receive(&f),
+        "both read");
+  CHECK(d.stats.rx_overflow == 1 && d.stats.rx_frames == 5, "overflow %lu, frames %lu",
+        (unsigned long)d.stats.rx_overflow, (unsigned long)d.stats.rx_frames);
+  // begin() without a node: every frame, as before
+  Driver any;
+  any.configure(500000UL, 16000000UL);
+  CHECK(any.begin(), "begin");
+  CHECK(any.port().deliver(encode_id(4, kReliable, 3, 6, 0), true, a, 8) == 1, "no filters");
+}
+
 void over_can_hardware() {
   CanHardware<Driver, 72, 2, 160> hw;
   hw.setNode(9);
@@ -275,7 +355,7 @@ void over_can_hardware() {
   const uint8_t dg[9] = {0x50, 0x03, 0xc8, 0x2a, 0, 0, 0, 0xc9, 0xbb};
   struct Q {
     Chip* chip;
-    bool operator()(const Frame& f) { return chip->deliver(f.id, true, f.data, f.len); }
+    bool operator()(const Frame& f) { return chip->deliver(f.id, true, f.data, f.len) > 0; }
   } q = {&chip};
   send_transfer<kClassicMtu>(encode_id(4, kReliable, 3, 9, 0), dg, 9, 0, kClassicMtu, q);
   std::vector<uint8_t> got;
@@ -291,6 +371,14 @@ void over_can_hardware() {
             chip.sent[1].first.id == encode_id(4, kReliable, 3, 0, 9) &&
             to_hex(chip.sent[2].first.data, chip.sent[2].first.len) == "c9bb30ee40",
         "sent %zu", chip.sent.size());
+  // The node's filters: a transfer to node 8 never arrives; a claim of node 9 by another
+  // unique id comes through them to the conflict count.
+  send_transfer<kClassicMtu>(encode_id(4, kReliable, 3, 8, 0), dg, 9, 1, kClassicMtu, q);
+  CHECK(hw.read() == -1 && hw.driver().stats.rx_frames == 2, "another node's transfer");
+  const uint8_t other[6] = {1, 2, 3, 4, 5, 6};
+  send_transfer<kClassicMtu>(encode_id(3, kNode, 1, 0, 9), other, 6, 0, kClassicMtu, q);
+  CHECK(hw.read() == -1 && hw.ownConflicts() == 1, "claim of node 9: %lu conflicts",
+        (unsigned long)hw.ownConflicts());
 }
 
 }  // namespace
@@ -298,6 +386,7 @@ void over_can_hardware() {
 int main() {
   timing();
   frames();
+  filters();
   over_can_hardware();
   printf("test_mcp2515: %lu checks passed\n", g_checks);
   return 0;

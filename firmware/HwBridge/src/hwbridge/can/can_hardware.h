@@ -9,7 +9,11 @@
 // id by another unique id is counted (ownConflicts()). Buffers are bounded; drops are counted.
 //
 // Driver concept:
-//   bool begin()                                   opens the controller (bit rate set before)
+//   bool begin(uint8_t node)                       opens the controller (bit rate set before);
+//                                                  one with acceptance filters lets through
+//                                                  extended frames to node and NODE messages
+//                                                  (claims) to anyone, one without takes all
+//                                                  (the transport filters in software anyway)
 //   bool receive(hwbridge::can::Frame* f)          a received frame, if any (never blocks)
 //   bool send(const hwbridge::can::Frame& f, uint8_t queue_class)
 //                                                  queues one frame (may wait briefly for room;
@@ -88,7 +92,7 @@ class CanHardware {
         uid_[i] = static_cast<uint8_t>(s >> 16);
       }
     }
-    started_ = driver_.begin();
+    started_ = driver_.begin(node_);
     claimed_ = false;
     return started_;
   }

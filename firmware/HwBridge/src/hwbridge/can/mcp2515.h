@@ -1,6 +1,7 @@
 // A Driver (see can_hardware.h) for the Microchip MCP2515 CAN controller on SPI, register level:
 // reset, bit timing computed for the crystal (8 or 16 MHz, 125k..1M bit/s), extended ids, both
-// receive buffers (RXB0 rolling over into RXB1, filters off: the transport filters), and two
+// receive buffers with the chip's acceptance filters set for this node (RXB0: transfers to it,
+// rolling over into RXB1; RXB1 also: NODE messages such as claims, to anyone), and two
 // transmit buffers by queue class: ACK and claim frames (class 0..3) in TXB1 at the
 // highest TXP, data in TXB0 at a lower one; each buffer sends its frames in order, one at a time,
 // so a transfer's frames never overtake each other. A frame not sent within the send timeout
@@ -15,6 +16,7 @@
 
 #include <stddef.h>
 #include <stdint.h>
+#include <string.h>
 
 #include "transport.h"
 
@@ -46,6 +48,9 @@ static const uint8_t kTxb0Ctrl = 0x30;
 static const uint8_t kTxb1Ctrl = 0x40;
 static const uint8_t kRxb0Ctrl = 0x60;
 static const uint8_t kRxb1Ctrl = 0x70;
+static const uint8_t kRxf0 = 0x00;  // RXF0..2 at 0x00, 0x04, 0x08; RXF3..5 at 0x10, 0x14, 0x18
+static const uint8_t kRxf3 = 0x10;
+static const uint8_t kRxm0 = 0x20;  // RXM0 at 0x20, RXM1 at 0x24
 // Bits
 static const uint8_t kModeMask = 0xE0;
 static const uint8_t kModeNormal = 0x00;
@@ -108,6 +113,15 @@ inline bool mcp2515_timing(uint32_t crystal_hz, uint32_t bitrate, BitTiming* out
   return false;
 }
 
+/** The four id registers (SIDH, SIDL, EID8, EID0) of a 29-bit id; with exide, EXIDE set (a
+ * filter that matches extended frames only; masks have no such bit). */
+inline void mcp2515_id_regs(uint32_t id, bool exide, uint8_t* r) {
+  r[0] = static_cast<uint8_t>(id >> 21);
+  r[1] = static_cast<uint8_t>(((id >> 13) & 0xE0) | (exide ? mcp::kExide : 0) | ((id >> 16) & 0x03));
+  r[2] = static_cast<uint8_t>(id >> 8);
+  r[3] = static_cast<uint8_t>(id);
+}
+
 /** Counters of an Mcp2515T (they only grow). */
 struct Mcp2515Stats {
   uint32_t rx_frames;
@@ -134,8 +148,13 @@ class Mcp2515T {
   void setSendTimeout(uint32_t us) { timeout_us_ = us; }
   Port& port() { return port_; }
 
-  /** Resets the chip, sets the bit timing and receive buffers, enters normal mode. */
-  bool begin() {
+  /**
+   * Resets the chip, sets the bit timing and receive buffers, enters normal mode. With a node id
+   * (1..127) the acceptance filters let through only extended frames to that node (RXB0,
+   * rolling over into RXB1) and NODE messages to anyone (RXB1: claims), so a busy bus's other
+   * traffic never reaches the SPI bus; with 0 every frame is received (the transport filters).
+   */
+  bool begin(uint8_t node = 0) {
     ok_ = false;
     BitTiming t;
     if (!mcp2515_timing(crystal_ ? crystal_ : 16000000UL, bitrate_ ? bitrate_ : 500000UL, &t)) {
@@ -149,8 +168,24 @@ class Mcp2515T {
     const uint8_t cnf[3] = {t.cnf3, t.cnf2, t.cnf1};
     writeRegs(mcp::kCnf3, cnf, 3);
     writeReg(mcp::kCanIntE, 0);
-    writeReg(mcp::kRxb0Ctrl, 0x64);  // any frame (filters off), roll over into RXB1
-    writeReg(mcp::kRxb1Ctrl, 0x60);
+    if (node != 0 && node < 128) {
+      uint8_t r[12];
+      mcp2515_id_regs(encode_id(0, 0, 0, 0x7F, 0), false, r);  // RXM0: the destination field
+      mcp2515_id_regs(encode_id(0, 3, 0, 0, 0), false, r + 4);  // RXM1: the kind field
+      writeRegs(mcp::kRxm0, r, 8);
+      mcp2515_id_regs(encode_id(0, 0, 0, node, 0), true, r);  // RXF0, RXF1: to this node
+      memcpy(r + 4, r, 4);
+      mcp2515_id_regs(encode_id(0, kNode, 0, 0, 0), true, r + 8);  // RXF2: NODE messages
+      writeRegs(mcp::kRxf0, r, 12);
+      memcpy(r, r + 8, 4);  // RXF3..5: the same as RXF2
+      memcpy(r + 4, r + 8, 4);
+      writeRegs(mcp::kRxf3, r, 12);
+      writeReg(mcp::kRxb0Ctrl, 0x04);  // filters on, roll over into RXB1
+      writeReg(mcp::kRxb1Ctrl, 0x00);
+    } else {
+      writeReg(mcp::kRxb0Ctrl, 0x64);  // any frame (filters off), roll over into RXB1
+      writeReg(mcp::kRxb1Ctrl, 0x60);
+    }
     writeReg(mcp::kTxb0Ctrl, 0x01);  // TXP 1: data
     writeReg(mcp::kTxb1Ctrl, 0x03);  // TXP 3: ACK, control, claims
     writeReg(mcp::kCanIntF, 0);
@@ -187,10 +222,7 @@ class Mcp2515T {
     }
     uint8_t regs[13];
     if (f.extended) {
-      regs[0] = static_cast<uint8_t>(f.id >> 21);
-      regs[1] = static_cast<uint8_t>(((f.id >> 13) & 0xE0) | mcp::kExide | ((f.id >> 16) & 0x03));
-      regs[2] = static_cast<uint8_t>(f.id >> 8);
-      regs[3] = static_cast<uint8_t>(f.id);
+      mcp2515_id_regs(f.id, true, regs);
     } else {
       regs[0] = static_cast<uint8_t>(f.id >> 3);
       regs[1] = static_cast<uint8_t>((f.id & 0x07) << 5);

@@ -45,7 +45,9 @@ class PosixCanDriver {
     target_[sizeof(target_) - 1] = 0;
   }
 
-  bool begin() {
+  /** Connects to the relay (no acceptance filters here: every frame comes, node is unused). */
+  bool begin(uint8_t node = 0) {
+    (void)node;
     if (target_[0] == 0) {
       const char* env = getenv("HWBRIDGE_CAN");
       if (env == nullptr) {

@@ -223,8 +223,10 @@ inline std::vector<std::pair<hwbridge::Frame, Bytes> > frames_of(const Bytes& wi
  * reliable frame ACKed, every TOPIC accepted and READY after TABLE_END. The board's output is
  * taken; `host` keeps its numbering for what the test sends next. */
 template <class NodeT>
-void connect_scripted(NodeT& node, FakeHardware& hw, Host& host, uint8_t features) {
-  Bytes hello{0x01, 1, 0, 0, 0x78, 0x56, 0x34, 0x12, 0, 0, 0, 0, 0, 4, 0, 0, 0x10, 0, 16, 0, features};
+void connect_scripted(NodeT& node, FakeHardware& hw, Host& host, uint8_t features,
+                      uint32_t max_message = 0x100000) {
+  Bytes hello{0x01, 1, 0, 0, 0x78, 0x56, 0x34, 0x12, 0, 0, 0, 0, 0, 4, 0, 0, 0, 0, 16, 0, features};
+  for (int i = 0; i < 4; ++i) hello[14 + i] = static_cast<uint8_t>(max_message >> (8 * i));
   hw.feed(host.be(0, hello));
   node.processInput();
   hello[3] = 1;  // ESTABLISHED, echoing the board's session

@@ -401,6 +401,144 @@ void time_samples() {
         node.timeSamples());
   printf("time samples: the newest of the shortest round trips of the last 4, forgotten with the session\n");
 }
+
+/** A board whose session host can be scripted step by step: a reliable publisher, connected. */
+struct StepBoard {
+  harness::Node node;
+  hwbridge::Publisher<harness::Raw> rel{"/rel", true};
+  Host host;
+  StepBoard(uint32_t max_message = 0x100000) : node() {
+    harness::FakeHardware& hw = node.getHardware();
+    node.setIdentity(0xcafef00dUL, 0);
+    node.advertise(rel);
+    hw.clock = 10000000;
+    node.begin("step", "");
+    harness::connect_scripted(node, hw, host, 3, max_message);
+    CHECK(node.connected(), "step board not connected");
+  }
+  harness::FakeHardware& hw() { return node.getHardware(); }
+  /** ms of time in 50 ms steps, the host sending a heartbeat at each, spinOnce after it. */
+  void spin_ms(uint32_t ms) {
+    for (uint32_t t = 0; t < ms; t += 50) {
+      hw().clock += 50000;
+      hw().feed(host.be(0, Bytes{0x02}));
+      node.spinOnce();
+    }
+  }
+};
+
+int reliable_frames(const Bytes& out) {
+  int n = 0;
+  std::vector<std::pair<hwbridge::Frame, Bytes> > fr = harness::frames_of(out);
+  for (size_t i = 0; i < fr.size(); ++i) n += fr[i].first.type == FrameType::Reliable;
+  return n;
+}
+
+std::vector<std::pair<int, uint8_t> > g_param_calls;  // (callback, status)
+void param_cb1(const hwbridge::ParamValue& v) { g_param_calls.push_back(std::make_pair(1, v.status)); }
+void param_cb2(const hwbridge::ParamValue& v) { g_param_calls.push_back(std::make_pair(2, v.status)); }
+
+/** Sends take the time when they are made, not at the last spinOnce: a reliable message
+ * published after 300 ms of sketch work is not resent 2 ms later, and a parameter request made
+ * 700 ms after the last spin times out 2 s after it was made. */
+void send_times() {
+  StepBoard b;
+  b.node.spinOnce();
+  b.hw().take();
+  b.hw().clock += 300000;
+  const uint8_t d[] = {1, 0, 0, 0, 'x'};
+  harness::Raw m;
+  m.p = d;
+  m.n = sizeof(d);
+  CHECK(b.rel.publish(m), "reliable publish");
+  const Bytes sent = b.hw().take();
+  CHECK(reliable_frames(sent) == 1, "one reliable frame");
+  b.hw().clock += 2000;
+  b.hw().feed(b.host.be(0, Bytes{0x02}));
+  b.node.spinOnce();
+  CHECK(reliable_frames(b.hw().take()) == 0, "resent 2 ms after it was sent");
+  b.hw().feed(b.host.ack(harness::frames_of(sent).back().first.seq));
+  b.spin_ms(100);
+  b.hw().take();
+
+  b.hw().clock += 700000;  // sketch work, then the request
+  g_param_calls.clear();
+  const uint16_t id = b.node.requestParam("a", hwbridge::kParamInt32, &param_cb1);
+  CHECK(id != 0, "request refused");
+  b.hw().feed(b.host.ack(harness::frames_of(b.hw().take()).back().first.seq));
+  b.spin_ms(1900);
+  CHECK(g_param_calls.empty(), "timed out within 1.9 s of the request");
+  b.spin_ms(200);
+  CHECK(g_param_calls.size() == 1 && g_param_calls[0].second == hwbridge::kParamTimeout, "no timeout");
+
+  // a second request while one is pending is refused, and the first keeps its callback
+  g_param_calls.clear();
+  const uint16_t first = b.node.requestParam("a", hwbridge::kParamInt32, &param_cb1);
+  const Bytes asked = b.hw().take();
+  CHECK(first != 0 && b.node.requestParam("b", hwbridge::kParamInt32, &param_cb2) == 0, "refused");
+  b.hw().feed(b.host.ack(harness::frames_of(asked).back().first.seq));
+  b.hw().feed(b.host.rel(0, Bytes{0x31, static_cast<uint8_t>(first), static_cast<uint8_t>(first >> 8), 0, 1, 'a',
+                                  2, 7, 0, 0, 0}));
+  b.spin_ms(50);
+  CHECK(g_param_calls.size() == 2 && g_param_calls[0] == std::make_pair(2, uint8_t(hwbridge::kParamNotConnected)) &&
+            g_param_calls[1] == std::make_pair(1, uint8_t(hwbridge::kParamOk)),
+        "callbacks: %zu", g_param_calls.size());
+  printf("send times: publish and parameter requests take the time they are made; a refused request keeps the pending one's callback\n");
+}
+
+/** A host whose max_message is below what a log or a service answer needs: both refused, never a
+ * write past the transmit buffer (the sanitizer build checks). The host's HELLOs alone keep the
+ * session alive (2.9). */
+void small_hosts_and_hellos() {
+  StepBoard b(1);
+  static char text[200];
+  memset(text, 'A', sizeof(text) - 1);
+  const hwbridge::Counter refused = b.node.stats().tx_refused;
+  CHECK(!b.node.logInfo(text) && b.node.stats().tx_refused == refused + 1, "log to a max_message 1 host");
+
+  StepBoard h;
+  Bytes hello{0x01, 1, 0, 1, 0x78, 0x56, 0x34, 0x12, 0x0d, 0xf0, 0xfe, 0xca, 0, 4, 0, 0, 0x10, 0, 16, 0, 3};
+  for (int i = 0; i < 8; ++i) {  // 1.6 s of ESTABLISHED HELLOs, 200 ms apart, and nothing else
+    h.hw().clock += 200000;
+    h.hw().feed(h.host.be(0, hello));
+    h.node.spinOnce();
+  }
+  CHECK(h.node.connected() && h.node.stats().link_losses == 0, "HELLOs did not keep the link");
+  printf("small hosts: a log that cannot fit is refused; HELLOs are a sign of life\n");
+}
+
+/** A long setup() between begin() and the first spinOnce (40 s: beyond the 16-bit ticks'
+ * signed range) does not hold back the first HELLO. */
+void late_first_spin() {
+  harness::Node node;
+  harness::FakeHardware& hw = node.getHardware();
+  hw.clock = 1000000;
+  node.begin("late", "");
+  hw.clock += 40000000;
+  node.spinOnce();
+  const std::vector<std::pair<hwbridge::Frame, Bytes> > fr = harness::frames_of(hw.take());
+  CHECK(fr.size() == 1 && fr[0].second[0] == 0x01, "no HELLO at the first spinOnce after 40 s");
+  printf("late first spin: the HELLO goes out at once\n");
+}
+
+/** A time answer whose round trip is above 8.59 s (answers up to 10 s old count): host time
+ * t3 + rtt / 2 without overflowing the nanoseconds. */
+void long_round_trip() {
+  StepBoard b;
+  const uint32_t t4 = b.hw().clock;
+  const uint32_t rtt = 9500000;  // 9.5 s
+  Bytes r{0x04};
+  const uint32_t fields[] = {t4 - rtt, 5000, 0, 5000, 0};
+  for (size_t f = 0; f < 5; ++f) {
+    for (int i = 0; i < 4; ++i) r.push_back(static_cast<uint8_t>(fields[f] >> (8 * i)));
+  }
+  b.hw().feed(b.host.be(0, r));
+  b.node.processInput();
+  uint32_t sec = 0, nsec = 0;
+  b.node.now(&sec, &nsec);
+  CHECK(sec == 5004 && nsec == 750000000UL, "host time %u.%09u, expected 5004.750000000", sec, nsec);
+  printf("long round trip: t3 + 4.75 s\n");
+}
 }  // namespace
 
 int main() {
@@ -414,6 +552,10 @@ int main() {
   early_frames();
   small_mtu_host();
   time_samples();
+  send_times();
+  small_hosts_and_hellos();
+  late_first_spin();
+  long_round_trip();
   printf("test_session: %lu checks passed\n", check::count());
   return 0;
 }

@@ -220,6 +220,31 @@ def test_node_parts_refuse_to_be_included_alone(header: str, tmp_path: Path) -> 
     assert result.returncode != 0 and "include HwBridge.h" in result.stderr, result.stderr
 
 
+@needs_gxx
+@pytest.mark.parametrize("timeout_ms", [30000, 40000])
+def test_profile_timeouts_above_30_s_do_not_compile(timeout_ms: int, tmp_path: Path) -> None:
+    """The session's 16-bit ticks compare within 32.7 s: a profile asking more is an error."""
+    source = tmp_path / "profile.cpp"
+    source.write_text(
+        '#include "session_harness.h"\n'
+        "struct P : harness::GoldenProfile {\n"
+        f"  static const uint16_t kParamTimeoutMs = {timeout_ms};\n"
+        "};\n"
+        "hwbridge::NodeHandle_<harness::FakeHardware, P> node;\n"
+        "int main() { return node.connected(); }\n"
+    )
+    result = subprocess.run(
+        ["g++", *CXXFLAGS, "-fsyntax-only", f"-I{INCLUDE}", f"-I{TESTS}", str(source)],
+        check=False,
+        capture_output=True,
+        text=True,
+    )
+    if timeout_ms <= 30000:
+        assert result.returncode == 0, result.stderr
+    else:
+        assert result.returncode != 0 and "kParamTimeoutMs: at most 30000 ms" in result.stderr
+
+
 @needs_avr
 @pytest.mark.parametrize("profile", ["hello", "comfortable"])
 def test_avr_build_uses_no_heap(profile: str, tmp_path: Path) -> None:

@@ -429,6 +429,10 @@ class NodeHandle_ : public NodeBase {
   static const Tick kHandshakeTimeout = ticks(3000);
   static const Tick kTimeRetry = ticks(1000);
   static const uint16_t kMaxTimeoutMs = 30000;
+  // 16-bit ticks compare within 32.7 s: the profile's timeouts must stay below that
+  static_assert(Profile::kParamTimeoutMs <= kMaxTimeoutMs, "kParamTimeoutMs: at most 30000 ms");
+  static_assert(Profile::kServiceTimeoutMs <= kMaxTimeoutMs, "kServiceTimeoutMs: at most 30000 ms");
+  static_assert(Profile::kTimeSyncMs <= kMaxTimeoutMs, "kTimeSyncMs: at most 30000 ms");
   static bool reached(Tick now, Tick at) { return static_cast<int16_t>(now - at) >= 0; }
   /** A timeout in ms as ticks (ms * 125 / 128 by shifts), at most kMaxTimeoutMs. */
   static Tick msTicks(uint16_t ms) {
@@ -517,7 +521,7 @@ class NodeHandle_ : public NodeBase {
   uint8_t state_ = 0;
   uint8_t flags_ = 0;  // kFixed | kInInput | kTimeSynced | kLead
   Tick tick_ = 0;  // now_ >> 10
-  // timer_, by state: the next HELLO (handshake), the start of the table (configuring), the
+  // timer_, by state: the last HELLO (handshake), the start of the table (configuring), the
   // pending service call's deadline (connected)
   Tick timer_ = 0, last_rx_ = 0, last_tx_ = 0;
   uint16_t mtu_ = 0;
@@ -528,7 +532,7 @@ class NodeHandle_ : public NodeBase {
   uint8_t isn_ = 0, fixed_isn_ = 0;
   uint8_t entry_count_ = 0;
   uint8_t table_pos_ = 0;
-  uint8_t hello_wait_ = 0;  // ticks until the next HELLO: 50, 100, 200, then 250 ms
+  uint8_t hello_wait_ = 0;  // ticks from the last HELLO to the next: 0, 50, 100, 200, 250 ms
   uint8_t call_state_ = 0;   // 0 none, 1 waiting, 2 answered
   uint8_t call_status_ = 0;
   uint8_t sync_state_ = 0;   // 0 none, 1 waiting, 2 answered ok, 3 failed

@@ -102,6 +102,8 @@ HWB_NODE void HWB_SELF::onControl(const uint8_t* p, size_t n, bool reliable) {
     protocolError();
     return;
   }
+  // a sign of life (2.9), a HELLO too; before a session it counts for nothing (establish sets it)
+  last_rx_ = tick_;
   if (op == 0x01) {
     onHello(p);
     return;
@@ -110,7 +112,6 @@ HWB_NODE void HWB_SELF::onControl(const uint8_t* p, size_t n, bool reliable) {
     ++stats_.ignored_frames;
     return;
   }
-  last_rx_ = tick_;
   switch (op) {
     case 0x02:  // HEARTBEAT
       break;
@@ -249,7 +250,7 @@ HWB_NODE void HWB_SELF::teardown() {
   isn_ = flag(kFixed) ? fixed_isn_ : static_cast<uint8_t>(id_ ^ now_ ^ now_ >> 8);
   rel_tx_.reset(isn_, Profile::kWindow, Profile::kMtu);
   timer_ = tick_;
-  hello_wait_ = kHelloFirst;
+  hello_wait_ = 0;  // a HELLO at the next timer run, then after 50, 100, 200, 250, 250... ms
   for (Entry* e = entries_; e; e = e->next_) e->accepted_ = false;
   // through the pointers serviceClient and requestParam set: a sketch without service clients
   // or parameters links none of it

@@ -10,11 +10,12 @@
 // Logs, time, publishing
 
 HWB_NODE bool HWB_SELF::log(uint8_t level, const char* text) {
-  if (state_ != kConnected || !waitTx()) {
+  clock();  // the frame's send time is now, not the last spinOnce
+  const size_t cap = Profile::kTxBuffer < peer_max_ ? Profile::kTxBuffer : peer_max_;
+  if (state_ != kConnected || cap < 2 || !waitTx()) {  // a host max_message below 2: no log fits
     ++stats_.tx_refused;
     return false;
   }
-  const size_t cap = Profile::kTxBuffer < peer_max_ ? Profile::kTxBuffer : peer_max_;
   tx_[0] = 0x40;
   tx_[1] = level;
   size_t n = static_cast<size_t>(detail::put_str(tx_ + 2, text, cap - 2) - tx_ - 2);
@@ -29,6 +30,7 @@ HWB_NODE bool HWB_SELF::log(uint8_t level, const char* text) {
 
 HWB_NODE void HWB_SELF::requestSyncTime() {
   if (state_ != kConnected || !(features_ & 1)) return;
+  clock();  // t1 is now
   uint8_t r[5];
   r[0] = 0x03;
   detail::put32(r + 1, now_);
@@ -52,8 +54,13 @@ HWB_NODE void HWB_SELF::onTimeResponse(const uint8_t* p) {
   s.rtt_us = static_cast<uint16_t>(rtt > 65535 ? 65535 : rtt);  // above 65 ms: poor anyway
   s.board_ref = now_;
   s.host_sec = t3s;
-  s.host_nsec = t3n + static_cast<uint32_t>(rtt / 2) * 1000u;
-  while (s.host_nsec >= 1000000000UL) {
+  uint32_t half = static_cast<uint32_t>(rtt) / 2;  // µs, at most ~5 s: whole seconds first
+  while (half >= 1000000UL) {
+    half -= 1000000UL;
+    ++s.host_sec;
+  }
+  s.host_nsec = t3n + half * 1000u;
+  if (s.host_nsec >= 1000000000UL) {
     s.host_nsec -= 1000000000UL;
     ++s.host_sec;
   }
@@ -92,6 +99,7 @@ HWB_NODE uint8_t* HWB_SELF::takeTxBuffer(size_t* cap) {
 }
 
 HWB_NODE bool HWB_SELF::sendOn(Entry& e, size_t len) {
+  clock();  // the frame's send time (and a reliable one's retransmission deadline) is now
   if (state_ != kConnected || !e.accepted_ || len > peer_max_ || !txFree() || (!kFragments && !kFixedMtu && len > mtu_)) {
     ++stats_.tx_refused;
     return false;
@@ -101,7 +109,6 @@ HWB_NODE bool HWB_SELF::sendOn(Entry& e, size_t len) {
     pending_len_ = static_cast<uint16_t>(len);
     pump();
   } else {
-    clock();
     sendBe(e.channel_, tx_, len);
   }
   hw_.flush();

@@ -42,10 +42,14 @@ HWB_NODE void HWB_SELF::runTimers() {
     }
   }
   if (!established()) {  // the handshake, also right after a session ended: a HELLO at once
-    if (reached(tick_, timer_)) {
+    // timer_ is the last HELLO's tick: an unsigned difference, so a long pause between runs
+    // (a slow setup()) never holds the next HELLO back
+    if (static_cast<Tick>(tick_ - timer_) >= hello_wait_) {
       sendHello();
-      timer_ = static_cast<Tick>(tick_ + hello_wait_);
-      hello_wait_ = hello_wait_ < kHelloInterval / 2 ? static_cast<uint8_t>(hello_wait_ * 2) : kHelloInterval;
+      timer_ = tick_;
+      hello_wait_ = hello_wait_ == 0                    ? kHelloFirst
+                    : hello_wait_ < kHelloInterval / 2 ? static_cast<uint8_t>(hello_wait_ * 2)
+                                                       : kHelloInterval;
     }
     hw_.flush();
     return;

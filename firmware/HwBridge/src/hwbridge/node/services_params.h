@@ -12,7 +12,7 @@
 HWB_NODE void HWB_SELF::onServiceRequest(const uint8_t* p, size_t n) {
   const uint8_t channel = p[1];
   const uint16_t id = detail::get16(p + 2);
-  if (!txFree()) {  // no room to answer now: the host's call times out
+  if (!txFree() || peer_max_ < 5) {  // no room to answer (now, or ever): the host's call times out
     ++stats_.tx_refused;
     return;
   }
@@ -93,17 +93,18 @@ HWB_NODE uint16_t HWB_SELF::newRequestId() {
 
 HWB_NODE uint16_t HWB_SELF::requestParam(const char* name, uint8_t type, ParamCallback cb,
                                           bool subscribe, uint16_t max_count) {
+  clock();  // the deadline counts from now
   const size_t len = strlen(name);
-  param_cb_ = cb;
   if (param_id_ || state_ != kConnected || !waitTx() || len + 7 > Profile::kTxBuffer ||
       len + 7 > peer_max_) {
     ++stats_.tx_refused;
     ParamValue v;
     memset(&v, 0, sizeof(v));
     v.status = kParamNotConnected;
-    if (cb) cb(v);
+    if (cb) cb(v);  // the pending request (if any) keeps its own callback
     return 0;
   }
+  param_cb_ = cb;
   on_param_ = &paramThunk;
   param_id_ = newRequestId();
   if (subscribe) push_cb_ = cb;

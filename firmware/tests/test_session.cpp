@@ -406,11 +406,13 @@ void time_samples() {
 struct StepBoard {
   harness::Node node;
   hwbridge::Publisher<harness::Raw> rel{"/rel", true};
+  hwbridge::ServiceServer<std_srvs::Trigger> reset{"/reset", &harness::on_reset};  // channel 2
   Host host;
   StepBoard(uint32_t max_message = 0x100000) : node() {
     harness::FakeHardware& hw = node.getHardware();
     node.setIdentity(0xcafef00dUL, 0);
     node.advertise(rel);
+    node.advertiseService(reset);
     hw.clock = 10000000;
     node.begin("step", "");
     harness::connect_scripted(node, hw, host, 3, max_message);
@@ -495,6 +497,13 @@ void small_hosts_and_hellos() {
   memset(text, 'A', sizeof(text) - 1);
   const hwbridge::Counter refused = b.node.stats().tx_refused;
   CHECK(!b.node.logInfo(text) && b.node.stats().tx_refused == refused + 1, "log to a max_message 1 host");
+  b.hw().feed(b.host.rel(0, Bytes{0x20, 2, 9, 0}));  // a call of /reset: no answer fits
+  b.node.spinOnce();
+  const std::vector<std::pair<hwbridge::Frame, Bytes> > out = harness::frames_of(b.hw().take());
+  for (size_t i = 0; i < out.size(); ++i) {
+    CHECK(out[i].first.type != FrameType::Reliable, "an answer above the host's max_message");
+  }
+  CHECK(b.node.stats().tx_refused == refused + 2, "the unanswerable call not counted");
 
   StepBoard h;
   Bytes hello{0x01, 1, 0, 1, 0x78, 0x56, 0x34, 0x12, 0x0d, 0xf0, 0xfe, 0xca, 0, 4, 0, 0, 0x10, 0, 16, 0, 3};

@@ -355,17 +355,48 @@ void small_mtu_host() {
   printf("small host MTU: %s\n", fragments ? "established (the board fragments)" : "refused (no fragmentation)");
 }
 
+/** A board whose session host can be scripted step by step: a reliable publisher, connected. */
+struct StepBoard {
+  harness::Node node;
+  hwbridge::Publisher<harness::Raw> rel{"/rel", true};
+  hwbridge::ServiceServer<std_srvs::Trigger> reset{"/reset", &harness::on_reset};  // channel 2
+  Host host;
+  StepBoard(uint32_t max_message = 0x100000) : node() {
+    harness::FakeHardware& hw = node.getHardware();
+    node.setIdentity(0xcafef00dUL, 0);
+    node.advertise(rel);
+    node.advertiseService(reset);
+    hw.clock = 10000000;
+    node.begin("step", "");
+    harness::connect_scripted(node, hw, host, 3, max_message);
+    CHECK(node.connected(), "step board not connected");
+  }
+  harness::FakeHardware& hw() { return node.getHardware(); }
+  /** ms of time in 50 ms steps, the host sending a heartbeat at each, spinOnce after it. */
+  void spin_ms(uint32_t ms) {
+    for (uint32_t t = 0; t < ms; t += 50) {
+      hw().clock += 50000;
+      hw().feed(host.be(0, Bytes{0x02}));
+      node.spinOnce();
+    }
+  }
+};
+
+int reliable_frames(const Bytes& out) {
+  int n = 0;
+  std::vector<std::pair<hwbridge::Frame, Bytes> > fr = harness::frames_of(out);
+  for (size_t i = 0; i < fr.size(); ++i) n += fr[i].first.type == FrameType::Reliable;
+  return n;
+}
+
 /** Time sync (2.8): of its last 4 answers the board follows the newest whose round trip is
  * within 25 % (or 0.1 ms) of the shortest kept; a new session forgets them. */
 void time_samples() {
-  harness::Node node;
-  harness::FakeHardware& hw = node.getHardware();
-  node.setIdentity(0xcafef00dUL, 0);
-  hw.clock = 1000000;
-  node.begin("clock", "");
-  Host host;
-  harness::connect_scripted(node, hw, host, 3);
-  CHECK(node.connected() && node.timeSamples() == 0, "time board not connected");
+  StepBoard b;
+  harness::Node& node = b.node;
+  harness::FakeHardware& hw = b.hw();
+  Host& host = b.host;
+  CHECK(node.timeSamples() == 0, "time samples before any answer");
   // (round trip in µs, the host's second in its answer, the sample expected in use after it)
   const struct {
     uint32_t rtt;
@@ -400,40 +431,6 @@ void time_samples() {
   CHECK(!node.connected() && !node.timeSynced() && node.timeSamples() == 0, "samples after GOODBYE: %u",
         node.timeSamples());
   printf("time samples: the newest of the shortest round trips of the last 4, forgotten with the session\n");
-}
-
-/** A board whose session host can be scripted step by step: a reliable publisher, connected. */
-struct StepBoard {
-  harness::Node node;
-  hwbridge::Publisher<harness::Raw> rel{"/rel", true};
-  hwbridge::ServiceServer<std_srvs::Trigger> reset{"/reset", &harness::on_reset};  // channel 2
-  Host host;
-  StepBoard(uint32_t max_message = 0x100000) : node() {
-    harness::FakeHardware& hw = node.getHardware();
-    node.setIdentity(0xcafef00dUL, 0);
-    node.advertise(rel);
-    node.advertiseService(reset);
-    hw.clock = 10000000;
-    node.begin("step", "");
-    harness::connect_scripted(node, hw, host, 3, max_message);
-    CHECK(node.connected(), "step board not connected");
-  }
-  harness::FakeHardware& hw() { return node.getHardware(); }
-  /** ms of time in 50 ms steps, the host sending a heartbeat at each, spinOnce after it. */
-  void spin_ms(uint32_t ms) {
-    for (uint32_t t = 0; t < ms; t += 50) {
-      hw().clock += 50000;
-      hw().feed(host.be(0, Bytes{0x02}));
-      node.spinOnce();
-    }
-  }
-};
-
-int reliable_frames(const Bytes& out) {
-  int n = 0;
-  std::vector<std::pair<hwbridge::Frame, Bytes> > fr = harness::frames_of(out);
-  for (size_t i = 0; i < fr.size(); ++i) n += fr[i].first.type == FrameType::Reliable;
-  return n;
 }
 
 std::vector<std::pair<int, uint8_t> > g_param_calls;  // (callback, status)

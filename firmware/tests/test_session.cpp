@@ -426,6 +426,16 @@ void time_samples() {
           sec, nsec, want_sec, want_nsec, u);
     CHECK(node.timeSamples() == (k < 4 ? k + 1 : 4), "answer %d: %u samples kept", k, node.timeSamples());
   }
+  // 40 s without a timer run (beyond the 16-bit ticks' signed range): the request due long ago
+  // goes out at the next run
+  hw.take();
+  hw.clock += 40000000UL;
+  hw.feed(host.be(0, Bytes{0x02}));
+  node.spinOnce();
+  bool asked = false;
+  const std::vector<std::pair<hwbridge::Frame, Bytes> > out = harness::frames_of(hw.take());
+  for (size_t i = 0; i < out.size(); ++i) asked = asked || out[i].second[0] == 0x03;
+  CHECK(asked && node.connected(), "no TIME_REQUEST after a 40 s pause");
   hw.feed(host.be(0, Bytes{0x05}));  // GOODBYE: the session ends, its samples with it
   node.processInput();
   CHECK(!node.connected() && !node.timeSynced() && node.timeSamples() == 0, "samples after GOODBYE: %u",

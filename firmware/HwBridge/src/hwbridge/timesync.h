@@ -16,15 +16,21 @@ struct TimeSample {
 };
 
 /**
- * A board that asks for the time (N > 0): the deadline of its next request (in the node's ticks)
- * and its last N samples. add() returns the one to use: the newest whose round trip is within
+ * A board that asks for the time (N > 0): when its next request is due (a wait from a tick of
+ * the node, compared as an unsigned difference: a long pause between timer runs never holds a
+ * request back) and its last N samples. add() returns the one to use: the newest whose round trip is within
  * 25 % (or 100 µs) of the smallest kept. A short round trip bounds the error (at most half the
  * difference of the two one-way delays); among similar ones the newest has drifted least.
  */
 template <uint8_t N>
 class TimeSync {
  public:
-  uint16_t next = 0;  ///< tick of the next request
+  /** The next request is due wait ticks after the tick at. */
+  void schedule(uint16_t at, uint16_t wait) {
+    at_ = at;
+    wait_ = wait;
+  }
+  bool due(uint16_t tick) const { return static_cast<uint16_t>(tick - at_) >= wait_; }
 
   const TimeSample& add(const TimeSample& s) {
     const uint8_t newest = next_slot_;
@@ -48,17 +54,20 @@ class TimeSync {
   uint8_t count() const { return count_; }
 
  private:
+  uint16_t at_ = 0;
+  uint16_t wait_ = 0;
   TimeSample samples_[N] = {};
   uint8_t next_slot_ = 0;
   uint8_t count_ = 0;
 };
 
-/** A board that only answers the host's time requests: one byte, no samples (the node never
- * calls add() then). */
+/** A board that only answers the host's time requests: no requests, no samples (one byte, as
+ * every member takes one). */
 template <>
 class TimeSync<0> {
  public:
-  uint8_t next = 0;
+  void schedule(uint16_t, uint16_t) {}
+  bool due(uint16_t) const { return false; }
 
   const TimeSample& add(const TimeSample& s) { return s; }
   void clear() {}

@@ -148,7 +148,7 @@ HWB_NODE void HWB_SELF::onControl(const uint8_t* p, size_t n, bool reliable) {
         if (accepted != p[1]) protocolError();
       }
       state_ = kConnected;
-      time_.next = static_cast<decltype(time_.next)>(tick_);
+      time_.schedule(tick_, 0);  // the first time request right after CONNECTED
       break;
     case 0x20:
       if (on_request_) {

@@ -69,7 +69,7 @@ HWB_NODE void HWB_SELF::onTimeResponse(const uint8_t* p) {
   host_nsec_ = use.host_nsec;
   board_ref_ = use.board_ref;
   setFlag(kTimeSynced, true);
-  time_.next = static_cast<decltype(time_.next)>(tick_ + ticks(Profile::kTimeSyncMs));
+  time_.schedule(tick_, ticks(Profile::kTimeSyncMs));
 }
 
 HWB_NODE void HWB_SELF::now(uint32_t* sec, uint32_t* nsec) {

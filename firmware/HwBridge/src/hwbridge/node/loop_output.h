@@ -58,9 +58,9 @@ HWB_NODE void HWB_SELF::runTimers() {
     // set by serviceClient and requestParam, which check their own deadlines
     if (on_response_) on_response_(this, nullptr, kCallTimeout);
     if (on_param_) on_param_(this, nullptr, kParamTimeout);
-    if (Profile::kTimeSyncMs && (features_ & 1) && reached(tick_, time_.next)) {
+    if (Profile::kTimeSyncMs && (features_ & 1) && time_.due(tick_)) {
       requestSyncTime();
-      time_.next = static_cast<decltype(time_.next)>(tick_ + kTimeRetry);
+      time_.schedule(tick_, kTimeRetry);
     }
   }
   if (static_cast<Tick>(tick_ - last_tx_) >= kHeartbeat) {

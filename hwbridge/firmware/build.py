@@ -378,6 +378,7 @@ def firmware_size(elf: Path) -> FirmwareSize:
         [nm, "-C", "--size-sort", "-S", str(elf)], capture_output=True, text=True, check=False
     ).stdout
     core_names = _core_symbols(shutil.which("avr-gcc-nm") or nm)
+    core_statics = _core_statics()
     objects: list[tuple[str, int, str]] = []
     for line in symbols.splitlines():
         parts = line.split(None, 3)
@@ -389,7 +390,7 @@ def firmware_size(elf: Path) -> FirmwareSize:
                 name in core_names
                 or name.startswith("__")
                 or "HardwareSerial" in name
-                or (parts[2] in "bd" and name in _core_statics())
+                or (parts[2] in "bd" and name in core_statics)
             ):
                 owner = "core"
             else:

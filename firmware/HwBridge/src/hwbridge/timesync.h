@@ -18,9 +18,10 @@ struct TimeSample {
 /**
  * A board that asks for the time (N > 0): when its next request is due (a wait from a tick of
  * the node, compared as an unsigned difference: a long pause between timer runs never holds a
- * request back) and its last N samples. add() returns the one to use: the newest whose round trip is within
- * 25 % (or 100 µs) of the smallest kept. A short round trip bounds the error (at most half the
- * difference of the two one-way delays); among similar ones the newest has drifted least.
+ * request back) and its last N samples. add() returns the one to use: the newest whose round
+ * trip is within 25 % (or 100 µs) of the smallest kept. A short round trip bounds the error (at
+ * most half the difference of the two one-way delays); among similar ones the newest has drifted
+ * least.
  */
 template <uint8_t N>
 class TimeSync {

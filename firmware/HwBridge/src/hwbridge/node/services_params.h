@@ -209,26 +209,17 @@ HWB_NODE bool HWB_SELF::blockingParam(const char* name, uint8_t type, void* out,
 }
 
 namespace detail {
+inline void param_element(const ParamValue& v, uint16_t i, int32_t* out) { *out = v.asInt(i); }
+inline void param_element(const ParamValue& v, uint16_t i, float* out) { *out = v.asFloat(i); }
+inline void param_element(const ParamValue& v, uint16_t i, bool* out) { *out = v.asBool(i); }
+/** n numbers of type V from v into out (int32_t, float or bool): false unless v holds n of them. */
 template <class V>
-bool copy_values(void* out, const ParamValue& v, uint16_t n);
-template <>
-inline bool copy_values<int32_t>(void* out, const ParamValue& v, uint16_t n) {
+bool copy_values(void* out, const ParamValue& v, uint16_t n) {
   if (v.count() != n || (v.type & 0x7F) == kParamString) return false;
-  for (uint16_t i = 0; i < n; ++i) static_cast<int32_t*>(out)[i] = v.asInt(i);
+  for (uint16_t i = 0; i < n; ++i) param_element(v, i, static_cast<V*>(out) + i);
   return true;
 }
-template <>
-inline bool copy_values<float>(void* out, const ParamValue& v, uint16_t n) {
-  if (v.count() != n || (v.type & 0x7F) == kParamString) return false;
-  for (uint16_t i = 0; i < n; ++i) static_cast<float*>(out)[i] = v.asFloat(i);
-  return true;
-}
-template <>
-inline bool copy_values<bool>(void* out, const ParamValue& v, uint16_t n) {
-  if (v.count() != n || (v.type & 0x7F) == kParamString) return false;
-  for (uint16_t i = 0; i < n; ++i) static_cast<bool*>(out)[i] = v.asBool(i);
-  return true;
-}
+/** A string from v into out (cap bytes with its terminator). */
 template <>
 inline bool copy_values<char>(void* out, const ParamValue& v, uint16_t cap) {
   if (v.count() != 1 || (v.type & 0x7F) != kParamString) return false;

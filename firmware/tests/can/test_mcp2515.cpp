@@ -48,15 +48,19 @@ struct Chip {
     if ((addr == 0x30 || addr == 0x40 || addr == 0x50) && (v & 0x08)) transmit(addr);
   }
   bool configMode() const { return (reg[0x0E] & 0xE0) == 0x80; }
+  // The 29 id bits of the four registers SIDH, SIDL, EID8, EID0 at a (a buffer, filter or mask).
+  uint32_t id_at(uint8_t a) const {
+    return static_cast<uint32_t>(reg[a]) << 21 | static_cast<uint32_t>(reg[a + 1] >> 5) << 18 |
+           static_cast<uint32_t>(reg[a + 1] & 3) << 16 | static_cast<uint32_t>(reg[a + 2]) << 8 |
+           reg[a + 3];
+  }
   void transmit(uint8_t ctrl) {
     if (configMode() || !acked) return;  // TXREQ stays set
     const uint8_t* r = &reg[ctrl + 1];
     Frame f;
-    const uint32_t sid = static_cast<uint32_t>(r[0]) << 3 | r[1] >> 5;
     f.extended = (r[1] & 0x08) != 0;
-    f.id = f.extended ? (sid << 18 | static_cast<uint32_t>(r[1] & 3) << 16 |
-                         static_cast<uint32_t>(r[2]) << 8 | r[3])
-                      : sid;
+    const uint32_t id = id_at(static_cast<uint8_t>(ctrl + 1));
+    f.id = f.extended ? id : id >> 18;  // a standard id: SIDH and SIDL's top 3 bits
     f.len = r[4] & 0x0F;
     memcpy(f.data, r + 5, 8);
     sent.push_back(std::make_pair(f, static_cast<uint8_t>((ctrl - 0x30) >> 4)));
@@ -67,12 +71,8 @@ struct Chip {
   // and the filter's EXIDE must match the frame's kind (standard frames: the 11 bits only).
   bool matches(uint8_t f, uint8_t m, uint32_t id, bool ext) const {
     if (((reg[f + 1] & 0x08) != 0) != ext) return false;
-    const uint32_t fid = static_cast<uint32_t>(reg[f]) << 21 | static_cast<uint32_t>(reg[f + 1] >> 5) << 18 |
-                         static_cast<uint32_t>(reg[f + 1] & 3) << 16 | static_cast<uint32_t>(reg[f + 2]) << 8 |
-                         reg[f + 3];
-    const uint32_t mid = static_cast<uint32_t>(reg[m]) << 21 | static_cast<uint32_t>(reg[m + 1] >> 5) << 18 |
-                         static_cast<uint32_t>(reg[m + 1] & 3) << 16 | static_cast<uint32_t>(reg[m + 2]) << 8 |
-                         reg[m + 3];
+    const uint32_t fid = id_at(f);
+    const uint32_t mid = id_at(m);
     const uint32_t frame = ext ? id : id << 18;
     const uint32_t used = ext ? mid : (mid & 0x1FFC0000UL);
     return ((fid ^ frame) & used) == 0;

@@ -129,16 +129,21 @@ def test_the_ros_section_names_the_gateways_up_starts(section: str, ros2: bool, 
     assert (robot.ros2, robot.ros1) == (ros2, ros1)
 
 
-def test_robot_check_and_show_carry_the_ros_section(tmp_path: Path) -> None:
+def test_robot_check_and_show_carry_the_ros_section(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from hwbridge.cli import main
+
     path = tmp_path / "r.yaml"
     path.write_text(ONE_BOARD + "ros: {ros2: true, ros1: true}\n")
-    run = [sys.executable, "-m", "hwbridge", "robot"]
-    checked = subprocess.run([*run, "check", str(path)], capture_output=True, text=True, check=True)
-    assert "'up' starts the ROS 2 and ROS 1 gateways" in checked.stdout
-    shown = subprocess.run([*run, "show", str(path)], capture_output=True, text=True, check=True)
-    assert yaml.safe_load(shown.stdout)["ros"] == {"ros2": True, "ros1": True}
-    path.write_text(shown.stdout)
-    assert (load_robot(path).ros2, load_robot(path).ros1) == (True, True)  # reads back
+    assert main(["robot", "check", str(path)]) == 0
+    assert "'up' starts the ROS 2 and ROS 1 gateways" in capsys.readouterr().out
+    assert main(["robot", "show", str(path)]) == 0
+    shown = capsys.readouterr().out
+    assert yaml.safe_load(shown)["ros"] == {"ros2": True, "ros1": True}
+    path.write_text(shown)
+    again = load_robot(path)  # show's output reads back
+    assert (again.ros2, again.ros1) == (True, True)
 
 
 def test_missing_and_non_utf8_files(tmp_path: Path) -> None:

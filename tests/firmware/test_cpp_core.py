@@ -206,17 +206,23 @@ def test_each_header_compiles_for_avr(header: str, tmp_path: Path) -> None:
     _compile(["avr-g++", *AVRFLAGS, "-fsyntax-only", f"-I{INCLUDE}", str(source)])
 
 
+def _syntax_check(source: Path) -> subprocess.CompletedProcess[str]:
+    """g++ -fsyntax-only on source with the library and the test harness on the include path;
+    the result, whether it compiles or not."""
+    return subprocess.run(
+        ["g++", *CXXFLAGS, "-fsyntax-only", f"-I{INCLUDE}", f"-I{TESTS}", str(source)],
+        check=False,
+        capture_output=True,
+        text=True,
+    )
+
+
 @needs_gxx
 @pytest.mark.parametrize("header", sorted(NODE_PARTS))
 def test_node_parts_refuse_to_be_included_alone(header: str, tmp_path: Path) -> None:
     source = tmp_path / "one.cpp"
     source.write_text(f'#include "{header}"\nint main() {{ return 0; }}\n')
-    result = subprocess.run(
-        ["g++", *CXXFLAGS, "-fsyntax-only", f"-I{INCLUDE}", str(source)],
-        check=False,
-        capture_output=True,
-        text=True,
-    )
+    result = _syntax_check(source)
     assert result.returncode != 0 and "include HwBridge.h" in result.stderr, result.stderr
 
 
@@ -233,12 +239,7 @@ def test_profile_timeouts_above_30_s_do_not_compile(timeout_ms: int, tmp_path: P
         "hwbridge::NodeHandle_<harness::FakeHardware, P> node;\n"
         "int main() { return node.connected(); }\n"
     )
-    result = subprocess.run(
-        ["g++", *CXXFLAGS, "-fsyntax-only", f"-I{INCLUDE}", f"-I{TESTS}", str(source)],
-        check=False,
-        capture_output=True,
-        text=True,
-    )
+    result = _syntax_check(source)
     if timeout_ms <= 30000:
         assert result.returncode == 0, result.stderr
     else:

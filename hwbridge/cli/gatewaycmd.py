@@ -87,8 +87,12 @@ def _qos_options(values: list[str] | None) -> dict[str, str]:
 def _interfaces() -> Ros2Interfaces:
     """tf2_msgs for the gateway: built at first use; without it (no compiler) the gateway
     runs on and says that /tf is not mirrored."""
+    import importlib.util
+
     from hwbridge.gateway.ros2_interfaces import Ros2Interfaces, ensure_interfaces
 
+    if importlib.util.find_spec("rclpy") is None:
+        return Ros2Interfaces(None, ())  # load_rclpy says what to install
     try:
         return ensure_interfaces(_say)
     except HwBridgeError as exc:
@@ -102,6 +106,7 @@ def _print_interfaces() -> None:
     built = ensure_interfaces(_say)
     if built.setup_script is None:
         _say("hwbridge ros2: tf2_msgs comes from your ROS 2 installation: nothing to build")
+        sys.stdout.write(f"{os.devnull}\n")  # still something to source
         return
     _say(f"hwbridge ros2: {', '.join(built.packages)} in {built.prefix}; for other ROS 2 nodes:")
     _say(f'  source "{built.setup_script}"')
@@ -132,7 +137,8 @@ def ros2(
         typer.Option(
             "--interfaces",
             help="Build the message packages the ROS 2 wheels lack (tf2_msgs, for /tf) if they "
-            "are not built yet, print the setup.sh that puts them on your paths, and exit.",
+            "are not built yet, print the setup.sh that puts them on your paths (/dev/null "
+            "when a sourced ROS 2 installation has them), and exit.",
         ),
     ] = False,
 ) -> None:

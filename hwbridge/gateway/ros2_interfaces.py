@@ -215,10 +215,15 @@ def ensure_interfaces(
     names = tuple(p.name for p in wanted)
     if (prefix / ".complete").is_file():
         return Ros2Interfaces(prefix, names)
-    root.mkdir(parents=True, exist_ok=True)
-    with _locked(root / f"{prefix.name}.lock"):
-        if not (prefix / ".complete").is_file():  # another process may have built it meanwhile
-            _build(prefix, wanted, say or (lambda _text: None))
+    try:
+        root.mkdir(parents=True, exist_ok=True)
+        with _locked(root / f"{prefix.name}.lock"):
+            if not (prefix / ".complete").is_file():  # another process built it meanwhile?
+                _build(prefix, wanted, say or (lambda _text: None))
+    except OSError as exc:
+        raise HwBridgeError(
+            f"building ROS 2 interfaces in {root}: {exc} (set {CACHE_ENV} to a writable directory)"
+        ) from exc
     return Ros2Interfaces(prefix, names)
 
 
@@ -292,16 +297,17 @@ def _build(
 ) -> None:
     started = time.monotonic()
     names = ", ".join(p.name for p in packages)
+    ros = _ros_prefix()
+    cc, cxx = _tool("CC", "cc"), _tool("CXX", "c++")
     say(
         f"building ROS 2 message packages the wheels lack ({names}) into {prefix} "
         "(once per rclpy version; some seconds)"
     )
-    cc, cxx = _tool("CC", "cc"), _tool("CXX", "c++")
     work = prefix.with_name(f"{prefix.name}.build-{os.getpid()}")
     shutil.rmtree(work, ignore_errors=True)
     try:
         for package in packages:
-            _build_package(work, package, cc, cxx, say)
+            _build_package(work, ros, package, cc, cxx, say)
         for scratch in ("src", "generated"):
             shutil.rmtree(work / scratch)
         _write_setup(work, prefix)
@@ -354,12 +360,12 @@ def _generate(work: Path, package: InterfacePackage, ros: Path) -> Path:
 
 def _build_package(
     work: Path,
+    ros: Path,
     package: InterfacePackage,
     cc: list[str],
     cxx: list[str],
     say: Callable[[str], None],
 ) -> None:
-    ros = _ros_prefix()
     pkg = package.name
     say(f"{pkg}: generating C and Python sources with rosidl")
     gen = _generate(work, package, ros)

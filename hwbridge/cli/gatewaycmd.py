@@ -5,12 +5,15 @@ from __future__ import annotations
 import os
 import sys
 import threading
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
 from hwbridge.cli.common import open_graph
 from hwbridge.errors import HwBridgeError
+
+if TYPE_CHECKING:
+    from hwbridge.gateway.ros2_interfaces import Ros2Interfaces
 
 __all__ = ["ros1", "ros2"]
 
@@ -81,6 +84,35 @@ def _qos_options(values: list[str] | None) -> dict[str, str]:
     return out
 
 
+def _interfaces() -> Ros2Interfaces:
+    """tf2_msgs for the gateway: built at first use; without it (no compiler) the gateway
+    runs on and says that /tf is not mirrored."""
+    import importlib.util
+
+    from hwbridge.gateway.ros2_interfaces import Ros2Interfaces, ensure_interfaces
+
+    if importlib.util.find_spec("rclpy") is None:
+        return Ros2Interfaces(None, ())  # load_rclpy says what to install
+    try:
+        return ensure_interfaces(_say)
+    except HwBridgeError as exc:
+        _say(f"hwbridge ros2: /tf and /tf_static will not reach ROS 2: {exc}")
+        return Ros2Interfaces(None, ())
+
+
+def _print_interfaces() -> None:
+    from hwbridge.gateway.ros2_interfaces import ensure_interfaces
+
+    built = ensure_interfaces(_say)
+    if built.setup_script is None:
+        _say("hwbridge ros2: tf2_msgs comes from your ROS 2 installation: nothing to build")
+        sys.stdout.write(f"{os.devnull}\n")  # still something to source
+        return
+    _say(f"hwbridge ros2: {', '.join(built.packages)} in {built.prefix}; for other ROS 2 nodes:")
+    _say(f'  source "{built.setup_script}"')
+    sys.stdout.write(f"{built.setup_script}\n")
+
+
 def ros2(
     ctx: typer.Context,
     topic: TopicOption = None,
@@ -100,6 +132,15 @@ def ros2(
     no_rosout: Annotated[
         bool, typer.Option("--no-rosout", help="Do not forward board logs to /rosout.")
     ] = False,
+    interfaces: Annotated[
+        bool,
+        typer.Option(
+            "--interfaces",
+            help="Build the message packages the ROS 2 wheels lack (tf2_msgs, for /tf) if they "
+            "are not built yet, print the setup.sh that puts them on your paths (/dev/null "
+            "when a sourced ROS 2 installation has them), and exit.",
+        ),
+    ] = False,
 ) -> None:
     """Mirror the graph's topics and services into ROS 2 (rclpy) until Ctrl-C.
 
@@ -113,16 +154,22 @@ def ros2(
         ros2_environment,
         run_ros2_gateway,
     )
+    from hwbridge.gateway.ros2_interfaces import environment_has, interfaces_environment
 
     qos_map = _qos_options(qos)
-    if not environment_ready() and not os.environ.get(_REEXEC_GUARD):
-        # rclpy's libraries are found through LD_LIBRARY_PATH, read when the process starts:
-        # start again with it set (once).
-        env = ros2_environment()
-        env[_REEXEC_GUARD] = "1"
-        sys.stdout.flush()
-        sys.stderr.flush()
-        os.execve(sys.executable, sys.orig_argv, env)
+    if interfaces:
+        _print_interfaces()
+        return
+    if not os.environ.get(_REEXEC_GUARD):
+        extra = _interfaces()  # tf2_msgs, built at first use
+        if not environment_ready() or not environment_has(extra):
+            # rclpy's libraries are found through LD_LIBRARY_PATH, read when the process
+            # starts: start again with it set (once).
+            env = interfaces_environment(extra, ros2_environment())
+            env[_REEXEC_GUARD] = "1"
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os.execve(sys.executable, sys.orig_argv, env)
     load_rclpy()
     options = Ros2Options(
         topics=Selection.of(topic, exclude),

@@ -113,12 +113,15 @@ def load_rclpy() -> Any:
 
 def qos_kind(topic: str, ros1_type: str, direction: str) -> str:
     """``sensor`` (best effort, keep last 5), ``reliable`` (keep last 10), ``tf`` (reliable,
-    keep last 100) or ``rosout`` (reliable, transient local) for a topic.
+    keep last 100), ``tf_static`` (that, transient local) or ``rosout`` (reliable, transient
+    local) for a topic.
 
     Sensor data from boards is best effort, as ROS 2 drivers publish it (a late sample is
     worth nothing); commands to boards (ROS -> graph) and everything else are reliable."""
     if topic == ROSOUT:
         return "rosout"
+    if topic == "/tf_static" or topic.endswith("/tf_static"):
+        return "tf_static"
     if topic in _RELIABLE_SENSOR_TOPICS or topic.endswith(_RELIABLE_SENSOR_TOPICS):
         return "tf"
     if direction == "to_ros" and (
@@ -136,6 +139,13 @@ def _qos(rclpy_qos: Any, kind: str) -> Any:
         return rclpy_qos.QoSProfile(history=history, depth=5, reliability=reliability.BEST_EFFORT)
     if kind == "tf":
         return rclpy_qos.QoSProfile(history=history, depth=100, reliability=reliability.RELIABLE)
+    if kind == "tf_static":  # latched, as tf2_ros' static broadcaster and listener have it
+        return rclpy_qos.QoSProfile(
+            history=history,
+            depth=100,
+            reliability=reliability.RELIABLE,
+            durability=durability.TRANSIENT_LOCAL,
+        )
     if kind == "rosout":
         return rclpy_qos.QoSProfile(
             history=history,

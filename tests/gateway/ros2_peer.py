@@ -7,7 +7,10 @@ Commands (each prints JSON lines on stdout and exits 0 when done, 1 on a timeout
 - ``call SERVICE TYPE JSON``: call a service once, print the response;
 - ``rosout TEXT``: wait for a /rosout entry containing TEXT, print it;
 - ``serve SERVICE SECONDS``: serve std_srvs/srv/Trigger (message ``ros2 says hi``);
-- ``qos TOPIC``: the reliability and durability of the gateway's endpoints on TOPIC.
+- ``qos TOPIC``: the reliability and durability of the gateway's endpoints on TOPIC;
+- ``tf TOPIC PARENT CHILD [static]``: the first PARENT -> CHILD transform on TOPIC (a
+  ``tf2_msgs/msg/TFMessage``; ``static``: subscribed transient local, as tf2_ros' static
+  listener does) and the type hashes its publishers offer.
 """
 
 from __future__ import annotations
@@ -144,6 +147,38 @@ def main(argv: list[str]) -> int:
                     flush=True,
                 )
             return 0 if found else 1
+        if command == "tf":
+            topic, parent, child = args[:3]
+            latched = args[3:4] == ["static"]
+            durability = qos.DurabilityPolicy
+            profile = qos.QoSProfile(
+                depth=100,
+                reliability=qos.ReliabilityPolicy.RELIABLE,
+                durability=durability.TRANSIENT_LOCAL if latched else durability.VOLATILE,
+            )
+            transforms: list[Any] = []
+
+            def keep(message: Any) -> None:
+                transforms.extend(
+                    t
+                    for t in message.transforms
+                    if t.header.frame_id == parent and t.child_frame_id == child
+                )
+
+            node.create_subscription(_class("tf2_msgs/msg/TFMessage"), topic, keep, profile)
+            print(json.dumps({"ready": True}), flush=True)
+            while not transforms and time.monotonic() < deadline:
+                rclpy.spin_once(node, timeout_sec=0.1)
+            if not transforms:
+                return 1
+            hashes = sorted(
+                str(info.topic_type_hash) for info in node.get_publishers_info_by_topic(topic)
+            )
+            print(
+                json.dumps({"transform": _to_dict(transforms[0]), "type_hashes": hashes}),
+                flush=True,
+            )
+            return 0
         print(f"unknown command {command}", file=sys.stderr)
         return 2
     finally:

@@ -23,21 +23,20 @@ nothing that marks the end, so the host uses this rule:
   it sends all its TopicInfos in one go before that);
 - completion emits :class:`~hwbridge.protocols.base.Connected` with all accepted endpoints.
 
-A TopicInfo arriving after that (a slow link) reopens the negotiation: it is merged into the
-table and ``Connected`` is emitted again once the line is quiet. The answer to a silence probe
-(below) is the device's whole table instead: it replaces the old one, so the topics of a board
-that reset into another sketch leave (``Connected`` carries only the new table). If nothing
-answers the requests for ``sync_timeout`` (15 s), the host reports an ``Error`` (again every
-``sync_timeout``) and keeps asking. Once connected, the device asks for the time every ~2.5 s. After ``probe_after`` (3 s)
-without a time request the host sends "request topics" (again every ``request_retry_max``): a
-device that reset is silent until asked, and answers with its table, which replaces the old one,
-so its traffic is back within about 4 s; a configured device just sends its table again
-(rosserial_python waits the whole sync timeout). ``sync_timeout`` without a time request means
-"lost sync": the host fails pending calls, emits
-:class:`~hwbridge.protocols.base.Disconnected`, drops the topic table (not connected until the
-next ``Connected``) and asks for topics again. A data frame on a topic id the host does not know
-also makes it ask again (at most once a second), as rosserial_python does; meanwhile the current
-table stays in use.
+A TopicInfo arriving after that (a slow link) reopens the negotiation: it is merged into the table
+and ``Connected`` is emitted again once the line is quiet. The answer to a silence probe (below) is
+the device's whole table instead: it replaces the old one, so the topics of a board that reset into
+another sketch leave (``Connected`` carries only the new table). If nothing answers the requests for
+``sync_timeout`` (15 s), the host reports an ``Error`` (again every ``sync_timeout``) and keeps
+asking. Once connected, the device asks for the time every ~2.5 s. After ``probe_after`` (3 s)
+without a time request the host sends "request topics" (again every ``request_retry_max``): a device
+that reset is silent until asked, and answers with its table, which replaces the old one, so its
+traffic is back within about 4 s; a configured device just sends its table again (rosserial_python
+waits the whole sync timeout). ``sync_timeout`` without a time request means "lost sync": the host
+fails pending calls, emits :class:`~hwbridge.protocols.base.Disconnected`, drops the topic table
+(not connected until the next ``Connected``) and asks for topics again. A data frame on a topic id
+the host does not know also makes it ask again (at most once a second), as rosserial_python does;
+meanwhile the current table stays in use.
 """
 
 from __future__ import annotations

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from typing import TYPE_CHECKING, Any
 
 from hwbridge.bridge.endpoints import BoardEndpoints
@@ -81,7 +81,7 @@ class SessionAdapter:
             base.TimeSynced: self._on_time_synced,
             base.Disconnected: self._on_disconnected,
         }
-        board.bridge.params.on_update(self._on_param_changed)
+        self._stop_listening = board.bridge.params.on_update(self._on_param_changed)
 
     # ------------------------------------------------------------------ info
     def topics(self) -> dict[str, Any]:
@@ -139,8 +139,10 @@ class SessionAdapter:
     def _on_connected(self, event: base.Connected) -> None:
         self.channels.clear()
         self._forward.clear()
+        before = self.endpoints.names()
         for endpoint in event.endpoints:
             self._declare(endpoint)
+        self._withdraw_others(event.endpoints, before)
         self._wire_publishers()
         self.board.set_state("connected", board=event.board_name or None, resumed=event.resumed)
         if not self._announced:
@@ -153,6 +155,30 @@ class SessionAdapter:
                 ", session resumed" if event.resumed else "",
                 self.endpoints.names(),
             )
+
+    def _withdraw_others(
+        self, endpoints: Iterable[base.Endpoint], before: dict[str, list[str]]
+    ) -> None:
+        """A session that negotiates again without ending (a rosserial board that reset and
+        answered the next "request topics" with another table): what the board no longer has
+        leaves the graph, and the log says what changed."""
+        keep = {self.board.resolve(e.name) for e in endpoints}
+        gone = self.endpoints.withdraw_all_but(keep)
+        if not self._announced or not gone:
+            return
+        after = self.endpoints.names()
+        added = sorted(
+            {n for names in after.values() for n in names}.difference(
+                n for names in before.values() for n in names
+            )
+        )
+        self.log.warning(
+            "%s: the board negotiated again with another table (it reset or was flashed): "
+            "gone %s%s",
+            self.board.name,
+            ", ".join(gone),
+            f"; new {', '.join(added)}" if added else "",
+        )
 
     def _on_topic_announced(self, event: base.TopicAnnounced) -> None:
         if self.session.connected:
@@ -269,6 +295,7 @@ class SessionAdapter:
     def close(self, reason: HwBridgeError) -> list[bytes]:
         """Take the board's endpoints off the graph; returns a goodbye to write if the link
         lives (one item per write)."""
+        self._stop_listening()
         self.endpoints.close(reason)
         if isinstance(reason, LinkError):
             return []

@@ -208,6 +208,19 @@ class BoardEndpoints:
             }
         )
 
+    def withdraw_all_but(self, keep: set[str]) -> list[str]:
+        """Take off the graph every publisher, subscriber and service not named in ``keep``;
+        their names, sorted."""
+        gone: list[Publisher | Subscriber | ServiceServer] = []
+        names: list[str] = []
+        for table in (self.publishers, self.subscribers, self.servers):
+            for name in [n for n in table if n not in keep]:
+                gone.append(table.pop(name))
+                names.append(name)
+        for item in gone:
+            item.close()
+        return sorted(names)
+
     # ------------------------------------------------------------------ teardown
     def close(self, reason: HwBridgeError) -> None:
         """Take everything off the graph and fail the calls still waiting."""

@@ -130,13 +130,30 @@ class ParamServer:
         with self._lock:
             return sorted(self._values)
 
-    def on_update(self, callback: Callable[[str, Any], None]) -> None:
-        """Call ``callback(name, value)`` on every change made through this server."""
-        self._listeners.append(callback)
+    def on_update(self, callback: Callable[[str, Any], None]) -> Callable[[], None]:
+        """Call ``callback(name, value)`` on every change made through this server, until the
+        returned function is called (each board session's adapter listens while it lives)."""
+        with self._lock:
+            self._listeners.append(callback)
+
+        def remove() -> None:
+            with self._lock:
+                if callback in self._listeners:
+                    self._listeners.remove(callback)
+
+        return remove
+
+    @property
+    def listener_count(self) -> int:
+        """How many :meth:`on_update` callbacks are registered (flat across board resets)."""
+        with self._lock:
+            return len(self._listeners)
 
     def _announce(self, name: str, value: Any) -> None:
         self._update_pub.put(json.dumps({"name": name, "value": value}).encode())
-        for listener in list(self._listeners):
+        with self._lock:
+            listeners = list(self._listeners)
+        for listener in listeners:
             call_guarded(listener, name, value)
 
     def _on_query(self, query: zenoh.Query) -> None:

@@ -301,6 +301,13 @@ class RosserialDevice:
         if was:
             self._events.append(Unconfigured("reset"))
 
+    def reflash(self) -> None:
+        """Emulate flashing another sketch: a reset that also forgets every endpoint (advertise
+        the new sketch's endpoints next)."""
+        self.reset()
+        self._publishers = [None] * self.max_publishers
+        self._subscribers = [None] * self.max_subscribers
+
     # ------------------------------------------------------------------ sketch API
     def publish(self, name: str, payload: bytes | bytearray | memoryview) -> int:
         """``pub.publish(&msg)`` with ``payload`` already serialized.

@@ -218,6 +218,7 @@ class RosserialHost(NegotiationMixin):
         self._negotiation: Negotiation | None = None
         self._requested_at: float | None = None
         self._want_topics = False
+        self._probed = False
         self._sync_ref = now
         self._ids = RequestIds()
         self._calls = HostCalls()

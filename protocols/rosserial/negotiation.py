@@ -23,19 +23,20 @@ nothing that marks the end, so the host uses this rule:
   it sends all its TopicInfos in one go before that);
 - completion emits :class:`~hwbridge.protocols.base.Connected` with all accepted endpoints.
 
-A TopicInfo arriving after that (a slow link) reopens the negotiation: it is merged into the
-table and ``Connected`` is emitted again once the line is quiet. If nothing answers the requests
-for ``sync_timeout`` (15 s), the host reports an ``Error`` (again every ``sync_timeout``) and keeps
+A TopicInfo arriving after that (a slow link) reopens the negotiation: it is merged into the table
+and ``Connected`` is emitted again once the line is quiet. The answer to a silence probe (below) is
+the device's whole table instead: it replaces the old one, so the topics of a board that reset into
+another sketch leave (``Connected`` carries only the new table). If nothing answers the requests for
+``sync_timeout`` (15 s), the host reports an ``Error`` (again every ``sync_timeout``) and keeps
 asking. Once connected, the device asks for the time every ~2.5 s. After ``probe_after`` (3 s)
-without a time request the host sends "request topics" (again every ``request_retry_max``): a
-device that reset is silent until asked, and answers with its table, which is merged as above, so
-its traffic is back within about 4 s; a configured device just sends its table again
-(rosserial_python waits the whole sync timeout). ``sync_timeout`` without a time request means
-"lost sync": the host fails pending calls, emits
-:class:`~hwbridge.protocols.base.Disconnected`, drops the topic table (not connected until the
-next ``Connected``) and asks for topics again. A data frame on a topic id the host does not know
-also makes it ask again (at most once a second), as rosserial_python does; meanwhile the current
-table stays in use.
+without a time request the host sends "request topics" (again every ``request_retry_max``): a device
+that reset is silent until asked, and answers with its table, which replaces the old one, so its
+traffic is back within about 4 s; a configured device just sends its table again (rosserial_python
+waits the whole sync timeout). ``sync_timeout`` without a time request means "lost sync": the host
+fails pending calls, emits :class:`~hwbridge.protocols.base.Disconnected`, drops the topic table
+(not connected until the next ``Connected``) and asks for topics again. A data frame on a topic id
+the host does not know also makes it ask again (at most once a second), as rosserial_python does;
+meanwhile the current table stays in use.
 """
 
 from __future__ import annotations
@@ -108,6 +109,7 @@ class NegotiationMixin:
     _warned_types: set[str]
     _requested_at: float | None
     _want_topics: bool
+    _probed: bool
     _sync_ref: float
     _sync_timeout: float
     _settle_time: float
@@ -142,6 +144,7 @@ class NegotiationMixin:
             # Silent for longer than the library's time-sync period: it may have reset (it then
             # waits to be asked). A configured device just sends its table again.
             self._send_request(now)
+            self._probed = True
             self.stats.silence_probes += 1
             self._next_probe = now + self._retry_max
         elif (
@@ -204,6 +207,7 @@ class NegotiationMixin:
 
     def _request_topics(self, now: float) -> None:
         self._want_topics = False
+        self._probed = False
         self._send_request(now)
         self._negotiation = Negotiation(
             started=now, retry_gap=self._retry, retry_at=now + self._retry, reported_at=now
@@ -271,9 +275,13 @@ class NegotiationMixin:
             int(msg.buffer_size),
         )
         neg = self._negotiation
-        if neg is None:  # a late TopicInfo: reopen, keeping what was accepted
+        if neg is None:
             neg = self._negotiation = Negotiation(started=now, retry_at=math.inf)
-            neg.infos.update(self._accepted)
+            if not self._probed:  # a late TopicInfo: reopen, keeping what was accepted
+                neg.infos.update(self._accepted)
+            # else the answer to a silence probe: the device sends its whole table, which
+            # replaces the old one (a board that reset into another sketch drops old topics)
+            self._probed = False
             if self._state is State.CONNECTED:
                 self._state = State.NEGOTIATING
         if neg.answered_at is None:

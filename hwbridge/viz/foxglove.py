@@ -372,7 +372,9 @@ class VizServer:
                 "(add its package with --msg-path)"
             )
             return
-        live = sorted(set(self._topic_types.get(channel.topic, {}).values()) - {type_name})
+        live = sorted(
+            set(self._topic_types.get(channel.topic, {}).values()) - {type_name, ANY_TYPE, ""}
+        )
         if live:
             client.problem(
                 f"{where}: type {type_name}, but the topic has type {', '.join(live)} on the graph"

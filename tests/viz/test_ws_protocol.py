@@ -9,6 +9,7 @@ served on the same graph by this test process."""
 
 from __future__ import annotations
 
+import json
 import math
 import re
 import time
@@ -25,6 +26,7 @@ from hwbridge.graph.config import GraphConfig
 from tests.hwbridge.test_up import DIFFBOT, Processes
 from tests.netutil import free_port, wait_until
 from tests.viz.jsclient import Event, NodeClient, node_or_skip
+from tests.viz.test_foxglove import LAYOUT, layout_topics
 
 SPEC = "foxglove.websocket.v1"
 SDK = "foxglove.sdk.v1"
@@ -178,7 +180,7 @@ def test_teleop_twist_on_cmd_vel_moves_the_robot(
         try:
             assert wait_until(moved, 60, step=0.1), (
                 f"odometry did not move from {start}; status: "
-                f"{[e for e in client.events if e['event'] == 'status']}"
+                f"{sorted({e['message'] for e in client.events if e['event'] == 'status'})}"
             )
         finally:
             client.send(cmd="publish", topic="/diffbot/cmd_vel", message=stop)
@@ -248,3 +250,32 @@ def test_hwbridge_viz_alone_serves_both_generations(robot: Robot) -> None:
             tf = client.event("message", 60, topic="/tf")["message"]
             assert tf["transforms"][0]["child_frame_id"] == "base_link"
             client.event("advertiseServices", 60, name=FLAG_SERVICE)
+
+
+def _panels(tree: Any) -> list[str]:
+    if isinstance(tree, str):
+        return [tree]
+    return [*_panels(tree["first"]), *_panels(tree["second"])]
+
+
+def test_the_example_layout_drives_and_shows_the_demo_robot(robot: Robot) -> None:
+    """examples/foxglove/layout.json: valid JSON, every panel placed, a Teleop panel on the topic
+    the demo robot drives from (a Twist subscriber), a 3D panel with /tf frames and odometry, and
+    every topic its panels show served to a viewer."""
+    layout = json.loads(LAYOUT.read_text(encoding="utf-8"))
+    configs = layout["configById"]
+    assert sorted(_panels(layout["layout"])) == sorted(configs)
+    (teleop,) = (c for key, c in configs.items() if key.startswith("Teleop!"))
+    subscribed = {
+        e.type
+        for e in robot.graph.snapshot(timeout=5).of_kind("sub")
+        if e.name == teleop["topic"] and e.type != "*"
+    }
+    assert subscribed == {"geometry_msgs/Twist"}
+    three = configs["3D!diffbot"]
+    assert {"/tf", "/diffbot/odom"} <= set(three["topics"])
+    assert three["followTf"] == "base_link"
+    with robot.client(SPEC, "layout") as client:
+        assert _advertised(client, "/tf")["schemaName"] == "tf2_msgs/TFMessage"
+        for topic in layout_topics():
+            _advertised(client, topic)

@@ -26,7 +26,10 @@ clients that offer ``foxglove.sdk.v1`` and refuses with HTTP 400 those that offe
 ``foxglove.websocket.v1`` (``@foxglove/ws-protocol``, Lichtblick), it can refuse a subscription
 sent right after a new channel's advertisement ("Unknown channel ID"), and a shim in front of it
 would add a second hop per message. The protocol is small; ``tools/bench/viz.py`` measures this
-server against the SDK's (messages per second to one client and latency) in one run.
+server against the SDK's in one run (fed from the same graph, one viewer process): at a busy
+robot's 500 messages/s both deliver everything with a p50 latency under a millisecond; in a
+flood the SDK's Rust server moves about twice as many (roughly 9,500 against 5,000 messages/s on
+the development machine), which is ten times what such a robot sends.
 
 Threads: the WebSocket side runs an asyncio loop in a thread of its own; graph callbacks hand
 their work to it (``call_soon_threadsafe``), so all protocol state lives on that one thread.

@@ -158,7 +158,7 @@ def measure(
             if time.monotonic() - started > seconds + 60:
                 viewer.kill()
                 break
-        out, _ = viewer.communicate(timeout=30)
+        out = viewer.communicate(timeout=30)[0] or ""
     summary = json.loads(out.splitlines()[-1]) if out.strip() else {"received": 0}
     elapsed = time.monotonic() - started
     return {

@@ -1,4 +1,5 @@
-"""``hwbridge viz``: serve the running graph's topics to Foxglove (its WebSocket protocol)."""
+"""``hwbridge viz``: serve the running graph to Foxglove and Lichtblick (the Foxglove WebSocket
+protocol)."""
 
 from __future__ import annotations
 
@@ -28,10 +29,11 @@ def viz(
         typer.Option("--host", help="Address to listen on (0.0.0.0: every interface)."),
     ] = "127.0.0.1",
 ) -> None:
-    """Serve the graph's topics to Foxglove over WebSocket (ROS 1 schemas) until Ctrl-C.
+    """Serve the graph to Foxglove or Lichtblick over WebSocket until Ctrl-C: topics (ROS 1
+    schemas), services to call, server time, and publishing from the viewer (Teleop).
 
-    The first line printed is the URL to open in Foxglove (Open connection, Foxglove
-    WebSocket); examples/foxglove/layout.json is a layout for the demo robot.
+    The first line printed is the URL to open (Open connection, Foxglove WebSocket);
+    examples/foxglove/layout.json is a layout for the demo robot.
     """
     from hwbridge.viz.foxglove import start_viz
 
@@ -41,7 +43,7 @@ def viz(
             sys.stdout.write(server.url + "\n")
             sys.stdout.flush()
             sys.stderr.write(
-                f"hwbridge: serving the graph's topics to Foxglove on {server.url}; Ctrl-C stops\n"
+                f"hwbridge: serving the graph to Foxglove on {server.url}; Ctrl-C stops\n"
             )
             sys.stderr.flush()
             wait_for_signal()

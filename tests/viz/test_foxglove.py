@@ -1,6 +1,6 @@
-"""``hwbridge viz`` against a real Foxglove WebSocket client: a plain ``websockets`` client
-speaking the published protocol (``foxglove.sdk.v1``, the current name of
-``foxglove.websocket.v1``: same messages) subscribes to an emulated diffbot's ``/diffbot/odom``
+"""``hwbridge viz`` against a Foxglove WebSocket client: a plain ``websockets`` client speaking
+the published protocol (offering ``foxglove.sdk.v1`` and ``foxglove.websocket.v1``, two names of
+one protocol) subscribes to an emulated diffbot's ``/diffbot/odom``
 and decodes what it receives from the advertised ROS 1 schema alone. The recorder's MCAP
 schemas are checked to be the same text (what Foxglove opens)."""
 
@@ -19,7 +19,6 @@ from typing import Any
 
 import pytest
 
-pytest.importorskip("foxglove")
 websockets_sync = pytest.importorskip("websockets.sync.client")
 
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore  # noqa: E402
@@ -115,8 +114,6 @@ class FoxgloveClient:
         if isinstance(frame, str):
             message = json.loads(frame)
             self.log.append(message.get("op", "?") if message.get("op") == "advertise" else frame)
-            if message["op"] == "status" and "Unknown channel" in message.get("message", ""):
-                self._subscribe_again(message["message"])
             if message["op"] == "serverInfo":
                 self.server_info = message
             elif message["op"] == "advertise":
@@ -124,15 +121,6 @@ class FoxgloveClient:
                     self.channels[channel["topic"]] = channel
             return None
         return bytes(frame)
-
-    def _subscribe_again(self, status: str) -> None:
-        """foxglove-sdk (0.30) may refuse a subscription sent right after a channel's
-        advertisement ("Unknown channel ID: N") when the channel is new: a client asks again."""
-        channel_id = int(status.rsplit(":", 1)[-1])
-        for subscription, channel in self.subscriptions.items():
-            if channel["id"] == channel_id:
-                time.sleep(0.05)
-                self.subscribe(subscription, channel)
 
     def subscribe(self, subscription: int, channel: dict[str, Any]) -> None:
         self.subscriptions[subscription] = channel

@@ -8,7 +8,6 @@ from pathlib import Path
 
 import pytest
 
-pytest.importorskip("foxglove")
 pytest.importorskip("websockets.sync.client")
 
 from tests.hwbridge.test_up import DIFFBOT, Processes

@@ -91,9 +91,10 @@ def show(robot_file: _FILE) -> None:
     if robot.world:
         data["world"] = dict(robot.world)
     if robot.ros2 or robot.ros1 or robot.ros2_qos:
-        data["ros"] = {"ros2": robot.ros2, "ros1": robot.ros1}
+        ros: dict[str, Any] = {"ros2": robot.ros2, "ros1": robot.ros1}
         if robot.ros2_qos:
-            data["ros"]["qos"] = dict(robot.ros2_qos)
+            ros["qos"] = dict(robot.ros2_qos)
+        data["ros"] = ros
     sys.stdout.write(yaml.safe_dump(data, sort_keys=False))
 
 

@@ -9,6 +9,10 @@ Bytes are converted, never decoded into Python objects: ROS 1 bytes from the gra
 with rosbags (``header.seq`` dropped, time fields as ``builtin_interfaces/Time``) and are
 published as serialized messages; ROS 2 subscriptions are raw and their CDR becomes ROS 1 bytes.
 Board logs (``/rosout``, ``rosgraph_msgs/Log``) become ``rcl_interfaces/msg/Log`` on ``/rosout``.
+
+QoS (:mod:`hwbridge.gateway.qos`): what the gateway publishes is reliable, so default-QoS and
+sensor-data subscribers both receive it; what it subscribes to is best effort, so reliable and
+best-effort publishers both reach the graph; :attr:`Ros2Options.qos` rules change it per topic.
 """
 
 from __future__ import annotations

@@ -33,7 +33,6 @@ __all__ = [
     "check_kind",
     "check_pattern",
     "default_kind",
-    "describe_kinds",
     "parse_rule",
 ]
 
@@ -171,8 +170,3 @@ class QosRules:
     def as_args(self, option: str = "--qos") -> Sequence[str]:
         """The rules as command-line arguments (``--qos PATTERN=KIND`` each)."""
         return [arg for pattern, kind in self.rules for arg in (option, f"{pattern}={kind}")]
-
-
-def describe_kinds() -> str:
-    """One line per kind, for help texts and documentation."""
-    return "\n".join(f"{kind.name}: {kind.doc}" for kind in KINDS.values())

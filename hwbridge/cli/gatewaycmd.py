@@ -15,7 +15,7 @@ from hwbridge.errors import HwBridgeError
 if TYPE_CHECKING:
     from hwbridge.gateway.ros2_interfaces import Ros2Interfaces
 
-__all__ = ["ros1", "ros2"]
+__all__ = ["QOS_HELP", "qos_rules", "ros1", "ros2"]
 
 _REEXEC_GUARD = "HWBRIDGE_ROS2_ENV"
 
@@ -72,16 +72,28 @@ def _say(text: str) -> None:
     sys.stderr.flush()
 
 
-def _qos_options(values: list[str] | None) -> dict[str, str]:
-    out: dict[str, str] = {}
+def qos_rules(values: list[str] | None, option: str = "--qos") -> list[tuple[str, str]]:
+    """``PATTERN=KIND`` options as (pattern, kind) rules, in order; a usage error (exit 2)
+    for a bad one."""
+    from hwbridge.gateway.qos import parse_rule
+
+    rules: list[tuple[str, str]] = []
     for value in values or []:
-        pattern, sep, kind = value.rpartition("=")
-        if not sep or kind not in ("sensor", "reliable", "tf") or not pattern:
-            raise typer.BadParameter(
-                f"{value!r}: write PATTERN=sensor|reliable|tf", param_hint="--qos"
-            )
-        out[pattern] = kind
-    return out
+        try:
+            rules.append(parse_rule(value))
+        except ValueError as exc:
+            raise typer.BadParameter(str(exc), param_hint=option) from exc
+    return rules
+
+
+QOS_HELP = (
+    "ROS 2 QoS for topics matching PATTERN (shell pattern, e.g. '/diffbot/*'); repeatable, "
+    "the first matching pattern wins. KIND: reliable (reaches default and sensor-data "
+    "subscribers), sensor (best effort: sensor-data subscribers only), tf (reliable, keep "
+    "last 100), latched (reliable, transient local). Default: what the gateway publishes "
+    "reliable (/tf: tf, /tf_static: latched); its subscriptions best effort, taking reliable "
+    "and best-effort publishers alike."
+)
 
 
 def _interfaces() -> Ros2Interfaces:
@@ -121,12 +133,7 @@ def ros2(
     ros_service: RosServiceOption = None,
     qos: Annotated[
         list[str] | None,
-        typer.Option(
-            "--qos",
-            metavar="PATTERN=KIND",
-            help="QoS for matching topics: sensor (best effort), reliable or tf; repeatable. "
-            "Default: sensor data from the graph best effort, the rest reliable.",
-        ),
+        typer.Option("--qos", metavar="PATTERN=KIND", help=QOS_HELP),
     ] = None,
     node_name: NodeOption = "hwbridge_gateway",
     no_rosout: Annotated[
@@ -145,8 +152,12 @@ def ros2(
     """Mirror the graph's topics and services into ROS 2 (rclpy) until Ctrl-C.
 
     The ROS 2 graph is the one ROS_DOMAIN_ID selects; rclpy comes with hwbridge's ros2 extra.
+    Topics go into ROS 2 reliable, so that default-QoS subscribers (Nav2, RViz, a plain
+    create_subscription(T, topic, cb, 10)) and sensor-data ones both receive them; --qos
+    changes that per topic.
     """
     from hwbridge.gateway.common import Selection
+    from hwbridge.gateway.qos import QosRules
     from hwbridge.gateway.ros2 import (
         Ros2Options,
         environment_ready,
@@ -156,7 +167,7 @@ def ros2(
     )
     from hwbridge.gateway.ros2_interfaces import environment_has, interfaces_environment
 
-    qos_map = _qos_options(qos)
+    rules = QosRules.of(qos_rules(qos))
     if interfaces:
         _print_interfaces()
         return
@@ -176,7 +187,7 @@ def ros2(
         services=Selection.of(service, exclude),
         ros_services=Selection(tuple(ros_service or ()), tuple(exclude or ())),
         node_name=node_name,
-        qos=qos_map,
+        qos=rules,
         rosout=not no_rosout,
     )
     stop = threading.Event()

@@ -38,11 +38,12 @@ def check(robot_file: _FILE) -> None:
 def _gateways(robot: Robot) -> str:
     """What the robot file's ``ros:`` section has ``hwbridge up`` start, for ``robot check``."""
     names = [name for name, on in (("ROS 2", robot.ros2), ("ROS 1", robot.ros1)) if on]
+    qos = ", ".join(f"{pattern}={kind}" for pattern, kind in robot.ros2_qos)
     return (
         f"; 'up' starts the {' and '.join(names)} gateway{'s' if len(names) > 1 else ''}"
         if names
         else ""
-    )
+    ) + (f"; ROS 2 QoS {qos}" if qos else "")
 
 
 def _count(number: int, what: str) -> str:
@@ -89,8 +90,11 @@ def show(robot_file: _FILE) -> None:
     }
     if robot.world:
         data["world"] = dict(robot.world)
-    if robot.ros2 or robot.ros1:
-        data["ros"] = {"ros2": robot.ros2, "ros1": robot.ros1}
+    if robot.ros2 or robot.ros1 or robot.ros2_qos:
+        ros: dict[str, Any] = {"ros2": robot.ros2, "ros1": robot.ros1}
+        if robot.ros2_qos:
+            ros["qos"] = dict(robot.ros2_qos)
+        data["ros"] = ros
     sys.stdout.write(yaml.safe_dump(data, sort_keys=False))
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
@@ -16,6 +17,7 @@ from hwbridge.cli.bridgecmd import (
     wait_for_signal,
 )
 from hwbridge.cli.common import get_registry
+from hwbridge.cli.gatewaycmd import QOS_HELP, qos_rules
 
 if TYPE_CHECKING:
     from hwbridge.gateway.launch import GatewayProcess
@@ -45,10 +47,13 @@ def _start_gateways(
     *,
     ros2: bool | None,
     ros1: bool | None,
+    ros2_qos: Sequence[tuple[str, str]] = (),
 ) -> list[GatewayProcess]:
     """The gateway processes asked for, attached to this robot's graph: by ``--ros2``/``--ros1``
-    (``--no-...``: not), else by the robot file's ``ros:`` section."""
+    (``--no-...``: not), else by the robot file's ``ros:`` section. The ROS 2 gateway gets the
+    QoS rules of ``--ros2-qos`` first, then the file's (the first match wins)."""
     from hwbridge.gateway.launch import GatewayProcess
+    from hwbridge.gateway.qos import QosRules
 
     msg_path = [str(p) for p in getattr(ctx.find_root().obj, "msg_path", ())]
     started: list[GatewayProcess] = []
@@ -62,6 +67,8 @@ def _start_gateways(
         if kind == "ros1":
             namespaces = sorted({b.namespace for b in robot.boards if b.namespace != "/"})
             extra = [arg for ns in namespaces for arg in ("--param", ns)]
+        else:
+            extra = list(QosRules.of(ros2_qos, robot.ros2_qos).as_args("--qos"))
         started.append(GatewayProcess(kind, config, extra, msg_path=msg_path))
     return started
 
@@ -106,6 +113,16 @@ def up(
             show_default=False,
         ),
     ] = None,
+    ros2_qos: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--ros2-qos",
+            metavar="PATTERN=KIND",
+            help=f"{QOS_HELP} Passed to 'hwbridge ros2 --qos', before the robot file's "
+            "'ros: {qos: ...}' rules (so these win).",
+            show_default=False,
+        ),
+    ] = None,
     viz: Annotated[
         bool,
         typer.Option(
@@ -123,7 +140,14 @@ def up(
     from hwbridge.robot.runtime import RobotRuntime
 
     overrides = _links(link)
+    qos = qos_rules(ros2_qos, "--ros2-qos")
     robot = load_robot(robot_file).with_links(overrides)
+    if qos and not (robot.ros2 if ros2 is None else ros2):
+        raise typer.BadParameter(
+            "the ROS 2 gateway is not started: add --ros2 (or 'ros: {ros2: true}' in the "
+            "robot file)",
+            param_hint="--ros2-qos",
+        )
     initial = read_params(params)
     config = owner_config(ctx, listen)
     graph = Graph(config)
@@ -144,7 +168,7 @@ def up(
                 server = start_viz(graph, port=viz_port)
                 sys.stderr.write(f"hwbridge: Foxglove WebSocket on {server.url}\n")
             sys.stderr.flush()
-            gateways = _start_gateways(ctx, config, robot, ros2=ros2, ros1=ros1)
+            gateways = _start_gateways(ctx, config, robot, ros2=ros2, ros1=ros1, ros2_qos=qos)
             wait_for_signal()
         finally:
             for gateway in reversed(gateways):

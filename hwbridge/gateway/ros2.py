@@ -9,6 +9,10 @@ Bytes are converted, never decoded into Python objects: ROS 1 bytes from the gra
 with rosbags (``header.seq`` dropped, time fields as ``builtin_interfaces/Time``) and are
 published as serialized messages; ROS 2 subscriptions are raw and their CDR becomes ROS 1 bytes.
 Board logs (``/rosout``, ``rosgraph_msgs/Log``) become ``rcl_interfaces/msg/Log`` on ``/rosout``.
+
+QoS (:mod:`hwbridge.gateway.qos`): what the gateway publishes is reliable, so default-QoS and
+sensor-data subscribers both receive it; what it subscribes to is best effort, so reliable and
+best-effort publishers both reach the graph; :attr:`Ros2Options.qos` rules change it per topic.
 """
 
 from __future__ import annotations
@@ -36,6 +40,7 @@ from hwbridge.gateway.common import (
     claim_rosout,
     run_until_stopped,
 )
+from hwbridge.gateway.qos import ROSOUT_KIND, QosKind, QosRules
 from hwbridge.gateway.types import CdrConverter, TypeMapError, ros1_type_name, ros2_type_name
 
 if TYPE_CHECKING:
@@ -54,9 +59,6 @@ log = logging.getLogger("hwbridge.gateway.ros2")
 
 ROS1_LOG_LEVELS: Final = {1: 10, 2: 20, 4: 30, 8: 40, 16: 50}
 """rosgraph_msgs/Log levels (DEBUG=1 ... FATAL=16) -> rcl_interfaces/msg/Log (10 ... 50)."""
-_SENSOR_PACKAGES: Final = ("sensor_msgs/",)
-_SENSOR_TYPES: Final = {"nav_msgs/Odometry", "geometry_msgs/PoseStamped"}
-_RELIABLE_SENSOR_TOPICS: Final = ("/tf", "/tf_static")
 
 
 def ros2_environment(
@@ -111,49 +113,26 @@ def load_rclpy() -> Any:
         ) from exc
 
 
-def qos_kind(topic: str, ros1_type: str, direction: str) -> str:
-    """``sensor`` (best effort, keep last 5), ``reliable`` (keep last 10), ``tf`` (reliable,
-    keep last 100), ``tf_static`` (that, transient local) or ``rosout`` (reliable, transient
-    local) for a topic.
-
-    Sensor data from boards is best effort, as ROS 2 drivers publish it (a late sample is
-    worth nothing); commands to boards (ROS -> graph) and everything else are reliable."""
+def qos_kind(topic: str, direction: str, rules: QosRules | None = None) -> QosKind:
+    """The QoS a topic gets in ROS 2: the first of ``rules`` that matches it, else the
+    default (:func:`hwbridge.gateway.qos.default_kind`): everything published into ROS 2
+    reliable (a reliable publisher reaches default and sensor-data subscribers alike), ``/tf``
+    as tf2 broadcasts it, ``/tf_static`` latched, subscriptions best effort (they take reliable
+    and best-effort publishers alike), and ``/rosout`` as rclpy's own."""
     if topic == ROSOUT:
-        return "rosout"
-    if topic == "/tf_static" or topic.endswith("/tf_static"):
-        return "tf_static"
-    if topic in _RELIABLE_SENSOR_TOPICS or topic.endswith(_RELIABLE_SENSOR_TOPICS):
-        return "tf"
-    if direction == "to_ros" and (
-        ros1_type.startswith(_SENSOR_PACKAGES) or ros1_type in _SENSOR_TYPES
-    ):
-        return "sensor"
-    return "reliable"
+        return ROSOUT_KIND
+    return (rules or QosRules()).kind(topic, direction)
 
 
-def _qos(rclpy_qos: Any, kind: str) -> Any:
+def _qos(rclpy_qos: Any, kind: QosKind) -> Any:
     reliability = rclpy_qos.ReliabilityPolicy
     durability = rclpy_qos.DurabilityPolicy
-    history = rclpy_qos.HistoryPolicy.KEEP_LAST
-    if kind == "sensor":
-        return rclpy_qos.QoSProfile(history=history, depth=5, reliability=reliability.BEST_EFFORT)
-    if kind == "tf":
-        return rclpy_qos.QoSProfile(history=history, depth=100, reliability=reliability.RELIABLE)
-    if kind == "tf_static":  # latched, as tf2_ros' static broadcaster and listener have it
-        return rclpy_qos.QoSProfile(
-            history=history,
-            depth=100,
-            reliability=reliability.RELIABLE,
-            durability=durability.TRANSIENT_LOCAL,
-        )
-    if kind == "rosout":
-        return rclpy_qos.QoSProfile(
-            history=history,
-            depth=1000,
-            reliability=reliability.RELIABLE,
-            durability=durability.TRANSIENT_LOCAL,
-        )
-    return rclpy_qos.QoSProfile(history=history, depth=10, reliability=reliability.RELIABLE)
+    return rclpy_qos.QoSProfile(
+        history=rclpy_qos.HistoryPolicy.KEEP_LAST,  # never blocks on a slow subscriber
+        depth=kind.depth,
+        reliability=reliability.RELIABLE if kind.reliable else reliability.BEST_EFFORT,
+        durability=durability.TRANSIENT_LOCAL if kind.transient_local else durability.VOLATILE,
+    )
 
 
 @dataclass
@@ -164,8 +143,9 @@ class Ros2Options:
     services: Selection = field(default_factory=Selection)
     ros_services: Selection = field(default_factory=lambda: Selection(()))
     node_name: str = "hwbridge_gateway"
-    qos: dict[str, str] = field(default_factory=dict)
-    """Topic pattern -> ``sensor`` | ``reliable`` | ``tf`` (overrides :func:`qos_kind`)."""
+    qos: QosRules = field(default_factory=QosRules)
+    """Per-topic QoS rules (``--qos PATTERN=KIND``, the robot file's ``ros: {qos:}``), before
+    the defaults of :func:`qos_kind`."""
     service_timeout: float = 5.0
     rosout: bool = True
     """Board logs (the graph's ``/rosout``) to ROS 2's ``/rosout``, whatever ``topics`` says."""
@@ -318,12 +298,10 @@ class Ros2Gateway:
             )
         return cls, ros2
 
-    def _qos_for(self, topic: str, ros1: str, direction: str) -> Any:
-        kind = qos_kind(topic, ros1, direction)
-        for pattern, chosen in self.options.qos.items():
-            if Selection((pattern,))(topic):
-                kind = chosen
-        return _qos(self._qos_mod, kind)
+    def _qos_for(self, topic: str, direction: str) -> tuple[Any, str]:
+        """The rclpy profile for a topic and the name of its kind (for the log)."""
+        kind = qos_kind(topic, direction, self.options.qos)
+        return _qos(self._qos_mod, kind), kind.name
 
     # ------------------------------------------------------------------ topics
     def _to_ros(self, topic: str, ros1: str) -> None:
@@ -332,7 +310,8 @@ class Ros2Gateway:
                 self._rosout()
             return
         cls, ros2 = self._message_types(ros1)
-        publisher = self.node.create_publisher(cls, topic, self._qos_for(topic, ros1, "to_ros"))
+        profile, kind = self._qos_for(topic, "to_ros")
+        publisher = self.node.create_publisher(cls, topic, profile)
         converter = self.converter
         counters = self.counters
 
@@ -350,13 +329,13 @@ class Ros2Gateway:
 
         self._keep.append(self.graph_node.subscriber(topic, ros1, forward, raw=True))
         self.bridged[topic] = f"to_ros {ros1}"
-        self._say("%s: graph -> ROS 2 (%s)", topic, ros2)
+        self._say("%s: graph -> ROS 2 (%s, QoS %s)", topic, ros2, kind)
 
     def _rosout(self) -> None:
         from hwbridge import msg as msgmod
 
         log_cls = self._ros2_class("rcl_interfaces/msg/Log")
-        publisher = self.node.create_publisher(log_cls, ROSOUT, _qos(self._qos_mod, "rosout"))
+        publisher = self.node.create_publisher(log_cls, ROSOUT, _qos(self._qos_mod, ROSOUT_KIND))
         registry = self.graph.registry
 
         def forward(raw: Any) -> None:
@@ -399,16 +378,12 @@ class Ros2Gateway:
                 return
             self.counters.from_ros += 1
 
+        profile, kind = self._qos_for(topic, "from_ros")
         self.node.create_subscription(
-            cls,
-            topic,
-            forward,
-            self._qos_for(topic, ros1, "from_ros"),
-            callback_group=self._group,
-            raw=True,
+            cls, topic, forward, profile, callback_group=self._group, raw=True
         )
         self.bridged[topic] = f"from_ros {ros1}"
-        self._say("%s: ROS 2 -> graph (%s)", topic, ros2)
+        self._say("%s: ROS 2 -> graph (%s, QoS %s)", topic, ros2, kind)
 
     # ------------------------------------------------------------------ services
     def _service_types(self, ros1: str) -> tuple[Any, str, str, str]:

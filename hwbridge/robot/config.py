@@ -24,6 +24,8 @@
     ros:                               # optional: the gateways 'hwbridge up' also starts
       ros2: true                       # 'hwbridge ros2' (as --ros2; --no-ros2 overrides)
       ros1: false                      # 'hwbridge ros1' (as --ros1; --no-ros1 overrides)
+      qos:                             # optional: ROS 2 QoS by topic pattern, first match wins
+        /diffbot/imu: sensor           # reliable, sensor, tf or latched (hwbridge.gateway.qos)
 
 :func:`load_robot` checks every key, link URL, protocol, namespace and device setting (against
 the plugin's :class:`~hwbridge.robot.plugin.Field` list, filling in defaults) and reports every
@@ -46,7 +48,9 @@ problem at once, each as ``FILE:LINE: what is wrong``, in file order, in one
 - a host device: ``type``, ``name`` (required), ``link`` (required), ``namespace``, ``baud`` and
   the plugin's settings.
 - board names and host-device names are unique across the robot (``--link NAME=URL`` picks one).
-- ``ros``: an optional mapping of ``ros2`` and ``ros1``, each ``true`` or ``false`` (default).
+- ``ros``: an optional mapping of ``ros2`` and ``ros1``, each ``true`` or ``false`` (default),
+  and ``qos``, a mapping of topic patterns (full names, shell patterns) to QoS kinds
+  (:data:`hwbridge.gateway.qos.KINDS`) for the ROS 2 gateway.
 """
 
 from __future__ import annotations
@@ -73,7 +77,7 @@ from hwbridge.robot.plugin import DevicePlugin, Field
 __all__ = ["check_value", "device_config", "load_robot", "parse_robot"]
 
 _TOP_KEYS: Final = ("robot", "world", "boards", "host_devices", "ros")
-_ROS_KEYS: Final = ("ros2", "ros1")
+_ROS_KEYS: Final = ("ros2", "ros1", "qos")
 _BOARD_KEYS: Final = (
     "name",
     "link",
@@ -545,16 +549,17 @@ def _parse_robot(text: str, path: str) -> Robot:
     return Robot(name, Path(path), tuple(boards), tuple(hosts), world, **gateways)
 
 
-def _ros(node: yaml.Node, problems: _Problems) -> dict[str, bool]:
-    """The ``ros:`` section: which gateways ``hwbridge up`` starts with the robot."""
+def _ros(node: yaml.Node, problems: _Problems) -> dict[str, Any]:
+    """The ``ros:`` section: which gateways ``hwbridge up`` starts with the robot, and the ROS 2
+    gateway's QoS rules (as :class:`Robot`'s ``ros2``, ``ros1`` and ``ros2_qos``)."""
     if isinstance(node, yaml.ScalarNode) and node.tag == "tag:yaml.org,2002:null":
         return {}
     items = _mapping(node, "ros", problems)
     if items is None:
         return {}
     _unknown_keys(items, _ROS_KEYS, "ros", problems)
-    wanted: dict[str, bool] = {}
-    for key in _ROS_KEYS:
+    wanted: dict[str, Any] = {}
+    for key in ("ros2", "ros1"):
         if key not in items:
             continue
         value_node = items[key][1]
@@ -567,7 +572,37 @@ def _ros(node: yaml.Node, problems: _Problems) -> dict[str, bool]:
             wanted[key] = value
         else:
             problems.at(value_node, f"ros: {key} must be true or false, not {value!r}")
+    if "qos" in items:
+        wanted["ros2_qos"] = _ros2_qos(items["qos"][1], problems)
     return wanted
+
+
+def _ros2_qos(node: yaml.Node, problems: _Problems) -> tuple[tuple[str, str], ...]:
+    """``ros: {qos: {PATTERN: KIND, ...}}``, in file order."""
+    from hwbridge.gateway.qos import check_kind, check_pattern
+
+    if isinstance(node, yaml.ScalarNode) and node.tag == "tag:yaml.org,2002:null":
+        return ()
+    items = _mapping(node, "ros: qos", problems)
+    if items is None:
+        return ()
+    rules: list[tuple[str, str]] = []
+    for pattern, (key_node, value_node) in items.items():
+        why = check_pattern(pattern)
+        if why is not None:
+            problems.at(key_node, f"ros: qos: {why}")
+            continue
+        try:
+            kind = _value(value_node)
+        except _BadValue as exc:
+            problems.at_line(exc.line, f"ros: qos: {pattern}: {exc}")
+            continue
+        why = check_kind(kind) if isinstance(kind, str) else f"{kind!r} is no QoS kind"
+        if why is not None:
+            problems.at(value_node, f"ros: qos: {pattern}: {why}")
+            continue
+        rules.append((pattern, kind))
+    return tuple(rules)
 
 
 def device_config(entry: dict[str, Any], source: str = "<device>") -> DeviceConfig:

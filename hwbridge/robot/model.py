@@ -79,6 +79,9 @@ class Robot:
     """``ros: {ros2: true}``: ``hwbridge up`` also starts the ROS 2 gateway (as ``--ros2``)."""
     ros1: bool = False
     """``ros: {ros1: true}``: ``hwbridge up`` also starts the ROS 1 gateway (as ``--ros1``)."""
+    ros2_qos: tuple[tuple[str, str], ...] = ()
+    """``ros: {qos: {PATTERN: KIND}}``: ROS 2 QoS rules (topic pattern, kind), in file order;
+    ``hwbridge up --ros2-qos`` rules go before them (see :mod:`hwbridge.gateway.qos`)."""
 
     def board(self, name: str) -> RobotBoardConfig:
         for board in self.boards:

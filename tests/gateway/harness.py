@@ -77,7 +77,7 @@ class Robot:
     def hwbridge(self, name: str, *argv: str) -> subprocess.Popen[str]:
         return self.start(name, [sys.executable, "-m", "hwbridge", *argv])
 
-    def up(self, *gateway_flags: str, ros: dict[str, bool] | None = None) -> None:
+    def up(self, *gateway_flags: str, ros: dict[str, Any] | None = None) -> None:
         """``hwbridge up`` on the test robot with these flags, and ``ros`` as its robot file's
         ``ros:`` section (none when None)."""
         emulator = self.hwbridge("emulate", "emulate", "diffbot", "--tcp", str(free_port()))

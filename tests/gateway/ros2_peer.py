@@ -2,15 +2,21 @@
 
 Commands (each prints JSON lines on stdout and exits 0 when done, 1 on a timeout):
 
-- ``echo TOPIC TYPE N``: the first N messages (``sensor_msgs/msg/Imu``), as dicts;
-- ``pub TOPIC TYPE JSON RATE SECONDS``: publish a message (fields as JSON) at RATE Hz;
+- ``echo TOPIC TYPE N [QOS]``: the first N messages (``sensor_msgs/msg/Imu``), as dicts;
+- ``receive QOS TOPIC=TYPE...``: subscribe to every TOPIC, wait until each has delivered a
+  message; prints ``{"received": {TOPIC: COUNT}, "missing": [TOPIC...]}``;
+- ``pub TOPIC TYPE JSON RATE SECONDS [QOS]``: publish a message (fields as JSON) at RATE Hz;
 - ``call SERVICE TYPE JSON``: call a service once, print the response;
 - ``rosout TEXT``: wait for a /rosout entry containing TEXT, print it;
 - ``serve SERVICE SECONDS``: serve std_srvs/srv/Trigger (message ``ros2 says hi``);
-- ``qos TOPIC``: the reliability and durability of the gateway's endpoints on TOPIC;
+- ``qos TOPIC...``: the reliability and durability of the gateway's endpoints on each TOPIC;
 - ``tf TOPIC PARENT CHILD [static]``: the first PARENT -> CHILD transform on TOPIC (a
   ``tf2_msgs/msg/TFMessage``; ``static``: subscribed transient local, as tf2_ros' static
   listener does) and the type hashes its publishers offer.
+
+QOS is ``default``, what most nodes write (``create_subscription(T, topic, cb, 10)``: reliable,
+volatile, keep last 10), or ``sensor`` (``qos_profile_sensor_data``: best effort); ``echo``
+defaults to ``sensor``, ``pub`` to ``default``.
 """
 
 from __future__ import annotations
@@ -50,6 +56,15 @@ def _fill(message: Any, values: dict[str, Any]) -> Any:
     return message
 
 
+def _profile(qos: Any, name: str) -> Any:
+    """A subscription's or publisher's QoS as the node code of most ROS 2 packages says it."""
+    if name == "default":
+        return 10  # rclpy: keep last 10, reliable, volatile
+    if name == "sensor":
+        return qos.qos_profile_sensor_data
+    raise SystemExit(f"unknown QoS {name!r}: default or sensor")
+
+
 def main(argv: list[str]) -> int:
     rclpy = importlib.import_module("rclpy")  # by name: the [ros2] extra is optional
     qos = importlib.import_module("rclpy.qos")
@@ -61,19 +76,40 @@ def main(argv: list[str]) -> int:
     try:
         if command == "echo":
             topic, type_name, count = args[0], args[1], int(args[2])
+            profile = _profile(qos, args[3] if len(args) > 3 else "sensor")
             got: list[Any] = []
-            node.create_subscription(
-                _class(type_name), topic, got.append, qos.qos_profile_sensor_data
-            )
+            node.create_subscription(_class(type_name), topic, got.append, profile)
             while len(got) < count and time.monotonic() < deadline:
                 rclpy.spin_once(node, timeout_sec=0.1)
             for message in got[:count]:
                 print(json.dumps(_to_dict(message)), flush=True)
             return 0 if len(got) >= count else 1
+        if command == "receive":
+            profile = _profile(qos, args[0])
+            counts: dict[str, int] = {}
+
+            def counter(topic: str) -> Any:
+                def count(_message: Any) -> None:
+                    counts[topic] += 1
+
+                return count
+
+            for pair in args[1:]:
+                topic, _, type_name = pair.partition("=")
+                counts[topic] = 0
+                node.create_subscription(_class(type_name), topic, counter(topic), profile)
+            deadline = time.monotonic() + 3 * TIMEOUT
+            while not all(counts.values()) and time.monotonic() < deadline:
+                rclpy.spin_once(node, timeout_sec=0.1)
+            missing = sorted(topic for topic, n in counts.items() if not n)
+            print(json.dumps({"received": counts, "missing": missing}), flush=True)
+            return 0 if not missing else 1
         if command == "pub":
-            topic, type_name, fields, rate, seconds = args
+            topic, type_name, fields, rate, seconds = args[:5]
             cls = _class(type_name)
-            publisher = node.create_publisher(cls, topic, 10)
+            publisher = node.create_publisher(
+                cls, topic, _profile(qos, args[5] if len(args) > 5 else "default")
+            )
             end = time.monotonic() + float(seconds)
             while time.monotonic() < end:
                 publisher.publish(_fill(cls(), json.loads(fields)))
@@ -125,28 +161,35 @@ def main(argv: list[str]) -> int:
                 rclpy.spin_once(node, timeout_sec=0.1)
             return 0
         if command == "qos":
-            # The QoS of the gateway's endpoints on a topic, as discovery reports them.
-            topic = args[0]
-            found = []
-            while not found and time.monotonic() < deadline:
+            # The QoS of the gateway's endpoints on each topic, as discovery reports them.
+            endpoints: dict[str, list[tuple[str, Any]]] = {topic: [] for topic in args}
+            while not all(endpoints.values()) and time.monotonic() < deadline:
                 rclpy.spin_once(node, timeout_sec=0.1)
-                infos = [
-                    ("publisher", info) for info in node.get_publishers_info_by_topic(topic)
-                ] + [("subscription", info) for info in node.get_subscriptions_info_by_topic(topic)]
-                found = [(kind, i) for kind, i in infos if i.node_name.startswith("hwbridge")]
-            for kind, info in found:
-                profile = info.qos_profile
-                print(
-                    json.dumps(
-                        {
-                            "kind": kind,
-                            "reliability": profile.reliability.name.lower(),
-                            "durability": profile.durability.name.lower(),
-                        }
-                    ),
-                    flush=True,
-                )
-            return 0 if found else 1
+                for topic in args:
+                    infos = [
+                        ("publisher", info) for info in node.get_publishers_info_by_topic(topic)
+                    ] + [
+                        ("subscription", info)
+                        for info in node.get_subscriptions_info_by_topic(topic)
+                    ]
+                    endpoints[topic] = [
+                        (kind, i) for kind, i in infos if i.node_name.startswith("hwbridge")
+                    ]
+            for topic, found_here in endpoints.items():
+                for kind, info in found_here:
+                    profile = info.qos_profile
+                    print(
+                        json.dumps(
+                            {
+                                "topic": topic,
+                                "kind": kind,
+                                "reliability": profile.reliability.name.lower(),
+                                "durability": profile.durability.name.lower(),
+                            }
+                        ),
+                        flush=True,
+                    )
+            return 0 if all(endpoints.values()) else 1
         if command == "tf":
             topic, parent, child = args[:3]
             latched = args[3:4] == ["static"]

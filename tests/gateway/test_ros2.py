@@ -26,9 +26,9 @@ from tests.netutil import wait_until
 DOMAIN_ID = str(10 + os.getpid() % 90)
 
 
-def _ros2_env() -> dict[str, str]:
+def ros2_env(domain: str = DOMAIN_ID) -> dict[str, str]:
     env = ros2_environment()
-    env["ROS_DOMAIN_ID"] = DOMAIN_ID
+    env["ROS_DOMAIN_ID"] = domain
     env["_ROS_WHEELS_BOOTSTRAP_COMPLETE"] = "1"  # the paths are set already: no re-exec
     return env
 
@@ -37,7 +37,7 @@ def _rclpy_problem() -> str | None:
     try:
         done = subprocess.run(
             [sys.executable, "-c", "import rclpy, sensor_msgs.msg, nav_msgs.msg, std_srvs.srv"],
-            env=_ros2_env(),
+            env=ros2_env(),
             capture_output=True,
             text=True,
             timeout=60,
@@ -51,17 +51,20 @@ def _rclpy_problem() -> str | None:
 
 
 _PROBLEM = _rclpy_problem()
-pytestmark = pytest.mark.skipif(
+needs_rclpy = pytest.mark.skipif(
     _PROBLEM is not None,
     reason=f"the ROS 2 wheels are not installed (pip install 'hwbridge[ros2]'): {_PROBLEM}",
 )
+pytestmark = needs_rclpy
 
 
-def peer(*argv: str, timeout: float = 40) -> subprocess.CompletedProcess[str]:
-    """Run the plain rclpy node once."""
+def peer(
+    *argv: str, timeout: float = 40, env: dict[str, str] | None = None
+) -> subprocess.CompletedProcess[str]:
+    """Run the plain rclpy node once (in ``env``, default :func:`ros2_env`)."""
     return subprocess.run(
         [sys.executable, str(PEER), *argv],
-        env=_ros2_env(),
+        env=env or ros2_env(),
         capture_output=True,
         text=True,
         timeout=timeout,
@@ -71,7 +74,7 @@ def peer(*argv: str, timeout: float = 40) -> subprocess.CompletedProcess[str]:
 
 @pytest.fixture(scope="module")
 def robot(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Robot]:
-    running = Robot(tmp_path_factory.mktemp("ros2"), _ros2_env())
+    running = Robot(tmp_path_factory.mktemp("ros2"), ros2_env())
     try:
         running.up("--ros2")
         running.wait_log("up", "starting 'hwbridge ros2' (--ros2)")
@@ -156,7 +159,7 @@ def test_a_ros2_twist_publisher_moves_the_robot(robot: Robot) -> None:
             "10",
             "30",
         ],
-        env=_ros2_env(),
+        env=ros2_env(),
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
     )
@@ -177,7 +180,7 @@ def test_a_board_log_appears_on_rosout(robot: Robot) -> None:
     text = f"gateway test {os.getpid()}"
     listener = subprocess.Popen(
         [sys.executable, str(PEER), "rosout", text],
-        env=_ros2_env(),
+        env=ros2_env(),
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -212,7 +215,7 @@ def test_a_board_log_appears_on_rosout(robot: Robot) -> None:
 def test_a_ros2_service_is_served_on_the_graph(tmp_path: Path, robot: Robot) -> None:
     server = subprocess.Popen(
         [sys.executable, str(PEER), "serve", "/ros2_side/hello", "60"],
-        env=_ros2_env(),
+        env=ros2_env(),
         stdout=subprocess.PIPE,
         stderr=subprocess.DEVNULL,
         text=True,
@@ -246,20 +249,27 @@ def test_a_ros2_service_is_served_on_the_graph(tmp_path: Path, robot: Robot) -> 
 @pytest.mark.parametrize(
     ("topic", "kind", "reliability", "durability"),
     [
-        ("/diffbot/imu", "publisher", "best_effort", "volatile"),
-        ("/diffbot/cmd_vel", "subscription", "reliable", "volatile"),
+        ("/diffbot/imu", "publisher", "reliable", "volatile"),
+        ("/diffbot/odom", "publisher", "reliable", "volatile"),
+        ("/diffbot/cmd_vel", "subscription", "best_effort", "volatile"),
         ("/rosout", "publisher", "reliable", "transient_local"),
     ],
 )
 def test_qos_per_topic(
     robot: Robot, topic: str, kind: str, reliability: str, durability: str
 ) -> None:
-    # Sensor data best effort, commands to boards reliable, logs kept for late joiners. (On
-    # /rosout the gateway's node has rclpy's own log publisher too, with the same QoS.)
+    # Published reliable (default and sensor-data subscribers match), subscribed best effort
+    # (reliable and best-effort publishers match), logs kept for late joiners. (On /rosout the
+    # gateway's node has rclpy's own log publisher too, with the same QoS.)
     done = peer("qos", topic)
     assert done.returncode == 0, done.stderr + robot.log("up")
     found = [json.loads(line) for line in done.stdout.splitlines()]
-    expected = {"kind": kind, "reliability": reliability, "durability": durability}
+    expected = {
+        "topic": topic,
+        "kind": kind,
+        "reliability": reliability,
+        "durability": durability,
+    }
     assert found
     assert all(endpoint == expected for endpoint in found), found
 

@@ -120,13 +120,16 @@ def test_selection_patterns_and_exclusions() -> None:
     assert not Selection(())("/anything")
 
 
-def test_qos_follows_the_kind_of_data() -> None:
-    assert qos_kind("/diffbot/imu", "sensor_msgs/Imu", "to_ros") == "sensor"
-    assert qos_kind("/diffbot/odom", "nav_msgs/Odometry", "to_ros") == "sensor"
-    assert qos_kind("/diffbot/cmd_vel", "geometry_msgs/Twist", "from_ros") == "reliable"
-    assert qos_kind("/tf", "tf2_msgs/TFMessage", "to_ros") == "tf"
-    assert qos_kind("/rosout", "rosgraph_msgs/Log", "to_ros") == "rosout"
-    assert qos_kind("/chatter", "std_msgs/String", "to_ros") == "reliable"
+def test_qos_reaches_default_and_sensor_subscribers() -> None:
+    # Published reliable (default and sensor-data subscribers match), subscribed best effort
+    # (reliable and best-effort publishers match); see tests/gateway/test_ros2_qos.py.
+    assert qos_kind("/diffbot/imu", "to_ros").name == "reliable"
+    assert qos_kind("/diffbot/odom", "to_ros").name == "reliable"
+    assert qos_kind("/diffbot/cmd_vel", "from_ros").name == "sensor"
+    assert qos_kind("/tf", "to_ros").name == "tf"
+    assert qos_kind("/tf_static", "to_ros").name == "latched"
+    assert qos_kind("/rosout", "to_ros").name == "rosout"
+    assert qos_kind("/chatter", "to_ros").name == "reliable"
 
 
 def test_the_ros2_environment_adds_its_paths_after_existing_ones() -> None:

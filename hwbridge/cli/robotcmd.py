@@ -9,23 +9,33 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 
 from hwbridge.cli.aclcmd import acl
+from hwbridge.cli.upcmd import LinkOption, parse_links
 
 if TYPE_CHECKING:
     from hwbridge.robot.model import Robot
 
-__all__ = ["robot_app"]
+__all__ = ["robot_app", "show_notes"]
 
 robot_app = typer.Typer(help="Robot files: check, show, devices, acl.", no_args_is_help=True)
 
 _FILE = Annotated[Path, typer.Argument(metavar="ROBOT.yaml", help="The robot file.")]
 
 
-@robot_app.command("check")
-def check(robot_file: _FILE) -> None:
-    """Check a robot file: every problem as FILE:LINE: what is wrong (exit status 1)."""
-    from hwbridge.robot.config import load_robot
+def show_notes(notes: list[str]) -> None:
+    """``note: FILE:LINE: ...`` lines on stderr (what was taken differently from the file)."""
+    for note in notes:
+        sys.stderr.write(f"note: {note}\n")
+    sys.stderr.flush()
 
-    robot = load_robot(robot_file)
+
+@robot_app.command("check")
+def check(robot_file: _FILE, link: LinkOption = None) -> None:
+    """Check a robot file: every problem as FILE:LINE: what is wrong (exit status 1). With
+    --link, the links 'hwbridge up --link' would use, checked and noted as 'up' does."""
+    from hwbridge.robot.config import check_robot
+
+    robot, notes = check_robot(robot_file, parse_links(link))  # what 'hwbridge up' runs too
+    show_notes(notes)
     boards = ", ".join(f"{b.name}: {_count(len(b.devices), 'device')}" for b in robot.boards)
     sys.stdout.write(
         f"{robot_file}: robot {robot.name}: {_count(len(robot.boards), 'board')}"

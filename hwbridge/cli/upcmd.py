@@ -23,10 +23,22 @@ if TYPE_CHECKING:
     from hwbridge.robot.model import Robot
     from hwbridge.viz.foxglove import VizServer
 
-__all__ = ["up"]
+__all__ = ["LinkOption", "parse_links", "up"]
+
+LinkOption = Annotated[
+    list[str] | None,
+    typer.Option(
+        "--link",
+        "-l",
+        metavar="NAME=URL",
+        help="Use URL for the board (or host device) NAME instead of the file's link; "
+        "repeatable.",
+    ),
+]
 
 
-def _links(values: list[str] | None) -> dict[str, str]:
+def parse_links(values: list[str] | None) -> dict[str, str]:
+    """The ``--link NAME=URL`` values by name; a usage error for one without ``=``."""
     links: dict[str, str] = {}
     for value in values or []:
         name, sep, url = value.partition("=")
@@ -71,16 +83,7 @@ def up(
     robot_file: Annotated[
         Path, typer.Argument(metavar="ROBOT.yaml", help="The robot file (see 'hwbridge robot').")
     ],
-    link: Annotated[
-        list[str] | None,
-        typer.Option(
-            "--link",
-            "-l",
-            metavar="NAME=URL",
-            help="Use URL for the board (or host device) NAME instead of the file's link; "
-            "repeatable.",
-        ),
-    ] = None,
+    link: LinkOption = None,
     wait: Annotated[
         bool,
         typer.Option("--wait", help="Keep waiting for boards whose link does not open yet."),
@@ -118,12 +121,13 @@ def up(
     ] = 8765,
 ) -> None:
     """Bring a robot up: its boards and every host node its devices need, until Ctrl-C."""
+    from hwbridge.cli.robotcmd import show_notes
     from hwbridge.graph import Graph
-    from hwbridge.robot.config import load_robot
+    from hwbridge.robot.config import check_robot
     from hwbridge.robot.runtime import RobotRuntime
 
-    overrides = _links(link)
-    robot = load_robot(robot_file).with_links(overrides)
+    robot, notes = check_robot(robot_file, parse_links(link))  # as 'hwbridge robot check' does
+    show_notes(notes)
     initial = read_params(params)
     config = owner_config(ctx, listen)
     graph = Graph(config)

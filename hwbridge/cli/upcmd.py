@@ -11,8 +11,10 @@ import typer
 from hwbridge.cli.bridgecmd import (
     ListenOption,
     ParamsOption,
+    QuietOption,
     owner_config,
     read_params,
+    show_board_logs,
     wait_for_signal,
 )
 from hwbridge.cli.common import get_registry
@@ -119,8 +121,11 @@ def up(
         int,
         typer.Option("--viz-port", min=0, max=65535, help="Foxglove WebSocket port (0: any)."),
     ] = 8765,
+    quiet: QuietOption = False,
 ) -> None:
-    """Bring a robot up: its boards and every host node its devices need, until Ctrl-C."""
+    """Bring a robot up: its boards and every host node its devices need, until Ctrl-C. The
+    robot file is checked as 'hwbridge robot check' checks it; the boards' log lines (INFO and
+    above) show on stderr, --quiet hides the info ones."""
     from hwbridge.cli.robotcmd import show_notes
     from hwbridge.graph import Graph
     from hwbridge.robot.config import check_robot
@@ -129,6 +134,7 @@ def up(
     robot, notes = check_robot(robot_file, parse_links(link))  # as 'hwbridge robot check' does
     show_notes(notes)
     initial = read_params(params)
+    show_board_logs(quiet)
     config = owner_config(ctx, listen)
     graph = Graph(config)
     try:

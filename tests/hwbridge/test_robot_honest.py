@@ -281,7 +281,7 @@ def test_check_and_up_refuse_a_bad_file_alike(name: str, tmp_path: Path) -> None
     assert up == Up(1, messages)
 
 
-@pytest.mark.parametrize("robot_file", GOOD_FILES, ids=lambda p: f"{p.parent.name}/{p.name}")
+@pytest.mark.parametrize("robot_file", GOOD_FILES, ids=lambda p: str(p.relative_to(ROOT)))
 def test_check_and_up_accept_every_shipped_robot_alike(
     robot_file: Path, emulators: Emulators, tmp_path: Path
 ) -> None:

@@ -125,8 +125,9 @@ def connect(
     listen: ListenOption = None,
     quiet: QuietOption = False,
 ) -> None:
-    """Connect boards to the graph and keep them connected until Ctrl-C. The boards' log lines
-    (INFO and above) show on stderr; --quiet hides the info ones."""
+    """Connect boards to the graph and keep them connected until Ctrl-C.
+
+    The boards' log lines (INFO and above) show on stderr; --quiet hides the info ones."""
     from hwbridge.bridge import BoardSpec, Bridge, check_service_timeout
     from hwbridge.graph import Graph
     from hwbridge.protocols.registry import get_protocol

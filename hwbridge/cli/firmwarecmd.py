@@ -32,10 +32,12 @@ def build(
         typer.Option("--out", "-o", help="Build folder (default: SKETCH/build/BOARD)."),
     ] = None,
 ) -> None:
-    """Build a sketch with the HwBridge library for an AVR board (prints the ELF with its size,
-    then the Intel HEX file to upload), or as a native program with --board host (prints its
-    path; run it, then connect to the URL it prints first). SKETCH may be relative: '.' in
-    the sketch's folder."""
+    """Build a sketch with the HwBridge library for an AVR board (prints the ELF and its size), or
+    as a native program with --board host (prints its path; run it, then connect to the URL it
+    prints first).
+
+    An AVR build ends with the Intel HEX file to upload. SKETCH may be relative: '.' in the
+    sketch's folder."""
     from hwbridge.firmware.build import BOARDS, HOST_BOARD, build_sketch, firmware_size
 
     def progress(line: str) -> None:

@@ -9,29 +9,23 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 
 from hwbridge.cli.aclcmd import acl
-from hwbridge.cli.upcmd import LinkOption, parse_links
+from hwbridge.cli.upcmd import LinkOption, parse_links, show_notes
 
 if TYPE_CHECKING:
     from hwbridge.robot.model import Robot
 
-__all__ = ["robot_app", "show_notes"]
+__all__ = ["robot_app"]
 
 robot_app = typer.Typer(help="Robot files: check, show, devices, acl.", no_args_is_help=True)
 
 _FILE = Annotated[Path, typer.Argument(metavar="ROBOT.yaml", help="The robot file.")]
 
 
-def show_notes(notes: list[str]) -> None:
-    """``note: FILE:LINE: ...`` lines on stderr (what was taken differently from the file)."""
-    for note in notes:
-        sys.stderr.write(f"note: {note}\n")
-    sys.stderr.flush()
-
-
 @robot_app.command("check")
 def check(robot_file: _FILE, link: LinkOption = None) -> None:
-    """Check a robot file: every problem as FILE:LINE: what is wrong (exit status 1). With
-    --link, the links 'hwbridge up --link' would use, checked and noted as 'up' does."""
+    """Check a robot file: every problem as FILE:LINE: what is wrong (exit status 1).
+
+    With --link, the links 'hwbridge up --link' would use, checked and noted as 'up' does."""
     from hwbridge.robot.config import check_robot
 
     robot, notes = check_robot(robot_file, parse_links(link))  # what 'hwbridge up' runs too

@@ -25,7 +25,7 @@ if TYPE_CHECKING:
     from hwbridge.robot.model import Robot
     from hwbridge.viz.foxglove import VizServer
 
-__all__ = ["LinkOption", "parse_links", "up"]
+__all__ = ["LinkOption", "parse_links", "show_notes", "up"]
 
 LinkOption = Annotated[
     list[str] | None,
@@ -33,10 +33,16 @@ LinkOption = Annotated[
         "--link",
         "-l",
         metavar="NAME=URL",
-        help="Use URL for the board (or host device) NAME instead of the file's link; "
-        "repeatable.",
+        help="Use URL for the board (or host device) NAME instead of the file's link; repeatable.",
     ),
 ]
+
+
+def show_notes(notes: list[str]) -> None:
+    """``note: FILE:LINE: ...`` lines on stderr (what was taken differently from the file)."""
+    for note in notes:
+        sys.stderr.write(f"note: {note}\n")
+    sys.stderr.flush()
 
 
 def parse_links(values: list[str] | None) -> dict[str, str]:
@@ -123,10 +129,10 @@ def up(
     ] = 8765,
     quiet: QuietOption = False,
 ) -> None:
-    """Bring a robot up: its boards and every host node its devices need, until Ctrl-C. The
-    robot file is checked as 'hwbridge robot check' checks it; the boards' log lines (INFO and
-    above) show on stderr, --quiet hides the info ones."""
-    from hwbridge.cli.robotcmd import show_notes
+    """Bring a robot up: its boards and every host node its devices need, until Ctrl-C.
+
+    The robot file is checked as 'hwbridge robot check' checks it; the boards' log lines (INFO
+    and above) show on stderr, --quiet hides the info ones."""
     from hwbridge.graph import Graph
     from hwbridge.robot.config import check_robot
     from hwbridge.robot.runtime import RobotRuntime

@@ -32,7 +32,14 @@ from hwbridge.devices.imu.mpu import (
 from hwbridge.devices.imu.plugin import configure_ak8963, decode_burst, decode_magnetometer
 from hwbridge.devices.nodes import DiffDriveNode, ImuNode, SonarNode
 from hwbridge.devices.ultrasonic import MAX_RANGE, MIN_RANGE, HcSr04Model, UltrasonicRanger
-from hwbridge.robot.plugin import Closeable, DevicePlugin, EmulatedBoard, Field, HostContext
+from hwbridge.robot.plugin import (
+    Closeable,
+    DevicePlugin,
+    EmulatedBoard,
+    Field,
+    HostContext,
+    TopicUse,
+)
 
 __all__ = [
     "BoardServoPlugin",
@@ -114,6 +121,18 @@ class DiffDrivePlugin(DevicePlugin):
         board.on_step(step)
         board.on_reset(reset)
 
+    def topics(self, settings: Mapping[str, Any]) -> tuple[TopicUse, ...]:
+        ticks, targets = settings["ticks_topic"], settings["targets_topic"]
+        return (
+            TopicUse(ticks, "hwbridge_msgs/WheelTicks", "publishes", "board"),
+            TopicUse(targets, "hwbridge_msgs/WheelTargets", "subscribes", "board"),
+            TopicUse(ticks, "hwbridge_msgs/WheelTicks", "subscribes"),
+            TopicUse(targets, "hwbridge_msgs/WheelTargets", "publishes"),
+            TopicUse("odom", "nav_msgs/Odometry", "publishes"),
+            TopicUse("/tf", "tf2_msgs/TFMessage", "publishes", shared=True),
+            TopicUse("cmd_vel", "geometry_msgs/Twist", "subscribes"),
+        )
+
     def host_node(self, settings: Mapping[str, Any], context: HostContext) -> Closeable:
         params = DiffDriveParams.from_dict(
             {
@@ -185,6 +204,13 @@ class HcSr04Plugin(DevicePlugin):
             )
 
         board.publisher(settings["topic"], "hwbridge_msgs/SonarEcho", settings["rate"], read)
+
+    def topics(self, settings: Mapping[str, Any]) -> tuple[TopicUse, ...]:
+        return (
+            TopicUse(settings["topic"], "hwbridge_msgs/SonarEcho", "publishes", "board"),
+            TopicUse(settings["topic"], "hwbridge_msgs/SonarEcho", "subscribes"),
+            TopicUse(settings["range_topic"], "sensor_msgs/Range", "publishes"),
+        )
 
     def host_node(self, settings: Mapping[str, Any], context: HostContext) -> Closeable:
         ranger = UltrasonicRanger(
@@ -258,6 +284,16 @@ class _MpuPlugin(DevicePlugin):
             )
 
         board.publisher(settings["topic"], "hwbridge_msgs/ImuRaw", settings["rate"], read)
+
+    def topics(self, settings: Mapping[str, Any]) -> tuple[TopicUse, ...]:
+        uses: tuple[TopicUse, ...] = (
+            TopicUse(settings["topic"], "hwbridge_msgs/ImuRaw", "publishes", "board"),
+            TopicUse(settings["topic"], "hwbridge_msgs/ImuRaw", "subscribes"),
+            TopicUse(settings["imu_topic"], "sensor_msgs/Imu", "publishes"),
+        )
+        if self._magnetometer(settings):
+            uses += (TopicUse(settings["mag_topic"], "sensor_msgs/MagneticField", "publishes"),)
+        return uses
 
     def host_node(self, settings: Mapping[str, Any], context: HostContext) -> Closeable:
         return ImuNode(
@@ -372,6 +408,14 @@ class BoardServoPlugin(DevicePlugin):
 
         board.publisher(settings["state_topic"], "sensor_msgs/JointState", settings["rate"], read)
         board.subscriber(f"{joint}/goal_position", "std_msgs/Float64", on_goal)
+
+    def topics(self, settings: Mapping[str, Any]) -> tuple[TopicUse, ...]:
+        return (
+            TopicUse(settings["state_topic"], "sensor_msgs/JointState", "publishes", "board"),
+            TopicUse(
+                f"{settings['joint']}/goal_position", "std_msgs/Float64", "subscribes", "board"
+            ),
+        )
 
 
 class _Magnetometer:

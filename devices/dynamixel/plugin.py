@@ -25,7 +25,7 @@ from typing import Any, ClassVar
 from hwbridge.devices.dynamixel.bus import DynamixelBus
 from hwbridge.devices.dynamixel.node import DynamixelNode
 from hwbridge.errors import HwBridgeError
-from hwbridge.robot.plugin import Closeable, DevicePlugin, Field, HostContext
+from hwbridge.robot.plugin import Closeable, DevicePlugin, Field, HostContext, TopicUse
 
 __all__ = ["DynamixelBusPlugin"]
 
@@ -46,6 +46,20 @@ class DynamixelBusPlugin(DevicePlugin):
         Field("timeout", float, 0.05, "s to wait for a status beyond its bytes' time", minimum=0),
         Field("retries", int, 1, "resends after a timeout or corrupt status", minimum=0),
     )
+
+    def topics(self, settings: Mapping[str, Any]) -> tuple[TopicUse, ...]:
+        joints = [str(name) for name in settings["joints"]]
+        return (
+            TopicUse("joint_states", "sensor_msgs/JointState", "publishes"),
+            TopicUse("joint_command", "sensor_msgs/JointState", "subscribes"),
+            *(
+                TopicUse(f"{joint}/goal_{what}", "std_msgs/Float64", "subscribes")
+                for joint in joints
+                for what in ("position", "velocity")
+            ),
+            TopicUse("torque_enable", "std_srvs/SetBool", "serves"),
+            TopicUse("/diagnostics", "diagnostic_msgs/DiagnosticArray", "publishes", shared=True),
+        )
 
     def host_node(self, settings: Mapping[str, Any], context: HostContext) -> Closeable:
         joints = _joints(settings["joints"])

@@ -20,7 +20,11 @@ from hwbridge.graph import DeferredReply, Node, Publisher, RawMessage, ServiceSe
 if TYPE_CHECKING:
     from hwbridge.bridge.board import BoardConnection
 
-__all__ = ["ROSOUT_LEVELS", "BoardEndpoints", "PendingCalls"]
+__all__ = ["BOARD_LOG", "ROSOUT_LEVELS", "BoardEndpoints", "PendingCalls"]
+
+BOARD_LOG = "hwbridge.board_log"
+"""The logger of the boards' own log lines (``nh.logInfo``), one child per board: apart from the
+bridge's messages, so that ``connect`` and ``up`` can show them by default."""
 
 # rosgraph_msgs/Log levels for DEBUG, INFO, WARN, ERROR, FATAL (0..4 on the board).
 ROSOUT_LEVELS = (1, 2, 4, 8, 16)
@@ -195,7 +199,9 @@ class BoardEndpoints:
     def log_line(self, level: int, text: str) -> None:
         """A board log line: Python logging and /rosout (rosgraph_msgs/Log)."""
         level = min(max(level, 0), 4)
-        self.log.log(_PYTHON_LEVELS[level], "[%s] %s", self.board_name, text)
+        logging.getLogger(f"{BOARD_LOG}.{self.board_name}").log(
+            _PYTHON_LEVELS[level], "[%s] %s", self.board_name, text
+        )
         if self._rosout is None:
             self._rosout = self.node.publisher("/rosout", "rosgraph_msgs/Log")
         now = time.time()

@@ -22,10 +22,12 @@ if TYPE_CHECKING:
 __all__ = [
     "ListenOption",
     "ParamsOption",
+    "QuietOption",
     "board_app",
     "connect",
     "owner_config",
     "read_params",
+    "show_board_logs",
     "wait_for_signal",
 ]
 
@@ -46,6 +48,37 @@ ListenOption = Annotated[
     ),
 ]
 """``--listen`` of the commands that own the graph."""
+QuietOption = Annotated[
+    bool,
+    typer.Option(
+        "--quiet",
+        "-q",
+        help="Hide the boards' info log lines (shown by default; warnings and errors still show).",
+    ),
+]
+"""``--quiet`` of the commands that run boards (``connect``, ``up``)."""
+
+
+class _BoardLogHandler(logging.StreamHandler):  # type: ignore[type-arg]
+    """Where :func:`show_board_logs` prints (one per process, whatever calls it)."""
+
+
+def show_board_logs(quiet: bool) -> None:
+    """Show the boards' own log lines on stderr, named by board, as rosserial does: INFO and
+    above (debug too with ``-vv``; WARNING and above with ``--quiet``), whatever ``-v`` says
+    for the bridge's messages."""
+    from hwbridge.bridge.endpoints import BOARD_LOG
+
+    logger = logging.getLogger(BOARD_LOG)
+    for old in [h for h in logger.handlers if isinstance(h, _BoardLogHandler)]:
+        logger.removeHandler(old)
+    handler = _BoardLogHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter("%(levelname)s %(message)s"))
+    logger.addHandler(handler)
+    logger.setLevel(
+        logging.WARNING if quiet else min(logging.INFO, logging.getLogger().getEffectiveLevel())
+    )
+    logger.propagate = False  # printed once, here, not again by the root's handler
 
 
 def connect(
@@ -90,8 +123,11 @@ def connect(
     ] = 5.0,
     params: ParamsOption = None,
     listen: ListenOption = None,
+    quiet: QuietOption = False,
 ) -> None:
-    """Connect boards to the graph and keep them connected until Ctrl-C."""
+    """Connect boards to the graph and keep them connected until Ctrl-C.
+
+    The boards' log lines (INFO and above) show on stderr; --quiet hides the info ones."""
     from hwbridge.bridge import BoardSpec, Bridge, check_service_timeout
     from hwbridge.graph import Graph
     from hwbridge.protocols.registry import get_protocol
@@ -109,6 +145,7 @@ def connect(
     if len(names) > len(urls):
         raise typer.BadParameter("more --name options than URLs", param_hint="--name")
     initial = read_params(params)
+    show_board_logs(quiet)
     config = owner_config(ctx, listen)
     graph = Graph(config)
     graph.registry = get_registry(ctx)

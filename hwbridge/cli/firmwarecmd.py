@@ -34,7 +34,10 @@ def build(
 ) -> None:
     """Build a sketch with the HwBridge library for an AVR board (prints the ELF and its size), or
     as a native program with --board host (prints its path; run it, then connect to the URL it
-    prints first)."""
+    prints first).
+
+    An AVR build ends with the Intel HEX file to upload. SKETCH may be relative: '.' in the
+    sketch's folder."""
     from hwbridge.firmware.build import BOARDS, HOST_BOARD, build_sketch, firmware_size
 
     def progress(line: str) -> None:
@@ -50,6 +53,7 @@ def build(
     sys.stdout.write(
         f"{elf}: flash {size.flash} B of {limits.flash} ({100 * size.flash / limits.flash:.0f}%), "
         f"SRAM {size.sram} B of {limits.sram} ({100 * size.sram / limits.sram:.0f}%)\n"
+        f"{elf.with_suffix('.hex')}: the image to upload (avrdude -U flash:w:FILE:i)\n"
     )
 
 

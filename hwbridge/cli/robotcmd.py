@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 
 from hwbridge.cli.aclcmd import acl
+from hwbridge.cli.upcmd import LinkOption, parse_links, show_notes
 
 if TYPE_CHECKING:
     from hwbridge.robot.model import Robot
@@ -21,11 +22,14 @@ _FILE = Annotated[Path, typer.Argument(metavar="ROBOT.yaml", help="The robot fil
 
 
 @robot_app.command("check")
-def check(robot_file: _FILE) -> None:
-    """Check a robot file: every problem as FILE:LINE: what is wrong (exit status 1)."""
-    from hwbridge.robot.config import load_robot
+def check(robot_file: _FILE, link: LinkOption = None) -> None:
+    """Check a robot file: every problem as FILE:LINE: what is wrong (exit status 1).
 
-    robot = load_robot(robot_file)
+    With --link, the links 'hwbridge up --link' would use, checked and noted as 'up' does."""
+    from hwbridge.robot.config import check_robot
+
+    robot, notes = check_robot(robot_file, parse_links(link))  # what 'hwbridge up' runs too
+    show_notes(notes)
     boards = ", ".join(f"{b.name}: {_count(len(b.devices), 'device')}" for b in robot.boards)
     sys.stdout.write(
         f"{robot_file}: robot {robot.name}: {_count(len(robot.boards), 'board')}"

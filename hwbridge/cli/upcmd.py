@@ -12,8 +12,10 @@ import typer
 from hwbridge.cli.bridgecmd import (
     ListenOption,
     ParamsOption,
+    QuietOption,
     owner_config,
     read_params,
+    show_board_logs,
     wait_for_signal,
 )
 from hwbridge.cli.common import get_registry
@@ -25,10 +27,28 @@ if TYPE_CHECKING:
     from hwbridge.robot.model import Robot
     from hwbridge.viz.foxglove import VizServer
 
-__all__ = ["up"]
+__all__ = ["LinkOption", "parse_links", "show_notes", "up"]
+
+LinkOption = Annotated[
+    list[str] | None,
+    typer.Option(
+        "--link",
+        "-l",
+        metavar="NAME=URL",
+        help="Use URL for the board (or host device) NAME instead of the file's link; repeatable.",
+    ),
+]
 
 
-def _links(values: list[str] | None) -> dict[str, str]:
+def show_notes(notes: list[str]) -> None:
+    """``note: FILE:LINE: ...`` lines on stderr (what was taken differently from the file)."""
+    for note in notes:
+        sys.stderr.write(f"note: {note}\n")
+    sys.stderr.flush()
+
+
+def parse_links(values: list[str] | None) -> dict[str, str]:
+    """The ``--link NAME=URL`` values by name; a usage error for one without ``=``."""
     links: dict[str, str] = {}
     for value in values or []:
         name, sep, url = value.partition("=")
@@ -78,16 +98,7 @@ def up(
     robot_file: Annotated[
         Path, typer.Argument(metavar="ROBOT.yaml", help="The robot file (see 'hwbridge robot').")
     ],
-    link: Annotated[
-        list[str] | None,
-        typer.Option(
-            "--link",
-            "-l",
-            metavar="NAME=URL",
-            help="Use URL for the board (or host device) NAME instead of the file's link; "
-            "repeatable.",
-        ),
-    ] = None,
+    link: LinkOption = None,
     wait: Annotated[
         bool,
         typer.Option("--wait", help="Keep waiting for boards whose link does not open yet."),
@@ -133,22 +144,27 @@ def up(
         int,
         typer.Option("--viz-port", min=0, max=65535, help="Foxglove WebSocket port (0: any)."),
     ] = 8765,
+    quiet: QuietOption = False,
 ) -> None:
-    """Bring a robot up: its boards and every host node its devices need, until Ctrl-C."""
+    """Bring a robot up: its boards and every host node its devices need, until Ctrl-C.
+
+    The robot file is checked as 'hwbridge robot check' checks it; the boards' log lines (INFO
+    and above) show on stderr, --quiet hides the info ones."""
     from hwbridge.graph import Graph
-    from hwbridge.robot.config import load_robot
+    from hwbridge.robot.config import check_robot
     from hwbridge.robot.runtime import RobotRuntime
 
-    overrides = _links(link)
     qos = qos_rules(ros2_qos, "--ros2-qos")
-    robot = load_robot(robot_file).with_links(overrides)
+    robot, notes = check_robot(robot_file, parse_links(link))  # as 'hwbridge robot check' does
     if qos and not (robot.ros2 if ros2 is None else ros2):
         raise typer.BadParameter(
             "the ROS 2 gateway is not started: add --ros2 (or 'ros: {ros2: true}' in the "
             "robot file)",
             param_hint="--ros2-qos",
         )
+    show_notes(notes)
     initial = read_params(params)
+    show_board_logs(quiet)
     config = owner_config(ctx, listen)
     graph = Graph(config)
     try:

@@ -150,6 +150,7 @@ def run_demo(
             title=f"hwbridge demo: {robot.name}, odometry against ground truth (seed {seed})",
         )
         started = time.monotonic()
+        result: DemoResult | None = None
         try:
             with Live(
                 _table(board, seen, namespace, 0.0), console=out, refresh_per_second=4
@@ -164,10 +165,14 @@ def run_demo(
                     live.update(_table(board, seen, namespace, elapsed))
                     _sample(path_plot, board, seen["odom"])
                     time.sleep(0.1)
+                cmd_vel.publish({})
+                time.sleep(0.8)  # the robot stops; the last ticks arrive
+                _sample(path_plot, board, seen["odom"])
+                # the table's last picture states the distance the last line states
+                result = _result(board, seen["odom"])
+                elapsed = time.monotonic() - started
+                live.update(_table(board, seen, namespace, elapsed, result.distance))
             out.print()
-            cmd_vel.publish({})
-            time.sleep(0.8)  # the robot stops; the last ticks arrive
-            _sample(path_plot, board, seen["odom"])
             if keep:
                 out.print(
                     "The board and bridge keep running: try 'hwbridge topic list' in another "
@@ -177,10 +182,11 @@ def run_demo(
                     time.sleep(1.0)
         except KeyboardInterrupt:
             out.print("interrupted")
-        result = _result(board, seen["odom"])
+        if result is None:  # interrupted while driving
+            result = _result(board, seen["odom"])
         out.print(
-            f"drove {result.distance:.2f} m in {board.world.time:.1f} s of board time; "
-            f"{board.published} board messages; link: {_link_summary(runtime)}"
+            f"{board.world.time:.1f} s of board time; {board.published} board messages; "
+            f"link: {_link_summary(runtime)}"
         )
         print_ending(out, result, path_plot, plot)
         return result
@@ -232,7 +238,11 @@ def _link_summary(runtime: RobotRuntime) -> str:
     )
 
 
-def _table(board: VirtualBoard, seen: _Latest, namespace: str, t: float) -> Table:
+def _table(
+    board: VirtualBoard, seen: _Latest, namespace: str, t: float, distance: float | None = None
+) -> Table:
+    """What the graph sees next to the ground truth; ``distance``: the run's final distance
+    (while driving: the distance so far)."""
     table = Table(title=f"diffbot, {t:5.1f} s", show_header=True, header_style="bold")
     table.add_column("what")
     table.add_column("graph sees")
@@ -270,5 +280,6 @@ def _table(board: VirtualBoard, seen: _Latest, namespace: str, t: float) -> Tabl
             f"{float(joints.position[0]):+.3f} rad",
             "",
         )
-    table.add_row("distance driven", "", f"{board.world.base.distance:.2f} m")
+    driven = board.world.base.distance if distance is None else distance
+    table.add_row("distance driven", "", f"{driven:.2f} m")
     return table

@@ -212,7 +212,9 @@ def _core_archive(board: Board, progress: Progress = _no_progress) -> Path:
 
 
 def _sketch_source(sketch: Path) -> tuple[str, Path]:
-    """(name, .ino file) of a sketch folder or file."""
+    """(name, .ino file) of a sketch folder or file; a relative path (``.``, ``..``) is taken
+    from the current folder, so a folder's name is its real one."""
+    sketch = sketch.resolve()
     ino = sketch / f"{sketch.name}.ino" if sketch.is_dir() else sketch
     if ino.suffix != ".ino" or not ino.is_file():
         raise HwBridgeError(f"{sketch}: not a sketch (a NAME.ino file, or a folder NAME/NAME.ino)")
@@ -246,6 +248,7 @@ def build_sketch(
     next to it). ``libraries`` are folders of Arduino libraries (their ``src/`` is on the include
     path, and their ``.cpp`` files are compiled); default: the HwBridge library. ``progress``
     is told each step as it starts."""
+    sketch = sketch.resolve()  # 'hwbridge firmware build .' in the sketch's folder
     if board_name == HOST_BOARD:
         progress(f"[1/1] compiling {sketch.name} as a native program (g++)")
         return build_host_sketch(sketch, out_dir, libraries=libraries, defines=defines)

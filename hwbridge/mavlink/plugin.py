@@ -21,7 +21,7 @@ from collections.abc import Mapping
 from typing import Any, ClassVar
 
 from hwbridge.errors import HwBridgeError
-from hwbridge.robot.plugin import Closeable, DevicePlugin, Field, HostContext
+from hwbridge.robot.plugin import Closeable, DevicePlugin, Field, HostContext, TopicUse
 
 __all__ = ["MavlinkVehiclePlugin"]
 
@@ -61,6 +61,21 @@ class MavlinkVehiclePlugin(DevicePlugin):
         Field("frame_id", str, "base_link", "header frame of imu, gps/fix and battery"),
         Field("dialect", str, "ardupilotmega", "pymavlink dialect (common, ardupilotmega...)"),
     )
+
+    def topics(self, settings: Mapping[str, Any]) -> tuple[TopicUse, ...]:
+        """The fixed topics (the raw ``mavlink/NAME`` ones depend on what the vehicle sends)."""
+        return (
+            TopicUse("imu", "sensor_msgs/Imu"),
+            TopicUse("gps/fix", "sensor_msgs/NavSatFix"),
+            TopicUse("battery", "sensor_msgs/BatteryState"),
+            TopicUse("armed", "std_msgs/Bool"),
+            TopicUse("mode", "std_msgs/String"),
+            TopicUse("connected", "std_msgs/Bool"),
+            TopicUse("/diagnostics", "diagnostic_msgs/DiagnosticArray", shared=True),
+            TopicUse("set_mode", "std_msgs/String", "subscribes"),
+            TopicUse("cmd_vel", "geometry_msgs/Twist", "subscribes"),
+            TopicUse("arm", "std_srvs/SetBool", "serves"),
+        )
 
     def host_node(self, settings: Mapping[str, Any], context: HostContext) -> Closeable:
         from hwbridge.links import create_link

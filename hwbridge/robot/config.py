@@ -51,14 +51,24 @@ problem at once, each as ``FILE:LINE: what is wrong``, in file order, in one
 - ``ros``: an optional mapping of ``ros2`` and ``ros1``, each ``true`` or ``false`` (default),
   and ``qos``, a mapping of topic patterns (full names, shell patterns) to QoS kinds
   (:data:`hwbridge.gateway.qos.KINDS`) for the ROS 2 gateway.
+- two devices that would publish one topic, or serve one service, in the same namespace are an
+  error at the later one's line naming the earlier one's (each plugin says what it uses with
+  :meth:`~hwbridge.robot.plugin.DevicePlugin.topics`, resolved in its board's or its own
+  namespace; a plugin that does not say is left out; topics meant for many publishers, such as
+  ``/tf``, never clash).
+
+:func:`link_overrides` applies ``hwbridge up --link NAME=URL`` (and ``robot check --link``) to a
+checked robot: a URL that does not parse is an error naming the board's line; a ``baud`` from the
+file that the new link takes no baud for (``socket://``) is dropped with a note naming its line.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import difflib
 import math
 import re
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
 from typing import Any, Final
 
@@ -72,9 +82,16 @@ from hwbridge.robot.model import (
     RobotBoardConfig,
     RobotFileError,
 )
-from hwbridge.robot.plugin import DevicePlugin, Field
+from hwbridge.robot.plugin import DevicePlugin, Field, TopicUse
 
-__all__ = ["check_value", "device_config", "load_robot", "parse_robot"]
+__all__ = [
+    "check_robot",
+    "check_value",
+    "device_config",
+    "link_overrides",
+    "load_robot",
+    "parse_robot",
+]
 
 _TOP_KEYS: Final = ("robot", "world", "boards", "host_devices", "ros")
 _ROS_KEYS: Final = ("ros2", "ros1", "qos")
@@ -446,6 +463,7 @@ def _board(entry: yaml.Node, index: int, problems: _Problems) -> RobotBoardConfi
         if "devices" in items
         else (),
         source=problems.where(entry),
+        baud_source=problems.where(items["baud"][0]) if "baud" in items else "",
     )
     return board if name and link else None
 
@@ -482,7 +500,8 @@ def _host_device(entry: yaml.Node, index: int, problems: _Problems) -> HostDevic
     if not (name and link):
         return None
     device = DeviceConfig(plugin.type, name, settings, problems.where(entry))
-    return HostDeviceConfig(device, link, namespace, baud, problems.where(entry))
+    baud_source = problems.where(items["baud"][0]) if "baud" in items else ""
+    return HostDeviceConfig(device, link, namespace, baud, problems.where(entry), baud_source)
 
 
 def parse_robot(text: str, path: str = "<robot>") -> Robot:
@@ -544,6 +563,7 @@ def _parse_robot(text: str, path: str) -> Robot:
     gateways = _ros(top["ros"][1], problems) if "ros" in top else {}
     if not boards and not hosts and not problems.lines:
         problems.at(root, "the robot has no boards and no host_devices")
+    _clashes(boards, hosts, problems)
     if problems.lines:
         raise RobotFileError(problems.lines)
     return Robot(name, Path(path), tuple(boards), tuple(hosts), world, **gateways)
@@ -605,6 +625,67 @@ def _ros2_qos(node: yaml.Node, problems: _Problems) -> tuple[tuple[str, str], ..
     return tuple(rules)
 
 
+def _line(source: str) -> int:
+    """The line of a ``FILE:LINE`` source."""
+    _path, _sep, line = source.rpartition(":")
+    return int(line) if line.isdigit() else 1
+
+
+_VERBS: Final = {"publishes": "publish", "serves": "serve"}
+
+
+def _clashes(
+    boards: list[RobotBoardConfig], hosts: list[HostDeviceConfig], problems: _Problems
+) -> None:
+    """Two devices that would publish one topic (or serve one service): a problem at the later
+    device's line, naming the earlier one's."""
+    from hwbridge.graph import GraphNameError, resolve_name
+    from hwbridge.robot.registry import get_device
+
+    placed = [(b.namespace, f"board {b.name}: {d.name}", d) for b in boards for d in b.devices]
+    placed += [
+        (h.namespace, f"host device {h.device.name} ({h.device.type})", h.device) for h in hosts
+    ]
+    owners: dict[tuple[str, str], tuple[str, int]] = {}
+    for namespace, label, device in placed:
+        line = _line(device.source)
+        try:
+            uses = get_device(device.type).topics(device.settings)
+        except Exception as exc:  # noqa: BLE001 - a plugin's own bug, shown where it is used
+            problems.at_line(
+                line,
+                f"{label}: type {device.type} cannot list its topics: {type(exc).__name__}: {exc}",
+            )
+            continue
+        if uses is None:  # the plugin does not say
+            continue
+        clashes: dict[tuple[str, int], dict[str, list[str]]] = {}
+        mine: set[tuple[str, str]] = set()
+        for use in uses:
+            if not isinstance(use, TopicUse) or use.shared or use.use not in _VERBS:
+                continue
+            try:
+                name = resolve_name(use.name, namespace)
+            except GraphNameError as exc:
+                problems.at_line(line, f"{label}: topic {use.name!r}: {exc}")
+                continue
+            key = (use.use, name)
+            if key in mine:
+                continue
+            mine.add(key)
+            if key in owners:
+                clashes.setdefault(owners[key], {}).setdefault(_VERBS[use.use], []).append(name)
+            else:
+                owners[key] = (label, line)
+        for (other, other_line), found in clashes.items():
+            what = "; ".join(f"{verb} {' and '.join(names)}" for verb, names in found.items())
+            problems.at_line(
+                line,
+                f"{label}: would {what}, as {other} at line {other_line} does: two devices "
+                "cannot share one; give one of them other topic names in its settings",
+            )
+
+
 def device_config(entry: dict[str, Any], source: str = "<device>") -> DeviceConfig:
     """One device from a mapping (``{"type": "hcsr04", "rate": 10}``), checked against its
     plugin's fields with defaults filled in, as a robot file's device entry is."""
@@ -650,3 +731,76 @@ def load_robot(path: str | Path) -> Robot:
     except OSError as exc:
         raise RobotFileError([f"{file}: cannot read: {exc.strerror or exc}"]) from exc
     return parse_robot(text, str(file))
+
+
+def _overridden_baud(
+    url: str, baud: int | None, baud_source: str, where: str, what: str, name: str
+) -> tuple[int | None, str | None]:
+    """The baud rate to use with an overriding ``url`` and the note to print when the file's
+    does not apply to it; RobotFileError if ``url`` is not a link URL at all."""
+    from hwbridge.links import create_link
+
+    try:
+        create_link(url, **({"baud": baud} if baud is not None else {}))  # parses, never opens
+        return baud, None
+    except HwBridgeError as exc:
+        refused = exc
+    if baud is not None:
+        try:
+            create_link(url)
+        except HwBridgeError:
+            pass
+        else:  # the URL is fine; only the file's baud rate does not fit it
+            return None, f"{baud_source or where}: baud {baud} does not apply to {url}; ignored"
+    raise RobotFileError([f"{where}: {what}: --link {name}={url}: {refused}"])
+
+
+def link_overrides(robot: Robot, links: Mapping[str, str]) -> tuple[Robot, list[str]]:
+    """``robot`` with the links of some boards and host devices replaced (``--link NAME=URL``),
+    and the notes to show: a ``baud`` the file gives that the new link takes none for
+    (``socket://``) is dropped, with a note naming its line. An unknown name or a URL that does
+    not parse is an error (:class:`~hwbridge.errors.HwBridgeError`, RobotFileError with the
+    board's or host device's line)."""
+    replaced = robot.with_links(links)  # an unknown name: HwBridgeError listing the known ones
+    notes: list[str] = []
+    boards: list[RobotBoardConfig] = []
+    for board in replaced.boards:
+        if board.name in links:
+            baud, note = _overridden_baud(
+                board.link,
+                board.baud,
+                board.baud_source,
+                board.source or str(robot.path),
+                f"board {board.name}",
+                board.name,
+            )
+            notes += [note] if note else []
+            boards.append(dataclasses.replace(board, baud=baud))
+        else:
+            boards.append(board)
+    hosts: list[HostDeviceConfig] = []
+    for host in replaced.host_devices:
+        if host.device.name in links:
+            baud, note = _overridden_baud(
+                host.link,
+                host.baud,
+                host.baud_source,
+                host.source or str(robot.path),
+                f"host device {host.device.name} ({host.device.type})",
+                host.device.name,
+            )
+            notes += [note] if note else []
+            hosts.append(dataclasses.replace(host, baud=baud))
+        else:
+            hosts.append(host)
+    return dataclasses.replace(replaced, boards=tuple(boards), host_devices=tuple(hosts)), notes
+
+
+def check_robot(
+    path: str | Path, links: Mapping[str, str] | None = None
+) -> tuple[Robot, list[str]]:
+    """What ``hwbridge robot check`` and ``hwbridge up`` both run: the robot file read and
+    checked (:func:`load_robot`), then the ``--link`` overrides applied
+    (:func:`link_overrides`); the robot as it will run and the notes to show."""
+    robot = load_robot(path)
+    return link_overrides(robot, links or {})

@@ -51,6 +51,8 @@ class RobotBoardConfig:
     start_delay: float = 0.0
     devices: tuple[DeviceConfig, ...] = ()
     source: str = ""
+    baud_source: str = ""
+    """``FILE:LINE`` of the ``baud`` key, where the file gives one."""
 
 
 @dataclass(frozen=True)
@@ -62,6 +64,8 @@ class HostDeviceConfig:
     namespace: str = "/"
     baud: int | None = None
     source: str = ""
+    baud_source: str = ""
+    """``FILE:LINE`` of the ``baud`` key, where the file gives one."""
 
 
 @dataclass(frozen=True)

@@ -12,7 +12,10 @@ A robot file (:mod:`hwbridge.robot.config`) lists devices by ``type``; each type
 * its **host node** (:meth:`DevicePlugin.host_node`): the graph node that turns the board's raw
   topics into the messages users want (odometry, Range, Imu, joint states);
 * the **firmware driver** it pairs with (:attr:`DevicePlugin.firmware`, a name in the Arduino
-  library; None until the firmware has one).
+  library; None until the firmware has one);
+* the **topics and services** it uses with given settings (:meth:`DevicePlugin.topics`, a
+  tuple of :class:`TopicUse`), so a robot file in which two devices would publish one topic is
+  refused with both lines. A plugin that does not say (returns None) is left out of that check.
 
 Where a device lives: ``board`` devices sit on a board's pins and reach the host through the
 board's link (their host node talks to the board's raw topics in the board's namespace); ``host``
@@ -37,10 +40,12 @@ __all__ = [
     "EmulatedBoard",
     "Field",
     "HostContext",
+    "TopicUse",
     "Where",
 ]
 
 Where = Literal["board", "host"]
+Use = Literal["publishes", "subscribes", "serves"]
 
 
 class _Required:
@@ -69,6 +74,21 @@ class Field:
     @property
     def required(self) -> bool:
         return self.default is REQUIRED
+
+
+@dataclass(frozen=True)
+class TopicUse:
+    """A topic a device publishes or subscribes, or a service it serves."""
+
+    name: str
+    """Relative to the device's namespace (the board's for a board device), or absolute."""
+    type: str
+    """The message or service type (``sensor_msgs/Range``)."""
+    use: Use = "publishes"
+    side: Where = "host"
+    """Who does it: the board's firmware (``board``) or the device's host node (``host``)."""
+    shared: bool = False
+    """Meant to have many publishers (``/tf``, ``/diagnostics``): never a clash."""
 
 
 class Closeable(Protocol):
@@ -162,4 +182,13 @@ class DevicePlugin(abc.ABC):
 
     def host_node(self, settings: Mapping[str, Any], context: HostContext) -> Closeable | None:
         """Start the host node for the device; None if it needs none."""
+        return None
+
+    def topics(self, settings: Mapping[str, Any]) -> tuple[TopicUse, ...] | None:
+        """The topics the device publishes and subscribes and the services it serves with
+        ``settings`` (checked, defaults filled in): on the board (what its firmware or its
+        emulated model declares) and on the host (its host node). Robot files are checked
+        with it: two devices that would publish one topic (or serve one service) in the same
+        namespace are an error. None (the default): the plugin does not say, and is left out
+        of that check."""
         return None

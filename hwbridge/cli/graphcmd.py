@@ -13,13 +13,14 @@ bytes in hex (``{type, md5, raw}``), saying once on stderr which definition is m
 from __future__ import annotations
 
 import itertools
+import re
 import statistics
 import sys
 import threading
 import time
 from collections import deque
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any, Final
 
 import typer
 
@@ -31,7 +32,8 @@ from hwbridge.errors import (
     ProtocolMismatchError,
     UnknownTypeError,
 )
-from hwbridge.graph import ANY_TYPE, Graph, GraphSnapshot, RawMessage
+from hwbridge.graph import ANY_TYPE, Graph, GraphEntity, GraphSnapshot, RawMessage
+from hwbridge.graph.discovery import LiveGraph, did_you_mean
 
 if TYPE_CHECKING:
     from hwbridge.msg import TypeRegistry
@@ -50,6 +52,17 @@ TopicArg = Annotated[str, typer.Argument(metavar="TOPIC", help="Topic name, e.g.
 WaitOpt = Annotated[
     float, typer.Option("--wait", help="Seconds to wait for discovery before giving up.")
 ]
+KeepWaitingOpt = Annotated[
+    bool,
+    typer.Option(
+        "--wait",
+        help="Keep waiting until the topic appears (default: give up after 2 s of discovery).",
+    ),
+]
+
+GRACE: Final = 2.0
+"""Seconds of discovery before a tool says nothing publishes its topic: a bridge that has just
+started announces its boards' topics as they connect."""
 
 
 def _snapshot(graph: Graph, wait: float) -> GraphSnapshot:
@@ -113,15 +126,20 @@ def topic_type(ctx: typer.Context, topic: TopicArg, wait: WaitOpt = 1.0) -> None
 
 @topic_app.command("info")
 def topic_info(
-    ctx: typer.Context, topic: TopicArg, as_json: JsonOpt = False, wait: WaitOpt = 1.0
+    ctx: typer.Context, topic: TopicArg, as_json: JsonOpt = False, wait: KeepWaitingOpt = False
 ) -> None:
     """Type, md5, publishers and subscribers of a topic."""
     with open_graph(ctx) as graph:
-        snapshot = _snapshot(graph, wait)
+        live = LiveGraph(graph)
+        if not live.wait(lambda: topic in live.topics(), GRACE):
+            unknown = f"nothing publishes or subscribes {topic}{did_you_mean(topic, live.topics())}"
+            if not wait:
+                raise HwBridgeError(f"{unknown} (see 'hwbridge topic list')")
+            _note(f"{unknown} yet; waiting until something does (Ctrl-C stops)")
+            live.wait(lambda: topic in live.topics(), None)
+        snapshot = _snapshot(graph, 0.2)
         registry = graph.registry
     entities = [e for e in snapshot.entities if e.kind in ("pub", "sub") and e.name == topic]
-    if not entities:
-        raise HwBridgeError(f"nothing publishes or subscribes {topic} (see 'hwbridge topic list')")
     types = [
         {"type": t, "md5": _md5_or_unknown(registry, t)}
         for t in sorted({e.type for e in entities} - {ANY_TYPE})
@@ -143,6 +161,28 @@ def topic_info(
         typer.echo(f" * {name}")
 
 
+def _note(text: str) -> None:
+    """One line on stderr, at once (the user is waiting)."""
+    sys.stderr.write(text + "\n")
+    sys.stderr.flush()
+
+
+def _no_publisher(topic: str, live: LiveGraph) -> str:
+    return f"no publisher of {topic} yet{did_you_mean(topic, live.published())}"
+
+
+def _await_publisher(live: LiveGraph, topic: str, wait: bool) -> None:
+    """Return once something publishes ``topic``. After GRACE seconds without: an error
+    naming the close topics that are published, or with ``wait`` that note once and then
+    waiting on, silently."""
+    if live.wait(lambda: topic in live.published(), GRACE):
+        return
+    if not wait:
+        raise HwBridgeError(f"{_no_publisher(topic, live)} (--wait keeps waiting for one)")
+    _note(f"{_no_publisher(topic, live)}; waiting for one (Ctrl-C stops)")
+    live.wait(lambda: topic in live.published(), None)
+
+
 def _md5_or_unknown(registry: TypeRegistry, type_name: str) -> str:
     try:
         return registry.md5(type_name)
@@ -153,7 +193,14 @@ def _md5_or_unknown(registry: TypeRegistry, type_name: str) -> str:
 @topic_app.command("echo")
 def topic_echo(
     ctx: typer.Context,
-    topic: TopicArg,
+    topic: Annotated[
+        str,
+        typer.Argument(
+            metavar="TOPIC[/FIELD...]",
+            help="Topic name, e.g. /odom, optionally followed by a field: "
+            "/odom/pose/pose/position, /joint_states/position/0",
+        ),
+    ],
     count: Annotated[
         int | None, typer.Option("-n", "--count", min=1, help="Exit after N messages.")
     ] = None,
@@ -162,8 +209,15 @@ def topic_echo(
     timeout: Annotated[
         float | None, typer.Option("--timeout", help="Fail if no message within SECONDS.")
     ] = None,
+    wait: KeepWaitingOpt = False,
 ) -> None:
     """Print messages on a topic as YAML (``---`` between them), like rostopic echo.
+
+    As rostopic does, ``TOPIC/FIELD/...`` prints one field of each message: the longest
+    published topic that starts the name is the topic, the rest a path of fields and list
+    indexes. If nothing publishes the topic after 2 s of discovery, the command says so (with
+    the published topics whose names are close) and fails, unless ``--wait`` (or
+    ``--timeout``) asks it to keep waiting.
 
     A message of a type with no definition here is shown as its type, md5 and bytes in hex:
     ``{type, md5, raw}``. One whose type is defined here differently (another md5) is refused:
@@ -191,10 +245,19 @@ def topic_echo(
             if count is not None and seen[0] >= count:
                 done.set()
 
+    started = time.monotonic()
     with open_graph(ctx) as graph:
-        renderer = _Renderer(graph, as_json, raw)
-        graph.node(f"hwbridge_echo_{graph.zid[:8]}").subscriber(topic, ANY_TYPE, show, raw=True)
-        started = time.monotonic()
+        live = LiveGraph(graph)
+        target = _echo_target(live, topic, timeout, wait, started)
+        name, field = target
+        if field and raw:
+            raise typer.BadParameter(
+                f"--hex prints whole messages: {name} has no field selection with it"
+            )
+        if field:
+            _check_field(graph, live, name, field)
+        renderer = _Renderer(graph, as_json, raw, field)
+        graph.node(f"hwbridge_echo_{graph.zid[:8]}").subscriber(name, ANY_TYPE, show, raw=True)
         while not done.wait(0.1):
             if timeout is not None and not seen[0] and time.monotonic() - started > timeout:
                 raise HwBridgeTimeoutError(f"no message on {topic} within {timeout:g} s")
@@ -202,13 +265,81 @@ def topic_echo(
         raise failed[0]
 
 
+def _published_prefix(live: LiveGraph, topic: str) -> tuple[str, list[str]] | None:
+    """(topic, field path) if ``topic`` or a name it starts with is published now: the topic
+    itself first, then the longest published prefix (the rest is the field path)."""
+    published = live.published()
+    if topic in published:
+        return topic, []
+    parts = topic.strip("/").split("/")
+    for cut in range(len(parts) - 1, 0, -1):
+        prefix = "/" + "/".join(parts[:cut])
+        if prefix in published:
+            return prefix, parts[cut:]
+    return None
+
+
+def _echo_target(
+    live: LiveGraph, topic: str, timeout: float | None, wait: bool, started: float
+) -> tuple[str, list[str]]:
+    """Where ``topic echo TOPIC`` listens, once something publishes it: see
+    :func:`_published_prefix`. Gives up after GRACE seconds, or ``timeout``, unless ``wait``."""
+    found: list[tuple[str, list[str]]] = []
+
+    def published() -> bool:
+        target = _published_prefix(live, topic)
+        if target is not None:
+            found.append(target)
+        return target is not None
+
+    def left() -> float | None:
+        return None if timeout is None else timeout - (time.monotonic() - started)
+
+    first = GRACE if timeout is None else min(GRACE, timeout)
+    if live.wait(published, first):
+        return found[-1]
+    if not wait and timeout is None:
+        raise HwBridgeError(f"{_no_publisher(topic, live)} (--wait keeps waiting for one)")
+    remaining = left()
+    if remaining is None or remaining > 0:
+        _note(f"{_no_publisher(topic, live)}; waiting for one (Ctrl-C stops)")
+        if live.wait(published, remaining):
+            return found[-1]
+    raise HwBridgeTimeoutError(
+        f"no message on {topic} within {timeout:g} s: {_no_publisher(topic, live)}"
+    )
+
+
+def _check_field(graph: Graph, live: LiveGraph, topic: str, field: list[str]) -> None:
+    """MessageTypeError unless ``field`` is in the type(s) ``topic`` is published with."""
+    from hwbridge import msg
+
+    types = sorted({e.type for e in live.users(topic) if e.kind == "pub"})
+    if not types:
+        raise HwBridgeError(f"cannot select {'/'.join(field)} in {topic}: its type is unknown")
+    for type_name in types:
+        try:
+            msg.check_field_path(type_name, field, graph.registry)
+        except UnknownTypeError as exc:
+            raise HwBridgeError(
+                f"cannot select {'/'.join(field)} in {topic}: {exc} (add its package with "
+                "--msg-path)"
+            ) from exc
+        except MessageTypeError as exc:
+            raise MessageTypeError(f"{topic}: {exc}") from exc
+
+
 class _Renderer:
     """Text for each message ``topic echo`` prints (called under its lock)."""
 
-    def __init__(self, graph: Graph, as_json: bool, hex_only: bool) -> None:
+    def __init__(
+        self, graph: Graph, as_json: bool, hex_only: bool, field: list[str] | None = None
+    ) -> None:
         self.graph = graph
         self.as_json = as_json
         self.hex_only = hex_only
+        self.field = field or []
+        """Field path to print of each message (``TOPIC/FIELD...``), or all of it."""
         self._undecodable: dict[tuple[str, str], bool] = {}
         """(type, md5) -> True if shown raw (the reason was said once on stderr)."""
 
@@ -221,21 +352,26 @@ class _Renderer:
             return message.data.hex() + "\n---\n"
         from hwbridge import msg
 
+        value: Any
         if self._raw_only(message):
-            data: dict[str, Any] = {
-                "type": message.type,
-                "md5": message.md5,
-                "raw": message.data.hex(),
-            }
+            if self.field:
+                sys.stderr.write(f"cannot select a field of a {message.type} message\n")
+                return None
+            value = {"type": message.type, "md5": message.md5, "raw": message.data.hex()}
         else:
             try:
-                data = msg.to_dict(msg.decode(message.data, message.type, self.graph.registry))
+                value = msg.to_dict(msg.decode(message.data, message.type, self.graph.registry))
             except HwBridgeError as exc:
                 sys.stderr.write(f"cannot decode a {message.type} message: {exc}\n")
                 return None
+            try:
+                value = msg.pick(value, self.field)
+            except HwBridgeError as exc:
+                sys.stderr.write(f"{message.topic}: {exc}\n")
+                return None
         if self.as_json:
-            return json_line(data)
-        return msg.dump_yaml(data) + "---\n"
+            return json_line(value)
+        return msg.dump_yaml(value).removesuffix("...\n") + "---\n"
 
     def _raw_only(self, message: RawMessage) -> bool:
         """Whether ``message`` is shown as bytes: its type is unknown here, or known with
@@ -267,11 +403,21 @@ class _Renderer:
         return bool(reason)
 
 
+_TYPE_NAME: Final = re.compile(r"[A-Za-z][A-Za-z0-9_]*/[A-Za-z][A-Za-z0-9_]*")
+"""A message type name as ``topic pub`` tells it from a YAML value: ``pkg/Type``."""
+
+
 @topic_app.command("pub")
 def topic_pub(
     ctx: typer.Context,
     topic: TopicArg,
-    type_name: Annotated[str, typer.Argument(metavar="TYPE", help="Message type.")],
+    type_or_values: Annotated[
+        str | None,
+        typer.Argument(
+            metavar="[TYPE]",
+            help="Message type, e.g. geometry_msgs/Twist (default: the topic's type on the graph).",
+        ),
+    ] = None,
     values: Annotated[
         str | None,
         typer.Argument(metavar="[YAML]", help="Field values, e.g. '{linear: {x: 0.2}}'."),
@@ -290,7 +436,12 @@ def topic_pub(
         float, typer.Option("--wait", help="Seconds to wait for a subscriber before publishing.")
     ] = 2.0,
 ) -> None:
-    """Publish a message (once with -1, repeatedly with -r), like rostopic pub."""
+    """Publish a message (once with -1, repeatedly with -r), like rostopic pub.
+
+    TYPE may be left out when the topic is on the graph (something publishes or subscribes
+    it): its type there is used. A TYPE that differs from it is refused.
+    """
+    type_name, values = _pub_arguments(type_or_values, values)
     if values is not None and file is not None:
         raise typer.BadParameter("give values or --file, not both")
     if once and rate is not None:
@@ -299,9 +450,20 @@ def topic_pub(
 
     text = file.read_text() if file is not None else values or "{}"
     with open_graph(ctx) as graph:
+        live = LiveGraph(graph)
+        deadline = time.monotonic() + wait
+        if type_name is None:
+            type_name = _live_type(live, topic)
+        else:
+
+            def subscribed() -> bool:
+                return any(e.name == topic for e in live.entities("sub"))
+
+            live.wait(subscribed, wait)
+            _refuse_other_type(topic, type_name, live.users(topic))
         message = msg.from_yaml(type_name, text, graph.registry)
         pub = graph.node(f"hwbridge_pub_{graph.zid[:8]}").publisher(topic, type_name)
-        if not pub.wait_for_subscribers(wait):
+        if not pub.wait_for_subscribers(max(deadline - time.monotonic(), 0.5)):
             sys.stderr.write(
                 f"warning: no subscriber on {topic} after {wait:g} s; publishing anyway\n"
             )
@@ -318,6 +480,59 @@ def topic_pub(
             next_time += period
             time.sleep(max(0.0, next_time - time.monotonic()))
         time.sleep(0.1)
+
+
+def _pub_arguments(first: str | None, second: str | None) -> tuple[str | None, str | None]:
+    """(type, values) from ``topic pub``'s arguments after the topic: ``TYPE [YAML]`` or
+    ``YAML``. A type reads ``pkg/Type``; a message's YAML never does (it is a mapping)."""
+    if second is not None:
+        if first is None or not _TYPE_NAME.fullmatch(first):
+            raise typer.BadParameter(
+                f"expected a message type (pkg/Type) before the values, got {first!r}",
+                param_hint="TYPE",
+            )
+        return first, second
+    if first is not None and _TYPE_NAME.fullmatch(first.strip()):
+        return first.strip(), None
+    return None, first
+
+
+def _users_text(users: list[GraphEntity]) -> str:
+    """``published by /a; subscribed by /b, /c`` for the nodes in ``users``."""
+    parts = []
+    for kind, verb in (("pub", "published"), ("sub", "subscribed")):
+        nodes = sorted({e.node for e in users if e.kind == kind})
+        if nodes:
+            parts.append(f"{verb} by {', '.join(nodes)}")
+    return "; ".join(parts)
+
+
+def _live_type(live: LiveGraph, topic: str) -> str:
+    """The type ``topic`` has on the graph (waiting up to GRACE seconds for it to appear)."""
+    live.wait(lambda: bool(live.users(topic)), GRACE)
+    users = live.users(topic)
+    types = sorted({e.type for e in users})
+    if not types:
+        raise HwBridgeError(
+            f"cannot tell the type of {topic}: nothing on the graph publishes or subscribes it"
+            f"{did_you_mean(topic, live.topics())}; give the type: "
+            f"hwbridge topic pub {topic} pkg/Type '{{...}}'"
+        )
+    if len(types) > 1:
+        raise HwBridgeError(
+            f"{topic} has several types on the graph ({_users_text(users)}: "
+            f"{', '.join(types)}): give the one to publish"
+        )
+    return types[0]
+
+
+def _refuse_other_type(topic: str, type_name: str, users: list[GraphEntity]) -> None:
+    """HwBridgeError if ``topic`` is on the graph with a type other than ``type_name``."""
+    others = [e for e in users if e.type != type_name]
+    if not others:
+        return
+    types = ", ".join(sorted({e.type for e in others}))
+    raise HwBridgeError(f"{topic} is {types} on the graph ({_users_text(others)}), not {type_name}")
 
 
 class _RateMeter:
@@ -357,10 +572,17 @@ class _RateMeter:
 
 
 def _measure(
-    ctx: typer.Context, topic: str, window: int, duration: float | None, as_json: bool, kind: str
+    ctx: typer.Context,
+    topic: str,
+    window: int,
+    duration: float | None,
+    as_json: bool,
+    kind: str,
+    wait: bool,
 ) -> None:
     meter = _RateMeter(window)
     with open_graph(ctx) as graph:
+        _await_publisher(LiveGraph(graph), topic, wait)
         graph.node(f"hwbridge_{kind}_{graph.zid[:8]}").subscriber(
             topic, ANY_TYPE, lambda m: meter.add(len(m.data)), raw=True
         )
@@ -407,9 +629,10 @@ def topic_hz(
     window: WindowOpt = 1000,
     duration: DurationOpt = None,
     as_json: JsonOpt = False,
+    wait: KeepWaitingOpt = False,
 ) -> None:
     """Print the publishing rate of a topic every second."""
-    _measure(ctx, topic, window, duration, as_json, "hz")
+    _measure(ctx, topic, window, duration, as_json, "hz", wait)
 
 
 @topic_app.command("bw")
@@ -419,9 +642,10 @@ def topic_bw(
     window: WindowOpt = 100,
     duration: DurationOpt = None,
     as_json: JsonOpt = False,
+    wait: KeepWaitingOpt = False,
 ) -> None:
     """Print the bandwidth used by a topic every second."""
-    _measure(ctx, topic, window, duration, as_json, "bw")
+    _measure(ctx, topic, window, duration, as_json, "bw", wait)
 
 
 # ---------------------------------------------------------------------- service
@@ -438,9 +662,13 @@ def service_list(ctx: typer.Context, as_json: JsonOpt = False, wait: WaitOpt = 1
 
 
 def _service_type(graph: Graph, name: str, wait: float) -> str:
-    types = sorted(_snapshot(graph, wait).services().get(name, set()))
+    services = _snapshot(graph, wait).services()
+    types = sorted(services.get(name, set()))
     if not types:
-        raise HwBridgeError(f"no server for service {name} (see 'hwbridge service list')")
+        raise HwBridgeError(
+            f"no server for service {name}{did_you_mean(name, services)} "
+            "(see 'hwbridge service list')"
+        )
     return types[0]
 
 
@@ -511,8 +739,17 @@ def param_list(ctx: typer.Context, as_json: JsonOpt = False) -> None:
 @param_app.command("get")
 def param_get(ctx: typer.Context, name: ParamName, as_json: JsonOpt = False) -> None:
     """Print a parameter (a namespace prints as a mapping)."""
+    from hwbridge.graph import ParamError
+
     with open_graph(ctx) as graph:
-        value = graph.params.get(name)
+        try:
+            value = graph.params.get(name)
+        except ParamError as exc:
+            if not str(exc).startswith("no parameter"):
+                raise
+            names = graph.params.names()
+            namespaces = {n.rsplit("/", depth)[0] for n in names for depth in (1, 2)}
+            raise ParamError(f"{exc}{did_you_mean(name, {*names, *namespaces} - {''})}") from exc
     if as_json:
         emit_json(value)
     else:

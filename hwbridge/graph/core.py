@@ -545,6 +545,24 @@ class Node:
         return target
 
 
+_HEADER: Final = ("header", (2, "std_msgs/msg/Header"))
+"""A field descriptor of ``std_msgs/Header header`` (rosbags' Nodetype.NAME is 2)."""
+
+
+@functools.lru_cache(maxsize=256)
+def _starts_with_header(registry: TypeRegistry, type_name: str) -> bool:
+    """Whether ``type_name``'s ROS 1 bytes start with a ``std_msgs/Header`` (so with its seq)."""
+    fields = registry.fields(type_name)
+    return bool(fields) and tuple(fields[0]) == _HEADER
+
+
+def _with_seq(data: bytes, seq: int) -> bytes:
+    """``data`` (bytes that start with a Header) with ``seq`` as the header's seq if that is 0."""
+    if data[:4] != b"\0\0\0\0":
+        return data
+    return (seq & 0xFFFFFFFF).to_bytes(4, "little") + data[4:]
+
+
 class Publisher:
     """Publishes on one topic. ``publish`` takes a message or dict; ``publish_raw`` bytes."""
 
@@ -568,13 +586,20 @@ class Publisher:
         self._token = graph.announce("pub", node.name, topic, mtype.name)
 
     def publish(self, message: Any) -> None:
-        """Serialize and publish a message object (or a dict of its fields)."""
+        """Serialize and publish a message object (or a dict of its fields).
+
+        As rospy does, a message that starts with a ``std_msgs/Header`` goes out with the
+        publisher's count (1, 2, ...) as its ``seq``, unless it has a seq of its own (not 0).
+        """
         from hwbridge import msg as msgmod
 
         registry = self.node.graph.registry
         if isinstance(message, Mapping):
             message = msgmod.from_dict(self.type.name, message, registry)
-        self.publish_raw(msgmod.encode(message, self.type.name, registry))
+        data = msgmod.encode(message, self.type.name, registry)
+        if _starts_with_header(registry, self.type.name):
+            data = _with_seq(data, self.sent + 1)
+        self.publish_raw(data)
 
     def publish_raw(self, data: bytes | bytearray | memoryview) -> None:
         """Publish bytes already in ROS 1 serialization of this publisher's type."""

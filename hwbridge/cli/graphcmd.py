@@ -33,7 +33,7 @@ from hwbridge.errors import (
     UnknownTypeError,
 )
 from hwbridge.graph import ANY_TYPE, Graph, GraphEntity, GraphSnapshot, RawMessage
-from hwbridge.graph.discovery import LiveGraph, did_you_mean
+from hwbridge.graph.discovery import LiveGraph, close_names, did_you_mean
 
 if TYPE_CHECKING:
     from hwbridge.msg import TypeRegistry
@@ -513,10 +513,11 @@ def _live_type(live: LiveGraph, topic: str) -> str:
     users = live.users(topic)
     types = sorted({e.type for e in users})
     if not types:
+        close = close_names(topic, live.topics())
+        hint = f" (did you mean {', '.join(close)}?)" if close else ""
         raise HwBridgeError(
-            f"cannot tell the type of {topic}: nothing on the graph publishes or subscribes it"
-            f"{did_you_mean(topic, live.topics())}; give the type: "
-            f"hwbridge topic pub {topic} pkg/Type '{{...}}'"
+            f"cannot tell the type of {topic}: nothing on the graph publishes or subscribes "
+            f"it{hint}; give the type: hwbridge topic pub {topic} pkg/Type '{{...}}'"
         )
     if len(types) > 1:
         raise HwBridgeError(

@@ -83,17 +83,24 @@ class LiveGraph:
 
 
 def close_names(name: str, known: Iterable[str], limit: int = 3) -> list[str]:
-    """Names in ``known`` close to ``name``: same last segment elsewhere first (``/odom`` for
-    ``/diffbot/odom``), then by spelling."""
-    candidates = sorted(set(known) - {name})
-    last = name.rstrip("/").rsplit("/", 1)[-1]
-    same_last = [k for k in candidates if k.rsplit("/", 1)[-1] == last]
-    spelled = difflib.get_close_matches(name, candidates, n=limit, cutoff=0.6)
-    out: list[str] = []
-    for item in [*spelled, *same_last]:
-        if item not in out:
-            out.append(item)
-    return out[:limit]
+    """Names in ``known`` close to ``name``, closest first: in the same namespace, a last
+    segment spelt alike (``/diffbot/odom`` for ``/diffbot/odm``); elsewhere, the same last
+    segment (``/diffbot/odom`` for ``/odom``) or a whole name spelt alike."""
+    parent, _, last = name.rstrip("/").rpartition("/")
+    scored: list[tuple[float, str]] = []
+    for candidate in set(known) - {name}:
+        other_parent, _, other_last = candidate.rpartition("/")
+        if other_last == last:
+            score = 1.0
+        elif other_parent == parent:
+            score = difflib.SequenceMatcher(None, last, other_last).ratio()
+            score = score if score >= 0.6 else 0.0
+        else:
+            score = difflib.SequenceMatcher(None, name, candidate).ratio()
+            score = score if score >= 0.8 else 0.0
+        if score > 0:
+            scored.append((-score, candidate))
+    return [candidate for _score, candidate in sorted(scored)[:limit]]
 
 
 def did_you_mean(name: str, known: Iterable[str]) -> str:

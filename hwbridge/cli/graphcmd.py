@@ -13,18 +13,27 @@ bytes in hex (``{type, md5, raw}``), saying once on stderr which definition is m
 from __future__ import annotations
 
 import itertools
-import re
 import statistics
 import sys
 import threading
 import time
 from collections import deque
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any, Final
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
 from hwbridge.cli.common import emit_json, json_line, open_graph
+from hwbridge.cli.livetopics import (
+    GRACE,
+    await_publisher,
+    check_field,
+    echo_target,
+    live_type,
+    note,
+    pub_arguments,
+    refuse_other_type,
+)
 from hwbridge.errors import (
     HwBridgeError,
     HwBridgeTimeoutError,
@@ -32,8 +41,8 @@ from hwbridge.errors import (
     ProtocolMismatchError,
     UnknownTypeError,
 )
-from hwbridge.graph import ANY_TYPE, Graph, GraphEntity, GraphSnapshot, RawMessage
-from hwbridge.graph.discovery import LiveGraph, close_names, did_you_mean
+from hwbridge.graph import ANY_TYPE, Graph, GraphSnapshot, RawMessage
+from hwbridge.graph.discovery import LiveGraph, did_you_mean
 
 if TYPE_CHECKING:
     from hwbridge.msg import TypeRegistry
@@ -59,10 +68,6 @@ KeepWaitingOpt = Annotated[
         help="Keep waiting until the topic appears (default: give up after 2 s of discovery).",
     ),
 ]
-
-GRACE: Final = 2.0
-"""Seconds of discovery before a tool says nothing publishes its topic: a bridge that has just
-started announces its boards' topics as they connect."""
 
 
 def _snapshot(graph: Graph, wait: float) -> GraphSnapshot:
@@ -135,7 +140,7 @@ def topic_info(
             unknown = f"nothing publishes or subscribes {topic}{did_you_mean(topic, live.topics())}"
             if not wait:
                 raise HwBridgeError(f"{unknown} (see 'hwbridge topic list')")
-            _note(f"{unknown} yet; waiting until something does (Ctrl-C stops)")
+            note(f"{unknown} yet; waiting until something does (Ctrl-C stops)")
             live.wait(lambda: topic in live.topics(), None)
         snapshot = _snapshot(graph, 0.2)
         registry = graph.registry
@@ -159,28 +164,6 @@ def topic_info(
     typer.echo("\nSubscribers:")
     for name in subscribers or ["(none)"]:
         typer.echo(f" * {name}")
-
-
-def _note(text: str) -> None:
-    """One line on stderr, at once (the user is waiting)."""
-    sys.stderr.write(text + "\n")
-    sys.stderr.flush()
-
-
-def _no_publisher(topic: str, live: LiveGraph) -> str:
-    return f"no publisher of {topic} yet{did_you_mean(topic, live.published())}"
-
-
-def _await_publisher(live: LiveGraph, topic: str, wait: bool) -> None:
-    """Return once something publishes ``topic``. After GRACE seconds without: an error
-    naming the close topics that are published, or with ``wait`` that note once and then
-    waiting on, silently."""
-    if live.wait(lambda: topic in live.published(), GRACE):
-        return
-    if not wait:
-        raise HwBridgeError(f"{_no_publisher(topic, live)} (--wait keeps waiting for one)")
-    _note(f"{_no_publisher(topic, live)}; waiting for one (Ctrl-C stops)")
-    live.wait(lambda: topic in live.published(), None)
 
 
 def _md5_or_unknown(registry: TypeRegistry, type_name: str) -> str:
@@ -248,14 +231,14 @@ def topic_echo(
     started = time.monotonic()
     with open_graph(ctx) as graph:
         live = LiveGraph(graph)
-        target = _echo_target(live, topic, timeout, wait, started)
+        target = echo_target(live, topic, timeout, wait, started)
         name, field = target
         if field and raw:
             raise typer.BadParameter(
                 f"--hex prints whole messages: {name} has no field selection with it"
             )
         if field:
-            _check_field(graph, live, name, field)
+            check_field(graph, live, name, field)
         renderer = _Renderer(graph, as_json, raw, field)
         graph.node(f"hwbridge_echo_{graph.zid[:8]}").subscriber(name, ANY_TYPE, show, raw=True)
         while not done.wait(0.1):
@@ -263,70 +246,6 @@ def topic_echo(
                 raise HwBridgeTimeoutError(f"no message on {topic} within {timeout:g} s")
     if failed:
         raise failed[0]
-
-
-def _published_prefix(live: LiveGraph, topic: str) -> tuple[str, list[str]] | None:
-    """(topic, field path) if ``topic`` or a name it starts with is published now: the topic
-    itself first, then the longest published prefix (the rest is the field path)."""
-    published = live.published()
-    if topic in published:
-        return topic, []
-    parts = topic.strip("/").split("/")
-    for cut in range(len(parts) - 1, 0, -1):
-        prefix = "/" + "/".join(parts[:cut])
-        if prefix in published:
-            return prefix, parts[cut:]
-    return None
-
-
-def _echo_target(
-    live: LiveGraph, topic: str, timeout: float | None, wait: bool, started: float
-) -> tuple[str, list[str]]:
-    """Where ``topic echo TOPIC`` listens, once something publishes it: see
-    :func:`_published_prefix`. Gives up after GRACE seconds, or ``timeout``, unless ``wait``."""
-    found: list[tuple[str, list[str]]] = []
-
-    def published() -> bool:
-        target = _published_prefix(live, topic)
-        if target is not None:
-            found.append(target)
-        return target is not None
-
-    def left() -> float | None:
-        return None if timeout is None else timeout - (time.monotonic() - started)
-
-    first = GRACE if timeout is None else min(GRACE, timeout)
-    if live.wait(published, first):
-        return found[-1]
-    if not wait and timeout is None:
-        raise HwBridgeError(f"{_no_publisher(topic, live)} (--wait keeps waiting for one)")
-    remaining = left()
-    if remaining is None or remaining > 0:
-        _note(f"{_no_publisher(topic, live)}; waiting for one (Ctrl-C stops)")
-        if live.wait(published, remaining):
-            return found[-1]
-    raise HwBridgeTimeoutError(
-        f"no message on {topic} within {timeout:g} s: {_no_publisher(topic, live)}"
-    )
-
-
-def _check_field(graph: Graph, live: LiveGraph, topic: str, field: list[str]) -> None:
-    """MessageTypeError unless ``field`` is in the type(s) ``topic`` is published with."""
-    from hwbridge import msg
-
-    types = sorted({e.type for e in live.users(topic) if e.kind == "pub"})
-    if not types:
-        raise HwBridgeError(f"cannot select {'/'.join(field)} in {topic}: its type is unknown")
-    for type_name in types:
-        try:
-            msg.check_field_path(type_name, field, graph.registry)
-        except UnknownTypeError as exc:
-            raise HwBridgeError(
-                f"cannot select {'/'.join(field)} in {topic}: {exc} (add its package with "
-                "--msg-path)"
-            ) from exc
-        except MessageTypeError as exc:
-            raise MessageTypeError(f"{topic}: {exc}") from exc
 
 
 class _Renderer:
@@ -403,10 +322,6 @@ class _Renderer:
         return bool(reason)
 
 
-_TYPE_NAME: Final = re.compile(r"[A-Za-z][A-Za-z0-9_]*/[A-Za-z][A-Za-z0-9_]*")
-"""A message type name as ``topic pub`` tells it from a YAML value: ``pkg/Type``."""
-
-
 @topic_app.command("pub")
 def topic_pub(
     ctx: typer.Context,
@@ -441,7 +356,7 @@ def topic_pub(
     TYPE may be left out when the topic is on the graph (something publishes or subscribes
     it): its type there is used. A TYPE that differs from it is refused.
     """
-    type_name, values = _pub_arguments(type_or_values, values)
+    type_name, values = pub_arguments(type_or_values, values)
     if values is not None and file is not None:
         raise typer.BadParameter("give values or --file, not both")
     if once and rate is not None:
@@ -453,14 +368,14 @@ def topic_pub(
         live = LiveGraph(graph)
         deadline = time.monotonic() + wait
         if type_name is None:
-            type_name = _live_type(live, topic)
+            type_name = live_type(live, topic)
         else:
 
             def subscribed() -> bool:
                 return any(e.name == topic for e in live.entities("sub"))
 
             live.wait(subscribed, wait)
-            _refuse_other_type(topic, type_name, live.users(topic))
+            refuse_other_type(topic, type_name, live.users(topic))
         message = msg.from_yaml(type_name, text, graph.registry)
         pub = graph.node(f"hwbridge_pub_{graph.zid[:8]}").publisher(topic, type_name)
         if not pub.wait_for_subscribers(max(deadline - time.monotonic(), 0.5)):
@@ -480,60 +395,6 @@ def topic_pub(
             next_time += period
             time.sleep(max(0.0, next_time - time.monotonic()))
         time.sleep(0.1)
-
-
-def _pub_arguments(first: str | None, second: str | None) -> tuple[str | None, str | None]:
-    """(type, values) from ``topic pub``'s arguments after the topic: ``TYPE [YAML]`` or
-    ``YAML``. A type reads ``pkg/Type``; a message's YAML never does (it is a mapping)."""
-    if second is not None:
-        if first is None or not _TYPE_NAME.fullmatch(first):
-            raise typer.BadParameter(
-                f"expected a message type (pkg/Type) before the values, got {first!r}",
-                param_hint="TYPE",
-            )
-        return first, second
-    if first is not None and _TYPE_NAME.fullmatch(first.strip()):
-        return first.strip(), None
-    return None, first
-
-
-def _users_text(users: list[GraphEntity]) -> str:
-    """``published by /a; subscribed by /b, /c`` for the nodes in ``users``."""
-    parts = []
-    for kind, verb in (("pub", "published"), ("sub", "subscribed")):
-        nodes = sorted({e.node for e in users if e.kind == kind})
-        if nodes:
-            parts.append(f"{verb} by {', '.join(nodes)}")
-    return "; ".join(parts)
-
-
-def _live_type(live: LiveGraph, topic: str) -> str:
-    """The type ``topic`` has on the graph (waiting up to GRACE seconds for it to appear)."""
-    live.wait(lambda: bool(live.users(topic)), GRACE)
-    users = live.users(topic)
-    types = sorted({e.type for e in users})
-    if not types:
-        close = close_names(topic, live.topics())
-        hint = f" (did you mean {', '.join(close)}?)" if close else ""
-        raise HwBridgeError(
-            f"cannot tell the type of {topic}: nothing on the graph publishes or subscribes "
-            f"it{hint}; give the type: hwbridge topic pub {topic} pkg/Type '{{...}}'"
-        )
-    if len(types) > 1:
-        raise HwBridgeError(
-            f"{topic} has several types on the graph ({_users_text(users)}: "
-            f"{', '.join(types)}): give the one to publish"
-        )
-    return types[0]
-
-
-def _refuse_other_type(topic: str, type_name: str, users: list[GraphEntity]) -> None:
-    """HwBridgeError if ``topic`` is on the graph with a type other than ``type_name``."""
-    others = [e for e in users if e.type != type_name]
-    if not others:
-        return
-    types = ", ".join(sorted({e.type for e in others}))
-    raise HwBridgeError(f"{topic} is {types} on the graph ({_users_text(others)}), not {type_name}")
 
 
 class _RateMeter:
@@ -583,7 +444,7 @@ def _measure(
 ) -> None:
     meter = _RateMeter(window)
     with open_graph(ctx) as graph:
-        _await_publisher(LiveGraph(graph), topic, wait)
+        await_publisher(LiveGraph(graph), topic, wait)
         graph.node(f"hwbridge_{kind}_{graph.zid[:8]}").subscriber(
             topic, ANY_TYPE, lambda m: meter.add(len(m.data)), raw=True
         )

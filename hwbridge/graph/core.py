@@ -35,6 +35,7 @@ from typing import TYPE_CHECKING, Any, Final
 from hwbridge.errors import HwBridgeError, HwBridgeTimeoutError, ProtocolMismatchError
 from hwbridge.graph.config import GraphConfig
 from hwbridge.graph.guard import call_guarded
+from hwbridge.graph.header import with_seq
 from hwbridge.graph.names import decode_segment, encode_segment, resolve_name
 from hwbridge.graph.params import ParamClient
 
@@ -545,24 +546,6 @@ class Node:
         return target
 
 
-_HEADER: Final = ("header", (2, "std_msgs/msg/Header"))
-"""A field descriptor of ``std_msgs/Header header`` (rosbags' Nodetype.NAME is 2)."""
-
-
-@functools.lru_cache(maxsize=256)
-def _starts_with_header(registry: TypeRegistry, type_name: str) -> bool:
-    """Whether ``type_name``'s ROS 1 bytes start with a ``std_msgs/Header`` (so with its seq)."""
-    fields = registry.fields(type_name)
-    return bool(fields) and tuple(fields[0]) == _HEADER
-
-
-def _with_seq(data: bytes, seq: int) -> bytes:
-    """``data`` (bytes that start with a Header) with ``seq`` as the header's seq if that is 0."""
-    if data[:4] != b"\0\0\0\0":
-        return data
-    return (seq & 0xFFFFFFFF).to_bytes(4, "little") + data[4:]
-
-
 class Publisher:
     """Publishes on one topic. ``publish`` takes a message or dict; ``publish_raw`` bytes."""
 
@@ -597,9 +580,7 @@ class Publisher:
         if isinstance(message, Mapping):
             message = msgmod.from_dict(self.type.name, message, registry)
         data = msgmod.encode(message, self.type.name, registry)
-        if _starts_with_header(registry, self.type.name):
-            data = _with_seq(data, self.sent + 1)
-        self.publish_raw(data)
+        self.publish_raw(with_seq(registry, self.type.name, data, self.sent + 1))
 
     def publish_raw(self, data: bytes | bytearray | memoryview) -> None:
         """Publish bytes already in ROS 1 serialization of this publisher's type."""

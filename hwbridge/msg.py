@@ -17,9 +17,10 @@ or passed explicitly to :func:`registry`.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from functools import lru_cache
 from pathlib import Path
 from typing import Any, Final
@@ -42,6 +43,7 @@ __all__ = [
     "MessageType",
     "ServiceType",
     "TypeRegistry",
+    "check_field_path",
     "decode",
     "dump_yaml",
     "encode",
@@ -49,6 +51,7 @@ __all__ = [
     "from_yaml",
     "md5",
     "new",
+    "pick",
     "registry",
     "show",
     "to_dict",
@@ -136,11 +139,7 @@ def _plain(value: Any) -> Any:
     if isinstance(store_name, str):
         if store_name in _TIME_CLASSES:
             return {"secs": int(value.sec), "nsecs": int(value.nanosec)}
-        return {
-            name: _plain(getattr(value, name))
-            for name in value.__dataclass_fields__
-            if name not in ("__msgtype__", EMPTY_MARKER)
-        }
+        return {name: _plain(getattr(value, name)) for name in _field_names(type(value))}
     if isinstance(value, np.ndarray):
         return value.tolist()
     if isinstance(value, np.generic):
@@ -148,6 +147,27 @@ def _plain(value: Any) -> Any:
     if isinstance(value, list):
         return [_plain(v) for v in value]
     return value
+
+
+_FIELD_NAMES: dict[type[Any], tuple[str, ...]] = {}
+
+
+def _field_names(cls: type[Any]) -> tuple[str, ...]:
+    """The fields of a rosbags message class, in order: not its constants.
+
+    rosbags declares a type's constants (sensor_msgs/Range's ``ULTRASOUND``) and ``__msgtype__``
+    as class variables with their values, which ``dataclasses`` still lists as fields; the
+    message's own fields never have a default. So a member with a default is not a field (but
+    rosbags' placeholder of an empty message, which has one, is left out by name).
+    """
+    names = _FIELD_NAMES.get(cls)
+    if names is None:
+        names = _FIELD_NAMES[cls] = tuple(
+            name
+            for name, member in cls.__dataclass_fields__.items()
+            if member.default is dataclasses.MISSING and name != EMPTY_MARKER
+        )
+    return names
 
 
 def new(type_name: str, reg: TypeRegistry | None = None, /, **fields: Any) -> Any:
@@ -279,6 +299,60 @@ def _scalar(base: str, value: Any, path: str) -> Any:
 
 def _join(path: str, name: str) -> str:
     return f"{path}.{name}" if path else name
+
+
+# ---------------------------------------------------------------------- field paths
+def check_field_path(type_name: str, path: Sequence[str], reg: TypeRegistry | None = None) -> None:
+    """MessageTypeError unless ``path`` names something inside ``type_name``: field names, and
+    list indexes (digits) after an array, as ``rostopic echo /odom/pose/pose/position`` or
+    ``/joint_states/position/0`` select. The error names the fields there are."""
+    r = _reg(reg)
+    desc: tuple[int, Any] = (2, r.message(type_name).store_name)  # Nodetype.NAME
+    walked: list[str] = []
+    for part in path:
+        kind, arg = desc
+        here = f"{type_name} {'.'.join(walked)}" if walked else type_name
+        if kind == 1:  # Nodetype.BASE
+            raise MessageTypeError(f"{here} is a {arg[0]}: it has no field {part!r}")
+        if kind == 2 and arg in _TIME_CLASSES:
+            if part not in ("secs", "nsecs"):
+                raise MessageTypeError(
+                    f"no field {part!r} in {here} (a {_type_label(arg)}); its fields are secs, "
+                    "nsecs"
+                )
+            desc = (1, ("int32", 0))
+        elif kind == 2:
+            fields = dict(r.fields(arg))
+            if part not in fields:
+                known = ", ".join(fields) or "(none)"
+                what = ros1_name(arg) if not walked else f"{here} (a {ros1_name(arg)})"
+                raise MessageTypeError(f"no field {part!r} in {what}; its fields are {known}")
+            desc = fields[part]
+        else:  # an array: an index comes next
+            element, _size = arg
+            if not part.isdigit():
+                raise MessageTypeError(
+                    f"{here} is a list: expected an index (0, 1, ...), got {part!r}"
+                )
+            desc = (int(element[0]), element[1])
+        walked.append(part)
+
+
+def pick(data: Any, path: Sequence[str]) -> Any:
+    """The value at ``path`` in plain data (:func:`to_dict`'s); MessageTypeError if an index is
+    past the end of its list (which the type cannot tell in advance)."""
+    for depth, part in enumerate(path):
+        if isinstance(data, list):
+            index = int(part)
+            if index >= len(data):
+                where = ".".join(path[:depth]) or "the message"
+                raise MessageTypeError(
+                    f"{where} has {len(data)} element(s): no index {index} in this message"
+                )
+            data = data[index]
+        else:
+            data = data[part]
+    return data
 
 
 # ---------------------------------------------------------------------- YAML

@@ -248,8 +248,31 @@ def _board_info(ctx: typer.Context, board: str, timeout: float) -> dict[str, Any
     raise HwBridgeTimeoutError(f"no board named {board!r} answered (see 'hwbridge board list')")
 
 
+def _only_board(ctx: typer.Context, board: str | None) -> str:
+    """``board``, or the name of the one board on the graph when it is not given."""
+    if board is not None:
+        return board
+    names = sorted({name for name, _url, _protocol in _board_names(ctx, 1.0)})
+    if not names:
+        raise HwBridgeError(
+            "no board is connected: start a bridge with 'hwbridge connect URL' (or "
+            "'hwbridge up ROBOT.yaml'); 'hwbridge board list' shows the boards"
+        )
+    if len(names) > 1:
+        raise HwBridgeError(
+            f"{len(names)} boards are connected ({', '.join(names)}): name one, "
+            f"e.g. hwbridge board info {names[0]}"
+        )
+    return names[0]
+
+
 JsonOpt = Annotated[bool, typer.Option("--json", help="Machine-readable JSON output.")]
-BoardArg = Annotated[str, typer.Argument(metavar="BOARD", help="Board name (hwbridge board list).")]
+BoardArg = Annotated[
+    str | None,
+    typer.Argument(
+        metavar="[BOARD]", help="Board name (hwbridge board list); default: the only one."
+    ),
+]
 
 
 @board_app.command("list")
@@ -264,9 +287,9 @@ def board_list(ctx: typer.Context, as_json: JsonOpt = False) -> None:
 
 
 @board_app.command("info")
-def board_info(ctx: typer.Context, board: BoardArg, as_json: JsonOpt = False) -> None:
+def board_info(ctx: typer.Context, board: BoardArg = None, as_json: JsonOpt = False) -> None:
     """State, protocol and topics of a board."""
-    info = _board_info(ctx, board, 2.0)
+    info = _board_info(ctx, _only_board(ctx, board), 2.0)
     info.pop("stats", None)
     info.pop("link", None)
     info.pop("transport", None)
@@ -274,8 +297,9 @@ def board_info(ctx: typer.Context, board: BoardArg, as_json: JsonOpt = False) ->
 
 
 @board_app.command("stats")
-def board_stats(ctx: typer.Context, board: BoardArg, as_json: JsonOpt = False) -> None:
+def board_stats(ctx: typer.Context, board: BoardArg = None, as_json: JsonOpt = False) -> None:
     """Link statistics of a board: frames, bytes, checksum errors, gaps, retransmits, RTT."""
+    board = _only_board(ctx, board)
     info = _board_info(ctx, board, 2.0)
     _print(
         {

@@ -24,6 +24,16 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 
 from hwbridge.cli.common import emit_json, json_line, open_graph
+from hwbridge.cli.livetopics import (
+    GRACE,
+    await_publisher,
+    check_field,
+    echo_target,
+    live_type,
+    note,
+    pub_arguments,
+    refuse_other_type,
+)
 from hwbridge.errors import (
     HwBridgeError,
     HwBridgeTimeoutError,
@@ -32,6 +42,7 @@ from hwbridge.errors import (
     UnknownTypeError,
 )
 from hwbridge.graph import ANY_TYPE, Graph, GraphSnapshot, RawMessage
+from hwbridge.graph.discovery import LiveGraph, did_you_mean
 
 if TYPE_CHECKING:
     from hwbridge.msg import TypeRegistry
@@ -49,6 +60,13 @@ JsonOpt = Annotated[bool, typer.Option("--json", help="Machine-readable JSON out
 TopicArg = Annotated[str, typer.Argument(metavar="TOPIC", help="Topic name, e.g. /odom")]
 WaitOpt = Annotated[
     float, typer.Option("--wait", help="Seconds to wait for discovery before giving up.")
+]
+KeepWaitingOpt = Annotated[
+    bool,
+    typer.Option(
+        "--wait",
+        help="Keep waiting until the topic appears (default: give up after 2 s of discovery).",
+    ),
 ]
 
 
@@ -113,15 +131,20 @@ def topic_type(ctx: typer.Context, topic: TopicArg, wait: WaitOpt = 1.0) -> None
 
 @topic_app.command("info")
 def topic_info(
-    ctx: typer.Context, topic: TopicArg, as_json: JsonOpt = False, wait: WaitOpt = 1.0
+    ctx: typer.Context, topic: TopicArg, as_json: JsonOpt = False, wait: KeepWaitingOpt = False
 ) -> None:
     """Type, md5, publishers and subscribers of a topic."""
     with open_graph(ctx) as graph:
-        snapshot = _snapshot(graph, wait)
+        live = LiveGraph(graph)
+        if not live.wait(lambda: topic in live.topics(), GRACE):
+            unknown = f"nothing publishes or subscribes {topic}{did_you_mean(topic, live.topics())}"
+            if not wait:
+                raise HwBridgeError(f"{unknown} (see 'hwbridge topic list')")
+            note(f"{unknown} yet; waiting until something does (Ctrl-C stops)")
+            live.wait(lambda: topic in live.topics(), None)
+        snapshot = _snapshot(graph, 0.2)
         registry = graph.registry
     entities = [e for e in snapshot.entities if e.kind in ("pub", "sub") and e.name == topic]
-    if not entities:
-        raise HwBridgeError(f"nothing publishes or subscribes {topic} (see 'hwbridge topic list')")
     types = [
         {"type": t, "md5": _md5_or_unknown(registry, t)}
         for t in sorted({e.type for e in entities} - {ANY_TYPE})
@@ -153,7 +176,14 @@ def _md5_or_unknown(registry: TypeRegistry, type_name: str) -> str:
 @topic_app.command("echo")
 def topic_echo(
     ctx: typer.Context,
-    topic: TopicArg,
+    topic: Annotated[
+        str,
+        typer.Argument(
+            metavar="TOPIC[/FIELD...]",
+            help="Topic name, e.g. /odom, optionally followed by a field: "
+            "/odom/pose/pose/position, /joint_states/position/0",
+        ),
+    ],
     count: Annotated[
         int | None, typer.Option("-n", "--count", min=1, help="Exit after N messages.")
     ] = None,
@@ -162,8 +192,15 @@ def topic_echo(
     timeout: Annotated[
         float | None, typer.Option("--timeout", help="Fail if no message within SECONDS.")
     ] = None,
+    wait: KeepWaitingOpt = False,
 ) -> None:
     """Print messages on a topic as YAML (``---`` between them), like rostopic echo.
+
+    As rostopic does, ``TOPIC/FIELD/...`` prints one field of each message: the longest
+    published topic that starts the name is the topic, the rest a path of fields and list
+    indexes. If nothing publishes the topic after 2 s of discovery, the command says so (with
+    the published topics whose names are close) and fails, unless ``--wait`` (or
+    ``--timeout``) asks it to keep waiting.
 
     A message of a type with no definition here is shown as its type, md5 and bytes in hex:
     ``{type, md5, raw}``. One whose type is defined here differently (another md5) is refused:
@@ -191,10 +228,19 @@ def topic_echo(
             if count is not None and seen[0] >= count:
                 done.set()
 
+    started = time.monotonic()
     with open_graph(ctx) as graph:
-        renderer = _Renderer(graph, as_json, raw)
-        graph.node(f"hwbridge_echo_{graph.zid[:8]}").subscriber(topic, ANY_TYPE, show, raw=True)
-        started = time.monotonic()
+        live = LiveGraph(graph)
+        target = echo_target(live, topic, timeout, wait, started)
+        name, field = target
+        if field and raw:
+            raise typer.BadParameter(
+                f"--hex prints whole messages: {name} has no field selection with it"
+            )
+        if field:
+            check_field(graph, live, name, field)
+        renderer = _Renderer(graph, as_json, raw, field)
+        graph.node(f"hwbridge_echo_{graph.zid[:8]}").subscriber(name, ANY_TYPE, show, raw=True)
         while not done.wait(0.1):
             if timeout is not None and not seen[0] and time.monotonic() - started > timeout:
                 raise HwBridgeTimeoutError(f"no message on {topic} within {timeout:g} s")
@@ -205,10 +251,14 @@ def topic_echo(
 class _Renderer:
     """Text for each message ``topic echo`` prints (called under its lock)."""
 
-    def __init__(self, graph: Graph, as_json: bool, hex_only: bool) -> None:
+    def __init__(
+        self, graph: Graph, as_json: bool, hex_only: bool, field: list[str] | None = None
+    ) -> None:
         self.graph = graph
         self.as_json = as_json
         self.hex_only = hex_only
+        self.field = field or []
+        """Field path to print of each message (``TOPIC/FIELD...``), or all of it."""
         self._undecodable: dict[tuple[str, str], bool] = {}
         """(type, md5) -> True if shown raw (the reason was said once on stderr)."""
 
@@ -221,21 +271,26 @@ class _Renderer:
             return message.data.hex() + "\n---\n"
         from hwbridge import msg
 
+        value: Any
         if self._raw_only(message):
-            data: dict[str, Any] = {
-                "type": message.type,
-                "md5": message.md5,
-                "raw": message.data.hex(),
-            }
+            if self.field:
+                sys.stderr.write(f"cannot select a field of a {message.type} message\n")
+                return None
+            value = {"type": message.type, "md5": message.md5, "raw": message.data.hex()}
         else:
             try:
-                data = msg.to_dict(msg.decode(message.data, message.type, self.graph.registry))
+                value = msg.to_dict(msg.decode(message.data, message.type, self.graph.registry))
             except HwBridgeError as exc:
                 sys.stderr.write(f"cannot decode a {message.type} message: {exc}\n")
                 return None
+            try:
+                value = msg.pick(value, self.field)
+            except HwBridgeError as exc:
+                sys.stderr.write(f"{message.topic}: {exc}\n")
+                return None
         if self.as_json:
-            return json_line(data)
-        return msg.dump_yaml(data) + "---\n"
+            return json_line(value)
+        return msg.dump_yaml(value).removesuffix("...\n") + "---\n"
 
     def _raw_only(self, message: RawMessage) -> bool:
         """Whether ``message`` is shown as bytes: its type is unknown here, or known with
@@ -271,7 +326,13 @@ class _Renderer:
 def topic_pub(
     ctx: typer.Context,
     topic: TopicArg,
-    type_name: Annotated[str, typer.Argument(metavar="TYPE", help="Message type.")],
+    type_or_values: Annotated[
+        str | None,
+        typer.Argument(
+            metavar="[TYPE]",
+            help="Message type, e.g. geometry_msgs/Twist (default: the topic's type on the graph).",
+        ),
+    ] = None,
     values: Annotated[
         str | None,
         typer.Argument(metavar="[YAML]", help="Field values, e.g. '{linear: {x: 0.2}}'."),
@@ -290,7 +351,12 @@ def topic_pub(
         float, typer.Option("--wait", help="Seconds to wait for a subscriber before publishing.")
     ] = 2.0,
 ) -> None:
-    """Publish a message (once with -1, repeatedly with -r), like rostopic pub."""
+    """Publish a message (once with -1, repeatedly with -r), like rostopic pub.
+
+    TYPE may be left out when the topic is on the graph (something publishes or subscribes
+    it): its type there is used. A TYPE that differs from it is refused.
+    """
+    type_name, values = pub_arguments(type_or_values, values)
     if values is not None and file is not None:
         raise typer.BadParameter("give values or --file, not both")
     if once and rate is not None:
@@ -299,9 +365,20 @@ def topic_pub(
 
     text = file.read_text() if file is not None else values or "{}"
     with open_graph(ctx) as graph:
+        live = LiveGraph(graph)
+        deadline = time.monotonic() + wait
+        if type_name is None:
+            type_name = live_type(live, topic)
+        else:
+
+            def subscribed() -> bool:
+                return any(e.name == topic for e in live.entities("sub"))
+
+            live.wait(subscribed, wait)
+            refuse_other_type(topic, type_name, live.users(topic))
         message = msg.from_yaml(type_name, text, graph.registry)
         pub = graph.node(f"hwbridge_pub_{graph.zid[:8]}").publisher(topic, type_name)
-        if not pub.wait_for_subscribers(wait):
+        if not pub.wait_for_subscribers(max(deadline - time.monotonic(), 0.5)):
             sys.stderr.write(
                 f"warning: no subscriber on {topic} after {wait:g} s; publishing anyway\n"
             )
@@ -357,10 +434,17 @@ class _RateMeter:
 
 
 def _measure(
-    ctx: typer.Context, topic: str, window: int, duration: float | None, as_json: bool, kind: str
+    ctx: typer.Context,
+    topic: str,
+    window: int,
+    duration: float | None,
+    as_json: bool,
+    kind: str,
+    wait: bool,
 ) -> None:
     meter = _RateMeter(window)
     with open_graph(ctx) as graph:
+        await_publisher(LiveGraph(graph), topic, wait)
         graph.node(f"hwbridge_{kind}_{graph.zid[:8]}").subscriber(
             topic, ANY_TYPE, lambda m: meter.add(len(m.data)), raw=True
         )
@@ -407,9 +491,10 @@ def topic_hz(
     window: WindowOpt = 1000,
     duration: DurationOpt = None,
     as_json: JsonOpt = False,
+    wait: KeepWaitingOpt = False,
 ) -> None:
     """Print the publishing rate of a topic every second."""
-    _measure(ctx, topic, window, duration, as_json, "hz")
+    _measure(ctx, topic, window, duration, as_json, "hz", wait)
 
 
 @topic_app.command("bw")
@@ -419,9 +504,10 @@ def topic_bw(
     window: WindowOpt = 100,
     duration: DurationOpt = None,
     as_json: JsonOpt = False,
+    wait: KeepWaitingOpt = False,
 ) -> None:
     """Print the bandwidth used by a topic every second."""
-    _measure(ctx, topic, window, duration, as_json, "bw")
+    _measure(ctx, topic, window, duration, as_json, "bw", wait)
 
 
 # ---------------------------------------------------------------------- service
@@ -438,9 +524,13 @@ def service_list(ctx: typer.Context, as_json: JsonOpt = False, wait: WaitOpt = 1
 
 
 def _service_type(graph: Graph, name: str, wait: float) -> str:
-    types = sorted(_snapshot(graph, wait).services().get(name, set()))
+    services = _snapshot(graph, wait).services()
+    types = sorted(services.get(name, set()))
     if not types:
-        raise HwBridgeError(f"no server for service {name} (see 'hwbridge service list')")
+        raise HwBridgeError(
+            f"no server for service {name}{did_you_mean(name, services)} "
+            "(see 'hwbridge service list')"
+        )
     return types[0]
 
 
@@ -511,8 +601,17 @@ def param_list(ctx: typer.Context, as_json: JsonOpt = False) -> None:
 @param_app.command("get")
 def param_get(ctx: typer.Context, name: ParamName, as_json: JsonOpt = False) -> None:
     """Print a parameter (a namespace prints as a mapping)."""
+    from hwbridge.graph import ParamError
+
     with open_graph(ctx) as graph:
-        value = graph.params.get(name)
+        try:
+            value = graph.params.get(name)
+        except ParamError as exc:
+            if not str(exc).startswith("no parameter"):
+                raise
+            names = graph.params.names()
+            namespaces = {n.rsplit("/", depth)[0] for n in names for depth in (1, 2)}
+            raise ParamError(f"{exc}{did_you_mean(name, {*names, *namespaces} - {''})}") from exc
     if as_json:
         emit_json(value)
     else:

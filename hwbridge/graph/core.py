@@ -35,6 +35,7 @@ from typing import TYPE_CHECKING, Any, Final
 from hwbridge.errors import HwBridgeError, HwBridgeTimeoutError, ProtocolMismatchError
 from hwbridge.graph.config import GraphConfig
 from hwbridge.graph.guard import call_guarded
+from hwbridge.graph.header import with_seq
 from hwbridge.graph.names import decode_segment, encode_segment, resolve_name
 from hwbridge.graph.params import ParamClient
 
@@ -568,13 +569,18 @@ class Publisher:
         self._token = graph.announce("pub", node.name, topic, mtype.name)
 
     def publish(self, message: Any) -> None:
-        """Serialize and publish a message object (or a dict of its fields)."""
+        """Serialize and publish a message object (or a dict of its fields).
+
+        As rospy does, a message that starts with a ``std_msgs/Header`` goes out with the
+        publisher's count (1, 2, ...) as its ``seq``, unless it has a seq of its own (not 0).
+        """
         from hwbridge import msg as msgmod
 
         registry = self.node.graph.registry
         if isinstance(message, Mapping):
             message = msgmod.from_dict(self.type.name, message, registry)
-        self.publish_raw(msgmod.encode(message, self.type.name, registry))
+        data = msgmod.encode(message, self.type.name, registry)
+        self.publish_raw(with_seq(registry, self.type.name, data, self.sent + 1))
 
     def publish_raw(self, data: bytes | bytearray | memoryview) -> None:
         """Publish bytes already in ROS 1 serialization of this publisher's type."""

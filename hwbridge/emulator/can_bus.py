@@ -355,15 +355,12 @@ def shared_virtual_bus(channel: str, **kwargs: Any) -> Any:
                 wanted[self.queue] = self._filters
 
             def _apply_filters(self, filters: Any) -> None:
-                # Filtering happens as frames are handed out, as a controller's acceptance
-                # filters do, so a board never wakes for other nodes' frames.
+                # Shared-copy senders filter as they hand frames out, as a controller's
+                # acceptance filters do, so a board never wakes for other boards' frames;
+                # python-can filters what plain virtual buses send when it is received.
                 receive = getattr(self, "queue", None)  # None while BusABC's __init__ runs
                 if receive is not None:
                     wanted[receive] = filters
-
-            def _recv_internal(self, timeout: float | None) -> tuple[Any, bool]:
-                message, _ = super()._recv_internal(timeout)
-                return message, True  # filtered on the way in
 
             def send(self, msg: Any, timeout: float | None = None) -> None:
                 self._check_if_open()

@@ -45,6 +45,7 @@ __all__ = [
     "Transfer",
     "TransferDecoder",
     "TransferEncoder",
+    "acceptance_filters",
     "crc16",
     "decode_id",
     "encode_id",
@@ -128,6 +129,17 @@ def encode_id(priority: int, kind: int, channel: int, destination: int, source: 
         if not 0 <= node <= MAX_NODE:
             raise ValueError(f"{what} node id must be 0..{MAX_NODE}, not {node}")
     return priority << 26 | kind << 24 | channel << 16 | destination << 7 | source
+
+
+def acceptance_filters(node: int) -> list[tuple[int, int]]:
+    """What node ``node`` needs to receive, as (id, mask) pairs of 29-bit ids (a frame is
+    wanted when ``frame_id & mask == id & mask`` for one pair): transfers addressed to it, and
+    NODE messages (claims) from anyone. A controller's acceptance filters, or python-can's
+    ``can_filters``, set from these keep other nodes' traffic out (the MCP2515 driver sets the
+    same two)."""
+    if not 0 <= node <= MAX_NODE:
+        raise ValueError(f"node id must be 0..{MAX_NODE}, not {node}")
+    return [(node << 7, MAX_NODE << 7), (int(Kind.NODE) << 24, 3 << 24)]
 
 
 def decode_id(can_id: int) -> CanId | None:

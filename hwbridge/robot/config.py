@@ -75,6 +75,7 @@ from typing import Any, Final
 import yaml
 
 from hwbridge.errors import HwBridgeError
+from hwbridge.robot.clashes import topic_clashes
 from hwbridge.robot.model import (
     DeviceConfig,
     HostDeviceConfig,
@@ -82,7 +83,7 @@ from hwbridge.robot.model import (
     RobotBoardConfig,
     RobotFileError,
 )
-from hwbridge.robot.plugin import DevicePlugin, Field, TopicUse
+from hwbridge.robot.plugin import DevicePlugin, Field
 
 __all__ = [
     "check_robot",
@@ -563,7 +564,8 @@ def _parse_robot(text: str, path: str) -> Robot:
     gateways = _ros(top["ros"][1], problems) if "ros" in top else {}
     if not boards and not hosts and not problems.lines:
         problems.at(root, "the robot has no boards and no host_devices")
-    _clashes(boards, hosts, problems)
+    for line, clash in topic_clashes(boards, hosts):
+        problems.at_line(line, clash)
     if problems.lines:
         raise RobotFileError(problems.lines)
     return Robot(name, Path(path), tuple(boards), tuple(hosts), world, **gateways)
@@ -623,67 +625,6 @@ def _ros2_qos(node: yaml.Node, problems: _Problems) -> tuple[tuple[str, str], ..
             continue
         rules.append((pattern, kind))
     return tuple(rules)
-
-
-def _line(source: str) -> int:
-    """The line of a ``FILE:LINE`` source."""
-    _path, _sep, line = source.rpartition(":")
-    return int(line) if line.isdigit() else 1
-
-
-_VERBS: Final = {"publishes": "publish", "serves": "serve"}
-
-
-def _clashes(
-    boards: list[RobotBoardConfig], hosts: list[HostDeviceConfig], problems: _Problems
-) -> None:
-    """Two devices that would publish one topic (or serve one service): a problem at the later
-    device's line, naming the earlier one's."""
-    from hwbridge.graph import GraphNameError, resolve_name
-    from hwbridge.robot.registry import get_device
-
-    placed = [(b.namespace, f"board {b.name}: {d.name}", d) for b in boards for d in b.devices]
-    placed += [
-        (h.namespace, f"host device {h.device.name} ({h.device.type})", h.device) for h in hosts
-    ]
-    owners: dict[tuple[str, str], tuple[str, int]] = {}
-    for namespace, label, device in placed:
-        line = _line(device.source)
-        try:
-            uses = get_device(device.type).topics(device.settings)
-        except Exception as exc:  # noqa: BLE001 - a plugin's own bug, shown where it is used
-            problems.at_line(
-                line,
-                f"{label}: type {device.type} cannot list its topics: {type(exc).__name__}: {exc}",
-            )
-            continue
-        if uses is None:  # the plugin does not say
-            continue
-        clashes: dict[tuple[str, int], dict[str, list[str]]] = {}
-        mine: set[tuple[str, str]] = set()
-        for use in uses:
-            if not isinstance(use, TopicUse) or use.shared or use.use not in _VERBS:
-                continue
-            try:
-                name = resolve_name(use.name, namespace)
-            except GraphNameError as exc:
-                problems.at_line(line, f"{label}: topic {use.name!r}: {exc}")
-                continue
-            key = (use.use, name)
-            if key in mine:
-                continue
-            mine.add(key)
-            if key in owners:
-                clashes.setdefault(owners[key], {}).setdefault(_VERBS[use.use], []).append(name)
-            else:
-                owners[key] = (label, line)
-        for (other, other_line), found in clashes.items():
-            what = "; ".join(f"{verb} {' and '.join(names)}" for verb, names in found.items())
-            problems.at_line(
-                line,
-                f"{label}: would {what}, as {other} at line {other_line} does: two devices "
-                "cannot share one; give one of them other topic names in its settings",
-            )
 
 
 def device_config(entry: dict[str, Any], source: str = "<device>") -> DeviceConfig:

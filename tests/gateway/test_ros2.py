@@ -6,6 +6,7 @@ module is skipped, saying so. Each run uses a ROS_DOMAIN_ID of its own.
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 import subprocess
@@ -18,6 +19,7 @@ from typing import Any
 import pytest
 
 from hwbridge import msg
+from hwbridge.errors import HwBridgeError
 from hwbridge.gateway.ros2 import ros2_environment
 from hwbridge.graph import Graph
 from tests.gateway.harness import PEER, Robot, odom_x
@@ -58,13 +60,35 @@ needs_rclpy = pytest.mark.skipif(
 pytestmark = needs_rclpy
 
 
+@functools.lru_cache(maxsize=1)
+def _interfaces() -> Any:
+    """The message packages the gateway builds (tf2_msgs), None if they cannot be built here
+    (test_ros2_tf.py says why)."""
+    from hwbridge.gateway.ros2_interfaces import ensure_interfaces
+
+    try:
+        return ensure_interfaces()
+    except HwBridgeError:
+        return None
+
+
+def peer_env(domain: str = DOMAIN_ID) -> dict[str, str]:
+    """:func:`ros2_env` for a plain rclpy node of the user's: with tf2_msgs on its paths, as
+    after ``source "$(hwbridge ros2 --interfaces)"``."""
+    from hwbridge.gateway.ros2_interfaces import interfaces_environment
+
+    built = _interfaces()
+    env = ros2_env(domain)
+    return env if built is None else interfaces_environment(built, env)
+
+
 def peer(
     *argv: str, timeout: float = 40, env: dict[str, str] | None = None
 ) -> subprocess.CompletedProcess[str]:
-    """Run the plain rclpy node once (in ``env``, default :func:`ros2_env`)."""
+    """Run the plain rclpy node once (in ``env``, default :func:`peer_env`)."""
     return subprocess.run(
         [sys.executable, str(PEER), *argv],
-        env=env or ros2_env(),
+        env=env or peer_env(),
         capture_output=True,
         text=True,
         timeout=timeout,

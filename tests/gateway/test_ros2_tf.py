@@ -121,7 +121,7 @@ def robot(tmp_path_factory: pytest.TempPathFactory, setup_script: Path) -> Itera
     try:
         running.up("--ros2")
         running.wait_log("up", "ROS 2 gateway up", 120)
-        running.wait_log("up", "/tf: graph -> ROS 2 (tf2_msgs/msg/TFMessage)")
+        running.wait_log("up", "/tf: graph -> ROS 2 (tf2_msgs/msg/TFMessage")
         yield running
     finally:
         running.stop()
@@ -268,7 +268,7 @@ def test_the_gateway_builds_tf2_msgs_at_first_use_and_says_so(tmp_path: Path, ro
     try:
         robot.wait_log("fresh", "building ROS 2 message packages the wheels lack (tf2_msgs)", 120)
         robot.wait_log("fresh", "built tf2_msgs in", 600)
-        robot.wait_log("fresh", "/tf: graph -> ROS 2 (tf2_msgs/msg/TFMessage)", 120)
+        robot.wait_log("fresh", "/tf: graph -> ROS 2 (tf2_msgs/msg/TFMessage", 120)
     finally:
         robot.stop_process(gateway)
     assert list((tmp_path / "cache").glob("rclpy-*/.complete")), robot.log("fresh")

@@ -60,6 +60,7 @@ _MESSAGE_HEADER: Final = struct.Struct("<BIQ")  # opcode, subscription id, log t
 _TIME: Final = struct.Struct("<BQ")
 _CALL_HEADER: Final = struct.Struct("<BIII")  # opcode, service id, call id, encoding length
 _CLIENT_DATA_HEADER: Final = struct.Struct("<BI")  # opcode, client channel id
+_UINT32_MAX: Final = 2**32 - 1
 
 
 class ProtocolError(HwBridgeError):
@@ -195,8 +196,10 @@ def parse_text(frame: str) -> dict[str, Any]:
     """A client's JSON message as a dict with a string ``op``; ProtocolError otherwise."""
     try:
         message = json.loads(frame)
-    except json.JSONDecodeError as exc:
-        raise ProtocolError(f"not JSON: {exc}") from None
+    except (ValueError, RecursionError) as exc:
+        # ValueError: JSONDecodeError, or an integer of more digits than int() converts;
+        # RecursionError: arrays or objects nested deeper than the decoder recurses.
+        raise ProtocolError(f"not JSON: {str(exc)[:200]}") from None
     if not isinstance(message, dict) or not isinstance(message.get("op"), str):
         raise ProtocolError("a JSON message must be an object with an 'op' string")
     return message
@@ -222,13 +225,19 @@ def objects(message: Mapping[str, Any], key: str) -> Sequence[Mapping[str, Any]]
 
 def client_channel(item: Mapping[str, Any]) -> ClientChannel:
     """One channel of a client's ``advertise``; ProtocolError naming a missing field."""
-    for key, kind in (("id", int), ("topic", str), ("encoding", str), ("schemaName", str)):
+    channel_id = item.get("id")
+    # Binary client messages name the channel by a uint32; JSON true is no id.
+    if not isinstance(channel_id, int) or isinstance(channel_id, bool):
+        raise ProtocolError("advertise: a channel needs 'id' (int)")
+    if not 0 <= channel_id <= _UINT32_MAX:
+        raise ProtocolError(f"advertise: channel id {channel_id} is not a uint32")
+    for key, kind in (("topic", str), ("encoding", str), ("schemaName", str)):
         if not isinstance(item.get(key), kind):
             raise ProtocolError(f"advertise: a channel needs '{key}' ({kind.__name__})")
     schema = item.get("schema")
     schema_encoding = item.get("schemaEncoding")
     return ClientChannel(
-        id=int(item["id"]),
+        id=channel_id,
         topic=str(item["topic"]),
         encoding=str(item["encoding"]),
         schema_name=str(item["schemaName"]),

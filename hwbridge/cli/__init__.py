@@ -103,7 +103,7 @@ COMMANDS: dict[str, LazyCommand] = {
     ),
     "viz": LazyCommand(
         _CLI + "vizcmd:viz",
-        "Serve the graph's topics to Foxglove over WebSocket (ROS 1 schemas) until Ctrl-C.",
+        "Serve the graph to Foxglove or Lichtblick over WebSocket until Ctrl-C.",
     ),
     "monitor": LazyCommand(
         _CLI + "monitorcmd:monitor",

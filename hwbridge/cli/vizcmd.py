@@ -29,8 +29,10 @@ def viz(
         typer.Option("--host", help="Address to listen on (0.0.0.0: every interface)."),
     ] = "127.0.0.1",
 ) -> None:
-    """Serve the graph to Foxglove or Lichtblick over WebSocket until Ctrl-C: topics (ROS 1
-    schemas), services to call, server time, and publishing from the viewer (Teleop).
+    """Serve the graph to Foxglove or Lichtblick over WebSocket until Ctrl-C.
+
+    Topics (ROS 1 schemas), services to call, server time, and publishing from the viewer
+    (Teleop).
 
     The first line printed is the URL to open (Open connection, Foxglove WebSocket);
     examples/foxglove/layout.json is a layout for the demo robot.

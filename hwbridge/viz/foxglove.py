@@ -49,7 +49,7 @@ import uuid
 from collections import deque
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Final
+from typing import TYPE_CHECKING, Any, Final, TypeGuard
 
 from hwbridge.errors import HwBridgeError
 from hwbridge.graph import ANY_TYPE, Graph, GraphEntity, RawMessage
@@ -342,8 +342,10 @@ class VizServer:
 
     def _subscribe(self, client: _Client, item: Mapping[str, Any]) -> None:
         subscription, channel_id = item.get("id"), item.get("channelId")
-        if not isinstance(subscription, int) or not isinstance(channel_id, int):
-            raise wsp.ProtocolError("subscribe: each subscription needs 'id' and 'channelId'")
+        if not (_uint32(subscription) and _uint32(channel_id)):
+            raise wsp.ProtocolError(
+                "subscribe: each subscription needs 'id' and 'channelId' (uint32 numbers)"
+            )
         if not any(
             s.channel is not None and s.channel["id"] == channel_id for s in self._topics.values()
         ):
@@ -712,3 +714,8 @@ def start_viz(
     viewers on ``host:port`` (0: a free port; see ``.port``/``.url``). Call ``.close()`` before
     closing the graph."""
     return VizServer(graph, host=host, port=port, topics=topics)
+
+
+def _uint32(value: Any) -> TypeGuard[int]:
+    """Whether a JSON value is an id the protocol's binary frames can carry (not a bool)."""
+    return isinstance(value, int) and not isinstance(value, bool) and 0 <= value < 1 << 32

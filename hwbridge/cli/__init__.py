@@ -74,6 +74,10 @@ COMMANDS: dict[str, LazyCommand] = {
         _CLI + "upcmd:up",
         "Bring a robot up: its boards and every host node its devices need, until Ctrl-C.",
     ),
+    "graph": LazyCommand(
+        _CLI + "routercmd:run_graph",
+        "Run a graph with no boards until Ctrl-C, for play, record, viz and the topic tools.",
+    ),
     "robot": LazyCommand(_CLI + "robotcmd:robot_app", "Robot files: check, show, devices, acl."),
     "board": LazyCommand(
         _CLI + "bridgecmd:board_app", "Boards of the running bridge: list, info, stats."

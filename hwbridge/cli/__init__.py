@@ -22,10 +22,10 @@ from pathlib import Path
 from typing import Annotated, Any
 
 import typer
-from typer.core import TyperCommand, TyperGroup
 
 from hwbridge._version import __version__
 from hwbridge.cli.common import Context
+from hwbridge.cli.shell import ClickException, Command, Group, UsageError, adopt
 from hwbridge.errors import HwBridgeError
 
 __all__ = ["COMMANDS", "LazyCommand", "build_app", "main"]
@@ -45,10 +45,10 @@ class LazyCommand:
         obj = getattr(importlib.import_module(module_name), attribute)
         command: Any
         if isinstance(obj, typer.Typer):
-            command = typer.main.get_group(obj)  # a group even with one command (node list)
+            command = typer.main.get_group(adopt(obj))  # a group even with one command
         else:
-            single = typer.Typer()
-            single.command(name)(obj)
+            single = typer.Typer(add_completion=False)
+            single.command(name, cls=Command)(obj)
             command = typer.main.get_command(single)
         command.name = name
         return command
@@ -73,6 +73,10 @@ COMMANDS: dict[str, LazyCommand] = {
     "up": LazyCommand(
         _CLI + "upcmd:up",
         "Bring a robot up: its boards and every host node its devices need, until Ctrl-C.",
+    ),
+    "graph": LazyCommand(
+        _CLI + "routercmd:run_graph",
+        "Run a graph with no boards until Ctrl-C, for play, record, viz and the topic tools.",
     ),
     "robot": LazyCommand(_CLI + "robotcmd:robot_app", "Robot files: check, show, devices, acl."),
     "board": LazyCommand(
@@ -121,7 +125,7 @@ COMMANDS: dict[str, LazyCommand] = {
 """Top-level commands in the order ``hwbridge --help`` lists them."""
 
 
-class _LazyGroup(TyperGroup):
+class _LazyGroup(Group):
     """The root group: commands from :data:`COMMANDS`, each imported when first resolved.
 
     While the root's own help is written, commands not yet imported are listed from the
@@ -141,7 +145,7 @@ class _LazyGroup(TyperGroup):
         if lazy is None:
             return None
         if self._listing:
-            return TyperCommand(name=cmd_name, help=lazy.help)
+            return Command(name=cmd_name, help=lazy.help)
         command = lazy.load(cmd_name)
         self.add_command(command, cmd_name)
         return command
@@ -237,21 +241,46 @@ def _error(text: str) -> None:
     sys.stderr.flush()
 
 
+def _usage_error(exc: UsageError) -> int:
+    """``error: ...``, then the usage line and where help is; exit status 2."""
+    if type(exc).__name__ == "NoArgsIsHelpError":  # a group run bare: its help, as Click does
+        sys.stderr.write(exc.format_message())
+        return exc.exit_code
+    _error(exc.format_message())
+    ctx = exc.ctx
+    if ctx is not None:
+        sys.stderr.write(ctx.get_usage() + "\n")
+        if ctx.command.get_help_option(ctx) is not None:
+            sys.stderr.write(f"Try '{ctx.command_path} {ctx.help_option_names[0]}' for help.\n")
+    sys.stderr.flush()
+    return exc.exit_code
+
+
 def main(argv: list[str] | None = None) -> int:
     """Console-script entry point; returns the exit status."""
     app = build_app()
     try:
-        app(args=argv, prog_name="hwbridge", standalone_mode=True)
+        result = app(args=argv, prog_name="hwbridge", standalone_mode=False)
     except SystemExit as exc:
         code = exc.code
         return code if isinstance(code, int) else (0 if code is None else 1)
+    except UsageError as exc:
+        return _usage_error(exc)
+    except ClickException as exc:  # a file option that cannot be opened...
+        _error(exc.format_message())
+        return exc.exit_code
     except HwBridgeError as exc:
         _error(str(exc))
+        return 1
+    except typer.Abort:
+        _error("aborted")
         return 1
     except KeyboardInterrupt:
         sys.stderr.write("interrupted\n")
         return 130
-    return 0
+    # Without standalone mode, typer.Exit(code) comes back as its code; a command's own return
+    # value (None) means success.
+    return result if isinstance(result, int) else 0
 
 
 if __name__ == "__main__":

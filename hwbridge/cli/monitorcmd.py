@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 import time
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
-from hwbridge.cli.common import open_graph
+from hwbridge.cli.common import emit_json, open_graph
+
+if TYPE_CHECKING:
+    from rich.console import RenderableType
 
 __all__ = ["monitor"]
 
@@ -36,12 +39,20 @@ def monitor(
         int | None,
         typer.Option("--width", min=40, help="Columns to draw (default: the terminal's)."),
     ] = None,
+    as_json: Annotated[
+        bool,
+        typer.Option(
+            "--json",
+            help="One JSON object per refresh on stdout (with --once: one object), for scripts.",
+        ),
+    ] = False,
 ) -> None:
     """A live terminal view of the running bridge: boards, link state, topics, rates, logs.
 
     Boards come with their link state, bytes per second, frames, CRC errors, drops,
     retransmissions and round-trip time; topics with their rates and bandwidth; then the last
-    lines of /rosout and the diagnostics that are not OK.
+    lines of /rosout and the diagnostics that are not OK. In a narrow terminal the less
+    important columns go first; on the live screen, topics and log lines are cut to its height.
     """
     from rich.console import Console
     from rich.live import Live
@@ -57,15 +68,27 @@ def monitor(
                 while time.monotonic() < deadline:  # polls give the boards' byte rates history
                     watching.poll()
                     time.sleep(max(0.0, min(0.5, deadline - time.monotonic())))
-                console.print(render(watching.poll()))
-            elif not console.is_terminal:  # a pipe or a file: one picture per interval
+                snapshot = watching.poll()
+                if as_json:
+                    emit_json(snapshot.to_json())
+                else:
+                    console.print(render(snapshot, console.width))
+            elif as_json or not console.is_terminal:  # a pipe or a file: one picture per interval
                 while True:
-                    console.print(render(watching.poll()))
+                    snapshot = watching.poll()
+                    if as_json:
+                        emit_json(snapshot.to_json())
+                    else:
+                        console.print(render(snapshot, console.width))
                     time.sleep(interval)
             else:
-                with Live(render(watching.poll()), console=console, screen=True) as live:
+
+                def picture() -> RenderableType:
+                    return render(watching.poll(), console.width, console.height)
+
+                with Live(picture(), console=console, screen=True, auto_refresh=False) as live:
                     while True:
                         time.sleep(interval)
-                        live.update(render(watching.poll()))
+                        live.update(picture(), refresh=True)
         except KeyboardInterrupt:
             pass

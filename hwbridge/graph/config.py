@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -31,6 +32,8 @@ __all__ = [
     "ENV_DOMAIN",
     "ENV_ENDPOINT",
     "GraphConfig",
+    "open_error",
+    "zenoh_text",
 ]
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
@@ -101,7 +104,9 @@ class GraphConfig:
             try:
                 config: zenoh.Config = zenoh.Config.from_file(str(self.config_file))
             except (OSError, zenoh.ZError) as exc:
-                raise HwBridgeError(f"cannot read Zenoh config {self.config_file}: {exc}") from exc
+                raise HwBridgeError(
+                    f"cannot read Zenoh config {self.config_file}: {zenoh_text(exc)}"
+                ) from exc
         else:
             config = zenoh.Config()
             # Safe defaults: no multicast discovery, no gossip, nothing but what is asked for.
@@ -156,3 +161,63 @@ def _endpoints(given: Sequence[str] | None) -> tuple[str, ...]:
 def _env_file() -> Path | None:
     value = os.environ.get(ENV_CONFIG)
     return Path(value) if value else None
+
+
+_RUST_PLACE = re.compile(r"\s*\bat \S+\.rs:\d+\.?")
+"""Where in Zenoh's Rust source an error was raised (`` at /root/.cargo/.../tcp.rs:61.``)."""
+_BUSY = re.compile(r"bound to (?P<endpoint>\S+?):?\s*\[.*address already in use", re.I | re.S)
+_UNREACHABLE = re.compile(r"unable to connect to any of", re.I)
+
+
+_PARSE_PLACE = re.compile(r"-->\s*(?P<line>\d+):(?P<column>\d+)")
+
+
+def zenoh_text(exc: BaseException) -> str:
+    """A Zenoh error's message on one line, without the Rust source places it names (a JSON5
+    syntax error's drawing becomes ``line L, column C: what was expected``)."""
+    text = _RUST_PLACE.sub("", str(exc)).strip()
+    place = _PARSE_PLACE.search(text)
+    if place is not None and "\n" in text:
+        what = text.splitlines()[-1].strip().lstrip("= ").strip()
+        return f"line {place.group('line')}, column {place.group('column')}: {what}"
+    return " ".join(text.split())
+
+
+def open_error(config: GraphConfig, exc: BaseException) -> HwBridgeError:
+    """What to tell a user whose session with ``config`` did not open, from Zenoh's error:
+    the one place a Zenoh opening error becomes an :class:`HwBridgeError`."""
+    raw = str(exc)
+    busy = _BUSY.search(raw)
+    if busy is not None or (config.mode != "client" and "address already in use" in raw.lower()):
+        endpoint = busy.group("endpoint") if busy else ", ".join(config.listen) or "the endpoint"
+        return HwBridgeError(
+            f"{endpoint} is already in use (another 'hwbridge up', 'connect' or 'graph' "
+            f"is running?); stop it, or run this one on another endpoint with "
+            f"--listen {_next_port(endpoint)}"
+        )
+    where = ", ".join(config.listen or config.connect) or "the endpoints of the config file"
+    if config.mode == "client" and _UNREACHABLE.search(raw):
+        reason = f"nothing answers at {where}"
+    else:
+        reason = zenoh_text(exc)
+    hint = ""
+    if config.mode == "client":
+        hint = (
+            "; is a bridge running? start one with 'hwbridge connect URL', "
+            "'hwbridge up ROBOT.yaml' or 'hwbridge graph' (or set HWBRIDGE_ENDPOINT)"
+        )
+        if config.config_file is not None:
+            # A refused login or TLS handshake ends the same way as no bridge at all.
+            hint += (
+                f"; if one is, check that the credentials or certificates in "
+                f"{config.config_file} are the ones it accepts"
+            )
+    return HwBridgeError(f"cannot join the graph ({config.describe()}): {reason}{hint}")
+
+
+def _next_port(endpoint: str) -> str:
+    """``endpoint`` one port up (``tcp/127.0.0.1:7448`` for ``tcp/127.0.0.1:7447``)."""
+    head, sep, port = endpoint.rpartition(":")
+    if sep and port.isdigit() and int(port) < 65535:
+        return f"{head}:{int(port) + 1}"
+    return "tcp/127.0.0.1:7448"

@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Final
 
 from hwbridge.errors import HwBridgeError, HwBridgeTimeoutError, ProtocolMismatchError
-from hwbridge.graph.config import GraphConfig
+from hwbridge.graph.config import GraphConfig, open_error
 from hwbridge.graph.guard import call_guarded
 from hwbridge.graph.header import with_seq
 from hwbridge.graph.names import decode_segment, encode_segment, resolve_name
@@ -146,21 +146,7 @@ class Graph:
         try:
             self.session: zenoh.Session = zenoh.open(self.config.to_zenoh())
         except zenoh.ZError as exc:
-            hint = ""
-            if self.config.mode == "client":
-                hint = (
-                    "; is a bridge running? start one with 'hwbridge connect URL' "
-                    "(or set HWBRIDGE_ENDPOINT)"
-                )
-                if self.config.config_file is not None:
-                    # A refused login or TLS handshake ends the same way as no bridge at all.
-                    hint += (
-                        f"; if one is, check that the credentials or certificates in "
-                        f"{self.config.config_file} are the ones it accepts"
-                    )
-            raise HwBridgeError(
-                f"cannot join the graph ({self.config.describe()}): {exc}{hint}"
-            ) from exc
+            raise open_error(self.config, exc) from exc
         self.zid = str(self.session.zid())
         self._lock = threading.Lock()
         self._closeables: list[Any] = []

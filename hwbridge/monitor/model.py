@@ -14,6 +14,7 @@
 from __future__ import annotations
 
 import collections
+import dataclasses
 import functools
 import json
 import threading
@@ -84,6 +85,18 @@ class Snapshot:
     boards: list[BoardRow] = field(default_factory=list)
     topics: list[TopicRow] = field(default_factory=list)
     log: list[LogLine] = field(default_factory=list)
+
+    def to_json(self) -> dict[str, Any]:
+        """The snapshot as JSON data (``hwbridge monitor --json``): rates in messages or bytes
+        per second (``null`` before there are two polls), times in seconds since the epoch."""
+        boards = [{**dataclasses.asdict(board), "drops": board.drops} for board in self.boards]
+        return {
+            "time": self.time,
+            "endpoint": self.endpoint,
+            "boards": boards,
+            "topics": [dataclasses.asdict(topic) for topic in self.topics],
+            "log": [dataclasses.asdict(line) for line in self.log],
+        }
 
 
 class _TopicCounter:

@@ -125,7 +125,7 @@ def test_hwbridge_monitor_once_prints_the_demo_robot(
     boards = out[out.index("boards") : out.index("topics")]
     assert "base" in boards and "connected" in boards and "native" in boards
     assert "CRC errors" in boards and "drops" in boards
-    row = next(line for line in boards.splitlines() if " base " in line)
+    row = next(line for line in boards.splitlines() if line.startswith("base "))
     assert "B/s" in row  # the board's byte rates are measured
     topics = out[out.index("topics") : out.index("last log lines")]
     odom = next(line for line in topics.splitlines() if "/diffbot/odom " in line)

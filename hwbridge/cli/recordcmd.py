@@ -8,7 +8,6 @@ Progress goes to stderr: a live table on a terminal, a plain line every few seco
 from __future__ import annotations
 
 import contextlib
-import signal
 import sys
 import threading
 import time
@@ -16,8 +15,7 @@ from collections.abc import Callable, Iterator
 from datetime import datetime
 from enum import Enum
 from pathlib import Path
-from types import FrameType
-from typing import TYPE_CHECKING, Annotated, Any
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
@@ -254,33 +252,12 @@ def _open(ctx: typer.Context, endpoint: str | None) -> Graph:
     return graph
 
 
-@contextlib.contextmanager
-def _stop_on_signals(on_stop: Callable[[], None]) -> Iterator[None]:
-    """Call ``on_stop`` on the first SIGINT or SIGTERM; the next one acts as it did before."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    signals = (signal.SIGINT, signal.SIGTERM)
-    previous: dict[int, Any] = {sig: signal.getsignal(sig) for sig in signals}
+def _stop_on_signals(on_stop: Callable[[], None]) -> contextlib.AbstractContextManager[None]:
+    """Call ``on_stop`` on the first SIGINT or SIGTERM (the command then finishes through it);
+    a second one ends the process (see :mod:`hwbridge.cli.stopping`)."""
+    from hwbridge.cli.stopping import on_signal
 
-    def handler(signum: int, frame: FrameType | None) -> None:
-        # From another thread: the main thread may hold the lock of the Event it is waiting on.
-        threading.Thread(target=on_stop, name="hwbridge-stop", daemon=True).start()
-        for sig in signals:  # a second signal aborts
-            signal.signal(sig, _restorable(previous[sig]))
-
-    for sig in signals:
-        signal.signal(sig, handler)
-    try:
-        yield
-    finally:
-        for sig in signals:
-            signal.signal(sig, _restorable(previous[sig]))
-
-
-def _restorable(handler: Any) -> Any:
-    # getsignal() gives None for a handler installed outside Python: fall back to the default.
-    return signal.SIG_DFL if handler is None else handler
+    return on_signal(on_stop)
 
 
 @contextlib.contextmanager

@@ -17,6 +17,8 @@ import importlib
 import logging
 import os
 import sys
+import threading
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any
@@ -263,13 +265,14 @@ def main(argv: list[str] | None = None) -> int:
     In the main thread it takes SIGINT and SIGTERM over for the run (see
     :mod:`hwbridge.cli.stopping`); after one, it does not return: the process ends with the
     status once stdout and stderr are flushed."""
-    restore = stopping.install()
+    restore: Callable[[], None] | None = None
     try:
+        restore = stopping.install()
         code = _interrupted() if stopping.signalled() else _run(argv)
-    except KeyboardInterrupt:  # between two handlers of _run's
-        code = 130
+    except KeyboardInterrupt:  # outside _run's handlers
+        code = _interrupted()
     signum = stopping.signalled()
-    if signum is not None and restore is not None:
+    if signum is not None and threading.current_thread() is threading.main_thread():
         if code == 130 or (code == 1 and stopping.STOP.is_set()):
             code = 128 + signum  # 130 for SIGINT, 143 for SIGTERM
         stopping.exit_now(code)

@@ -100,18 +100,15 @@ def install() -> Callable[[], None] | None:
         return None
     read_fd, write_fd = os.pipe()
     os.set_blocking(write_fd, False)
-    try:
-        previous_fd = signal.set_wakeup_fd(write_fd, warn_on_full_buffer=False)
-    except ValueError:  # pragma: no cover - checked above
-        os.close(read_fd)
-        os.close(write_fd)
-        return None
+    watcher = threading.Thread(
+        target=_watch, args=(read_fd,), name="hwbridge-signals", daemon=True
+    )
+    watcher.start()  # first: a KeyboardInterrupt must not land in start()'s wait
+    previous_fd = signal.set_wakeup_fd(write_fd, warn_on_full_buffer=False)
     previous = {sig: signal.getsignal(sig) for sig in _SIGNALS}
     for sig in _SIGNALS:
         if previous[sig] is not signal.SIG_IGN:  # e.g. nohup, or a shell's background job
             signal.signal(sig, _on_signal_in_main)
-    watcher = threading.Thread(target=_watch, args=(read_fd,), name="hwbridge-signals", daemon=True)
-    watcher.start()
     early = signalled()
     if early is not None:
         _trigger(early)

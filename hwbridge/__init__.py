@@ -4,34 +4,33 @@ import sys as _sys
 
 from hwbridge._version import __version__
 
-_EARLY_SIGNALS: list[int] = []
-"""SIGINT or SIGTERM received by the ``hwbridge`` command before its ``main`` took the signals
-over (see :mod:`hwbridge.cli.stopping`)."""
 
-
-def _hold_early_signals() -> None:
+def _exit_early_on_signals() -> None:
     """In the ``hwbridge`` command only (console script or ``python -m hwbridge``): from here
-    to ``main``, note SIGINT and SIGTERM instead of raising KeyboardInterrupt in the middle of
-    the imports (a traceback); ``main`` then exits at once with 130."""
+    until ``main`` takes the signals over (:mod:`hwbridge.cli.stopping`), SIGINT or SIGTERM
+    ends the process at once with 130 or 143. Nothing is open yet and nothing written, and a
+    KeyboardInterrupt in the middle of the imports would only print a traceback after them."""
     argv = list(getattr(_sys, "orig_argv", ()))
     module = argv[argv.index("-m") + 1] if "-m" in argv[:-1] else None
     script = _sys.argv[0].rsplit("/", 1)[-1] if _sys.argv else ""
     if module != "hwbridge" and script != "hwbridge":
         return
-    import signal
+    import _signal  # built in: 'signal' would build its enums first
+    import os
 
-    def note(signum: int, _frame: object) -> None:
-        _EARLY_SIGNALS.append(signum)
+    def leave(signum: int, _frame: object) -> None:
+        os.write(2, b"interrupted\n")
+        os._exit(128 + signum)
 
-    signals = (signal.SIGINT, signal.SIGTERM)
+    signals = (_signal.SIGINT, _signal.SIGTERM)
     for sig in signals:
-        if signal.getsignal(sig) in (signal.default_int_handler, signal.SIG_DFL):
-            signal.signal(sig, note)
-    # 'hwbridge ros2' starts itself again with the signals blocked across the exec: what came
-    # meanwhile is delivered now, to note().
-    signal.pthread_sigmask(signal.SIG_UNBLOCK, signals)
+        if _signal.getsignal(sig) in (_signal.default_int_handler, _signal.SIG_DFL):
+            _signal.signal(sig, leave)
+    # 'hwbridge ros2' starts itself again with the signals blocked across the exec: one that
+    # came meanwhile is delivered now, to leave().
+    _signal.pthread_sigmask(_signal.SIG_UNBLOCK, signals)
 
 
-_hold_early_signals()
+_exit_early_on_signals()
 
 __all__ = ["__version__"]

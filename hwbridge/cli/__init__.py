@@ -268,7 +268,7 @@ def main(argv: list[str] | None = None) -> int:
     restore: Callable[[], None] | None = None
     try:
         restore = stopping.install()
-        code = _interrupted() if stopping.signalled() else _run(argv)
+        code = _run(argv)
     except KeyboardInterrupt:  # outside _run's handlers
         code = _interrupted()
     signum = stopping.signalled()

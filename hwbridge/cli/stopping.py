@@ -27,9 +27,9 @@ down Zenoh's and rclpy's threads while they may be in C code, which glibc report
 ``FATAL: exception not rethrown`` and an abort.
 
 Before :func:`install`, from the first import of :mod:`hwbridge` in a ``hwbridge`` process, a
-signal is only noted (a KeyboardInterrupt in the middle of importing typer would print a
-traceback); ``main`` then exits with 130 at once. Earlier still (the interpreter starting,
-site-packages' ``.pth`` hooks), Python's own handling applies: no hwbridge code has run yet.
+signal ends the process at once (``hwbridge/__init__.py``): nothing is open yet. Earlier
+still (the interpreter starting, site-packages' ``.pth`` hooks), Python's own handling applies:
+no hwbridge code has run.
 """
 
 from __future__ import annotations
@@ -82,10 +82,6 @@ _state = _State()
 
 def signalled() -> int | None:
     """The first stop signal received (None: none yet)."""
-    if _state.signum is None:
-        import hwbridge
-
-        return hwbridge._EARLY_SIGNALS[0] if hwbridge._EARLY_SIGNALS else None
     return _state.signum
 
 
@@ -100,18 +96,13 @@ def install() -> Callable[[], None] | None:
         return None
     read_fd, write_fd = os.pipe()
     os.set_blocking(write_fd, False)
-    watcher = threading.Thread(
-        target=_watch, args=(read_fd,), name="hwbridge-signals", daemon=True
-    )
+    watcher = threading.Thread(target=_watch, args=(read_fd,), name="hwbridge-signals", daemon=True)
     watcher.start()  # first: a KeyboardInterrupt must not land in start()'s wait
     previous_fd = signal.set_wakeup_fd(write_fd, warn_on_full_buffer=False)
     previous = {sig: signal.getsignal(sig) for sig in _SIGNALS}
     for sig in _SIGNALS:
         if previous[sig] is not signal.SIG_IGN:  # e.g. nohup, or a shell's background job
             signal.signal(sig, _on_signal_in_main)
-    early = signalled()
-    if early is not None:
-        _trigger(early)
 
     def restore() -> None:
         for sig, handler in previous.items():

@@ -10,12 +10,12 @@ def _exit_early_on_signals() -> None:
     until ``main`` takes the signals over (:mod:`hwbridge.cli.stopping`), SIGINT or SIGTERM
     ends the process at once with 130 or 143. Nothing is open yet and nothing written, and a
     KeyboardInterrupt in the middle of the imports would only print a traceback after them."""
-    argv = list(getattr(_sys, "orig_argv", ()))
+    argv: list[str] = list(getattr(_sys, "orig_argv", ()))
     module = argv[argv.index("-m") + 1] if "-m" in argv[:-1] else None
     script = _sys.argv[0].rsplit("/", 1)[-1] if _sys.argv else ""
     if module != "hwbridge" and script != "hwbridge":
         return
-    import _signal  # built in: 'signal' would build its enums first
+    import _signal  # type: ignore[import-not-found]  # built in; signal builds enums first
     import os
 
     def leave(signum: int, _frame: object) -> None:

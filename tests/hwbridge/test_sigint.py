@@ -13,10 +13,11 @@ trials SIGINT a ``sleep`` (which dies at once) among the others, and the largest
 between sending and reaping one is added to the deadline.
 
 A signal that lands while the interpreter itself is still starting, before any hwbridge code
-has run (it dies by SIGINT's default action with no output; or Python reports that importing
-``site`` was interrupted; or a KeyboardInterrupt traceback with no frame of ours, from runpy or
-a site-packages import hook) is counted apart ("early") and not failed: nothing of ours runs
-by then, and Python's own handling is what a user gets.
+has run, is counted apart ("early") and not failed: it dies by SIGINT's default action with no
+output, or Python reports that its initialization (``site``, the standard streams) was
+interrupted, or prints a KeyboardInterrupt traceback with no frame of ours (runpy, an import
+hook of site-packages). Nothing of ours runs by then; Python's own handling is what a user
+gets.
 
 ``HWBRIDGE_SIGINT_TRIALS`` trials per command (default 8; the issue's figure is 50),
 ``HWBRIDGE_SIGINT_JOBS`` at once (default 4), ``HWBRIDGE_SIGINT_SEED`` (default 25). The
@@ -80,7 +81,7 @@ class Outcome:
     @property
     def early(self) -> bool:
         """The signal came while the interpreter was still starting (no hwbridge code ran)."""
-        if "init_import_site" in self.output:  # Python: "Failed to import the site module"
+        if "Fatal Python error: init_" in self.output:  # interrupted in interpreter init
             return True
         if self.returncode != -signal.SIGINT:
             return False

@@ -63,21 +63,21 @@ RESET_TIMEOUT = 30.0
 def proc_sample(pid: int) -> dict[str, int]:
     """RSS (kB), threads and open descriptors of process ``pid``, from /proc."""
     rss = 0
-    with open(f"/proc/{pid}/status", encoding="ascii") as status:
+    with Path(f"/proc/{pid}/status").open(encoding="ascii") as status:
         for line in status:
             if line.startswith("VmRSS:"):
                 rss = int(line.split()[1])
                 break
     return {
         "rss_kb": rss,
-        "threads": len(os.listdir(f"/proc/{pid}/task")),
-        "fds": len(os.listdir(f"/proc/{pid}/fd")),
+        "threads": sum(1 for _ in Path(f"/proc/{pid}/task").iterdir()),
+        "fds": sum(1 for _ in Path(f"/proc/{pid}/fd").iterdir()),
     }
 
 
 def cpu_seconds(pid: int) -> float:
     """utime + stime of process ``pid`` (all its threads), in seconds."""
-    with open(f"/proc/{pid}/stat", encoding="ascii") as stat:
+    with Path(f"/proc/{pid}/stat").open(encoding="ascii") as stat:
         fields = stat.read().rsplit(")", 1)[1].split()
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
@@ -144,7 +144,7 @@ class _RosserialBoard:
             try:
                 self.link = open_link(self.url)
                 break
-            except Exception:  # noqa: BLE001 - the bridge's listener is reopening: dial again
+            except Exception:  # the bridge's listener is reopening: dial again
                 if time.monotonic() > deadline:
                     raise
                 time.sleep(0.01)

@@ -125,3 +125,69 @@ def test_hotpath_bench_prints_each_trick_against_its_plain_code() -> None:
             assert isinstance(line[field], float) and line[field] > 0, field
         assert line["number"] == 50 and line["repeats"] == 1
         assert line["python"] == platform.python_version()
+
+
+def _run_json(script: str, *args: str, timeout: float) -> list[dict[str, Any]]:
+    import json
+    import subprocess
+
+    done = subprocess.run(
+        [sys.executable, str(BENCH.with_name(script)), *args],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        check=True,
+    )
+    return [json.loads(line) for line in done.stdout.splitlines() if line.startswith("{")]
+
+
+def test_resets_bench_samples_the_bridge_and_sums_up_each_case() -> None:
+    """``tools/bench/resets.py`` with a few resets per case: a sample line every ``--every``
+    resets and a summary per case with the growth of each figure. Fields only."""
+    lines = _run_json(
+        "resets.py", "--resets", "4", "--pty-resets", "2", "--every", "2", timeout=240
+    )
+    figures = ("rss_kb", "threads", "fds")
+    summaries = [line for line in lines if "sample" not in line]
+    assert [line["bench"] for line in summaries] == [
+        "resets_native_pty",
+        "resets_rosserial_tcp",
+        "resets_rosserial_pty",
+    ]
+    for summary in summaries:
+        samples = [s for s in lines if s.get("sample") and s["bench"] == summary["bench"]]
+        assert [s["resets"] for s in samples] == list(range(0, summary["resets"] + 1, 2))
+        for sample in samples:
+            assert all(isinstance(sample[key], int) and sample[key] > 0 for key in figures)
+        assert set(summary["growth"]) == set(figures) == set(summary["peer_growth"])
+        assert summary["peer"] == "idle" and summary["bridge_errors"] == []
+        assert isinstance(summary["rss_growth_pct"], float) and summary["reset_ms"] > 0
+
+
+def test_soak_bench_counts_every_message_and_prints_samples_and_a_summary() -> None:
+    """``tools/bench/soak.py`` with two boards of three topics for six seconds: sample lines,
+    then a summary in which nothing published went missing (a quiet machine loses nothing at
+    this rate). Fields only, no timing checks."""
+    lines = _run_json(
+        "soak.py",
+        *("--boards", "2", "--minutes", "0.1", "--sample", "2", "--topics", "3"),
+        *("--rate", "20", "--per-emulator", "1"),
+        timeout=120,
+    )
+    *samples, summary = lines
+    assert samples and all(s["bench"] == "soak_sample" and s["boards"] == 2 for s in samples)
+    for sample in samples:
+        for key in ("bridge_cpu_cores", "emulator_cpu_cores", "client_cpu_cores"):
+            assert isinstance(sample[key], float), key
+        assert sample["rss_kb"] > 0 and sample["fds"] > 0 and len(sample["loadavg"]) == 3
+    assert summary["bench"] == "soak" and summary["boards"] == 2 and summary["emulators"] == 2
+    assert summary["published"] > 0 and summary["refused_by_board"] == 0
+    assert summary["reliable_lost"] == 0 and summary["best_effort_lost"] == 0
+    assert summary["calls"] > 0 and summary["calls_failed"] == 0
+    for key in ("p50_ms", "p99_ms", "cpu_cores", "rss_growth_pct", "messages_per_s"):
+        assert isinstance(summary[key], float), key
+    assert set(summary["acceptance"]) == {
+        "below_one_core",
+        "rss_growth_below_5_pct",
+        "no_reliable_lost",
+    }

@@ -18,7 +18,7 @@ import inspect
 import re
 import shutil
 import textwrap
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal
 
 import typer
 from typer.core import TyperCommand, TyperGroup
@@ -278,33 +278,32 @@ def no_command(name: str, known: Iterable[str]) -> str:
     return f"no command {name!r}; did you mean {choices}?"
 
 
-class Command(TyperCommand):
+class _PlainHelp:
+    """Help written by :func:`render_help` (not Typer's rich panels), and the one-line summary a
+    group lists for it."""
+
+    short_help: str | None
+    help: str | None
+    rich_markup_mode: Literal["markdown", "rich", None]
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.rich_markup_mode = None
+
+    def format_help(self, ctx: Any, formatter: Any) -> None:
+        formatter.write(render_help(self, ctx))
+
+    def get_short_help_str(self, limit: int = 45) -> str:
+        return summary(self.short_help or self.help)
+
+
+class Command(_PlainHelp, TyperCommand):
     """A command whose help is :func:`render_help`'s."""
 
-    def __init__(self, *args: Any, **kwargs: Any) -> None:
-        super().__init__(*args, **kwargs)
-        self.rich_markup_mode = None
 
-    def format_help(self, ctx: Any, formatter: Any) -> None:
-        formatter.write(render_help(self, ctx))
-
-    def get_short_help_str(self, limit: int = 45) -> str:
-        return summary(self.short_help or self.help)
-
-
-class Group(TyperGroup):
+class Group(_PlainHelp, TyperGroup):
     """A group whose help is :func:`render_help`'s and whose unknown commands are usage errors
     naming the closest ones."""
-
-    def __init__(self, *args: Any, **kwargs: Any) -> None:
-        super().__init__(*args, **kwargs)
-        self.rich_markup_mode = None
-
-    def format_help(self, ctx: Any, formatter: Any) -> None:
-        formatter.write(render_help(self, ctx))
-
-    def get_short_help_str(self, limit: int = 45) -> str:
-        return summary(self.short_help or self.help)
 
     def resolve_command(self, ctx: Any, args: list[str]) -> Any:
         name = args[0] if args else ""

@@ -35,10 +35,13 @@ def ros2_env(domain: str = DOMAIN_ID) -> dict[str, str]:
     return env
 
 
-def _rclpy_problem() -> str | None:
+def rclpy_problem(
+    imports: str = "rclpy, sensor_msgs.msg, nav_msgs.msg, std_srvs.srv",
+) -> str | None:
+    """Why ``import IMPORTS`` fails in a ROS 2 process, None when it works."""
     try:
         done = subprocess.run(
-            [sys.executable, "-c", "import rclpy, sensor_msgs.msg, nav_msgs.msg, std_srvs.srv"],
+            [sys.executable, "-c", f"import {imports}"],
             env=ros2_env(),
             capture_output=True,
             text=True,
@@ -52,7 +55,7 @@ def _rclpy_problem() -> str | None:
     return None
 
 
-_PROBLEM = _rclpy_problem()
+_PROBLEM = rclpy_problem()
 needs_rclpy = pytest.mark.skipif(
     _PROBLEM is not None,
     reason=f"the ROS 2 wheels are not installed (pip install 'hwbridge[ros2]'): {_PROBLEM}",

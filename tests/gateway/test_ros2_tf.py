@@ -21,9 +21,9 @@ from typing import Any
 import pytest
 
 from hwbridge import msg
-from hwbridge.gateway.ros2 import ros2_environment
 from hwbridge.graph import Graph
 from tests.gateway.harness import PEER, Robot
+from tests.gateway.test_ros2 import rclpy_problem, ros2_env
 
 DOMAIN_ID = str(10 + (os.getpid() + 45) % 90)  # not test_ros2's, should both run at once
 ROS2_TF_HASH = "RIHS01_e369d0f05a23ae52508854b66f6aa0437f3449d652e8cbf22d5abe85d020f087"
@@ -31,30 +31,10 @@ ROS2_TF_HASH = "RIHS01_e369d0f05a23ae52508854b66f6aa0437f3449d652e8cbf22d5abe85d
 
 
 def _ros2_env() -> dict[str, str]:
-    env = ros2_environment()
-    env["ROS_DOMAIN_ID"] = DOMAIN_ID
-    env["_ROS_WHEELS_BOOTSTRAP_COMPLETE"] = "1"  # the paths are set already: no re-exec
-    return env
+    return ros2_env(DOMAIN_ID)
 
 
-def _rclpy_problem() -> str | None:
-    try:
-        done = subprocess.run(
-            [sys.executable, "-c", "import rclpy, geometry_msgs.msg, rosidl_generator_c"],
-            env=_ros2_env(),
-            capture_output=True,
-            text=True,
-            timeout=60,
-            check=False,
-        )
-    except subprocess.TimeoutExpired:
-        return "importing rclpy took over 60 s"
-    if done.returncode != 0:
-        return done.stderr.strip().splitlines()[-1] if done.stderr.strip() else "import failed"
-    return None
-
-
-_PROBLEM = _rclpy_problem()
+_PROBLEM = rclpy_problem("rclpy, geometry_msgs.msg, rosidl_generator_c")
 pytestmark = pytest.mark.skipif(
     _PROBLEM is not None,
     reason=f"the ROS 2 wheels are not installed (pip install 'hwbridge[ros2]'): {_PROBLEM}",

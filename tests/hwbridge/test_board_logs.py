@@ -64,16 +64,23 @@ def board_url(program: Path) -> Iterator[str]:
             board.wait(5)
 
 
-def _connect(url: str, tmp: Path, *extra: str) -> str:
-    """``hwbridge connect URL`` (no -v) until the board's warning shows; its stderr."""
+def _connect(url: str, tmp: Path, *extra: str, up: bool = False) -> str:
+    """``hwbridge connect URL`` (no -v), or ``hwbridge up`` of a robot file with that board,
+    until the board's warning shows; its stderr."""
     params = tmp / "params.yaml"
     params.write_text("gains: [1.0, 0.5, 0.01]\n")
     log = tmp / "connect.log"
     env = {**os.environ, "HWBRIDGE_DOMAIN": "boardlogs"}
     listen = ("--listen", f"tcp/127.0.0.1:{free_port()}")
+    if up:
+        robot = tmp / "robot.yaml"
+        robot.write_text("robot: logs\nboards:\n  - name: uno\n    link: /dev/ttyACM0\n")
+        command = ["up", str(robot), "--link", f"uno={url}"]
+    else:
+        command = ["connect", url, "--name", "uno"]
     with log.open("w") as err:
         process = subprocess.Popen(
-            [*HWBRIDGE, "connect", url, "--name", "uno", "--params", str(params), *extra, *listen],
+            [*HWBRIDGE, *command, "--params", str(params), *extra, *listen],
             stdout=subprocess.DEVNULL,
             stderr=err,
             env=env,
@@ -105,3 +112,8 @@ def test_quiet_hides_the_info_lines_but_not_the_warnings(board_url: str, tmp_pat
     output = _connect(board_url, tmp_path, "--quiet")
     assert WARNING in output.splitlines()
     assert "gains (x1000)" not in output, output
+
+
+def test_up_shows_the_boards_log_lines_too(board_url: str, tmp_path: Path) -> None:
+    output = _connect(board_url, tmp_path, up=True)
+    assert INFO in output.splitlines(), output

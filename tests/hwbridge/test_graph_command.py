@@ -17,6 +17,7 @@ import pytest
 from tests.netutil import free_port, wait_until
 
 RUST_PLACE = re.compile(r"\.rs:\d+")
+DIFFBOT = str(Path(__file__).resolve().parents[2] / "examples" / "robots" / "diffbot.yaml")
 
 
 class Proc:
@@ -112,8 +113,8 @@ def test_play_without_a_board_into_hwbridge_graph(
 
 @pytest.mark.parametrize(
     "argv",
-    [["graph"], ["connect", "pty://"]],
-    ids=["graph", "connect"],
+    [["graph"], ["connect", "pty://"], ["up", DIFFBOT, "--link", "base=socket://127.0.0.1:9"]],
+    ids=["graph", "connect", "up"],
 )
 def test_a_second_owner_of_a_busy_endpoint_says_what_to_do(
     graph: Proc, env: dict[str, str], argv: list[str]

@@ -1,0 +1,654 @@
+#!/usr/bin/env python3
+"""Soak benchmark: many emulated boards at full rate through one bridge for minutes (issue 25,
+item 5). Not a test: it prints figures and checks nothing.
+
+The load micro-ROS users report their agent failing under (eight ESP32s driving it to
+200-1000 % CPU after hours): ``--boards`` boards (default 1, then 8, then 32), each with
+``--topics`` topics (10) published at ``--rate`` Hz (50) and a service called once a second.
+Three kinds of processes, as in real use:
+
+- *emulators* (this script with ``--emulator``): native-protocol device sessions, each in its
+  own :class:`~hwbridge.pump.SessionPump` on a ``tcp-listen://`` link (a WiFi-style board the
+  bridge dials), ``--per-emulator`` boards (4) per process so that the boards, not the bridge,
+  are spread over processes. Board ``bNN`` publishes ``std_msgs/String`` on
+  ``/soak/bNN/tJ``; the first ``--reliable`` topics (2) of each board go on the native
+  protocol's reliable stream, the others best effort. Each message carries its topic's
+  sequence number and ``time.monotonic_ns()`` at publishing (CLOCK_MONOTONIC: one clock for
+  every process on the machine). Each board serves ``/soak/bNN/trigger`` (std_srvs/Trigger);
+- the *bridge*: ``hwbridge connect --protocol native socket://... ...`` (one URL per board), in
+  its own process, measured from ``/proc/PID``: CPU (utime + stime, in cores), RSS, open
+  descriptors and threads;
+- a *client* (``--client``): a graph node that subscribes to every topic, counts each topic's
+  messages, measures latency (arrival minus the stamp) and calls each board's service once a
+  second.
+
+Output, one JSON object per line: a ``soak_sample`` line every ``--sample`` seconds (10) with
+the bridge's figures, the emulators' and the client's CPU, the messages and latency of that
+interval and the load average; then a ``soak`` summary per board count: ``cpu_cores`` (the
+bridge's mean), ``rss_growth_pct`` and ``fds_growth`` from the sample at minute 2 (or at a
+fifth of a shorter run) to the last, p50/p99 latency (ms, over the whole run), reliable
+messages lost (published by the boards minus received by the client, exact: every message is
+numbered) and best-effort ones lost, messages/s received against offered, service calls and
+their p50/p99, and the acceptance figures (below one core, RSS growth below 5 %, no reliable
+message lost). ``peer`` is null: micro-ROS's agent (the software those reports are about) is not
+packaged for this machine; the baseline is this bridge at 1 and 8 boards in the same run.
+
+If the emulators saturate the machine (``emulator_cpu_cores`` near the cores there are, or
+``late_ticks`` growing), fewer messages are offered than asked; ``offered_per_s`` says how many.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+DOMAIN = "soak_bench"
+BIN_S = 1e-4
+"""Latency histogram resolution (0.1 ms)."""
+BINS = 30_000
+"""Histogram bins (up to 3 s; later arrivals count in the last bin)."""
+WARM_S = 120.0
+"""RSS and descriptor growth are taken from this far into a run (or a fifth of a shorter run)."""
+
+
+def board_name(index: int) -> str:
+    return f"b{index:02d}"
+
+
+def topic_name(index: int, topic: int) -> str:
+    return f"/soak/{board_name(index)}/t{topic}"
+
+
+# ---------------------------------------------------------------------------------- emulators
+class _Board:
+    """One native board: a device session in a pump on a tcp-listen link."""
+
+    def __init__(self, index: int, port: int, topics: int, reliable: int) -> None:
+        from hwbridge import msg
+        from hwbridge.links import open_link
+        from hwbridge.protocols.native import session as ns
+        from hwbridge.protocols.native.control import EntryKind
+        from hwbridge.pump import SessionPump
+
+        registry = msg.registry()
+        string_md5 = registry.md5("std_msgs/String")
+        entries = [
+            ns.TopicEntry(
+                1 + j,
+                EntryKind.PUBLISHER,
+                topic_name(index, j)[1:],
+                "std_msgs/String",
+                string_md5,
+                reliable=j < reliable,
+            )
+            for j in range(topics)
+        ]
+        self.service_channel = topics + 1
+        entries.append(
+            ns.TopicEntry(
+                self.service_channel,
+                EntryKind.SERVICE_SERVER,
+                f"soak/{board_name(index)}/trigger",
+                "std_srvs/Trigger",
+                registry.service("std_srvs/Trigger").md5,
+            )
+        )
+        self.answer = msg.encode(msg.new("std_srvs/TriggerResponse", success=True, message="ok"))
+        session = ns.DeviceSession(
+            ns.BoardInfo(board_name(index), index.to_bytes(4, "little"), "soak"), entries
+        )
+        self.topics = topics
+        self.seq = [0] * topics
+        self.published = [0] * topics
+        self.refused = [0] * topics
+        self.served = 0
+        self.link = open_link(f"tcp-listen://127.0.0.1:{port}")
+        self.pump = SessionPump(self.link, session, self._on_event, name=board_name(index))
+        self.pump.start()
+
+    def _on_event(self, event: Any) -> None:
+        from hwbridge.protocols.native import session as ns
+
+        if isinstance(event, ns.ServiceRequest):
+            self.served += 1
+            answer = self.answer
+            self.pump.call(lambda s: s.respond_service(event.channel, event.request_id, answer))
+
+    def connected(self) -> bool:
+        return bool(self.pump.call(lambda s: s.connected))
+
+    def publish_all(self, session: Any) -> None:
+        """Under the pump's lock: one message on each topic."""
+        seq, published, refused = self.seq, self.published, self.refused
+        for j in range(self.topics):
+            data = f"{seq[j]} {time.monotonic_ns()}".encode()
+            payload = len(data).to_bytes(4, "little") + data
+            if session.publish(1 + j, payload):
+                published[j] += 1
+                seq[j] += 1
+            else:
+                refused[j] += 1
+
+    def close(self) -> None:
+        self.pump.stop()
+        self.link.close()
+
+
+def emulator_main(first: int, ports: list[int], topics: int, rate: float, reliable: int) -> None:
+    """Emulator process: boards listening on ``ports``; commands on stdin (status, go, stop)."""
+    boards = [_Board(first + i, port, topics, reliable) for i, port in enumerate(ports)]
+    running = threading.Event()
+    finished = threading.Event()
+    late = [0]
+
+    def publisher() -> None:
+        period = 1.0 / rate
+        running.wait()
+        next_tick = time.monotonic()
+        while running.is_set():
+            for board in boards:
+                try:
+                    board.pump.call(board.publish_all)
+                except Exception:  # noqa: BLE001 - a board whose link dropped: count as refused
+                    for j in range(topics):
+                        board.refused[j] += 1
+            next_tick += period
+            delay = next_tick - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+            elif delay < -period:  # a whole period behind: the process cannot keep the rate
+                late[0] += 1
+                next_tick = time.monotonic()
+        finished.set()
+
+    thread = threading.Thread(target=publisher, daemon=True)
+    thread.start()
+    print("ready", flush=True)
+    for line in sys.stdin:
+        command = line.strip()
+        if command == "status":
+            print(json.dumps(sum(board.connected() for board in boards)), flush=True)
+        elif command == "go":
+            running.set()
+            print("going", flush=True)
+        elif command == "stop":
+            running.clear()
+            finished.wait(10)
+            counts = {
+                board_name(first + i): {
+                    "published": board.published,
+                    "refused": board.refused,
+                    "served": board.served,
+                }
+                for i, board in enumerate(boards)
+            }
+            print(json.dumps({"boards": counts, "late_ticks": late[0]}), flush=True)
+        elif command == "quit":
+            break
+    for board in boards:
+        board.close()
+
+
+# ---------------------------------------------------------------------------------- the client
+class _Histogram:
+    def __init__(self) -> None:
+        self.bins = [0] * BINS
+        self.count = 0
+
+    def clear(self) -> None:
+        self.bins = [0] * BINS
+        self.count = 0
+
+    def add(self, seconds: float) -> None:
+        index = int(seconds / BIN_S)
+        self.bins[min(max(index, 0), BINS - 1)] += 1
+        self.count += 1
+
+    def percentile(self, fraction: float) -> float | None:
+        """The ``fraction`` percentile in ms (upper edge of its bin), None if empty."""
+        if not self.count:
+            return None
+        target = fraction * self.count
+        seen = 0
+        for index, count in enumerate(self.bins):
+            seen += count
+            if seen >= target:
+                return round((index + 1) * BIN_S * 1000, 2)
+        return round(BINS * BIN_S * 1000, 2)
+
+
+def client_main(endpoint: str, boards: int, topics: int) -> None:
+    """Client process: subscribe to every topic, call every service each second; commands
+    on stdin: ``stats`` (this interval's figures), ``final`` (every topic's counts)."""
+    from hwbridge.graph import ANY_TYPE, Graph
+
+    lock = threading.Lock()
+    received: dict[str, int] = {}
+    out_of_order: dict[str, int] = {}
+    last_seq: dict[str, int] = {}
+    window, total = _Histogram(), _Histogram()
+    calls, call_total = _Histogram(), _Histogram()
+    failed = [0]
+    clock = time.monotonic_ns
+
+    def on_message(message: Any) -> None:
+        arrived = clock()
+        data: bytes = message.data
+        seq_text, _, stamp_text = data[4:].partition(b" ")
+        seq = int(seq_text)
+        latency = (arrived - int(stamp_text)) * 1e-9
+        topic = message.topic
+        with lock:
+            received[topic] = received.get(topic, 0) + 1
+            if seq <= last_seq.get(topic, -1):
+                out_of_order[topic] = out_of_order.get(topic, 0) + 1
+            else:
+                last_seq[topic] = seq
+            window.add(latency)
+            total.add(latency)
+
+    stop = threading.Event()
+
+    with Graph.attached(connect=[endpoint], domain=DOMAIN) as graph:
+        node = graph.node("soak_client")
+        for index in range(boards):
+            for j in range(topics):
+                node.subscriber(topic_name(index, j), ANY_TYPE, on_message, raw=True)
+
+        def caller() -> None:
+            next_round = time.monotonic()
+            while not stop.is_set():
+                for index in range(boards):
+                    started = time.monotonic()
+                    try:
+                        node.call_raw(
+                            f"/soak/{board_name(index)}/trigger", "std_srvs/Trigger", b"", 5.0
+                        )
+                    except Exception:  # noqa: BLE001 - counted: a call that failed
+                        with lock:
+                            failed[0] += 1
+                        continue
+                    elapsed = time.monotonic() - started
+                    with lock:
+                        calls.add(elapsed)
+                        call_total.add(elapsed)
+                next_round += 1.0
+                stop.wait(max(0.0, next_round - time.monotonic()))
+
+        print("ready", flush=True)
+        calling: threading.Thread | None = None
+        for line in sys.stdin:
+            command = line.strip()
+            if command == "call":
+                calling = threading.Thread(target=caller, daemon=True)
+                calling.start()
+                print("calling", flush=True)
+            elif command == "stats":
+                with lock:
+                    stats = {
+                        "messages": window.count,
+                        "p50_ms": window.percentile(0.5),
+                        "p99_ms": window.percentile(0.99),
+                        "calls": calls.count,
+                        "call_p50_ms": calls.percentile(0.5),
+                        "calls_failed": failed[0],
+                    }
+                    window.clear()
+                    calls.clear()
+                print(json.dumps(stats), flush=True)
+            elif command == "final":
+                stop.set()
+                if calling is not None:
+                    calling.join(10)
+                with lock:
+                    final = {
+                        "received": received,
+                        "out_of_order": out_of_order,
+                        "messages": total.count,
+                        "p50_ms": total.percentile(0.5),
+                        "p99_ms": total.percentile(0.99),
+                        "max_ms": _max_ms(total),
+                        "calls": call_total.count,
+                        "call_p50_ms": call_total.percentile(0.5),
+                        "call_p99_ms": call_total.percentile(0.99),
+                        "calls_failed": failed[0],
+                    }
+                print(json.dumps(final), flush=True)
+            elif command == "quit":
+                break
+
+
+def _max_ms(histogram: _Histogram) -> float | None:
+    for index in range(BINS - 1, -1, -1):
+        if histogram.bins[index]:
+            return round((index + 1) * BIN_S * 1000, 2)
+    return None
+
+
+# ---------------------------------------------------------------------------------- the harness
+def free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        port: int = sock.getsockname()[1]
+        return port
+
+
+def hwbridge_command() -> list[str]:
+    script = Path(sys.executable).with_name("hwbridge")
+    return [str(script)] if script.exists() else [sys.executable, "-m", "hwbridge"]
+
+
+class _Child:
+    """A child process of this script that answers one line per command."""
+
+    def __init__(self, *args: str) -> None:
+        self.process = subprocess.Popen(
+            [sys.executable, __file__, *args],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            text=True,
+        )
+        self.name = args[0]
+        self.expect("ready")
+
+    def line(self, timeout: float = 60.0) -> str:
+        out = self.process.stdout
+        assert out is not None
+        got: list[str] = []
+        reader = threading.Thread(target=lambda: got.append(out.readline()), daemon=True)
+        reader.start()
+        reader.join(timeout)
+        if not got or not got[0]:
+            raise RuntimeError(f"{self.name}: no answer (status {self.process.poll()})")
+        return got[0].strip()
+
+    def expect(self, word: str) -> None:
+        line = self.line()
+        if line != word:
+            raise RuntimeError(f"{self.name}: expected {word!r}, got {line!r}")
+
+    def ask(self, command: str, timeout: float = 60.0) -> str:
+        stdin = self.process.stdin
+        assert stdin is not None
+        stdin.write(command + "\n")
+        stdin.flush()
+        return self.line(timeout)
+
+    def close(self) -> None:
+        if self.process.poll() is None:
+            try:
+                assert self.process.stdin is not None
+                self.process.stdin.write("quit\n")
+                self.process.stdin.flush()
+                self.process.wait(10)
+            except (OSError, subprocess.TimeoutExpired):
+                self.process.kill()
+                self.process.wait()
+
+
+def cpu_seconds(pid: int) -> float:
+    """utime + stime of process ``pid`` (all its threads), in seconds."""
+    with Path(f"/proc/{pid}/stat").open(encoding="ascii") as stat:
+        fields = stat.read().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def proc_sample(pid: int) -> dict[str, int]:
+    rss = 0
+    with Path(f"/proc/{pid}/status").open(encoding="ascii") as status:
+        for line in status:
+            if line.startswith("VmRSS:"):
+                rss = int(line.split()[1])
+                break
+    return {
+        "rss_kb": rss,
+        "fds": sum(1 for _ in Path(f"/proc/{pid}/fd").iterdir()),
+        "threads": sum(1 for _ in Path(f"/proc/{pid}/task").iterdir()),
+    }
+
+
+def run_stage(args: argparse.Namespace, boards: int, minutes: float, tmp: Path) -> None:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    ports = [free_port() for _ in range(boards)]
+    emulators: list[_Child] = []
+    client: _Child | None = None
+    bridge: subprocess.Popen[bytes] | None = None
+    log = (tmp / f"bridge-{boards}.log").open("w+")
+    try:
+        per = max(1, args.per_emulator)
+        for first in range(0, boards, per):
+            chunk = ports[first : first + per]
+            emulators.append(
+                _Child(
+                    "--emulator",
+                    str(first),
+                    ",".join(map(str, chunk)),
+                    str(args.topics),
+                    str(args.rate),
+                    str(args.reliable),
+                )
+            )
+        command = [*hwbridge_command(), "connect", "--listen", endpoint, "--quiet"]
+        command += ["--protocol", "native"]
+        for index in range(boards):
+            command += ["--name", board_name(index)]
+        command += [f"socket://127.0.0.1:{port}" for port in ports]
+        env = dict(os.environ, HWBRIDGE_DOMAIN=DOMAIN)
+        env.pop("HWBRIDGE_ENDPOINT", None)
+        env.pop("HWBRIDGE_ZENOH_CONFIG", None)
+        bridge = proc = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=log, env=env)
+        deadline = time.monotonic() + 60
+        while sum(int(e.ask("status")) for e in emulators) < boards:
+            if time.monotonic() > deadline or proc.poll() is not None:
+                log.seek(0)
+                raise RuntimeError(f"{boards} boards did not all connect: {log.read()[-2000:]}")
+            time.sleep(0.2)
+        client = _Child("--client", endpoint, str(boards), str(args.topics))
+        time.sleep(2.0)  # the subscriptions reach the bridge
+        client.ask("call")
+        pids = {"bridge": proc.pid, "client": client.process.pid}
+        emulator_pids = [e.process.pid for e in emulators]
+        for emulator in emulators:
+            if emulator.ask("go") != "going":
+                raise RuntimeError("an emulator did not start publishing")
+        started = time.monotonic()
+        last_t = started
+        last_cpu = {name: cpu_seconds(pid) for name, pid in pids.items()}
+        last_emu = [cpu_seconds(pid) for pid in emulator_pids]
+        first_cpu = last_cpu["bridge"]
+        samples: list[dict[str, Any]] = []
+        duration = minutes * 60.0
+        while True:
+            now = time.monotonic()
+            remaining = started + duration - now
+            if remaining <= 0:
+                break
+            time.sleep(min(args.sample, remaining))
+            now = time.monotonic()
+            dt = now - last_t
+            cpu = {name: cpu_seconds(pid) for name, pid in pids.items()}
+            emu = [cpu_seconds(pid) for pid in emulator_pids]
+            stats = json.loads(client.ask("stats"))
+            sample = {
+                "bench": "soak_sample",
+                "boards": boards,
+                "t_s": round(now - started, 1),
+                "bridge_cpu_cores": round((cpu["bridge"] - last_cpu["bridge"]) / dt, 3),
+                **proc_sample(proc.pid),
+                "emulator_cpu_cores": round((sum(emu) - sum(last_emu)) / dt, 3),
+                "emulator_max_cpu_cores": round(
+                    max(b - a for a, b in zip(last_emu, emu, strict=True)) / dt, 3
+                ),
+                "client_cpu_cores": round((cpu["client"] - last_cpu["client"]) / dt, 3),
+                "messages_per_s": round(stats["messages"] / dt, 1),
+                "p50_ms": stats["p50_ms"],
+                "p99_ms": stats["p99_ms"],
+                "calls": stats["calls"],
+                "call_p50_ms": stats["call_p50_ms"],
+                "loadavg": [round(x, 2) for x in os.getloadavg()],
+            }
+            samples.append(sample)
+            sys.stdout.write(json.dumps(sample) + "\n")
+            sys.stdout.flush()
+            last_t, last_cpu, last_emu = now, cpu, emu
+            if proc.poll() is not None:
+                raise RuntimeError(f"the bridge exited ({proc.returncode})")
+        elapsed = time.monotonic() - started
+        bridge_cpu = (cpu_seconds(proc.pid) - first_cpu) / elapsed
+        counts: dict[str, Any] = {}
+        late = 0
+        for emulator in emulators:
+            answer = json.loads(emulator.ask("stop", 30))
+            counts.update(answer["boards"])
+            late += answer["late_ticks"]
+        time.sleep(3.0)  # what is in flight arrives
+        final = json.loads(client.ask("final", 30))
+        summary = _summary(args, boards, minutes, samples, counts, final, bridge_cpu, late)
+        log.seek(0)
+        errors = [line for line in log.read().splitlines() if "ERROR" in line]
+        summary["bridge_errors"] = errors[:5]
+        sys.stdout.write(json.dumps(summary) + "\n")
+        sys.stdout.flush()
+    finally:
+        if client is not None:
+            client.close()
+        if bridge is not None and bridge.poll() is None:
+            bridge.send_signal(signal.SIGINT)
+            try:
+                bridge.wait(15)
+            except subprocess.TimeoutExpired:
+                bridge.kill()
+                bridge.wait()
+        for emulator in emulators:
+            emulator.close()
+        log.close()
+
+
+def _summary(
+    args: argparse.Namespace,
+    boards: int,
+    minutes: float,
+    samples: list[dict[str, Any]],
+    counts: dict[str, Any],
+    final: dict[str, Any],
+    bridge_cpu: float,
+    late: int,
+) -> dict[str, Any]:
+    received: dict[str, int] = final["received"]
+    reliable_lost = best_effort_lost = published = refused = 0
+    for index in range(boards):
+        board = counts[board_name(index)]
+        for j in range(args.topics):
+            sent = board["published"][j]
+            lost = sent - received.get(topic_name(index, j), 0)
+            published += sent
+            refused += board["refused"][j]
+            if j < args.reliable:
+                reliable_lost += lost
+            else:
+                best_effort_lost += lost
+    duration = minutes * 60.0
+    warm = min(WARM_S, duration / 5)
+    warm_samples = [s for s in samples if s["t_s"] >= warm] or samples
+    start, end = warm_samples[0], samples[-1]
+    rss_growth = 100.0 * (end["rss_kb"] - start["rss_kb"]) / start["rss_kb"]
+    return {
+        "bench": "soak",
+        "boards": boards,
+        "topics": args.topics,
+        "reliable_topics": args.reliable,
+        "rate_hz": args.rate,
+        "minutes": minutes,
+        "cpu_cores": round(bridge_cpu, 3),
+        "cpu_cores_max_sample": max(s["bridge_cpu_cores"] for s in samples),
+        "rss_kb_start": start["rss_kb"],
+        "rss_kb_end": end["rss_kb"],
+        "rss_growth_pct": round(rss_growth, 2),
+        "rss_from_s": start["t_s"],
+        "fds_start": start["fds"],
+        "fds_growth": end["fds"] - start["fds"],
+        "threads_end": end["threads"],
+        "p50_ms": final["p50_ms"],
+        "p99_ms": final["p99_ms"],
+        "max_ms": final["max_ms"],
+        "reliable_lost": reliable_lost,
+        "best_effort_lost": best_effort_lost,
+        "out_of_order": sum(final["out_of_order"].values()),
+        "published": published,
+        "refused_by_board": refused,
+        "messages_per_s": round(final["messages"] / duration, 1),
+        "asked_per_s": boards * args.topics * args.rate,
+        "offered_per_s": round(published / duration, 1),
+        "late_ticks": late,
+        "calls": final["calls"],
+        "calls_failed": final["calls_failed"],
+        "call_p50_ms": final["call_p50_ms"],
+        "call_p99_ms": final["call_p99_ms"],
+        "emulator_cpu_cores": round(
+            sum(s["emulator_cpu_cores"] for s in samples) / len(samples), 3
+        ),
+        "client_cpu_cores": round(sum(s["client_cpu_cores"] for s in samples) / len(samples), 3),
+        "emulators": -(-boards // max(1, args.per_emulator)),
+        "cpus": os.cpu_count(),
+        "loadavg": [round(x, 2) for x in os.getloadavg()],
+        "peer": None,
+        "acceptance": {
+            "below_one_core": bridge_cpu < 1.0,
+            "rss_growth_below_5_pct": rss_growth < 5.0,
+            "no_reliable_lost": reliable_lost == 0,
+        },
+    }
+
+
+def _floats(text: str) -> list[float]:
+    return [float(part) for part in text.split(",") if part]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
+    parser.add_argument("--boards", default="1,8,32", help="board counts, one stage each")
+    parser.add_argument(
+        "--minutes",
+        default="1,1,10",
+        help="minutes per stage (one value for all, or one per --boards entry)",
+    )
+    parser.add_argument("--rate", type=float, default=50.0, help="messages/s per topic")
+    parser.add_argument("--topics", type=int, default=10, help="topics per board")
+    parser.add_argument("--reliable", type=int, default=2, help="reliable topics per board")
+    parser.add_argument("--sample", type=float, default=10.0, help="seconds between samples")
+    parser.add_argument("--per-emulator", type=int, default=4, help="boards per emulator process")
+    parser.add_argument("--emulator", nargs=5, help=argparse.SUPPRESS)
+    parser.add_argument("--client", nargs=3, help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.emulator:
+        first, ports, topics, rate, reliable = args.emulator
+        emulator_main(
+            int(first), [int(p) for p in ports.split(",")], int(topics), float(rate), int(reliable)
+        )
+        return
+    if args.client:
+        client_main(args.client[0], int(args.client[1]), int(args.client[2]))
+        return
+    counts = [int(b) for b in _floats(args.boards)]
+    minutes = _floats(args.minutes)
+    if len(minutes) == 1:
+        minutes *= len(counts)
+    if len(minutes) != len(counts):
+        parser.error("--minutes: give one value, or one per --boards entry")
+    with tempfile.TemporaryDirectory(prefix="hwbridge-soak-") as tmp:
+        for boards, stage_minutes in zip(counts, minutes, strict=True):
+            run_stage(args, boards, stage_minutes, Path(tmp))
+
+
+if __name__ == "__main__":
+    main()

@@ -544,6 +544,10 @@ class Publisher:
         self.topic = topic
         self.type = mtype
         self.sent = 0
+        self.dropped_after_close = 0
+        """Publishes that came after :meth:`close` (or the graph's close) and were dropped: a
+        callback still running while its node shuts down."""
+        self._closed = False
         graph = node.graph
         congestion = (
             zenoh.CongestionControl.DROP if drop_when_congested else zenoh.CongestionControl.BLOCK
@@ -569,11 +573,36 @@ class Publisher:
         self.publish_raw(with_seq(registry, self.type.name, data, self.sent + 1))
 
     def publish_raw(self, data: bytes | bytearray | memoryview) -> None:
-        """Publish bytes already in ROS 1 serialization of this publisher's type."""
-        self._publisher.put(
-            data if type(data) is bytes else bytes(data), attachment=self._attachment
-        )
+        """Publish bytes already in ROS 1 serialization of this publisher's type.
+
+        Once the publisher (or its graph) is closed, this drops the message quietly and counts
+        it in :attr:`dropped_after_close`: a subscriber's callback may still be running on a
+        Zenoh thread while its node shuts down, and publishing its last result is not an error.
+        """
+        import zenoh
+
+        if self.closed:
+            self._drop_after_close()
+            return
+        try:
+            self._publisher.put(
+                data if type(data) is bytes else bytes(data), attachment=self._attachment
+            )
+        except zenoh.ZError:
+            if not self.closed:  # closed while putting: the same race, lost by a hair
+                raise
+            self._drop_after_close()
+            return
         self.sent += 1
+
+    @property
+    def closed(self) -> bool:
+        """Whether :meth:`close` (or the graph's close) has run."""
+        return self._closed or self.node.graph.closed
+
+    def _drop_after_close(self) -> None:
+        self.dropped_after_close += 1
+        log.debug("%s: dropped a message published after close", self.topic)
 
     @property
     def has_subscribers(self) -> bool:
@@ -590,6 +619,7 @@ class Publisher:
         return True
 
     def close(self) -> None:
+        self._closed = True
         self.node.graph.forget(self._publisher)
         self.node.graph.forget(self._token)
 

@@ -97,7 +97,10 @@ def record(
         raise typer.BadParameter("give topics or --all, not both")
     path = output or Path(datetime.now().strftime("hwbridge_%Y-%m-%d-%H-%M-%S.mcap"))
     interrupted = threading.Event()
-    with _stop_on_signals(interrupted.set), _open(ctx, endpoint) as graph:
+    # Start-up (attaching, loading the message types) is not shielded: Ctrl-C there ends the
+    # command at once (130) before any file exists. From creating the file on, a signal ends
+    # the recording through ``interrupted`` and the file is finished properly.
+    with _open(ctx, endpoint) as graph:
         recorder = Recorder(
             graph,
             path,
@@ -107,19 +110,20 @@ def record(
             limit=limit,
             overwrite=force,
         )
-        recorder.start()
-        try:
-            with _progress(
-                lambda: _record_table(recorder.stats),
-                lambda: _record_line(recorder.stats),
-                quiet,
-            ):
-                while not interrupted.is_set() and not recorder.done:
-                    interrupted.wait(0.1)
-            if interrupted.is_set() and not quiet:
-                stderr_console().print(f"finishing {path}...", highlight=False)
-        finally:
-            stats = recorder.stop()
+        with _stop_on_signals(interrupted.set):
+            recorder.start()
+            try:
+                with _progress(
+                    lambda: _record_table(recorder.stats),
+                    lambda: _record_line(recorder.stats),
+                    quiet,
+                ):
+                    while not interrupted.is_set() and not recorder.done:
+                        interrupted.wait(0.1)
+                if interrupted.is_set() and not quiet:
+                    stderr_console().print(f"finishing {path}...", highlight=False)
+            finally:
+                stats = recorder.stop()
     if not quiet:
         _print_summary("recorded", "to", stats.path, stats.elapsed, stats.channels)
         if stats.dropped:
@@ -220,7 +224,8 @@ def play(
             ),
         ):
             stats = player.run()
-        time.sleep(0.2)  # let Zenoh send what is queued before the session closes
+        if not player.stopped:  # played to the end: let Zenoh send what is queued
+            time.sleep(0.2)  # (after a signal, stopping promptly comes first)
     if not quiet:
         _print_summary("played", "from", stats.path, stats.elapsed, stats.channels)
 

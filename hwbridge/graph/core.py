@@ -581,7 +581,7 @@ class Publisher:
         """
         import zenoh
 
-        if self.closed:
+        if self._is_closed():
             self._drop_after_close()
             return
         try:
@@ -589,7 +589,7 @@ class Publisher:
                 data if type(data) is bytes else bytes(data), attachment=self._attachment
             )
         except zenoh.ZError:
-            if not self.closed:  # closed while putting: the same race, lost by a hair
+            if not self._is_closed():  # closed while putting: the same race, lost by a hair
                 raise
             self._drop_after_close()
             return
@@ -598,6 +598,9 @@ class Publisher:
     @property
     def closed(self) -> bool:
         """Whether :meth:`close` (or the graph's close) has run."""
+        return self._is_closed()
+
+    def _is_closed(self) -> bool:  # a call: checked afresh each time (a close races a put)
         return self._closed or self.node.graph.closed
 
     def _drop_after_close(self) -> None:
@@ -609,13 +612,15 @@ class Publisher:
         """Whether any subscriber on the graph matches this topic now."""
         return bool(self._publisher.matching_status.matching)
 
-    def wait_for_subscribers(self, timeout: float) -> bool:
-        """Wait until a subscriber matches (declarations travel asynchronously)."""
+    def wait_for_subscribers(self, timeout: float, stop: threading.Event | None = None) -> bool:
+        """Wait until a subscriber matches (declarations travel asynchronously); False after
+        ``timeout`` or as soon as ``stop`` (if given) is set."""
         deadline = time.monotonic() + timeout
+        pause = stop if stop is not None else threading.Event()
         while not self.has_subscribers:
-            if time.monotonic() >= deadline:
+            if time.monotonic() >= deadline or pause.is_set():
                 return False
-            time.sleep(0.01)
+            pause.wait(0.01)
         return True
 
     def close(self) -> None:

@@ -5,7 +5,8 @@ Each command runs as a real ``python -m hwbridge`` subprocess against what it ne
 started here with ``hwbridge graph``, emulated boards, an MCAP file recorded here, a roscore, an
 AVR ELF in simavr) and gets one SIGINT after a delay drawn from a seeded RNG, uniform over
 0 .. (its typical start-up + 1 s); the first trial of each command sends at 0 ms. It must be
-gone within 2 s of the signal, with status 0 or 130, and print no traceback and no ``FATAL``.
+gone within 2 s of the signal, with status 0 or 130, and print no traceback and no ``FATAL``;
+``record`` leaves either no file or a finished MCAP (never a half-written one).
 
 The 2 s is the product's promise (issue 25), so this is one timing assertion the test makes
 on purpose. The only slack is the harness's own latency, measured during the run: control
@@ -77,6 +78,8 @@ class Outcome:
     returncode: int
     latency: float
     output: str
+    problem: str | None = None
+    """What the trial found wrong besides timing, status and output (a half-written file)."""
 
     @property
     def early(self) -> bool:
@@ -258,9 +261,31 @@ def _trial(command: Command, index: int, delay: float, tmp: Path, base: dict[str
     if command.per_trial_listen:
         argv[-1] = f"tcp/127.0.0.1:{free_port()}"
         env["HWBRIDGE_DOMAIN"] = f"{base['HWBRIDGE_DOMAIN']}-{command.name}-{index}"
-    if command.name == "record":
-        argv[2] = str(tmp / f"record-{index}.mcap")
-    return _signal_after(command.name, [sys.executable, "-m", "hwbridge", *argv], env, delay, tmp)
+    if command.name != "record":
+        return _signal_after(
+            command.name, [sys.executable, "-m", "hwbridge", *argv], env, delay, tmp
+        )
+    mcap = tmp / f"record-{index}.mcap"
+    argv[2] = str(mcap)
+    outcome = _signal_after(
+        command.name, [sys.executable, "-m", "hwbridge", *argv], env, delay, tmp
+    )
+    if mcap.exists() and not _complete_mcap(mcap):
+        outcome.problem = f"left a half-written {mcap.name} ({mcap.stat().st_size} bytes)"
+    return outcome
+
+
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+
+
+def _complete_mcap(path: Path) -> bool:
+    """Starts and ends with the MCAP magic: the recorder finished the file (footer written)."""
+    data = path.read_bytes()
+    return (
+        len(data) >= 2 * len(MCAP_MAGIC)
+        and data.startswith(MCAP_MAGIC)
+        and data.endswith(MCAP_MAGIC)
+    )
 
 
 def _signal_after(
@@ -344,4 +369,4 @@ def _problem(outcome: Outcome, deadline: float) -> str | None:
         return "a traceback"
     if "FATAL" in outcome.output:
         return "FATAL in its output"
-    return None
+    return outcome.problem

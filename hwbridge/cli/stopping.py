@@ -34,6 +34,7 @@ no hwbridge code has run.
 
 from __future__ import annotations
 
+import _thread
 import contextlib
 import faulthandler
 import os
@@ -75,6 +76,7 @@ class _State:
         self.raised = False  # the KeyboardInterrupt has been raised in the main thread
         self.shield = 0  # depth of shielded blocks in the main thread
         self.callbacks: list[Callable[[], None]] = []
+        self.nudges = 0  # interruptions of our own (_nudge) the watcher will also see
 
 
 _state = _State()
@@ -115,15 +117,40 @@ def install() -> Callable[[], None] | None:
     return restore
 
 
-def _on_signal_in_main(signum: int, _frame: FrameType | None) -> None:
+def _on_signal_in_main(signum: int, frame: FrameType | None) -> None:
     """Python's handler (main thread): break out of start-up unless shielded. The watcher
-    thread does the rest (it may run first or second: both read only plain flags)."""
+    thread does the rest (it may run first or second: both read only plain flags).
+
+    Where an exception would only be printed and dropped ("Exception ignored in ..."): the
+    import system's lock clean-up, a ``__del__``, the handler raises nothing; the watcher
+    interrupts the main thread again a moment later (:func:`_nudge`)."""
     if _state.signum is None:
         _state.signum = signum
-    if _state.shield or _state.raised:
+    if _state.shield or _state.raised or _swallowing(frame):
         return
     _state.raised = True
     raise KeyboardInterrupt
+
+
+def _swallowing(frame: FrameType | None) -> bool:
+    """Whether an exception raised in ``frame`` would be printed and dropped, not propagated."""
+    if frame is None:
+        return False
+    code = frame.f_code
+    return code.co_filename.startswith("<frozen importlib") or code.co_name == "__del__"
+
+
+def _nudge(deadline: float) -> None:
+    """Until the main thread has its KeyboardInterrupt (or is shielded, or the deadline comes),
+    deliver the signal to it again every 50 ms: the first one may have landed where it could
+    not be raised (:func:`_swallowing`)."""
+    while time.monotonic() < deadline - 0.1:
+        time.sleep(0.05)
+        with _state.lock:
+            if _state.raised or _state.shield:
+                return
+            _state.nudges += 1  # the wakeup fd carries it to the watcher too
+        _thread.interrupt_main(signal.SIGINT)
 
 
 def _watch(read_fd: int) -> None:
@@ -141,6 +168,9 @@ def _watch(read_fd: int) -> None:
 
 def _trigger(signum: int) -> None:
     with _state.lock:
+        if _state.nudges:  # our own interrupt_main, not the user's second signal
+            _state.nudges -= 1
+            return
         _state.count += 1
         first = _state.count == 1
         callbacks = list(_state.callbacks)
@@ -154,6 +184,10 @@ def _trigger(signum: int) -> None:
     threading.Thread(
         target=_deadline, args=(deadline,), name="hwbridge-stop-deadline", daemon=True
     ).start()
+    if _state.shield == 0 and threading.main_thread().is_alive():
+        threading.Thread(
+            target=_nudge, args=(deadline,), name="hwbridge-stop-nudge", daemon=True
+        ).start()
     for callback in callbacks:
         threading.Thread(target=_call, args=(callback,), name="hwbridge-stop", daemon=True).start()
 

@@ -206,7 +206,7 @@ class VizServer:
         self._clients: set[_Client] = set()
         self._warned: set[tuple[str, str]] = set()
         self._next_id = 0
-        self._loop = asyncio.new_event_loop()
+        self._loop = _new_loop()
         self._stop = asyncio.Event()  # bound to the loop at its first use, in the loop
         self._ready = threading.Event()
         self._failures: list[BaseException] = []
@@ -633,6 +633,16 @@ class VizServer:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _new_loop() -> asyncio.AbstractEventLoop:
+    """A new event loop, made on a thread of its own: a Ctrl-C (KeyboardInterrupt in the main
+    thread) in the middle of making one would leave a half-made loop whose clean-up fails."""
+    made: list[asyncio.AbstractEventLoop] = []
+    maker = threading.Thread(target=lambda: made.append(asyncio.new_event_loop()))
+    maker.start()
+    maker.join()
+    return made[0]
 
 
 def _select_subprotocol(connection: Any, offered: Any) -> Any:

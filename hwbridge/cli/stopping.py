@@ -77,6 +77,7 @@ class _State:
         self.shield = 0  # depth of shielded blocks in the main thread
         self.callbacks: list[Callable[[], None]] = []
         self.nudges = 0  # interruptions of our own (_nudge) the watcher will also see
+        self.settled = False  # the main thread reached code that watches STOP: no more nudges
 
 
 _state = _State()
@@ -147,7 +148,7 @@ def _nudge(deadline: float) -> None:
     while time.monotonic() < deadline - 0.1:
         time.sleep(0.05)
         with _state.lock:
-            if _state.raised or _state.shield:
+            if _state.raised or _state.shield or _state.settled:
                 return
             _state.nudges += 1  # the wakeup fd carries it to the watcher too
         _thread.interrupt_main(signal.SIGINT)
@@ -206,6 +207,7 @@ def _deadline(deadline: float) -> None:
 def exit_now(status: int, reason: str | None = None) -> None:
     """Flush stdout and stderr (waiting at most 0.2 s for them) and end the process with
     ``os._exit(status)``; ``reason`` (if any) goes to stderr first."""
+    _state.settled = True
     if reason is not None:
         with contextlib.suppress(OSError):
             os.write(2, f"hwbridge: {reason}: exiting now\n".encode())
@@ -231,7 +233,8 @@ def shielded() -> Iterator[None]:
     block starts with :data:`STOP` set."""
     main = threading.current_thread() is threading.main_thread()
     if main:
-        _state.shield += 1
+        _state.settled = True  # plain stores: only this thread writes them, no lock a
+        _state.shield += 1  # KeyboardInterrupt could leave taken
     try:
         yield
     finally:

@@ -212,9 +212,11 @@ class ImuNode:
         self._imu = node.publisher(imu_topic, "sensor_msgs/Imu")
         self._mag: Any = None
         self._mag_topic = mag_topic
+        self._closed = False
         self._raw = node.subscriber(raw_topic, "hwbridge_msgs/ImuRaw", self._on_raw)
 
     def close(self) -> None:
+        self._closed = True  # a reading still in _on_raw publishes nothing more (or a no-op)
         self._raw.close()
         self._imu.close()
         if self._mag is not None:
@@ -263,6 +265,8 @@ class ImuNode:
             mx, my, mz = (int(v) for v in raw.mag)
             field = converter.magnetometer_field((mx, my, mz), int(raw.mag_st2))
             self.latest_field = converter.magnetic_field_msg(field, stamp)
+            if self._closed:
+                return
             if self._mag is None:
                 self._mag = self._node.publisher(self._mag_topic, "sensor_msgs/MagneticField")
             self._mag.publish(self.latest_field)

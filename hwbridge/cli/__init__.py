@@ -17,6 +17,8 @@ import importlib
 import logging
 import os
 import sys
+import threading
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any
@@ -24,6 +26,7 @@ from typing import Annotated, Any
 import typer
 
 from hwbridge._version import __version__
+from hwbridge.cli import stopping
 from hwbridge.cli.common import Context
 from hwbridge.cli.shell import ClickException, Command, Group, UsageError, adopt
 from hwbridge.errors import HwBridgeError
@@ -257,7 +260,34 @@ def _usage_error(exc: UsageError) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Console-script entry point; returns the exit status."""
+    """Console-script entry point; returns the exit status.
+
+    In the main thread it takes SIGINT and SIGTERM over for the run (see
+    :mod:`hwbridge.cli.stopping`); after one, it does not return: the process ends with the
+    status once stdout and stderr are flushed."""
+    restore: Callable[[], None] | None = None
+    try:
+        restore = stopping.install()
+        code = _run(argv)
+    except KeyboardInterrupt:  # outside _run's handlers
+        code = _interrupted()
+    signum = stopping.signalled()
+    if signum is not None and threading.current_thread() is threading.main_thread():
+        if code == 130 or (code == 1 and stopping.STOP.is_set()):
+            code = 128 + signum  # 130 for SIGINT, 143 for SIGTERM
+        stopping.exit_now(code)
+    if restore is not None:
+        restore()
+    return code
+
+
+def _interrupted() -> int:
+    sys.stderr.write("interrupted\n")
+    sys.stderr.flush()
+    return 130
+
+
+def _run(argv: list[str] | None) -> int:
     app = build_app()
     try:
         result = app(args=argv, prog_name="hwbridge", standalone_mode=False)
@@ -272,12 +302,13 @@ def main(argv: list[str] | None = None) -> int:
     except HwBridgeError as exc:
         _error(str(exc))
         return 1
-    except typer.Abort:
+    except typer.Abort as exc:  # Click turns a KeyboardInterrupt into Abort
+        if isinstance(exc.__context__, KeyboardInterrupt) or stopping.STOP.is_set():
+            return _interrupted()
         _error("aborted")
         return 1
     except KeyboardInterrupt:
-        sys.stderr.write("interrupted\n")
-        return 130
+        return _interrupted()
     # Without standalone mode, typer.Exit(code) comes back as its code; a command's own return
     # value (None) means success.
     return result if isinstance(result, int) else 0

@@ -4,11 +4,8 @@ from __future__ import annotations
 
 import json
 import logging
-import signal
 import sys
-import threading
 from pathlib import Path
-from types import FrameType
 from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
@@ -210,17 +207,10 @@ def read_params(path: Path | None) -> dict[str, Any]:
 
 
 def wait_for_signal() -> None:
-    """Block until SIGINT or SIGTERM."""
-    stop = threading.Event()
+    """Block until SIGINT or SIGTERM (see :mod:`hwbridge.cli.stopping`)."""
+    from hwbridge.cli.stopping import wait_for_stop
 
-    def on_signal(signum: int, _frame: FrameType | None) -> None:
-        log.info("signal %d: stopping", signum)
-        stop.set()
-
-    signal.signal(signal.SIGTERM, on_signal)
-    signal.signal(signal.SIGINT, on_signal)
-    while not stop.wait(0.5):
-        pass
+    wait_for_stop()
 
 
 def _domain(ctx: typer.Context) -> str | None:

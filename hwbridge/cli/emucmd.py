@@ -2,16 +2,14 @@
 
 from __future__ import annotations
 
-import signal
 import sys
-import threading
 from pathlib import Path
-from types import FrameType
 from typing import Annotated
 
 import typer
 
 from hwbridge.cli.common import Context
+from hwbridge.cli.stopping import wait_for_stop
 
 __all__ = ["demo", "emulate"]
 
@@ -53,20 +51,12 @@ def emulate(
     if pty and tcp is not None:
         raise typer.BadParameter("--pty and --tcp exclude each other")
     listen = "pty://" if tcp is None else f"tcp-listen://127.0.0.1:{tcp}"
-    stop = threading.Event()
-
-    def on_signal(_signum: int, _frame: FrameType | None) -> None:
-        stop.set()
-
-    signal.signal(signal.SIGINT, on_signal)
-    signal.signal(signal.SIGTERM, on_signal)
     if board in bus_configs():
         runner = EmulatedBusRunner(emulated_bus(board), listen).start()
         url = _url_of(runner.link)
         _announce(url, f"emulated Dynamixel bus {board}; try: hwbridge dxl scan {url}")
         try:
-            while not stop.wait(0.5):
-                pass
+            wait_for_stop()
         finally:
             runner.close()
         return
@@ -79,10 +69,9 @@ def emulate(
     link = open_link(listen)
     url = _url_of(link)
     _announce(url, f"virtual {config.name} (native protocol); connect with: hwbridge connect {url}")
-    virtual.start(link)
     try:
-        while not stop.wait(0.5):
-            pass
+        virtual.start(link)
+        wait_for_stop()
     finally:
         virtual.stop()
 

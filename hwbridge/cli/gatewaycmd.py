@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import os
 import sys
-import threading
 from typing import TYPE_CHECKING, Annotated
 
 import typer
 
 from hwbridge.cli.common import open_graph
+from hwbridge.cli.stopping import STOP
 from hwbridge.errors import HwBridgeError
 
 if TYPE_CHECKING:
@@ -57,14 +57,19 @@ NodeOption = Annotated[
 ]
 
 
-def _signals(stop: threading.Event) -> None:
+def _reexec(env: dict[str, str]) -> None:
+    """Start this command again in ``env``, unless a stop signal came already. SIGINT and
+    SIGTERM stay blocked across the exec, so one that comes meanwhile is not lost to the new
+    interpreter's default handling: hwbridge's first import unblocks them, to its handler."""
     import signal
 
-    def on_signal(_signum: int, _frame: object) -> None:
-        stop.set()
-
-    signal.signal(signal.SIGINT, on_signal)
-    signal.signal(signal.SIGTERM, on_signal)
+    signals = (signal.SIGINT, signal.SIGTERM)
+    signal.pthread_sigmask(signal.SIG_BLOCK, signals)
+    try:
+        if not STOP.is_set():  # else main() ends the process
+            os.execve(sys.executable, sys.orig_argv, env)
+    finally:  # stopped, or the exec failed
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, signals)
 
 
 def _say(text: str) -> None:
@@ -180,7 +185,9 @@ def ros2(
             env[_REEXEC_GUARD] = "1"
             sys.stdout.flush()
             sys.stderr.flush()
-            os.execve(sys.executable, sys.orig_argv, env)
+            _reexec(env)
+            if STOP.is_set():
+                return
     load_rclpy()
     options = Ros2Options(
         topics=Selection.of(topic, exclude),
@@ -190,10 +197,8 @@ def ros2(
         qos=rules,
         rosout=not no_rosout,
     )
-    stop = threading.Event()
-    _signals(stop)
     try:
-        run_ros2_gateway(lambda: open_graph(ctx), options, stop, announce=_say)
+        run_ros2_gateway(lambda: open_graph(ctx), options, STOP, announce=_say)
     except HwBridgeError:
         raise
     except Exception as exc:
@@ -241,6 +246,4 @@ def ros1(
         node_name=node_name,
         rosout=not no_rosout,
     )
-    stop = threading.Event()
-    _signals(stop)
-    run_ros1_gateway(lambda: open_graph(ctx), options, stop, announce=_say)
+    run_ros1_gateway(lambda: open_graph(ctx), options, STOP, announce=_say)

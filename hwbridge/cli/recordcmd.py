@@ -8,7 +8,6 @@ Progress goes to stderr: a live table on a terminal, a plain line every few seco
 from __future__ import annotations
 
 import contextlib
-import signal
 import sys
 import threading
 import time
@@ -16,8 +15,7 @@ from collections.abc import Callable, Iterator
 from datetime import datetime
 from enum import Enum
 from pathlib import Path
-from types import FrameType
-from typing import TYPE_CHECKING, Annotated, Any
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
@@ -99,7 +97,10 @@ def record(
         raise typer.BadParameter("give topics or --all, not both")
     path = output or Path(datetime.now().strftime("hwbridge_%Y-%m-%d-%H-%M-%S.mcap"))
     interrupted = threading.Event()
-    with _stop_on_signals(interrupted.set), _open(ctx, endpoint) as graph:
+    # Start-up (attaching, loading the message types) is not shielded: Ctrl-C there ends the
+    # command at once (130) before any file exists. From creating the file on, a signal ends
+    # the recording through ``interrupted`` and the file is finished properly.
+    with _open(ctx, endpoint) as graph:
         recorder = Recorder(
             graph,
             path,
@@ -109,19 +110,20 @@ def record(
             limit=limit,
             overwrite=force,
         )
-        recorder.start()
-        try:
-            with _progress(
-                lambda: _record_table(recorder.stats),
-                lambda: _record_line(recorder.stats),
-                quiet,
-            ):
-                while not interrupted.is_set() and not recorder.done:
-                    interrupted.wait(0.1)
-            if interrupted.is_set() and not quiet:
-                stderr_console().print(f"finishing {path}...", highlight=False)
-        finally:
-            stats = recorder.stop()
+        with _stop_on_signals(interrupted.set):
+            recorder.start()
+            try:
+                with _progress(
+                    lambda: _record_table(recorder.stats),
+                    lambda: _record_line(recorder.stats),
+                    quiet,
+                ):
+                    while not interrupted.is_set() and not recorder.done:
+                        interrupted.wait(0.1)
+                if interrupted.is_set() and not quiet:
+                    stderr_console().print(f"finishing {path}...", highlight=False)
+            finally:
+                stats = recorder.stop()
     if not quiet:
         _print_summary("recorded", "to", stats.path, stats.elapsed, stats.channels)
         if stats.dropped:
@@ -222,7 +224,8 @@ def play(
             ),
         ):
             stats = player.run()
-        time.sleep(0.2)  # let Zenoh send what is queued before the session closes
+        if not player.stopped:  # played to the end: let Zenoh send what is queued
+            time.sleep(0.2)  # (after a signal, stopping promptly comes first)
     if not quiet:
         _print_summary("played", "from", stats.path, stats.elapsed, stats.channels)
 
@@ -254,33 +257,12 @@ def _open(ctx: typer.Context, endpoint: str | None) -> Graph:
     return graph
 
 
-@contextlib.contextmanager
-def _stop_on_signals(on_stop: Callable[[], None]) -> Iterator[None]:
-    """Call ``on_stop`` on the first SIGINT or SIGTERM; the next one acts as it did before."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    signals = (signal.SIGINT, signal.SIGTERM)
-    previous: dict[int, Any] = {sig: signal.getsignal(sig) for sig in signals}
+def _stop_on_signals(on_stop: Callable[[], None]) -> contextlib.AbstractContextManager[None]:
+    """Call ``on_stop`` on the first SIGINT or SIGTERM (the command then finishes through it);
+    a second one ends the process (see :mod:`hwbridge.cli.stopping`)."""
+    from hwbridge.cli.stopping import on_signal
 
-    def handler(signum: int, frame: FrameType | None) -> None:
-        # From another thread: the main thread may hold the lock of the Event it is waiting on.
-        threading.Thread(target=on_stop, name="hwbridge-stop", daemon=True).start()
-        for sig in signals:  # a second signal aborts
-            signal.signal(sig, _restorable(previous[sig]))
-
-    for sig in signals:
-        signal.signal(sig, handler)
-    try:
-        yield
-    finally:
-        for sig in signals:
-            signal.signal(sig, _restorable(previous[sig]))
-
-
-def _restorable(handler: Any) -> Any:
-    # getsignal() gives None for a handler installed outside Python: fall back to the default.
-    return signal.SIG_DFL if handler is None else handler
+    return on_signal(on_stop)
 
 
 @contextlib.contextmanager

@@ -59,6 +59,10 @@ __all__ = ["Ros1Gateway", "Ros1Options", "run_ros1_gateway"]
 log = logging.getLogger("hwbridge.gateway.ros1")
 
 _CHECK_PERIOD: Final = 1.0
+_CLOSE_JOIN: Final = 1.0
+"""Longest wait on close for the gateway's thread to finish what it is doing."""
+_UNREGISTER_BUDGET: Final = 0.5
+"""Seconds on close for unregistering from the master, all calls together."""
 _SEND_TIMEOUT: Final = 2.0
 """Seconds a ROS subscriber may keep a message waiting before it is disconnected."""
 
@@ -259,7 +263,7 @@ class Ros1Gateway:
     def close(self) -> None:
         self._stop.set()
         self._watcher.stop()
-        self._main.join(5)
+        self._main.join(_CLOSE_JOIN)  # it waits 0.1 s at a time; a master call may take longer
         if self.master_up.is_set():
             self._unregister_all()
         for item in reversed(self._keep):
@@ -335,15 +339,25 @@ class Ros1Gateway:
             self._follow_params(prefix)
 
     def _unregister_all(self) -> None:
+        """Tell the master we are gone, within :data:`_UNREGISTER_BUDGET` seconds in all (a
+        stopping gateway must not hang on a slow master; one left behind is dropped by the
+        master when a caller finds our slave API gone)."""
+        master = MasterProxy(self.master.uri, self.caller_id, timeout=_UNREGISTER_BUDGET)
+        deadline = time.monotonic() + _UNREGISTER_BUDGET
+        calls = [
+            *(("unregisterPublisher", t, self.slave.uri) for t in list(self._publications)),
+            *(("unregisterSubscriber", t, self.slave.uri) for t in list(self._subscriptions)),
+            *(("unregisterService", n, self._service_uri) for n in list(self._services)),
+            *(("unsubscribeParam", self.slave.uri, p) for p in self.options.params),
+        ]
         with contextlib.suppress(HwBridgeError):
-            for topic in list(self._publications):
-                self.master.call("unregisterPublisher", topic, self.slave.uri)
-            for topic in list(self._subscriptions):
-                self.master.call("unregisterSubscriber", topic, self.slave.uri)
-            for name in list(self._services):
-                self.master.call("unregisterService", name, self._service_uri)
-            for prefix in self.options.params:
-                self.master.call("unsubscribeParam", self.slave.uri, prefix)
+            for method, *args in calls:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    log.debug("not unregistering the rest from the master: out of time")
+                    return
+                master.timeout = left
+                master.call(method, *args)
 
     @property
     def _service_uri(self) -> str:

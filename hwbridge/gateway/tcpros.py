@@ -158,6 +158,12 @@ class MasterProxy:
 
 
 # ---------------------------------------------------------------------- slave API
+_SHUTDOWN_POLL: Final = 0.05
+"""Seconds between the XML-RPC server's checks for shutdown."""
+_CLOSE_WAIT: Final = 0.5
+"""Longest wait for one of the slave server's threads to end on close."""
+
+
 class _Server(ThreadingMixIn, SimpleXMLRPCServer):
     daemon_threads = True
 
@@ -198,23 +204,40 @@ class SlaveServer:
         self._listener = socket.create_server((bind, 0))
         self.tcpros_port: int = self._listener.getsockname()[1]
         self._closed = False
+        self._started = False
         self._threads = [
-            threading.Thread(target=self._xmlrpc.serve_forever, name="ros1-xmlrpc", daemon=True),
+            threading.Thread(target=self._serve_xmlrpc, name="ros1-xmlrpc", daemon=True),
             threading.Thread(target=self._accept, name="ros1-tcpros", daemon=True),
         ]
 
     def start(self) -> SlaveServer:
+        self._started = True
         for thread in self._threads:
             thread.start()
         return self
 
+    def _serve_xmlrpc(self) -> None:
+        # socketserver polls for shutdown every 0.5 s by default: too slow for Ctrl-C's 2 s.
+        self._xmlrpc.serve_forever(poll_interval=_SHUTDOWN_POLL)
+
     def close(self) -> None:
+        """Stop serving (returns within about a poll interval; every wait is bounded)."""
+        if self._closed:
+            return
         self._closed = True
-        self._xmlrpc.shutdown()
+        if self._started:
+            # shutdown() waits for serve_forever to notice; never called before start(), whose
+            # serve_forever would not have begun (it would then wait for ever).
+            stopper = threading.Thread(target=self._xmlrpc.shutdown, daemon=True)
+            stopper.start()
+            stopper.join(_CLOSE_WAIT)
         self._xmlrpc.server_close()
         with contextlib.suppress(OSError):
             self._listener.shutdown(socket.SHUT_RDWR)
         self._listener.close()
+        for thread in self._threads:
+            if thread.is_alive():
+                thread.join(_CLOSE_WAIT)
 
     def _accept(self) -> None:
         while not self._closed:

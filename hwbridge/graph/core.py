@@ -544,6 +544,10 @@ class Publisher:
         self.topic = topic
         self.type = mtype
         self.sent = 0
+        self.dropped_after_close = 0
+        """Publishes that came after :meth:`close` (or the graph's close) and were dropped: a
+        callback still running while its node shuts down."""
+        self._closed = False
         graph = node.graph
         congestion = (
             zenoh.CongestionControl.DROP if drop_when_congested else zenoh.CongestionControl.BLOCK
@@ -569,27 +573,58 @@ class Publisher:
         self.publish_raw(with_seq(registry, self.type.name, data, self.sent + 1))
 
     def publish_raw(self, data: bytes | bytearray | memoryview) -> None:
-        """Publish bytes already in ROS 1 serialization of this publisher's type."""
-        self._publisher.put(
-            data if type(data) is bytes else bytes(data), attachment=self._attachment
-        )
+        """Publish bytes already in ROS 1 serialization of this publisher's type.
+
+        Once the publisher (or its graph) is closed, this drops the message quietly and counts
+        it in :attr:`dropped_after_close`: a subscriber's callback may still be running on a
+        Zenoh thread while its node shuts down, and publishing its last result is not an error.
+        """
+        import zenoh
+
+        if self._is_closed():
+            self._drop_after_close()
+            return
+        try:
+            self._publisher.put(
+                data if type(data) is bytes else bytes(data), attachment=self._attachment
+            )
+        except zenoh.ZError:
+            if not self._is_closed():  # closed while putting: the same race, lost by a hair
+                raise
+            self._drop_after_close()
+            return
         self.sent += 1
+
+    @property
+    def closed(self) -> bool:
+        """Whether :meth:`close` (or the graph's close) has run."""
+        return self._is_closed()
+
+    def _is_closed(self) -> bool:  # a call: checked afresh each time (a close races a put)
+        return self._closed or self.node.graph.closed
+
+    def _drop_after_close(self) -> None:
+        self.dropped_after_close += 1
+        log.debug("%s: dropped a message published after close", self.topic)
 
     @property
     def has_subscribers(self) -> bool:
         """Whether any subscriber on the graph matches this topic now."""
         return bool(self._publisher.matching_status.matching)
 
-    def wait_for_subscribers(self, timeout: float) -> bool:
-        """Wait until a subscriber matches (declarations travel asynchronously)."""
+    def wait_for_subscribers(self, timeout: float, stop: threading.Event | None = None) -> bool:
+        """Wait until a subscriber matches (declarations travel asynchronously); False after
+        ``timeout`` or as soon as ``stop`` (if given) is set."""
         deadline = time.monotonic() + timeout
+        pause = stop if stop is not None else threading.Event()
         while not self.has_subscribers:
-            if time.monotonic() >= deadline:
+            if time.monotonic() >= deadline or pause.is_set():
                 return False
-            time.sleep(0.01)
+            pause.wait(0.01)
         return True
 
     def close(self) -> None:
+        self._closed = True
         self.node.graph.forget(self._publisher)
         self.node.graph.forget(self._token)
 

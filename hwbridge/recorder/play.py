@@ -235,6 +235,11 @@ class Player:
         self._stop.set()
 
     @property
+    def stopped(self) -> bool:
+        """Whether :meth:`stop` was called."""
+        return self._stop.is_set()
+
+    @property
     def stats(self) -> PlayerStats:
         """What was published so far."""
         with self._lock:
@@ -259,7 +264,7 @@ class Player:
             remaining = deadline - time.monotonic()
             if remaining <= 0 or self._stop.is_set():
                 return
-            publisher.wait_for_subscribers(remaining)
+            publisher.wait_for_subscribers(remaining, self._stop)
 
     def _play_once(self, node: Node, publishers: dict[int, Publisher]) -> int:
         origin: int | None = self._start_ns()

@@ -79,6 +79,10 @@ SUPPORTED_ENCODINGS: Final = ("ros1", "json")
 """What clients may publish and call services with (Teleop panels publish with one of these)."""
 CAPABILITIES: Final = ("clientPublish", "services", "time")
 TIME_PERIOD: Final = 0.05
+_CLIENT_CLOSE_TIMEOUT: Final = 0.5
+"""Seconds a viewer gets to answer the closing handshake when the server stops."""
+_STOP_WAIT: Final = 1.0
+"""Longest wait on close for the server's thread (Ctrl-C's promise is 2 s for everything)."""
 """Seconds between time broadcasts (viewers stamp what they receive with the latest one)."""
 SERVICE_TIMEOUT: Final = 10.0
 """Seconds a forwarded service call may take."""
@@ -202,8 +206,8 @@ class VizServer:
         self._clients: set[_Client] = set()
         self._warned: set[tuple[str, str]] = set()
         self._next_id = 0
-        self._loop = asyncio.new_event_loop()
-        self._stop: asyncio.Event | None = None
+        self._loop = _new_loop()
+        self._stop = asyncio.Event()  # bound to the loop at its first use, in the loop
         self._ready = threading.Event()
         self._failures: list[BaseException] = []
         """Why the server could not start (set by its thread)."""
@@ -212,15 +216,21 @@ class VizServer:
             target=self._run, args=(host, port), name="hwbridge-viz", daemon=True
         )
         self._thread.start()
-        self._ready.wait()
-        if self._failures:
-            self._thread.join()
-            self._loop.close()
-            failure = self._failures[0]
-            raise HwBridgeError(f"cannot serve Foxglove on {host}:{port}: {failure}") from failure
-        self._node = graph.node("hwbridge_viz")
-        self._zid = str(graph.zid)
-        self._watch = graph.watch(self._on_entity)
+        try:
+            self._ready.wait()
+            if self._failures:
+                self._thread.join()
+                self._loop.close()
+                failure = self._failures[0]
+                raise HwBridgeError(
+                    f"cannot serve Foxglove on {host}:{port}: {failure}"
+                ) from failure
+            self._node = graph.node("hwbridge_viz")
+            self._zid = str(graph.zid)
+            self._watch = graph.watch(self._on_entity)
+        except KeyboardInterrupt:  # Ctrl-C in start-up: stop the server thread on the way out
+            self._stop_loop()
+            raise
 
     @property
     def url(self) -> str:
@@ -252,7 +262,6 @@ class VizServer:
     async def _main(self, host: str, port: int) -> None:
         from websockets.asyncio.server import serve
 
-        self._stop = asyncio.Event()
         server: Server
         async with serve(
             self._serve_client,
@@ -262,7 +271,7 @@ class VizServer:
             select_subprotocol=_select_subprotocol,
             compression=None,
             max_size=64 * 1024 * 1024,
-            close_timeout=2,
+            close_timeout=_CLIENT_CLOSE_TIMEOUT,
         ) as server:
             self.port = int(server.sockets[0].getsockname()[1])
             self._ready.set()
@@ -603,24 +612,37 @@ class VizServer:
         token = getattr(self._node, "_token", None)  # the node's liveliness: gone with us
         if token is not None:
             self.graph.forget(token)
-        stop = self._stop
-        if stop is not None:
-            with contextlib.suppress(RuntimeError):  # the loop already ended
-                self._loop.call_soon_threadsafe(stop.set)
-        self._thread.join(10)
-        if self._thread.is_alive():
-            log.warning("the Foxglove server did not stop within 10 s")
+        if not self._stop_loop():
+            log.warning("the Foxglove server did not stop within %g s", _STOP_WAIT)
             return
         for state in self._topics.values():  # the loop's thread has ended: no one else here
             if state.subscriber is not None:
                 state.subscriber.close()
         self._loop.close()
 
+    def _stop_loop(self) -> bool:
+        """Ask the server's loop to end and wait (at most :data:`_STOP_WAIT` s) for its thread;
+        whether it ended."""
+        with contextlib.suppress(RuntimeError):  # the loop already ended
+            self._loop.call_soon_threadsafe(self._stop.set)  # runs first if _main has not begun
+        self._thread.join(_STOP_WAIT)
+        return not self._thread.is_alive()
+
     def __enter__(self) -> VizServer:
         return self
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _new_loop() -> asyncio.AbstractEventLoop:
+    """A new event loop, made on a thread of its own: a Ctrl-C (KeyboardInterrupt in the main
+    thread) in the middle of making one would leave a half-made loop whose clean-up fails."""
+    made: list[asyncio.AbstractEventLoop] = []
+    maker = threading.Thread(target=lambda: made.append(asyncio.new_event_loop()))
+    maker.start()
+    maker.join()
+    return made[0]
 
 
 def _select_subprotocol(connection: Any, offered: Any) -> Any:

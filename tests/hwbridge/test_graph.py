@@ -295,3 +295,40 @@ def test_deferred_service_answers_from_another_thread(router: Graph, client: Gra
     assert (response.success, response.message) == (True, "ok")
     with pytest.raises(ServiceError, match="board says no"):
         node.call_raw("/later", "std_srvs/Trigger", b"\x01", timeout=5)
+
+
+def test_a_publish_after_close_from_a_callback_is_dropped_and_counted(
+    router: Graph, client: Graph
+) -> None:
+    """A device node's subscriber callback may still run on a Zenoh thread while the node
+    shuts down (``hwbridge up`` on Ctrl-C): its publish after the publisher closed is a quiet
+    no-op, counted, not a ``zenoh.ZError`` out of the callback."""
+    node = client.node("late_talker")
+    out = node.publisher("/late/out", "std_msgs/String")
+    out.close()
+    assert out.closed
+    escaped: list[BaseException] = []
+    calls: list[int] = []
+
+    def relay(_message: Any) -> None:
+        try:
+            out.publish({"data": "too late"})
+        except BaseException as exc:  # noqa: BLE001 - what the test looks for
+            escaped.append(exc)
+        calls.append(1)
+
+    node.subscriber("/late/in", "std_msgs/String", relay)
+    feed = router.node("late_feed").publisher("/late/in", "std_msgs/String")
+    assert wait_until(lambda: _published_until(feed, {"data": "go"}, lambda: bool(calls)))
+    assert escaped == []
+    assert out.dropped_after_close == len(calls) >= 1
+    assert out.sent == 0
+
+
+def test_a_publish_after_the_graph_closed_is_dropped_and_counted(endpoint: str) -> None:
+    graph = Graph.attached(connect=[endpoint], domain=f"closed-{free_port()}")
+    out = graph.node("orphan").publisher("/orphan/out", "std_msgs/String")
+    graph.close()
+    out.publish({"data": "after close"})
+    out.publish_raw(b"\x00\x00\x00\x00")
+    assert out.closed and out.dropped_after_close == 2 and out.sent == 0

@@ -45,3 +45,22 @@ def emit(
     line.update(extra)
     sys.stdout.write(json.dumps(line) + "\n")
     sys.stdout.flush()
+
+
+def free_port() -> int:
+    """A TCP port nobody listens on now (on 127.0.0.1)."""
+    import socket
+
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        port: int = sock.getsockname()[1]
+        return port
+
+
+def hwbridge_command() -> list[str]:
+    """The installed console script next to this interpreter, else ``python -m hwbridge``."""
+    import sys
+    from pathlib import Path
+
+    script = Path(sys.executable).with_name("hwbridge")
+    return [str(script)] if script.exists() else [sys.executable, "-m", "hwbridge"]

@@ -49,6 +49,10 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from _common import free_port, hwbridge_command
+
 DOMAIN = "resets_bench"
 CASES = ("native_pty", "rosserial_tcp", "rosserial_pty")
 PTY_HOLD = 2.0
@@ -199,21 +203,6 @@ def board_main(case: str, where: str) -> None:
 
 
 # ---------------------------------------------------------------------------------- the harness
-def free_port() -> int:
-    import socket
-
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        port: int = sock.getsockname()[1]
-        return port
-
-
-def hwbridge_command() -> list[str]:
-    """The installed console script next to this interpreter, else ``python -m hwbridge``."""
-    script = Path(sys.executable).with_name("hwbridge")
-    return [str(script)] if script.exists() else [sys.executable, "-m", "hwbridge"]
-
-
 def _line(process: subprocess.Popen[str], what: str, timeout: float = 60.0) -> str:
     """The next line of a child's stdout (RuntimeError if it ends or stays silent)."""
     assert process.stdout is not None

@@ -43,7 +43,6 @@ import argparse
 import json
 import os
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -51,6 +50,10 @@ import threading
 import time
 from pathlib import Path
 from typing import Any
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from _common import free_port, hwbridge_command
 
 DOMAIN = "soak_bench"
 BIN_S = 1e-4
@@ -336,18 +339,6 @@ def _max_ms(histogram: _Histogram) -> float | None:
 
 
 # ---------------------------------------------------------------------------------- the harness
-def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        port: int = sock.getsockname()[1]
-        return port
-
-
-def hwbridge_command() -> list[str]:
-    script = Path(sys.executable).with_name("hwbridge")
-    return [str(script)] if script.exists() else [sys.executable, "-m", "hwbridge"]
-
-
 class _Child:
     """A child process of this script that answers one line per command."""
 

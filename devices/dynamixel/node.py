@@ -334,8 +334,9 @@ class DynamixelNode:
                 self.bus.ping(id_, identify=False)
                 bits = self.bus.alerts.get(id_, 0)
                 names = P1_HARDWARE_ERRORS
-        except HwBridgeTimeoutError:
-            self.silent.add(joint)
+        except HwBridgeTimeoutError as exc:
+            self.silent.add(joint)  # a servo found silent here is a read error too: the state
+            self._failed("read", exc)  # reads skip silent joints, so they never count it
             return _ERROR, "no status"
         except HwBridgeError as exc:
             return _ERROR, f"status not read: {exc}"

@@ -559,11 +559,8 @@ class Publisher:
         self._token = graph.announce("pub", node.name, topic, mtype.name)
 
     def publish(self, message: Any) -> None:
-        """Serialize and publish a message object (or a dict of its fields).
-
-        As rospy does, a message that starts with a ``std_msgs/Header`` goes out with the
-        publisher's count (1, 2, ...) as its ``seq``, unless it has a seq of its own (not 0).
-        """
+        """Serialize and publish a message object (or a dict of its fields); a header's seq
+        of 0 becomes the publisher's count (1, 2, ...), as rospy does."""
         from hwbridge import msg as msgmod
 
         registry = self.node.graph.registry
@@ -573,15 +570,12 @@ class Publisher:
         self.publish_raw(with_seq(registry, self.type.name, data, self.sent + 1))
 
     def publish_raw(self, data: bytes | bytearray | memoryview) -> None:
-        """Publish bytes already in ROS 1 serialization of this publisher's type.
-
-        Once the publisher (or its graph) is closed, this drops the message quietly and counts
-        it in :attr:`dropped_after_close`: a subscriber's callback may still be running on a
-        Zenoh thread while its node shuts down, and publishing its last result is not an error.
-        """
+        """Publish bytes already in ROS 1 serialization of this publisher's type. After a
+        close (of it or its graph) they are dropped and counted in :attr:`dropped_after_close`:
+        a callback still running while its node shuts down is not an error."""
         import zenoh
 
-        if self._is_closed():
+        if self.closed:
             self._drop_after_close()
             return
         try:
@@ -589,7 +583,7 @@ class Publisher:
                 data if type(data) is bytes else bytes(data), attachment=self._attachment
             )
         except zenoh.ZError:
-            if not self._is_closed():  # closed while putting: the same race, lost by a hair
+            if not (self._closed or self.node.graph.closed):  # not closed while putting
                 raise
             self._drop_after_close()
             return
@@ -597,10 +591,8 @@ class Publisher:
 
     @property
     def closed(self) -> bool:
-        """Whether :meth:`close` (or the graph's close) has run."""
-        return self._is_closed()
-
-    def _is_closed(self) -> bool:  # a call: checked afresh each time (a close races a put)
+        """Whether :meth:`close` (or the graph's close) has run (read afresh: a close races a
+        put)."""
         return self._closed or self.node.graph.closed
 
     def _drop_after_close(self) -> None:

@@ -322,7 +322,7 @@ def test_the_gateway_waits_for_the_graph_and_survives_ros2_nodes_restarting(
         assert lonely.poll() is None
     finally:
         robot.stop_process(lonely)
-    assert lonely.returncode == 0, robot.log("lonely")
+    assert lonely.returncode in (0, 130), robot.log("lonely")  # Ctrl-C while waiting: 130
     for _ in range(2):
         done = peer("echo", "/diffbot/imu", "sensor_msgs/msg/Imu", "1")
         assert done.returncode == 0, done.stderr

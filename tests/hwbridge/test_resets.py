@@ -17,7 +17,7 @@ from hwbridge.bridge import BoardSpec, Bridge
 from hwbridge.graph import Graph
 from hwbridge.protocols.rosserial import RosserialDevice
 from tests.boards import PtyBoard, chatter, rosserial_sketch, wait_for
-from tests.hwbridge.test_listening_links import PROMPT, board_on, bridge_on, serves
+from tests.hwbridge.test_listening_links import PROMPT, board_on, bridge_on, listener, serves
 from tests.netutil import free_port
 
 SESSIONS = 25
@@ -32,6 +32,7 @@ def test_parameter_listeners_do_not_pile_up_across_board_sessions(
     keeps one listener, and a parameter change reaches only the live session."""
     port = free_port()
     with bridge_on(f"tcp-listen://127.0.0.1:{port}", "rosserial", caplog) as bridge:
+        listener(bridge)  # listening before the first board dials
         params = bridge.params
         for _ in range(SESSIONS):
             with board_on(f"socket://127.0.0.1:{port}", rosserial_sketch()):

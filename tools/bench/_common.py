@@ -64,3 +64,34 @@ def hwbridge_command() -> list[str]:
 
     script = Path(sys.executable).with_name("hwbridge")
     return [str(script)] if script.exists() else [sys.executable, "-m", "hwbridge"]
+
+
+def proc_sample(pid: int) -> dict[str, int]:
+    """RSS (kB), threads and open descriptors of process ``pid``, from /proc."""
+    from pathlib import Path
+
+    rss = 0
+    with Path(f"/proc/{pid}/status").open(encoding="ascii") as status:
+        for line in status:
+            if line.startswith("VmRSS:"):
+                rss = int(line.split()[1])
+                break
+    return {
+        "rss_kb": rss,
+        "threads": sum(1 for _ in Path(f"/proc/{pid}/task").iterdir()),
+        "fds": sum(1 for _ in Path(f"/proc/{pid}/fd").iterdir()),
+    }
+
+
+def stop_process(process: Any, sig: int | None = None) -> None:
+    """Send ``sig`` (default SIGTERM) to a child still running; kill it after 10 s."""
+    import signal
+    import subprocess
+
+    if process.poll() is None:
+        process.send_signal(signal.SIGTERM if sig is None else sig)
+        try:
+            process.wait(10)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait()

@@ -51,7 +51,7 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _common import free_port, hwbridge_command
+from _common import free_port, hwbridge_command, proc_sample, stop_process
 
 DOMAIN = "resets_bench"
 CASES = ("native_pty", "rosserial_tcp", "rosserial_pty")
@@ -64,21 +64,6 @@ RESET_TIMEOUT = 30.0
 
 
 # ---------------------------------------------------------------------------------- /proc
-def proc_sample(pid: int) -> dict[str, int]:
-    """RSS (kB), threads and open descriptors of process ``pid``, from /proc."""
-    rss = 0
-    with Path(f"/proc/{pid}/status").open(encoding="ascii") as status:
-        for line in status:
-            if line.startswith("VmRSS:"):
-                rss = int(line.split()[1])
-                break
-    return {
-        "rss_kb": rss,
-        "threads": sum(1 for _ in Path(f"/proc/{pid}/task").iterdir()),
-        "fds": sum(1 for _ in Path(f"/proc/{pid}/fd").iterdir()),
-    }
-
-
 def cpu_seconds(pid: int) -> float:
     """utime + stime of process ``pid`` (all its threads), in seconds."""
     with Path(f"/proc/{pid}/stat").open(encoding="ascii") as stat:
@@ -216,16 +201,6 @@ def _line(process: subprocess.Popen[str], what: str, timeout: float = 60.0) -> s
     return got[0].strip()
 
 
-def stop(process: subprocess.Popen[str], sig: int = signal.SIGTERM) -> None:
-    if process.poll() is None:
-        process.send_signal(sig)
-        try:
-            process.wait(10)
-        except subprocess.TimeoutExpired:
-            process.kill()
-            process.wait()
-
-
 def _average(samples: list[dict[str, Any]], key: str) -> float:
     return sum(float(s[key]) for s in samples) / len(samples)
 
@@ -345,7 +320,7 @@ def run_case(case: str, resets: int, every: int, tmp: Path) -> None:
                 board.kill()
                 board.wait()
         if bridge is not None:
-            stop(bridge, signal.SIGINT)
+            stop_process(bridge, signal.SIGINT)
         log.close()
 
 

@@ -53,7 +53,7 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _common import free_port, hwbridge_command
+from _common import free_port, hwbridge_command, proc_sample
 
 DOMAIN = "soak_bench"
 BIN_S = 1e-4
@@ -392,20 +392,6 @@ def cpu_seconds(pid: int) -> float:
     with Path(f"/proc/{pid}/stat").open(encoding="ascii") as stat:
         fields = stat.read().rsplit(")", 1)[1].split()
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-
-
-def proc_sample(pid: int) -> dict[str, int]:
-    rss = 0
-    with Path(f"/proc/{pid}/status").open(encoding="ascii") as status:
-        for line in status:
-            if line.startswith("VmRSS:"):
-                rss = int(line.split()[1])
-                break
-    return {
-        "rss_kb": rss,
-        "fds": sum(1 for _ in Path(f"/proc/{pid}/fd").iterdir()),
-        "threads": sum(1 for _ in Path(f"/proc/{pid}/task").iterdir()),
-    }
 
 
 def run_stage(args: argparse.Namespace, boards: int, minutes: float, tmp: Path) -> None:

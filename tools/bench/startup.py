@@ -43,6 +43,10 @@ import time
 from pathlib import Path
 from typing import Any
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from _common import stop_process
+
 GOALS = {"native": 1.0, "rosserial": 1.2}
 DOMAIN = "startup_bench"
 TOPIC = "/chatter"
@@ -163,16 +167,6 @@ def _wait_line(process: subprocess.Popen[str], what: str) -> str:
     return line.strip()
 
 
-def _stop(process: subprocess.Popen[str], sig: int = signal.SIGTERM) -> None:
-    if process.poll() is None:
-        process.send_signal(sig)
-        try:
-            process.wait(10)
-        except subprocess.TimeoutExpired:
-            process.kill()
-            process.wait()
-
-
 def one_run(protocol: str, workdir: Path, importtime: bool = False) -> dict[str, Any]:
     """One launch of the bridge; returns launch -> first message (and the bridge's stderr)."""
     pty_path = workdir / f"board-{protocol}-{time.monotonic_ns()}"
@@ -217,7 +211,7 @@ def one_run(protocol: str, workdir: Path, importtime: bool = False) -> dict[str,
                 f"{protocol}: no message at the subscriber within {WAIT_S:g} s; the bridge "
                 f"said:\n{log.read()[-2000:]}"
             )
-        _stop(bridge, signal.SIGINT)
+        stop_process(bridge, signal.SIGINT)
         log.seek(0)
         return {
             "seconds": result["arrived"] - launched,
@@ -227,7 +221,7 @@ def one_run(protocol: str, workdir: Path, importtime: bool = False) -> dict[str,
     finally:
         for process in (bridge, subscriber, board):
             if process is not None:
-                _stop(process)
+                stop_process(process)
         for process in (board, subscriber):
             if process.stdout is not None:
                 process.stdout.close()

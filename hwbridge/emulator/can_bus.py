@@ -25,19 +25,18 @@ import argparse
 import dataclasses
 import logging
 import math
-import queue
 import random
 import signal
 import sys
 import threading
 import time
-import weakref
 from collections.abc import Callable, Sequence
 from typing import Any
 
 from hwbridge import msg
 from hwbridge.emulator.board import BoardConfig, VirtualBoard, load_board
 from hwbridge.emulator.faults import FaultySession
+from hwbridge.emulator.virtual_bus import shared_virtual_bus
 from hwbridge.emulator.world import WorldConfig
 from hwbridge.errors import HwBridgeError
 from hwbridge.links.can import CanLink
@@ -326,85 +325,6 @@ class CanBusEmulator:
                 board.bus.shutdown()
 
 
-_shared_bus_class: Any = None
-
-
-def shared_virtual_bus(channel: str, **kwargs: Any) -> Any:
-    """A python-can ``virtual`` bus on ``channel`` for an emulated board: on the same channel as
-    any ``can.Bus(interface="virtual", channel=...)`` (the host's ``can://virtual/...`` links
-    among them), but each frame it sends is copied once for all the other buses instead of
-    deep-copied for each of them.
-
-    Why: python-can's virtual bus deep-copies every frame for every other bus on the channel
-    (about 50 us a copy here), so with eight emulated boards and the host in one process, eight
-    copies of each frame were 57 % of the process's CPU (py-spy, sampling the thread holding
-    the GIL); the host's CAN reader, on the same GIL, then fell behind until its backlog of
-    frames outgrew the native link timeout (0.8 s) and sessions were dropped on a busy machine.
-    A real bus copies frames in hardware. Receivers only read the frames they get."""
-    global _shared_bus_class  # noqa: PLW0603 - made once, when python-can is first needed
-    if _shared_bus_class is None:
-        import can
-        from can.interfaces.virtual import VirtualBus
-
-        wanted: weakref.WeakKeyDictionary[Any, Any] = weakref.WeakKeyDictionary()
-        """Each shared-copy bus's receive queue -> its filters (None: everything)."""
-
-        class SharedCopyVirtualBus(VirtualBus):
-            def __init__(self, **options: Any) -> None:
-                super().__init__(**options)
-                wanted[self.queue] = self._filters
-
-            def _apply_filters(self, filters: Any) -> None:
-                # Shared-copy senders filter as they hand frames out, as a controller's
-                # acceptance filters do, so a board never wakes for other boards' frames;
-                # python-can filters what plain virtual buses send when it is received.
-                receive = getattr(self, "queue", None)  # None while BusABC's __init__ runs
-                if receive is not None:
-                    wanted[receive] = filters
-
-            def send(self, msg: Any, timeout: float | None = None) -> None:
-                self._check_if_open()
-                copy = can.Message(
-                    timestamp=msg.timestamp if self.preserve_timestamps else time.time(),
-                    arbitration_id=msg.arbitration_id,
-                    is_extended_id=msg.is_extended_id,
-                    is_remote_frame=msg.is_remote_frame,
-                    is_error_frame=msg.is_error_frame,
-                    channel=self.channel_id,
-                    dlc=msg.dlc,
-                    data=bytes(msg.data),
-                    is_fd=msg.is_fd,
-                    is_rx=True,
-                    bitrate_switch=msg.bitrate_switch,
-                    error_state_indicator=msg.error_state_indicator,
-                )
-                full = False
-                for receiver in list(self.channel):
-                    if receiver is self.queue or not _passes(copy, wanted.get(receiver)):
-                        continue
-                    try:
-                        receiver.put(copy, block=True, timeout=timeout)
-                    except queue.Full:
-                        full = True
-                if full:
-                    raise can.CanOperationError("a receiver's queue on the virtual bus is full")
-
-        _shared_bus_class = SharedCopyVirtualBus
-    return _shared_bus_class(channel=channel, **kwargs)
-
-
-def _passes(message: Any, filters: Any) -> bool:
-    """Whether ``message`` passes python-can ``can_filters`` (None or empty: everything)."""
-    if not filters:
-        return True
-    for item in filters:
-        if "extended" in item and item["extended"] != message.is_extended_id:
-            continue
-        if (message.arbitration_id ^ item["can_id"]) & item["can_mask"] == 0:
-            return True
-    return False
-
-
 def _bus_factory(interface: str, channel: str, fd: bool, port: int | None) -> Any:
     import can
 
@@ -461,7 +381,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error("--pace must be 0 or more bits/s")
     logging.basicConfig(level=logging.WARNING, format="%(name)s: %(message)s")
     interface, _, channel = args.bus.partition("/")
-    adapter = None
+    where = f"{interface}/{channel}"
+    adapter = gateway = None
+    if interface == "udp_multicast":
+        # one socket for all the boards (see hwbridge.emulator.multicast)
+        from hwbridge.emulator.multicast import MulticastGateway
+
+        local = f"mcast-{id(parser):x}"
+        gateway = MulticastGateway(local, channel, args.port, fd=args.fd).start()
+        interface, channel = "virtual", local
     if args.slcan:
         from hwbridge.emulator.slcan import SlcanAdapter
 
@@ -488,7 +416,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         query = "?sleep_after_open=0&bitrate=1000000"
     else:
         port = f"&port={args.port}" if args.port is not None else ""
-        where, query = f"{interface}/{channel}", f"?fd={int(args.fd)}{port}"
+        query = f"?fd={int(args.fd)}{port}"
     urls = " ".join(f"can://{where}/node{b.node}{query}" for b in emulator.boards)
     sys.stdout.write(f"links: {urls}\n")
     sys.stdout.flush()
@@ -502,6 +430,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         emulator.stop()
         if adapter is not None:
             adapter.stop()
+        if gateway is not None:
+            gateway.stop()
     return 0
 
 

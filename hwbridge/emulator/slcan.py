@@ -76,7 +76,14 @@ class SlcanAdapter:
         self._master, self._slave = os.openpty()
         tty.setraw(self._slave)
         self.path = os.ttyname(self._slave)
-        self._bus = can.Bus(interface=self.interface, channel=self.channel)
+        if self.interface == "virtual":
+            # frames from the host are copied once for all the boards, and only to the boards
+            # whose filters take them (python-can's virtual bus deep-copies one per board)
+            from hwbridge.emulator.virtual_bus import shared_virtual_bus
+
+            self._bus = shared_virtual_bus(self.channel)
+        else:
+            self._bus = can.Bus(interface=self.interface, channel=self.channel)
         for target, name in ((self._serial_loop, "slcan-serial"), (self._bus_loop, "slcan-bus")):
             thread = threading.Thread(target=target, name=name, daemon=True)
             thread.start()

@@ -481,10 +481,9 @@ class Node:
         self, name: str, srv_type: str, data: bytes, timeout: float = 5.0, md5: str | None = None
     ) -> bytes:
         """Call a service with serialized request bytes; returns the response bytes."""
-        target = self._call_targets.get((name, srv_type, md5, timeout))
-        if target is None:
-            target = self._call_target(name, srv_type, md5, timeout)
-        resolved, get, attachment = target
+        found = self._call_targets.get((name, srv_type, md5, timeout))
+        resolved, get, attachment = found or self._call_target(name, srv_type, md5, timeout)
+        started = time.monotonic()
         for reply in get(payload=data, attachment=attachment):
             if reply.ok is not None:
                 return bytes(reply.ok.payload.to_bytes())
@@ -496,9 +495,10 @@ class Node:
                         "is still at work or stuck (give a longer timeout if it is slow)"
                     )
                 raise ServiceError(f"{resolved}: {text}")
+        early = time.monotonic() - started < 0.9 * timeout  # no server took the query
+        what = "no server answered" if early else f"no answer within {timeout:g} s from"
         raise HwBridgeTimeoutError(
-            f"no answer from service {resolved} within {timeout:g} s "
-            "(is its server running? see 'hwbridge service list')"
+            f"{what} service {resolved} (is its server running? see 'hwbridge service list')"
         )
 
     def _call_target(

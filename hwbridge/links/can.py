@@ -489,6 +489,11 @@ class CanLink(Link):
             kwargs["fd"] = True
         kwargs.update(self._bus_options)
         try:
+            if self.interface == "slcan":  # python-can's, reading in bulk (links/slcan.py)
+                from hwbridge.links.slcan import BulkSlcanBus
+
+                del kwargs["interface"]
+                return BulkSlcanBus(**kwargs)
             return can.Bus(**kwargs)
         except (can.CanError, OSError, ValueError, ImportError, TypeError) as exc:
             raise LinkError(f"cannot open the CAN bus of {self.url}: {exc}") from exc

@@ -9,7 +9,7 @@ import can
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hwbridge.emulator.can_bus import shared_virtual_bus
+from hwbridge.emulator.virtual_bus import shared_virtual_bus
 from hwbridge.protocols.can.transport import (
     MAX_NODE,
     MIN_NODE,

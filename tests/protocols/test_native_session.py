@@ -1194,6 +1194,42 @@ def test_dead_link_detected_within_one_second_at_defaults(cut: str) -> None:
     assert len(of_type(link.device_events, ServiceResponse)) == 1  # failed once, not again
 
 
+def test_time_this_end_did_not_run_is_not_the_peers_silence() -> None:
+    """PROTOCOL.md 2.9: a host process starved for 3 s, whose timers run before it gets to read
+    what the board sent meanwhile (a bus reader thread starved too), keeps the session, and so
+    does a board that was stopped with it; a board
+    that really went silent is still found within link_timeout of the host running again."""
+    link = make_link(16)
+    connect(link)
+    link.run(1.0)
+    host = link.host
+    stalled_at = link.now
+    # the machine stalls: neither end runs for 2.5 s, then the board runs alone for 0.5 s
+    link.now += 2.5
+    while link.now < stalled_at + 3.0:
+        link.now += 0.01
+        dnow = link.device_time(link.now)
+        for chunk in link.h2d.pop_due(link.now):
+            link.device.receive_data(chunk, dnow)
+        link.device.tick(dnow)
+        link.d2h.send(link.device.data_to_send(), link.now)
+    events = host.tick(link.now)  # timers first, the backlog after
+    assert not of_type(events, Disconnected), events
+    assert host.connected and host.stats.stalls == 1
+    assert link.run(0.5, until=lambda: bool(link.host.stats.heartbeats_sent))
+    assert host.connected and not of_type(link.host_events, Disconnected)
+    assert link.device.connected and not of_type(link.device_events, Disconnected)
+    assert link.device.stats.stalls == 1
+    # a real silence after a stall: the board is cut off while the host is stalled again
+    link.d2h.faults = Faults(cut=True)
+    resumed = link.now + 2.0
+    assert not of_type(host.tick(resumed), Disconnected)
+    link.now = resumed
+    assert link.run(2.0, until=lambda: not link.host.connected)
+    assert link.now - resumed <= host.config.link_timeout + 0.05
+    assert host.stats.stalls == 2 and host.stats.link_losses == 1
+
+
 def test_retry_limit_declares_the_link_dead() -> None:
     """Heartbeats get through but acknowledgements do not: the board gives up after 10 tries."""
     link = make_link(15)

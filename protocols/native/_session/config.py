@@ -289,6 +289,9 @@ class NativeStats(SessionStats):
     """Sessions ended by the link timeout or the retry limit."""
     peer_resets: int = 0
     """Sessions ended because the peer restarted or dropped the session."""
+    stalls: int = 0
+    """Times this end was not run for longer than twice the heartbeat interval (a starved or
+    stopped process); that time does not count towards the link timeout (PROTOCOL.md 2.9)."""
     rtt: float | None = None
     """Smoothed round-trip time of reliable frames, seconds."""
     rto: float = 0.0

@@ -88,6 +88,7 @@ class _Counters:
     sessions: int = 0
     link_losses: int = 0
     peer_resets: int = 0
+    stalls: int = 0
 
 
 def _truncate(text: str, limit: int) -> bytes:
@@ -161,6 +162,9 @@ class SessionCore(Generic[_E]):
         """Time requests run in this session (both ends have TIME_SYNC, the interval is > 0)."""
         self._last_rx = 0.0
         self._last_tx = 0.0
+        self._awake_step = max(2 * config.heartbeat_interval, config.link_timeout / 4)
+        """The longest gap between two calls that counts in full as time this end was running
+        (it is called at least every heartbeat_interval while established)."""
         self._ack_due: float | None = None
         """When a held-back ACK must go out at the latest (None: none is held)."""
         self._next_hello = 0.0
@@ -260,6 +264,7 @@ class SessionCore(Generic[_E]):
             heartbeats_sent=c.heartbeats_sent,
             link_losses=c.link_losses,
             peer_resets=c.peer_resets,
+            stalls=c.stalls,
             rtt=self._rtt.srtt,
             rto=self._rtt.rto,
             be_frames_sent=q.be_frames_sent,
@@ -479,6 +484,12 @@ class SessionCore(Generic[_E]):
             self._waiting_since = now
             self._last_tx = now
         elif now > self._now:
+            step = now - self._now
+            if step > self._awake_step:
+                # This end did not run for a while (a starved process, a stopped one): time it
+                # was not looking is not the peer's silence (PROTOCOL.md 2.9).
+                self._last_rx += step - self._awake_step
+                self._c.stalls += 1
             self._now = now
 
     def _alive(self) -> None:

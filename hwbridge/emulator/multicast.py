@@ -23,6 +23,8 @@ import time
 from collections import deque
 from typing import Any
 
+from hwbridge.emulator.virtual_bus import Relay, shared_virtual_bus
+
 __all__ = ["ECHO_WINDOW", "MulticastGateway"]
 
 log = logging.getLogger("hwbridge.emulator.can")
@@ -37,11 +39,12 @@ def _key(message: Any) -> _Key:
     return (message.arbitration_id, message.is_extended_id, bytes(message.data))
 
 
-class MulticastGateway:
+class MulticastGateway(Relay):
     """Carries frames both ways between the in-process bus ``local_channel`` and the
     ``udp_multicast`` group ``group`` (on ``port``), until :meth:`stop`."""
 
     def __init__(self, local_channel: str, group: str, port: int | None, *, fd: bool) -> None:
+        super().__init__()
         self.local_channel = local_channel
         self.group = group
         self.port = port
@@ -58,13 +61,9 @@ class MulticastGateway:
         """When each frame awaiting its echo was sent, by identifier and data."""
         self._next_sweep = 0.0
         self._lock = threading.Lock()
-        self._stop = threading.Event()
-        self._threads: list[threading.Thread] = []
 
     def start(self) -> MulticastGateway:
         import can
-
-        from hwbridge.emulator.virtual_bus import shared_virtual_bus
 
         kwargs: dict[str, Any] = {"interface": "udp_multicast", "channel": self.group}
         if self.port is not None:
@@ -73,27 +72,16 @@ class MulticastGateway:
             kwargs["fd"] = True
         self._group = can.Bus(**kwargs)
         self._local = shared_virtual_bus(self.local_channel)
-        for target, name in ((self._outbound, "mcast-out"), (self._inbound, "mcast-in")):
-            thread = threading.Thread(target=target, name=name, daemon=True)
-            thread.start()
-            self._threads.append(thread)
+        self._spawn((self._outbound, "mcast-out"), (self._inbound, "mcast-in"))
         return self
 
     def stop(self) -> None:
-        self._stop.set()
-        for thread in self._threads:
-            thread.join(2)
+        self._join()
         for bus in (self._local, self._group):
             if bus is not None:
                 with contextlib.suppress(Exception):
                     bus.shutdown()
         self._local = self._group = None
-
-    def __enter__(self) -> MulticastGateway:
-        return self.start()
-
-    def __exit__(self, *_exc: object) -> None:
-        self.stop()
 
     def _outbound(self) -> None:
         import can

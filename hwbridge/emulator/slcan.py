@@ -32,6 +32,8 @@ import threading
 import tty
 from typing import Any, Final
 
+from hwbridge.emulator.virtual_bus import Relay, shared_virtual_bus
+
 __all__ = ["SlcanAdapter"]
 
 log = logging.getLogger("hwbridge.emulator.slcan")
@@ -46,11 +48,12 @@ def _dlc_of(length: int) -> int:
     return _FD_DLC.index(length)
 
 
-class SlcanAdapter:
+class SlcanAdapter(Relay):
     """An SLCAN adapter on a new pty, bridged to the python-can bus ``channel`` of
     ``interface`` (see the module docstring)."""
 
     def __init__(self, channel: str, interface: str = "virtual") -> None:
+        super().__init__()
         self.channel = channel
         self.interface = interface
         self.path = ""
@@ -67,8 +70,6 @@ class SlcanAdapter:
         self._slave = -1
         self._bus: Any = None
         self._write_lock = threading.Lock()
-        self._stop = threading.Event()
-        self._threads: list[threading.Thread] = []
 
     def start(self) -> SlcanAdapter:
         import can
@@ -79,21 +80,14 @@ class SlcanAdapter:
         if self.interface == "virtual":
             # frames from the host are copied once for all the boards, and only to the boards
             # whose filters take them (python-can's virtual bus deep-copies one per board)
-            from hwbridge.emulator.virtual_bus import shared_virtual_bus
-
             self._bus = shared_virtual_bus(self.channel)
         else:
             self._bus = can.Bus(interface=self.interface, channel=self.channel)
-        for target, name in ((self._serial_loop, "slcan-serial"), (self._bus_loop, "slcan-bus")):
-            thread = threading.Thread(target=target, name=name, daemon=True)
-            thread.start()
-            self._threads.append(thread)
+        self._spawn((self._serial_loop, "slcan-serial"), (self._bus_loop, "slcan-bus"))
         return self
 
     def stop(self) -> None:
-        self._stop.set()
-        for thread in self._threads:
-            thread.join(2)
+        self._join()
         if self._bus is not None:
             self._bus.shutdown()
             self._bus = None
@@ -102,12 +96,6 @@ class SlcanAdapter:
                 with contextlib.suppress(OSError):
                     os.close(fd)
         self._master = self._slave = -1
-
-    def __enter__(self) -> SlcanAdapter:
-        return self.start()
-
-    def __exit__(self, *_exc: object) -> None:
-        self.stop()
 
     # ------------------------------------------------------------------ serial side
     def _send_host(self, data: bytes) -> None:

@@ -4,11 +4,47 @@ and filtering it as a controller's acceptance filters do (see :func:`shared_virt
 from __future__ import annotations
 
 import queue
+import threading
 import time
 import weakref
-from typing import Any
+from collections.abc import Callable
+from typing import Any, TypeVar
 
-__all__ = ["shared_virtual_bus"]
+__all__ = ["Relay", "shared_virtual_bus"]
+
+_R = TypeVar("_R", bound="Relay")
+
+
+class Relay:
+    """Threads that carry frames between an emulated bus and something else (a pty, a
+    multicast group) until :meth:`stop`; a context manager."""
+
+    def __init__(self) -> None:
+        self._stop = threading.Event()
+        self._threads: list[threading.Thread] = []
+
+    def start(self: _R) -> _R:
+        raise NotImplementedError
+
+    def stop(self) -> None:
+        raise NotImplementedError
+
+    def _spawn(self, *loops: tuple[Callable[[], None], str]) -> None:
+        for target, name in loops:
+            thread = threading.Thread(target=target, name=name, daemon=True)
+            thread.start()
+            self._threads.append(thread)
+
+    def _join(self) -> None:
+        self._stop.set()
+        for thread in self._threads:
+            thread.join(2)
+
+    def __enter__(self: _R) -> _R:
+        return self.start()
+
+    def __exit__(self, *_exc: object) -> None:
+        self.stop()
 
 
 _shared_bus_class: Any = None

@@ -70,7 +70,7 @@ import math
 import re
 from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
-from typing import Any, Final
+from typing import Any, Final, TypeVar
 
 import yaml
 
@@ -696,6 +696,10 @@ def _overridden_baud(
     raise RobotFileError([f"{where}: {what}: --link {name}={url}: {refused}"])
 
 
+_Linked = TypeVar("_Linked", RobotBoardConfig, HostDeviceConfig)
+"""A board or a host device: what ``--link`` can give another link."""
+
+
 def link_overrides(robot: Robot, links: Mapping[str, str]) -> tuple[Robot, list[str]]:
     """``robot`` with the links of some boards and host devices replaced (``--link NAME=URL``),
     and the notes to show: a ``baud`` the file gives that the new link takes none for
@@ -704,37 +708,21 @@ def link_overrides(robot: Robot, links: Mapping[str, str]) -> tuple[Robot, list[
     board's or host device's line)."""
     replaced = robot.with_links(links)  # an unknown name: HwBridgeError listing the known ones
     notes: list[str] = []
-    boards: list[RobotBoardConfig] = []
-    for board in replaced.boards:
-        if board.name in links:
-            baud, note = _overridden_baud(
-                board.link,
-                board.baud,
-                board.baud_source,
-                board.source or str(robot.path),
-                f"board {board.name}",
-                board.name,
-            )
-            notes += [note] if note else []
-            boards.append(dataclasses.replace(board, baud=baud))
-        else:
-            boards.append(board)
-    hosts: list[HostDeviceConfig] = []
-    for host in replaced.host_devices:
-        if host.device.name in links:
-            baud, note = _overridden_baud(
-                host.link,
-                host.baud,
-                host.baud_source,
-                host.source or str(robot.path),
-                f"host device {host.device.name} ({host.device.type})",
-                host.device.name,
-            )
-            notes += [note] if note else []
-            hosts.append(dataclasses.replace(host, baud=baud))
-        else:
-            hosts.append(host)
-    return dataclasses.replace(replaced, boards=tuple(boards), host_devices=tuple(hosts)), notes
+
+    def relinked(item: _Linked, name: str, what: str) -> _Linked:
+        if name not in links:
+            return item
+        source = item.source or str(robot.path)
+        baud, note = _overridden_baud(item.link, item.baud, item.baud_source, source, what, name)
+        notes.extend([note] if note else [])
+        return dataclasses.replace(item, baud=baud)
+
+    boards = tuple(relinked(b, b.name, f"board {b.name}") for b in replaced.boards)
+    hosts = tuple(
+        relinked(h, h.device.name, f"host device {h.device.name} ({h.device.type})")
+        for h in replaced.host_devices
+    )
+    return dataclasses.replace(replaced, boards=boards, host_devices=hosts), notes
 
 
 def check_robot(

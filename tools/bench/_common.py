@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import sys
+import threading
 import time
 from collections.abc import Callable
 from typing import Any
@@ -95,3 +96,17 @@ def stop_process(process: Any, sig: int | None = None) -> None:
         except subprocess.TimeoutExpired:
             process.kill()
             process.wait()
+
+
+def child_line(process: Any, what: str, timeout: float = 60.0) -> str:
+    """The next line of a child's stdout, stripped (RuntimeError naming ``what`` if the child
+    ends or says nothing for ``timeout`` seconds)."""
+    out = process.stdout
+    assert out is not None
+    got: list[str] = []
+    reader = threading.Thread(target=lambda: got.append(out.readline()), daemon=True)
+    reader.start()
+    reader.join(timeout)
+    if not got or not got[0]:
+        raise RuntimeError(f"{what}: no answer (status {process.poll()})")
+    return str(got[0]).strip()

@@ -43,7 +43,6 @@ import signal
 import subprocess
 import sys
 import tempfile
-import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -51,7 +50,7 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _common import free_port, hwbridge_command, proc_sample, stop_process
+from _common import child_line, free_port, hwbridge_command, proc_sample, stop_process
 
 DOMAIN = "resets_bench"
 CASES = ("native_pty", "rosserial_tcp", "rosserial_pty")
@@ -188,19 +187,6 @@ def board_main(case: str, where: str) -> None:
 
 
 # ---------------------------------------------------------------------------------- the harness
-def _line(process: subprocess.Popen[str], what: str, timeout: float = 60.0) -> str:
-    """The next line of a child's stdout (RuntimeError if it ends or stays silent)."""
-    assert process.stdout is not None
-    out = process.stdout
-    got: list[str] = []
-    reader = threading.Thread(target=lambda: got.append(out.readline()), daemon=True)
-    reader.start()
-    reader.join(timeout)
-    if not got or not got[0]:
-        raise RuntimeError(f"{what}: no answer (status {process.poll()})")
-    return got[0].strip()
-
-
 def _average(samples: list[dict[str, Any]], key: str) -> float:
     return sum(float(s[key]) for s in samples) / len(samples)
 
@@ -227,7 +213,7 @@ def run_case(case: str, resets: int, every: int, tmp: Path) -> None:
     log = (tmp / f"bridge-{case}.log").open("w+")
     bridge: subprocess.Popen[str] | None = None
     try:
-        if _line(board, f"{case} board") != "ready":
+        if child_line(board, f"{case} board") != "ready":
             raise RuntimeError(f"{case}: the board did not start")
         command = [*hwbridge_command(), "connect", "--listen", endpoint, "--quiet"]
         bridge = subprocess.Popen(
@@ -237,7 +223,7 @@ def run_case(case: str, resets: int, every: int, tmp: Path) -> None:
             text=True,
             env=env,
         )
-        if _line(board, f"{case} board") != "up":
+        if child_line(board, f"{case} board") != "up":
             raise RuntimeError(f"{case}: the board never connected")
         time.sleep(1.0)  # the bridge settles (its endpoints declared, first time syncs)
         pid = bridge.pid
@@ -264,7 +250,7 @@ def run_case(case: str, resets: int, every: int, tmp: Path) -> None:
             step = min(every, resets - done)
             board.stdin.write(f"reset {step}\n")
             board.stdin.flush()
-            _line(board, f"{case} board", RESET_TIMEOUT * step + 10)
+            child_line(board, f"{case} board", RESET_TIMEOUT * step + 10)
             done += step
             if bridge.poll() is not None:
                 raise RuntimeError(f"{case}: the bridge exited ({bridge.returncode})")

@@ -53,7 +53,7 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _common import free_port, hwbridge_command, proc_sample
+from _common import child_line, free_port, hwbridge_command, proc_sample
 
 DOMAIN = "soak_bench"
 BIN_S = 1e-4
@@ -353,15 +353,7 @@ class _Child:
         self.expect("ready")
 
     def line(self, timeout: float = 60.0) -> str:
-        out = self.process.stdout
-        assert out is not None
-        got: list[str] = []
-        reader = threading.Thread(target=lambda: got.append(out.readline()), daemon=True)
-        reader.start()
-        reader.join(timeout)
-        if not got or not got[0]:
-            raise RuntimeError(f"{self.name}: no answer (status {self.process.poll()})")
-        return got[0].strip()
+        return child_line(self.process, self.name, timeout)
 
     def expect(self, word: str) -> None:
         line = self.line()

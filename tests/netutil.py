@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import signal
 import socket
+import subprocess
 import time
 from collections.abc import Callable
 from typing import Any
@@ -40,3 +42,21 @@ def call_when_ready(node: Any, name: str, srv: str, request: Any, timeout: float
 
     assert wait_until(attempt, timeout=timeout)
     return box[0]
+
+
+def reap(process: Any) -> bool:
+    """Wait up to 15 s for a child to end, then kill it; whether it ended by itself."""
+    try:
+        process.wait(15)
+    except subprocess.TimeoutExpired:
+        process.kill()
+        process.wait(5)
+        return False
+    return True
+
+
+def stop_child(process: Any, sig: int = signal.SIGINT) -> bool:
+    """Send ``sig`` to a child that still runs and :func:`reap` it."""
+    if process.poll() is None:
+        process.send_signal(sig)
+    return reap(process)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from hypothesis import HealthCheck, settings
 from hypothesis import strategies as st
 from rosbags.interfaces import Nodetype
 
@@ -11,6 +12,16 @@ from hwbridge import msg
 from hwbridge.protocols.msgtypes import INT_RANGES, TypeRegistry
 
 MAX_SEQUENCE = 3
+
+
+def bounded(max_examples: int) -> settings:
+    """Seeded (derandomized) and bounded to ``max_examples``, with no per-example deadline."""
+    return settings(
+        max_examples=max_examples,
+        deadline=None,
+        derandomize=True,
+        suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
+    )
 
 
 def _base(name: str) -> st.SearchStrategy[Any]:

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import random
+import signal
 import subprocess
 import sys
 import threading
@@ -17,7 +18,7 @@ import pytest
 import yaml
 
 from tests.bridgeproc import BridgeProcess
-from tests.netutil import free_port, wait_until
+from tests.netutil import free_port, stop_child, wait_until
 
 NODES = range(1, 9)
 
@@ -45,12 +46,7 @@ class Emulator:
         return line.removeprefix("links: ").split()
 
     def stop(self) -> None:
-        self.process.terminate()
-        try:
-            self.process.wait(15)
-        except subprocess.TimeoutExpired:
-            self.process.kill()
-            self.process.wait(5)
+        stop_child(self.process, signal.SIGTERM)
 
 
 @pytest.fixture(params=["udp_multicast", "slcan"])

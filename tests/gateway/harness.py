@@ -19,7 +19,7 @@ import yaml
 
 from hwbridge import msg
 from tests.boards import PtyBoard, native_sketch
-from tests.netutil import free_port, wait_until
+from tests.netutil import free_port, reap, stop_child, wait_until
 
 ROOT = Path(__file__).resolve().parents[2]
 DIFFBOT = ROOT / "hwbridge" / "emulator" / "robots" / "diffbot.yaml"
@@ -122,24 +122,14 @@ class Robot:
         self.aux.pump.call(lambda session: session.log(LogLevel.WARN, text))
 
     def stop_process(self, process: subprocess.Popen[str]) -> None:
-        if process.poll() is None:
-            process.send_signal(signal.SIGINT)
-            try:
-                process.wait(15)
-            except subprocess.TimeoutExpired:
-                process.kill()
-                process.wait(5)
+        stop_child(process)
 
     def stop(self) -> None:
         for process, _log in reversed(self.processes):
             if process.poll() is None:
                 process.send_signal(signal.SIGINT)
         for process, _log in self.processes:
-            try:
-                process.wait(15)
-            except subprocess.TimeoutExpired:
-                process.kill()
-                process.wait(5)
+            reap(process)
         if self.aux is not None:
             self.aux.stop()
 

@@ -93,12 +93,6 @@ def robot(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Ros1Robot]:
         running.stop()
 
 
-@pytest.fixture(scope="module")
-def graph(robot: Robot) -> Iterator[Graph]:
-    with Graph.attached(connect=[robot.endpoint], domain="gw") as attached:
-        yield attached
-
-
 def _echo(robot: Ros1Robot, topic: str, *extra: str) -> dict[str, Any]:
     done = robot.ros("rostopic", "echo", "-n", "1", *extra, topic)
     assert done.returncode == 0, done.stderr + robot.log("up")

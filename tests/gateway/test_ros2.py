@@ -113,12 +113,6 @@ def robot(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Robot]:
         running.stop()
 
 
-@pytest.fixture(scope="module")
-def graph(robot: Robot) -> Iterator[Graph]:
-    with Graph.attached(connect=[robot.endpoint], domain="gw") as attached:
-        yield attached
-
-
 def _stamp(header: dict[str, Any]) -> tuple[int, int]:
     stamp = header["stamp"]
     if "sec" in stamp:

@@ -52,12 +52,6 @@ def robot(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Robot]:
 
 
 @pytest.fixture(scope="module")
-def graph(robot: Robot) -> Iterator[Graph]:
-    with Graph.attached(connect=[robot.endpoint], domain="gw") as attached:
-        yield attached
-
-
-@pytest.fixture(scope="module")
 def published(robot: Robot, graph: Graph) -> dict[str, str]:
     """Topic -> ROS 2 type of everything the gateway publishes in ROS 2, once it has taken up
     every topic published on the graph (mirrored, or of a type ROS 2 lacks here)."""

@@ -107,12 +107,6 @@ def robot(tmp_path_factory: pytest.TempPathFactory, setup_script: Path) -> Itera
         running.stop()
 
 
-@pytest.fixture(scope="module")
-def graph(robot: Robot) -> Iterator[Graph]:
-    with Graph.attached(connect=[robot.endpoint], domain="gw") as attached:
-        yield attached
-
-
 def _ros2_view(transform: dict[str, Any]) -> dict[str, Any]:
     """A graph TransformStamped as ROS 2 has it: no header.seq, stamps as sec/nanosec."""
     header = transform["header"]

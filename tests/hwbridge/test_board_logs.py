@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.netutil import free_port, wait_until
+from tests.netutil import free_port, stop_child, wait_until
 
 ROOT = Path(__file__).resolve().parents[2]
 PARAMETERS = ROOT / "firmware" / "HwBridge" / "examples" / "Parameters"
@@ -56,12 +56,7 @@ def board_url(program: Path) -> Iterator[str]:
         assert url, "the board program printed no URL"
         yield url
     finally:
-        board.send_signal(signal.SIGTERM)
-        try:
-            board.wait(15)
-        except subprocess.TimeoutExpired:
-            board.kill()
-            board.wait(5)
+        stop_child(board, signal.SIGTERM)
 
 
 def _connect(url: str, tmp: Path, *extra: str, up: bool = False) -> str:
@@ -91,12 +86,7 @@ def _connect(url: str, tmp: Path, *extra: str, up: bool = False) -> str:
             )
             assert shown and process.poll() is None, log.read_text()
         finally:
-            process.send_signal(signal.SIGINT)
-            try:
-                process.wait(15)
-            except subprocess.TimeoutExpired:
-                process.kill()
-                process.wait(5)
+            stop_child(process)
     return log.read_text()
 
 

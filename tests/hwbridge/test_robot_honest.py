@@ -19,7 +19,7 @@ import pytest
 from hwbridge.robot import registry
 from hwbridge.robot.config import load_robot
 from hwbridge.robot.model import RobotFileError
-from tests.netutil import free_port, wait_until
+from tests.netutil import free_port, reap, wait_until
 
 ROOT = Path(__file__).resolve().parents[2]
 PLUGINS = ROOT / "tests" / "plugins"
@@ -189,11 +189,7 @@ class Emulators:
         for process in self.running:
             process.send_signal(signal.SIGINT)
         for process in self.running:
-            try:
-                process.wait(15)
-            except subprocess.TimeoutExpired:
-                process.kill()
-                process.wait(5)
+            reap(process)
 
 
 @pytest.fixture

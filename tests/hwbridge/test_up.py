@@ -18,7 +18,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from tests.netutil import free_port, wait_until
+from tests.netutil import free_port, reap, wait_until
 
 ROOT = Path(__file__).resolve().parents[2]
 DIFFBOT = ROOT / "examples" / "robots" / "diffbot.yaml"
@@ -69,11 +69,7 @@ class Processes:
             if process.poll() is None:
                 process.send_signal(signal.SIGINT)
         for process, log in self.running:
-            try:
-                process.wait(15)
-            except subprocess.TimeoutExpired:
-                process.kill()
-                process.wait(5)
+            if not reap(process):
                 pytest.fail(f"{process.args} did not stop on SIGINT:\n{log.read_text()}")
 
 

@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import given
 from hypothesis import strategies as st
 
 from hwbridge.protocols.errors import FramingError, HwBridgeError
@@ -39,19 +39,11 @@ from hwbridge.protocols.native.framing import (
     max_run_size,
     wire_size,
 )
+from tests.strategies import bounded
 
 ROOT = Path(__file__).resolve().parents[2]
 VECTORS = json.loads((ROOT / "protocols" / "vectors" / "native_frames.json").read_text())
 PROTOCOL_MD = (ROOT / "protocols" / "PROTOCOL.md").read_text()
-
-
-def bounded(max_examples: int) -> settings:
-    return settings(
-        max_examples=max_examples,
-        deadline=None,
-        derandomize=True,
-        suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
-    )
 
 
 # --- independent reference implementations -----------------------------------------------

@@ -19,25 +19,17 @@ from __future__ import annotations
 import json
 from typing import Any
 
-from hypothesis import HealthCheck, example, given, settings
+from hypothesis import example, given
 from hypothesis import strategies as st
 
 from hwbridge.errors import HwBridgeError
 from hwbridge.viz import wsprotocol as wsp
+from tests.strategies import bounded
 
 U32 = st.integers(0, 2**32 - 1)
 U64 = st.integers(0, 2**64 - 1)
 PAYLOADS = st.binary(max_size=64)
 NAMES = st.text(max_size=16)  # st.text never makes lone surrogates: always UTF-8 encodable
-
-
-def bounded(max_examples: int) -> settings:
-    return settings(
-        max_examples=max_examples,
-        deadline=None,
-        derandomize=True,
-        suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
-    )
 
 
 # --- the wire layout, written here independently of the module ------------------------------

@@ -39,6 +39,13 @@ def _key(message: Any) -> _Key:
     return (message.arbitration_id, message.is_extended_id, bytes(message.data))
 
 
+def _drop_stale(sent: deque[float], now: float) -> int:
+    """Forget the sends in ``sent`` older than ECHO_WINDOW; how many are left."""
+    while sent and now - sent[0] > ECHO_WINDOW:
+        sent.popleft()
+    return len(sent)
+
+
 class MulticastGateway(Relay):
     """Carries frames both ways between the in-process bus ``local_channel`` and the
     ``udp_multicast`` group ``group`` (on ``port``), until :meth:`stop`."""
@@ -123,9 +130,7 @@ class MulticastGateway(Relay):
                 if message is None:
                     continue
                 sent = self._sent.get(_key(message))
-                while sent and now - sent[0] > ECHO_WINDOW:
-                    sent.popleft()
-                if sent:
+                if sent and _drop_stale(sent, now):
                     sent.popleft()
                     self.echoes += 1
                     continue
@@ -139,8 +144,5 @@ class MulticastGateway(Relay):
         """Forget frames whose echo never came (every ECHO_WINDOW seconds)."""
         self._next_sweep = now + ECHO_WINDOW
         for key in list(self._sent):
-            sent = self._sent[key]
-            while sent and now - sent[0] > ECHO_WINDOW:
-                sent.popleft()
-            if not sent:
+            if not _drop_stale(self._sent[key], now):
                 del self._sent[key]

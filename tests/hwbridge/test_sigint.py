@@ -15,10 +15,10 @@ between sending and reaping one is added to the deadline.
 
 A signal that lands while the interpreter itself is still starting, before any hwbridge code
 has run, is counted apart ("early") and not failed: it dies by SIGINT's default action with no
-output, or Python reports that its initialization (``site``, the standard streams) was
-interrupted, or prints a KeyboardInterrupt traceback with no frame of ours (runpy, an import
-hook of site-packages). Nothing of ours runs by then; Python's own handling is what a user
-gets.
+output, or Python reports that its initialization (``site``, the standard streams) or its
+import of ``runpy`` for ``-m`` was interrupted, or prints a KeyboardInterrupt traceback with
+no frame of ours (runpy, an import hook of site-packages). Nothing of ours runs by then;
+Python's own handling is what a user gets.
 
 ``HWBRIDGE_SIGINT_TRIALS`` trials per command (default 8; the issue's figure is 50),
 ``HWBRIDGE_SIGINT_JOBS`` at once (default 4), ``HWBRIDGE_SIGINT_SEED`` (default 25). The
@@ -85,6 +85,10 @@ class Outcome:
     def early(self) -> bool:
         """The signal came while the interpreter was still starting (no hwbridge code ran)."""
         if "Fatal Python error: init_" in self.output:  # interrupted in interpreter init
+            return True
+        if self.output.startswith("Could not import runpy module") and (
+            f'File "{ROOT / "hwbridge"}' not in self.output
+        ):  # 'python -m' interrupted while importing runpy itself (status 1)
             return True
         if self.returncode != -signal.SIGINT:
             return False

@@ -268,8 +268,7 @@ class Graph:
         Two sources are merged: a liveliness query, and a liveliness subscriber (with history)
         that this graph keeps from its first snapshot on. A liveliness query from a client has
         been seen to return nothing at all now and then, so the subscriber is the reliable part;
-        on first use it waits until its history has been quiet for ``settle`` seconds (at most
-        ``timeout``).
+        on first use it waits until its history is quiet for ``settle`` s (at most ``timeout``).
         """
         self._start_discovery(timeout, settle)
         found: dict[str, GraphEntity] = {}
@@ -315,8 +314,9 @@ class Graph:
         def on_sample(sample: zenoh.Sample) -> None:
             key = str(sample.key_expr)
             entity = self._parse_entity(key)
-            if entity is not None:
-                call_guarded(callback, key, entity, sample.kind == zenoh.SampleKind.PUT)
+            if entity is not None and not self._closed:
+                alive, closed = sample.kind == zenoh.SampleKind.PUT, lambda: self._closed
+                call_guarded(callback, key, entity, alive, closed=closed)
 
         return self.keep(
             self.session.liveliness().declare_subscriber(

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import hashlib
+import os
 import signal
 import socket
 import subprocess
@@ -15,6 +17,21 @@ def free_port() -> int:
     with socket.socket() as sock:
         sock.bind(("127.0.0.1", 0))
         return int(sock.getsockname()[1])
+
+
+ROS_DOMAIN_SLOTS = 3
+"""Modules that start ROS 2 nodes, each with its own slot: test_ros2, test_ros2_tf, test_sigint."""
+
+
+def ros_domain_id(slot: int) -> str:
+    """A ROS_DOMAIN_ID (10..99) for the module with ``slot`` that no other module of this run
+    uses, on any pytest-xdist worker: the run's id picks a base, the worker an offset from it
+    (two runs at once on one machine may still meet, 1 in 30)."""
+    assert 0 <= slot < ROS_DOMAIN_SLOTS
+    run = os.environ.get("PYTEST_XDIST_TESTRUNUID") or str(os.getpid())
+    worker = int(os.environ.get("PYTEST_XDIST_WORKER", "gw0").removeprefix("gw") or 0)
+    base = int(hashlib.sha256(run.encode()).hexdigest(), 16)
+    return str(10 + ((base + worker) % 30) * ROS_DOMAIN_SLOTS + slot)
 
 
 def wait_until(condition: Callable[[], bool], timeout: float = 10.0, step: float = 0.01) -> bool:

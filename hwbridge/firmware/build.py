@@ -30,6 +30,7 @@ import os
 import re
 import shutil
 import subprocess
+import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -190,24 +191,30 @@ def _core_archive(board: Board, progress: Progress = _no_progress) -> Path:
         return archive
     out.mkdir(parents=True, exist_ok=True)
     log.info("compiling the Arduino core for %s (once; cached in %s)", board.name, out)
-    objects = []
-    for number, source in enumerate(sources, 1):
-        progress(
-            f"[core {number}/{len(sources)}] compiling the Arduino core's {source.name} for "
-            f"{board.name} (once; cached)"
-        )
-        obj = out / (source.name + ".o")
-        if source.suffix == ".c":
-            command = [gcc, *_C_FLAGS, *_flags(board)]
-        elif source.suffix == ".cpp":
-            command = [gpp, *_CPP_FLAGS, *_flags(board)]
-        else:
-            command = [gcc, *_S_FLAGS, *_flags(board)]
-        _run([*command, str(source), "-o", str(obj)], f"compiling the core's {source.name}")
-        objects.append(str(obj))
-    partial = out / "core.a.part"
-    _run([ar, "rcs", str(partial), *objects], "archiving the core")
-    partial.replace(archive)
+    # Objects and archive in a folder of this process: two first builds at once (two terminals,
+    # parallel tests) each compile their own, and the archive is put in place atomically.
+    work = Path(tempfile.mkdtemp(prefix="build.", dir=out))
+    try:
+        objects = []
+        for number, source in enumerate(sources, 1):
+            progress(
+                f"[core {number}/{len(sources)}] compiling the Arduino core's {source.name} for "
+                f"{board.name} (once; cached)"
+            )
+            obj = work / (source.name + ".o")
+            if source.suffix == ".c":
+                command = [gcc, *_C_FLAGS, *_flags(board)]
+            elif source.suffix == ".cpp":
+                command = [gpp, *_CPP_FLAGS, *_flags(board)]
+            else:
+                command = [gcc, *_S_FLAGS, *_flags(board)]
+            _run([*command, str(source), "-o", str(obj)], f"compiling the core's {source.name}")
+            objects.append(str(obj))
+        partial = work / "core.a"
+        _run([ar, "rcs", str(partial), *objects], "archiving the core")
+        partial.replace(archive)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
     return archive
 
 

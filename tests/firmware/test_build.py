@@ -81,16 +81,28 @@ def test_a_missing_toolchain_names_the_debian_packages(
 
 def test_the_cli_builds_and_measures(tmp_path: Path) -> None:
     folder = sketch(tmp_path, "Blink", BLINK)
+    other = sketch(tmp_path, "Other", BLINK)
     env = {**os.environ, "XDG_CACHE_HOME": str(tmp_path / "cache")}  # the core built afresh
-    built = subprocess.run(
-        [sys.executable, "-m", "hwbridge", "firmware", "build", str(folder), "--board", "uno"],
-        capture_output=True,
-        text=True,
-        timeout=300,
-        check=False,
-        env=env,
-    )
+
+    def build(sketch_folder: Path) -> subprocess.Popen[str]:
+        command = [sys.executable, "-m", "hwbridge", "firmware", "build", str(sketch_folder)]
+        return subprocess.Popen(
+            [*command, "--board", "uno"],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            env=env,
+        )
+
+    # two first builds at once (two terminals, parallel CI jobs) share the core's cache entry
+    first, second = build(folder), build(other)
+    out, err = first.communicate(timeout=300)
+    built = subprocess.CompletedProcess(first.args, first.wait(), out, err)
+    out, err = second.communicate(timeout=300)
+    assert second.returncode == 0, err
     assert built.returncode == 0, built.stderr
+    cached = list((tmp_path / "cache" / "hwbridge" / "arduino-core").iterdir())
+    assert [sorted(p.name for p in entry.iterdir()) for entry in cached] == [["core.a"]]
     assert "flash" in built.stdout and "SRAM" in built.stdout
     # progress on stderr, a line per step: the core's files once (a fresh cache), then the
     # sketch, each library file, the link

@@ -23,9 +23,9 @@ from hwbridge.errors import HwBridgeError
 from hwbridge.gateway.ros2 import ros2_environment
 from hwbridge.graph import Graph
 from tests.gateway.harness import PEER, Robot, odom_x
-from tests.netutil import wait_until
+from tests.netutil import ros_domain_id, wait_until
 
-DOMAIN_ID = str(10 + os.getpid() % 90)
+DOMAIN_ID = ros_domain_id(0)
 
 
 def ros2_env(domain: str = DOMAIN_ID) -> dict[str, str]:

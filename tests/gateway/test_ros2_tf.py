@@ -24,8 +24,9 @@ from hwbridge import msg
 from hwbridge.graph import Graph
 from tests.gateway.harness import PEER, Robot
 from tests.gateway.test_ros2 import rclpy_problem, ros2_env
+from tests.netutil import ros_domain_id
 
-DOMAIN_ID = str(10 + (os.getpid() + 45) % 90)  # not test_ros2's, should both run at once
+DOMAIN_ID = ros_domain_id(1)  # not test_ros2's: both may run at once
 ROS2_TF_HASH = "RIHS01_e369d0f05a23ae52508854b66f6aa0437f3449d652e8cbf22d5abe85d020f087"
 """tf2_msgs/msg/TFMessage's type hash in ROS 2 (Jazzy and later): what RViz and Nav2 expect."""
 

@@ -21,7 +21,8 @@ no frame of ours (runpy, an import hook of site-packages). Nothing of ours runs 
 Python's own handling is what a user gets.
 
 ``HWBRIDGE_SIGINT_TRIALS`` trials per command (default 8; the issue's figure is 50),
-``HWBRIDGE_SIGINT_JOBS`` at once (default 4), ``HWBRIDGE_SIGINT_SEED`` (default 25). The
+``HWBRIDGE_SIGINT_JOBS`` at once (default 4), ``HWBRIDGE_SIGINT_SEED`` (default 25),
+``HWBRIDGE_SIGINT_ONLY`` a comma-separated list of the commands to try (default all). The
 summary (trials, early, failures, largest exit latency, forced exits per command) is printed;
 run with ``-s`` to see it.
 """
@@ -44,7 +45,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.netutil import free_port, wait_until
+from tests.netutil import free_port, ros_domain_id, wait_until
 
 PROMISE = 2.0
 """Seconds from SIGINT to exit: the requirement under test."""
@@ -52,6 +53,9 @@ PROMISE = 2.0
 TRIALS = int(os.environ.get("HWBRIDGE_SIGINT_TRIALS", "8"))
 JOBS = int(os.environ.get("HWBRIDGE_SIGINT_JOBS", "4"))
 SEED = int(os.environ.get("HWBRIDGE_SIGINT_SEED", "25"))
+ONLY = {
+    name.strip() for name in os.environ.get("HWBRIDGE_SIGINT_ONLY", "").split(",") if name.strip()
+}
 HUNG = 20.0
 """A trial still running this long after its signal is killed and counted as hung."""
 
@@ -245,7 +249,7 @@ def commands(
         else:
             missing.append("ros1 (no roscore)")
         if _has_rclpy():
-            ros_domain = str(100 + os.getpid() % 100)
+            ros_domain = ros_domain_id(2)
             found.append(Command("ros2", ["ros2"], 4.0, {"ROS_DOMAIN_ID": ros_domain}))
         else:
             missing.append("ros2 (no rclpy)")
@@ -254,6 +258,10 @@ def commands(
             found.append(Command("firmware sim", ["firmware", "sim", str(elf)], 1.0))
         else:
             missing.append("firmware sim (no avr-gcc or simavr)")
+        if ONLY:
+            unknown = ONLY - {command.name for command in found}
+            assert not unknown, f"HWBRIDGE_SIGINT_ONLY names no command here: {sorted(unknown)}"
+            found = [command for command in found if command.name in ONLY]
         yield found, ", ".join(missing), env
     finally:
         helpers.stop()

@@ -30,6 +30,7 @@ from hwbridge.cli import stopping
 from hwbridge.cli.common import Context
 from hwbridge.cli.shell import ClickException, Command, Group, UsageError, adopt
 from hwbridge.errors import HwBridgeError
+from hwbridge.heap import keep_the_heap_small
 
 __all__ = ["COMMANDS", "LazyCommand", "build_app", "main"]
 
@@ -266,6 +267,7 @@ def main(argv: list[str] | None = None) -> int:
     :mod:`hwbridge.cli.stopping`); after one, it does not return: the process ends with the
     status once stdout and stderr are flushed."""
     restore: Callable[[], None] | None = None
+    keep_the_heap_small()  # before any thread allocates: see hwbridge.heap
     try:
         restore = stopping.install()
         code = _run(argv)

@@ -261,14 +261,7 @@ def on_signal(callback: Callable[[], None]) -> Iterator[None]:
 
 
 def wait_for_stop() -> None:
-    """Block until SIGINT or SIGTERM (the steady state of ``connect``, ``up``, ``viz``...),
-    giving freed heap memory back to the system every so often meanwhile
-    (:mod:`hwbridge.heap`: without it a burst's peak stays resident for the process's life)."""
-    from hwbridge.heap import RELEASE_EVERY, release_free_memory
-
-    release_at = time.monotonic() + RELEASE_EVERY
+    """Block until SIGINT or SIGTERM (the steady state of ``connect``, ``up``, ``viz``...)."""
     with shielded():
         while not STOP.wait(0.25):
-            if time.monotonic() >= release_at:
-                release_free_memory()
-                release_at = time.monotonic() + RELEASE_EVERY
+            pass

@@ -184,7 +184,7 @@ def test_soak_bench_counts_every_message_and_prints_samples_and_a_summary() -> N
     assert summary["published"] > 0 and summary["refused_by_board"] == 0
     assert summary["reliable_lost"] == 0 and summary["best_effort_lost"] == 0
     assert summary["calls"] > 0 and summary["calls_failed"] == 0
-    for key in ("p50_ms", "p99_ms", "cpu_cores", "rss_growth_pct", "messages_per_s"):
+    for key in ("p50_ms", "p99_ms", "cpu_cores", "rss_growth_pct", "messages_per_s", "drain_s"):
         assert isinstance(summary[key], float), key
     assert set(summary["acceptance"]) == {
         "below_one_core",

@@ -254,6 +254,30 @@ def test_no_import_cycles() -> None:
     )
 
 
+BRIDGE = f"{PACKAGE}.bridge"
+BRIDGE_OWNERS = {BRIDGE, f"{BRIDGE}.core", f"{BRIDGE}.board"}
+"""The bridge modules that may see the board connection: the package (it re-exports it), the
+bridge that creates the connections, and the connection's own module."""
+
+
+def test_bridge_parts_never_see_their_owner() -> None:
+    """The session adapter and the endpoints get a port from the board's connection and never
+    import it, not even for types (``TYPE_CHECKING``), nor through the package that re-exports
+    it: the bridge's parts have no import circle to hide."""
+    modules = _graph()
+    owner = {f"{BRIDGE}.board", BRIDGE}
+    offending = [
+        f"  {module.name} imports {target}"
+        for module in modules.values()
+        if module.name.startswith(f"{BRIDGE}.") and module.name not in BRIDGE_OWNERS
+        for target in sorted((module.runtime | module.lazy | module.typing) & owner)
+    ]
+    assert {f"{BRIDGE}.adapter", f"{BRIDGE}.endpoints"} <= set(modules)
+    assert not offending, "only hwbridge.bridge.core may use the board's connection:\n" + (
+        "\n".join(offending)
+    )
+
+
 def _line_count(path: Path) -> int:
     with path.open("rb") as file:
         return sum(1 for _ in file)

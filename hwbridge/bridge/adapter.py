@@ -8,18 +8,17 @@ protocol's subclass of an event is handled as the event it extends) and turns it
 
 from __future__ import annotations
 
-import logging
 import time
 from collections.abc import Callable, Iterable
 from typing import TYPE_CHECKING, Any
 
 from hwbridge.bridge.endpoints import BoardEndpoints
+from hwbridge.bridge.port import BoardPort
 from hwbridge.errors import HwBridgeError, LinkError
 from hwbridge.graph import ParamError
 from hwbridge.protocols import base
 
 if TYPE_CHECKING:
-    from hwbridge.bridge.board import BoardConnection
     from hwbridge.protocols.registry import ProtocolSpec
 
 __all__ = ["SessionAdapter"]
@@ -46,19 +45,20 @@ def _call_on(channel: int) -> Callable[[base.BoardSession, bytes, float], int]:
 
 
 class SessionAdapter:
-    """Maps the events of one board's session onto the graph, and graph traffic onto it."""
+    """Maps the events of one board's session onto the graph, and graph traffic onto it.
 
-    def __init__(
-        self, board: BoardConnection, spec: ProtocolSpec, session: base.BoardSession
-    ) -> None:
-        self.board = board
+    All it uses of the board is ``port`` (built by the board's connection for this session).
+    """
+
+    def __init__(self, port: BoardPort, spec: ProtocolSpec, session: base.BoardSession) -> None:
+        self.port = port
         self.protocol = spec.name
         self.session_per_peer = spec.session_per_peer
         """A listening link gives each peer a new session (rosserial) rather than one session
         across peers (native boards resume theirs through HELLOs)."""
         self.session = session
-        self.log = logging.getLogger(f"hwbridge.board.{board.name}")
-        self.endpoints = BoardEndpoints.for_board(board, self.log)
+        self.log = port.log
+        self.endpoints = self._new_endpoints()
         self.channels: dict[int, base.Endpoint] = {}
         """The board's endpoints by channel (as last announced)."""
         self._forward: dict[int, Callable[[bytes], None]] = {}
@@ -81,7 +81,11 @@ class SessionAdapter:
             base.TimeSynced: self._on_time_synced,
             base.Disconnected: self._on_disconnected,
         }
-        self._stop_listening = board.bridge.params.on_update(self._on_param_changed)
+        port.listen_params(self._on_param_changed)
+
+    def _new_endpoints(self) -> BoardEndpoints:
+        port = self.port
+        return BoardEndpoints(port.node, port.name, self.log, port.service_timeout)
 
     # ------------------------------------------------------------------ info
     def topics(self) -> dict[str, Any]:
@@ -96,7 +100,7 @@ class SessionAdapter:
     def report_losses(self, now: float) -> None:
         """Warn (once per kind of loss and :data:`LOSS_REPORT_INTERVAL`) about data the session
         counted as dropped since the last report, so a user whose messages vanish sees why."""
-        counters = self.board.pump.call(lambda s: s.counters().as_dict())
+        counters = self.port.call(lambda s: s.counters().as_dict())
         for key, value in counters.items():
             if not isinstance(value, int) or (
                 key not in _LOSSES and not any(word in key for word in _LOSS_WORDS)
@@ -108,7 +112,7 @@ class SessionAdapter:
             self._loss_seen[key], self._loss_said[key] = value, now
             self.log.warning(
                 "%s: %d more %s (%d in all): %s",
-                self.board.name,
+                self.port.name,
                 value - before,
                 key,
                 value,
@@ -144,12 +148,12 @@ class SessionAdapter:
             self._declare(endpoint)
         self._withdraw_others(event.endpoints, before)
         self._wire_publishers()
-        self.board.set_state("connected", board=event.board_name or None, resumed=event.resumed)
+        self.port.set_state("connected", board=event.board_name or None, resumed=event.resumed)
         if not self._announced:
             self._announced = True
             self.log.info(
                 "%s: board %sconnected (%s%s): %s",
-                self.board.name,
+                self.port.name,
                 f"{event.board_name!r} " if event.board_name else "",
                 self.protocol,
                 ", session resumed" if event.resumed else "",
@@ -162,7 +166,7 @@ class SessionAdapter:
         """A session that negotiates again without ending (a rosserial board that reset and
         answered the next "request topics" with another table): what the board no longer has
         leaves the graph, and the log says what changed."""
-        keep = {self.board.resolve(e.name) for e in endpoints}
+        keep = {self.port.resolve(e.name) for e in endpoints}
         gone = self.endpoints.withdraw_all_but(keep)
         if not self._announced or not gone:
             return
@@ -175,7 +179,7 @@ class SessionAdapter:
         self.log.warning(
             "%s: the board negotiated again with another table (it reset or was flashed): "
             "gone %s%s",
-            self.board.name,
+            self.port.name,
             ", ".join(gone),
             f"; new {', '.join(added)}" if added else "",
         )
@@ -186,7 +190,7 @@ class SessionAdapter:
             self._wire_publishers()
 
     def _declare(self, endpoint: base.Endpoint) -> None:
-        name = self.board.resolve(endpoint.name)
+        name = self.port.resolve(endpoint.name)
         self.channels[endpoint.channel] = endpoint
         kind = endpoint.kind
         if kind == base.EntryKind.PUBLISHER:
@@ -194,7 +198,9 @@ class SessionAdapter:
         elif kind == base.EntryKind.SUBSCRIBER:
             self.endpoints.subscribe(name, endpoint.type_name, self._deliver(endpoint.channel))
         elif kind == base.EntryKind.SERVICE_SERVER:
-            self.endpoints.serve(name, endpoint.type_name, self.board, _call_on(endpoint.channel))
+            self.endpoints.serve(
+                name, endpoint.type_name, self.port.call, _call_on(endpoint.channel)
+            )
         # SERVICE_CLIENT endpoints need nothing until the board calls (ServiceRequest).
 
     def _wire_publishers(self) -> None:
@@ -203,14 +209,14 @@ class SessionAdapter:
         publishers = self.endpoints.publishers
         for channel, endpoint in self.channels.items():
             if endpoint.kind == base.EntryKind.PUBLISHER:
-                publisher = publishers.get(self.board.resolve(endpoint.name))
+                publisher = publishers.get(self.port.resolve(endpoint.name))
                 if publisher is not None:
                     self._forward[channel] = publisher.publish_raw
 
     def _deliver(self, channel: int) -> Callable[[bytes], None]:
         def deliver(data: bytes) -> None:
-            if not self.board.pump.call(lambda s: s.publish(channel, data)):
-                self.log.warning("%s: message to channel %d not sent", self.board.name, channel)
+            if not self.port.call(lambda s: s.publish(channel, data)):
+                self.log.warning("%s: message to channel %d not sent", self.port.name, channel)
 
         return deliver
 
@@ -229,73 +235,74 @@ class SessionAdapter:
         endpoint = self.channels.get(event.channel)
         if endpoint is None:
             self.log.warning(
-                "%s: board called a service on unknown channel %d", self.board.name, event.channel
+                "%s: board called a service on unknown channel %d", self.port.name, event.channel
             )
             return
-        channel, request_id, pump = event.channel, event.request_id, self.board.pump
+        channel, request_id, call = event.channel, event.request_id, self.port.call
 
         def answer(response: bytes) -> None:
-            pump.call(lambda s: s.respond_service(channel, request_id, response))
+            call(lambda s: s.respond_service(channel, request_id, response))
 
         def refuse(reason: str) -> None:  # the board's call fails now, where it can be told
-            pump.call(lambda s: s.respond_service(channel, request_id, error=reason))
+            call(lambda s: s.respond_service(channel, request_id, error=reason))
 
         self.endpoints.call_graph_service(
-            self.board.resolve(endpoint.name), endpoint.type_name, event.payload, answer, refuse
+            self.port.resolve(endpoint.name), endpoint.type_name, event.payload, answer, refuse
         )
 
     def _on_param_request(self, event: base.ParamRequest) -> None:
-        name = self.board.resolve(event.name)
+        name = self.port.resolve(event.name)
         if event.subscribe:
             self.param_names[name] = event.name
         try:
-            value = self.board.bridge.get_param(name)
+            value = self.port.get_param(name)
         except ParamError:
-            self.log.warning("%s: board asked for missing parameter %s", self.board.name, name)
+            self.log.warning("%s: board asked for missing parameter %s", self.port.name, name)
             value = None
         try:
-            self.board.pump.call(lambda s: s.answer_param(event.request_id, value))
+            self.port.call(lambda s: s.answer_param(event.request_id, value))
         except HwBridgeError as exc:
-            self.log.error("%s: cannot answer parameter %s: %s", self.board.name, name, exc)
+            self.log.error("%s: cannot answer parameter %s: %s", self.port.name, name, exc)
 
     def _on_param_changed(self, name: str, value: Any) -> None:
         board_name = self.param_names.get(name)
-        if board_name is None or value is None or self.board.adapter is not self:
+        if board_name is None or value is None:  # (the port calls no listener once closed)
             return
         try:
-            self.board.pump.call(lambda s: s.push_param(board_name, value))
+            self.port.call(lambda s: s.push_param(board_name, value))
         except HwBridgeError as exc:
-            self.log.error("%s: cannot push parameter %s: %s", self.board.name, name, exc)
+            self.log.error("%s: cannot push parameter %s: %s", self.port.name, name, exc)
 
     # ------------------------------------------------------------------ reports
     def _on_log(self, event: base.Log) -> None:
         self.endpoints.log_line(int(event.level), event.text)
 
     def _on_debug_output(self, event: base.DebugOutput) -> None:
-        self.log.info("%s: board printed %r", self.board.name, bytes(event.data))
+        self.log.info("%s: board printed %r", self.port.name, bytes(event.data))
 
     def _on_error(self, event: base.Error) -> None:
-        self.log.error("%s: %s", self.board.name, event.error)
+        self.log.error("%s: %s", self.port.name, event.error)
 
     def _on_time_synced(self, event: base.TimeSynced) -> None:
         self.log.debug(
-            "%s: time offset %.6f s, rtt %.3f ms", self.board.name, event.offset, event.rtt * 1e3
+            "%s: time offset %.6f s, rtt %.3f ms", self.port.name, event.offset, event.rtt * 1e3
         )
 
     def _on_disconnected(self, event: base.Disconnected) -> None:
-        self.log.warning("%s: session ended (%s); negotiating again", self.board.name, event.reason)
+        self.log.warning("%s: session ended (%s); negotiating again", self.port.name, event.reason)
         self.endpoints.close(event.error)
-        self.endpoints = BoardEndpoints.for_board(self.board, self.log)
+        self.endpoints = self._new_endpoints()
         self.channels.clear()
         self._forward.clear()
         self._announced = False
-        self.board.set_state("negotiating")
+        self.port.set_state("negotiating")
 
     # ------------------------------------------------------------------ end
     def close(self, reason: HwBridgeError) -> list[bytes]:
         """Take the board's endpoints off the graph; returns a goodbye to write if the link
-        lives (one item per write)."""
-        self._stop_listening()
+        lives (one item per write). The session's parameter listeners go with the port (the
+        board's connection closes it too, should this never run)."""
+        self.port.close()
         self.endpoints.close(reason)
         if isinstance(reason, LinkError):
             return []

@@ -26,9 +26,10 @@ import threading
 import time
 from collections.abc import Callable
 from pathlib import PurePosixPath
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypeVar
 
 from hwbridge.bridge.adapter import SessionAdapter
+from hwbridge.bridge.port import BoardPort
 from hwbridge.errors import HwBridgeError, LinkError
 from hwbridge.graph import Node, resolve_name
 from hwbridge.graph.names import encode_segment
@@ -71,6 +72,8 @@ _MAX_RECONNECT_DELAY = 10.0
 _PROBE_FIRST = 0.1
 _PROBE_MAX = 1.0
 """Seconds between probes of a silent board: the first gap, doubling up to the last."""
+
+T = TypeVar("T")
 
 
 def check_service_timeout(seconds: float) -> float:
@@ -172,6 +175,20 @@ class BoardConnection:
     def set_state(self, state: str, **detail: Any) -> None:
         self.state = state
         self.state_detail = detail
+
+    def _port(self, call: _SessionCall) -> BoardPort:
+        """What the adapter of a new session gets of this board (it calls in through ``call``)."""
+        return BoardPort(
+            name=self.name,
+            log=self.log,
+            node=self.node,
+            service_timeout=self.spec.service_timeout,
+            call=call,
+            resolve=self.resolve,
+            set_state=self.set_state,
+            get_param=self.bridge.get_param,
+            on_param_update=self.bridge.params.on_update,
+        )
 
     # ------------------------------------------------------------------ info
     def info(self) -> dict[str, Any]:
@@ -317,8 +334,21 @@ class BoardConnection:
                 start_delay=self.spec.start_delay,
             )
         )
-        adapter = SessionAdapter(self, spec, session)
+        call = _SessionCall(self.name, lambda: self._pump)
+        port = self._port(call)
+        adapter = SessionAdapter(port, spec, session)
         self.adapter = adapter
+        try:
+            self._run_session(link, adapter, call, early)
+        finally:
+            port.close()  # the session's parameter listeners end with it, however it ended
+
+    def _run_session(
+        self, link: Link, adapter: SessionAdapter, call: _SessionCall, early: list[bytes]
+    ) -> None:
+        """Pump ``adapter``'s session (``early``: what the board sent before it) until it ends or
+        the board is stopped."""
+        session = adapter.session
         done = threading.Event()
         exit_error: list[BaseException | None] = []
 
@@ -334,7 +364,7 @@ class BoardConnection:
             on_exit=on_exit,
             end_with_peer=adapter.session_per_peer,
         )
-        self._pump = pump
+        self._pump = call.pump = pump
         self.connects += 1
         self.set_state("negotiating")
         for chunk in early:
@@ -441,6 +471,23 @@ class BoardConnection:
                 self.log.info("%s: a datagram link; speaking %s", self.name, spec.name)
                 return spec
         raise UnknownProtocolError("no registered protocol runs on datagram links")
+
+
+class _SessionCall:
+    """The port's ``call`` of one session (:class:`~hwbridge.bridge.port.SessionCall`): into that
+    session's pump while it is the board's live one, HwBridgeError before and after."""
+
+    def __init__(self, board_name: str, live: Callable[[], SessionPump | None]) -> None:
+        self._board_name = board_name
+        self._live = live
+        self.pump: SessionPump | None = None
+        """The session's pump, once it exists."""
+
+    def __call__(self, action: Callable[[BoardSession], T], /) -> T:
+        pump = self.pump
+        if pump is None or pump is not self._live():
+            raise HwBridgeError(f"board {self._board_name} is not connected")
+        return pump.call(action)
 
 
 class _Received:

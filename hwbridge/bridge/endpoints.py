@@ -18,7 +18,8 @@ from hwbridge.errors import HwBridgeError, HwBridgeTimeoutError
 from hwbridge.graph import DeferredReply, Node, Publisher, RawMessage, ServiceServer, Subscriber
 
 if TYPE_CHECKING:
-    from hwbridge.bridge.board import BoardConnection
+    from hwbridge.bridge.port import SessionCall
+    from hwbridge.protocols.base import BoardSession
 
 __all__ = ["BOARD_LOG", "ROSOUT_LEVELS", "BoardEndpoints", "PendingCalls"]
 
@@ -104,11 +105,6 @@ class BoardEndpoints:
         self._rosout: Publisher | None = None
         self._closed = False
 
-    @classmethod
-    def for_board(cls, board: BoardConnection, logger: logging.Logger) -> BoardEndpoints:
-        """Endpoints for a new session of ``board``, with its spec's service timeout."""
-        return cls(board.node, board.name, logger, board.spec.service_timeout)
-
     # ------------------------------------------------------------------ board -> graph
     def advertise(self, topic: str, type_name: str, md5: str) -> Publisher:
         """A topic the board publishes (declared once per name); the adapters hand the board's
@@ -140,20 +136,20 @@ class BoardEndpoints:
         self,
         name: str,
         srv_type: str,
-        board: BoardConnection,
-        send: Callable[[Any, bytes, float], int],
+        call: SessionCall,
+        send: Callable[[BoardSession, bytes, float], int],
     ) -> None:
         """A service the board serves. Each graph call runs ``send(session, request, timeout)``
-        under the board's pump lock: it sends the request, to be answered within ``timeout``
-        seconds (the bridge's service timeout), and returns the session's request id, under
-        which the caller's reply is registered before the lock is let go, so the board's answer
-        (read by the pump thread, which resolves the reply) always finds it."""
+        through ``call``, under the session's pump lock: it sends the request, to be answered
+        within ``timeout`` seconds (the bridge's service timeout), and returns the session's
+        request id, under which the caller's reply is registered before the lock is let go, so
+        the board's answer (read by the pump thread, which resolves the reply) always finds it."""
         if name in self.servers:
             return
         pending, timeout = self.pending, self.service_timeout
 
         def start(request: bytes, reply: DeferredReply) -> None:
-            board.pump.call(lambda session: pending.add(send(session, request, timeout), reply))
+            call(lambda session: pending.add(send(session, request, timeout), reply))
 
         self.servers[name] = self.node.deferred_service(name, srv_type, start)
 

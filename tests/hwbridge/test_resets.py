@@ -14,6 +14,8 @@ from pathlib import Path
 import pytest
 
 from hwbridge.bridge import BoardSpec, Bridge
+from hwbridge.bridge.adapter import SessionAdapter
+from hwbridge.errors import HwBridgeError
 from hwbridge.graph import Graph
 from hwbridge.protocols.rosserial import RosserialDevice
 from tests.boards import PtyBoard, chatter, rosserial_sketch, wait_for
@@ -42,6 +44,29 @@ def test_parameter_listeners_do_not_pile_up_across_board_sessions(
             assert params.listener_count == 0
         params.set("/speed", 1.5)  # nobody listens: no dead adapter tries to push it
     assert "cannot push parameter" not in caplog.text
+
+
+def test_a_session_ends_its_parameter_listener_even_if_its_adapter_forgets_to(
+    caplog: pytest.LogCaptureFixture, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The adapter listens through its port, and the board's connection closes the port when
+    the session ends: an adapter whose close leaves its port open (a regression of the kind
+    that leaked a listener per session) still leaves no listener behind."""
+
+    def forgetful_close(adapter: SessionAdapter, reason: HwBridgeError) -> list[bytes]:
+        adapter.endpoints.close(reason)
+        return []
+
+    monkeypatch.setattr(SessionAdapter, "close", forgetful_close)
+    port = free_port()
+    with bridge_on(f"tcp-listen://127.0.0.1:{port}", "rosserial", caplog) as bridge:
+        listener(bridge)
+        params = bridge.params
+        for _ in range(3):
+            with board_on(f"socket://127.0.0.1:{port}", rosserial_sketch()):
+                assert wait_for(lambda: "/chatter" in serves(bridge), PROMPT), caplog.text
+                assert params.listener_count == 1
+            assert wait_for(lambda: params.listener_count == 0, PROMPT), params.listener_count
 
 
 def test_a_rosserial_board_reflashed_with_other_topics_leaves_no_stale_topic(

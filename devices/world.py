@@ -1,8 +1,8 @@
 """Small shared physics helpers for the device models: constants, planar poses, yaw quaternions.
 
 Kept minimal on purpose: the full world model (obstacles, beams, bodies) is built on top of these
-and of the device models in :mod:`hwbridge.devices.encoders`, :mod:`hwbridge.devices.ultrasonic`
-and :mod:`hwbridge.devices.imu`.
+and of the device models in :mod:`hwbridge.devices.diffdrive.encoders`,
+:mod:`hwbridge.devices.ultrasonic.hcsr04` and :mod:`hwbridge.devices.imu`.
 """
 
 from __future__ import annotations

@@ -13,11 +13,21 @@ package, ``hwbridge.protocols`` and ``hwbridge.devices`` included (through the s
 ``from a.b import c`` is an edge to ``a.b.c`` when that is a module, else to ``a.b``. The parent
 packages that Python initialises on the way (``a``, ``a.b``) are not edges, as in import-linter
 and pydeps: a package ``__init__`` that re-exports its submodules is not a cycle.
+
+The same edges, taken between folders (``hwbridge.emulator``, ``hwbridge.devices``, and each
+module directly in ``hwbridge/`` on its own), must make no cycle either: the layers of
+docs/design.md. A ``__main__`` module is a program that ``python -m`` runs and nothing imports,
+so its imports are left out of that graph (``hwbridge.firmware.sim``'s runs the CLI's command).
+
+A device is one folder: each built-in device type's plugin lives in a folder of its own under
+``devices/``, and no module outside that folder names the type in a string (the registry's list
+of built-ins aside).
 """
 
 from __future__ import annotations
 
 import ast
+import importlib
 import importlib.util
 import itertools
 import os
@@ -275,6 +285,142 @@ def test_bridge_parts_never_see_their_owner() -> None:
     assert {f"{BRIDGE}.adapter", f"{BRIDGE}.endpoints"} <= set(modules)
     assert not offending, "only hwbridge.bridge.core may use the board's connection:\n" + (
         "\n".join(offending)
+    )
+
+
+def _folder(module: str) -> str:
+    """The folder a module belongs to: ``hwbridge.emulator.world`` -> ``hwbridge.emulator``."""
+    return ".".join(module.split(".")[:2])
+
+
+def _folder_graph(modules: dict[str, Module]) -> dict[str, Module]:
+    """The import graph between folders; each folder's edges keep one module edge per target
+    (in ``imported``, as ``"source -> target"``) to show in a failure."""
+    folders: dict[str, Module] = {}
+    for module in modules.values():
+        source = _folder(module.name)
+        folder = folders.setdefault(source, Module(source, module.path, is_package=True))
+        if module.name.rpartition(".")[2] == "__main__":
+            continue
+        for target in sorted(_edges(module)):
+            into = _folder(target)
+            if into == source:
+                continue
+            if target in module.runtime:
+                folder.runtime.add(into)
+                folder.lazy.discard(into)
+            elif into not in folder.runtime:
+                folder.lazy.add(into)
+            folder.imported.add(f"{module.name} -> {target}")
+    return folders
+
+
+def _folder_edge(folders: dict[str, Module], source: str, target: str) -> str:
+    for edge in sorted(folders[source].imported):
+        if _folder(edge.rpartition(" -> ")[2]) == target:
+            return edge
+    return f"{source} -> {target}"  # not reached for an edge of the graph
+
+
+def test_folder_graph_finds_a_cycle_through_a_function_level_import() -> None:
+    modules = {
+        name: Module(name, Path(name), is_package=False)
+        for name in ("hwbridge.a.x", "hwbridge.b.y", "hwbridge.b.__main__", "hwbridge.c")
+    }
+    modules["hwbridge.a.x"].runtime = {"hwbridge.b.y"}
+    modules["hwbridge.b.y"].lazy = {"hwbridge.a.x"}
+    modules["hwbridge.b.__main__"].runtime = {"hwbridge.c"}  # a program: no edge
+    modules["hwbridge.c"].runtime = {"hwbridge.b.y"}
+    folders = _folder_graph(modules)
+    assert _cycles(folders) == [["hwbridge.a", "hwbridge.b", "hwbridge.a"]]
+    assert _folder_edge(folders, "hwbridge.b", "hwbridge.a") == "hwbridge.b.y -> hwbridge.a.x"
+
+
+def test_no_import_cycles_between_folders() -> None:
+    folders = _folder_graph(_graph())
+    cycles = _cycles(folders)
+    assert not cycles, "import cycles between folders (TYPE_CHECKING imports aside):\n" + "\n".join(
+        "  "
+        + _describe_cycle(folders, cycle)
+        + "\n"
+        + "".join(
+            f"    {_folder_edge(folders, source, target)}\n"
+            for source, target in itertools.pairwise(cycle)
+        )
+        for cycle in cycles
+    )
+
+
+DEVICES = ROOT / PACKAGE / "devices"
+"""Where built-in devices live (through the symlink, as the import graph names them)."""
+REGISTRY = ROOT / PACKAGE / "robot" / "registry.py"
+BUILTIN_LIST = "BUILTIN_DEVICES"
+"""The registry's one list of the built-in device types, the one place besides their folders
+that names them."""
+
+
+def _builtin_devices() -> dict[str, str]:
+    registry = importlib.import_module(f"{PACKAGE}.robot.registry")
+    builtin: dict[str, str] = getattr(registry, BUILTIN_LIST)
+    return builtin
+
+
+def _device_folders(modules: dict[str, Module]) -> dict[str, Path]:
+    """Each built-in device type's folder: the one its plugin's module is in (``devices/``
+    itself, for a plugin not in a folder of its own)."""
+    folders = {}
+    for name, target in sorted(_builtin_devices().items()):
+        module = modules[target.partition(":")[0]]
+        folders[name] = module.path.parent
+    return folders
+
+
+def test_each_builtin_device_has_a_folder_of_its_own() -> None:
+    outside = [
+        f"  {name}: {folder.relative_to(ROOT)}"
+        for name, folder in _device_folders(_graph()).items()
+        if folder.parent != DEVICES
+    ]
+    assert not outside, "device plugins outside a folder devices/<device>/:\n" + "\n".join(outside)
+
+
+def _string_literals(tree: ast.Module) -> Iterator[tuple[ast.Constant, bool]]:
+    """Every string constant, with whether it is in the registry's list of built-ins."""
+
+    def visit(node: ast.AST, in_list: bool) -> Iterator[tuple[ast.Constant, bool]]:
+        for child in ast.iter_child_nodes(node):
+            if isinstance(child, ast.Constant) and isinstance(child.value, str):
+                yield child, in_list
+            listing = isinstance(child, ast.Assign | ast.AnnAssign) and any(
+                isinstance(target, ast.Name) and target.id == BUILTIN_LIST
+                for target in (child.targets if isinstance(child, ast.Assign) else [child.target])
+            )
+            yield from visit(child, in_list or listing)
+
+    yield from visit(tree, in_list=False)
+
+
+def test_no_module_names_a_device_type_outside_its_folder() -> None:
+    """Modules of hwbridge (protocols/ and devices/ through the symlinks) and tools/; tests and
+    docs may name device types."""
+    folders = _device_folders(_graph())
+    paths = [path for _, path, _ in _walk_package(ROOT / PACKAGE, PACKAGE)]
+    paths += sorted((ROOT / "tools").rglob("*.py"))
+    named = []
+    for path in paths:
+        tree = ast.parse(path.read_text(encoding="utf-8"), str(path))
+        for node, in_list in _string_literals(tree):
+            if node.value not in folders:
+                continue
+            folder = folders[node.value]
+            if folder.parent == DEVICES and path.is_relative_to(folder):
+                continue
+            if in_list and path == REGISTRY:
+                continue
+            named.append(f"  {path.relative_to(ROOT)}:{node.lineno}: {node.value!r}")
+    assert not named, (
+        "device types named outside their folders (a device is one folder: what names it "
+        "belongs in devices/<device>/):\n" + "\n".join(named)
     )
 
 

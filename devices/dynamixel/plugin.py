@@ -1,5 +1,7 @@
-"""``dynamixel_bus``: a chain of Dynamixel servos on the host's own serial adapter (a U2D2 or
-any USB-TTL/RS-485 adapter), as a device plugin (:mod:`hwbridge.robot.plugin`).
+"""Dynamixel servos as device plugins (:mod:`hwbridge.robot.plugin`): ``dynamixel``, a servo on
+a board's own bus that the board drives (with a pin-level model, :mod:`.pins`), and
+``dynamixel_bus``, a chain of servos on the host's own serial adapter (a U2D2 or any
+USB-TTL/RS-485 adapter).
 
 In a robot file it is a host device with a link of its own::
 
@@ -19,15 +21,113 @@ namespace: ``joint_states``, ``joint_command``, per-joint goal topics, ``torque_
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Mapping
 from typing import Any, ClassVar
 
+from hwbridge import msg
+from hwbridge.devices.common import encode
+from hwbridge.devices.dynamixel import packets
 from hwbridge.devices.dynamixel.bus import DynamixelBus
+from hwbridge.devices.dynamixel.emulator import EmulatedDynamixelBus
 from hwbridge.devices.dynamixel.node import DynamixelNode
+from hwbridge.devices.dynamixel.pins import DynamixelPins
+from hwbridge.devices.dynamixel.tables import find_model
 from hwbridge.errors import HwBridgeError
-from hwbridge.robot.plugin import Closeable, DevicePlugin, Field, HostContext, TopicUse
+from hwbridge.robot.plugin import (
+    Closeable,
+    DevicePlugin,
+    EmulatedBoard,
+    Field,
+    HostContext,
+    PinBoard,
+    PinModel,
+    TopicUse,
+)
 
-__all__ = ["DynamixelBusPlugin"]
+__all__ = ["BoardServoPlugin", "DynamixelBusPlugin"]
+
+
+class BoardServoPlugin(DevicePlugin):
+    """A Dynamixel servo on the board's own bus (its second UART), driven by the board: it
+    publishes the joint's state and takes goal positions itself, so the host needs no node."""
+
+    type = "dynamixel"
+    summary = "a Dynamixel servo the board drives: joint_states, <joint>/goal_position"
+    firmware = "hwbridge/drivers/dynamixel.h: DynamixelBus"
+    fields: ClassVar[tuple[Field, ...]] = (
+        Field("joint", str, "pan", "joint name"),
+        Field("id", int, 1, "servo id", minimum=0, maximum=252),
+        Field("rate", float, 20.0, "joint state readings per second", minimum=0.1),
+        Field("state_topic", str, "joint_states", "board topic of sensor_msgs/JointState"),
+        Field("bus", dict, doc="the board's bus: {protocol, baud, servos: [{id, model}]}"),
+    )
+
+    def emulate(self, settings: Mapping[str, Any], board: EmulatedBoard) -> None:
+        bus = EmulatedDynamixelBus.from_config(settings["bus"])
+        servo_id, joint = int(settings["id"]), str(settings["joint"])
+        protocol = int(settings["bus"].get("protocol", 2))
+        model = find_model(bus.servo(servo_id).model.name)
+        table = model.table
+        world = board.world
+        lock = threading.Lock()
+        bus_time = [0.0]
+
+        def transact(packet: Any) -> Any:
+            now = max(bus_time[0], world.time)
+            reply = bus.feed(packets.encode(packet), now) + bus.advance(now + 0.005)
+            bus_time[0] = now + 0.005
+            return packets.decode(reply, protocol, "status") if reply else None
+
+        address = table["Torque Enable"].address
+        transact(packets.write_packet(protocol, servo_id, address, bytes([1])))
+
+        def read() -> bytes:
+            found = table["Present Position"]
+            with lock:
+                status = transact(
+                    packets.read_packet(protocol, servo_id, found.address, found.size)
+                )
+            ticks = int.from_bytes(status.params, "little", signed=True) if status else 0
+            return encode(
+                board,
+                "sensor_msgs/JointState",
+                {
+                    "header": board.header(""),
+                    "name": [joint],
+                    "position": [model.ticks_to_radians(ticks)],
+                },
+            )
+
+        def on_goal(payload: bytes) -> None:
+            goal = msg.decode(payload, "std_msgs/Float64", board.registry)
+            found = table["Goal Position"]
+            ticks = model.radians_to_ticks(float(goal.data))
+            with lock:
+                transact(
+                    packets.write_packet(
+                        protocol,
+                        servo_id,
+                        found.address,
+                        ticks.to_bytes(found.size, "little", signed=True),
+                    )
+                )
+
+        board.publisher(settings["state_topic"], "sensor_msgs/JointState", settings["rate"], read)
+        board.subscriber(f"{joint}/goal_position", "std_msgs/Float64", on_goal)
+
+    def pin_model(self, settings: Mapping[str, Any], board: PinBoard) -> PinModel | None:
+        if board.pins.dynamixel_uart is None:
+            return None  # no second UART for the bus (an Uno)
+        return DynamixelPins(settings)
+
+    def topics(self, settings: Mapping[str, Any]) -> tuple[TopicUse, ...]:
+        return (
+            TopicUse(settings["state_topic"], "sensor_msgs/JointState", "publishes", "board"),
+            TopicUse(
+                f"{settings['joint']}/goal_position", "std_msgs/Float64", "subscribes", "board"
+            ),
+        )
 
 
 class DynamixelBusPlugin(DevicePlugin):

@@ -2,8 +2,9 @@
 
 Each chip answers on an I2C-like API (``write(reg, data)``, ``read(reg, n)``, register address
 auto-incrementing) and is fed a true state (:class:`ImuTruth`: specific force in the chip frame
-including gravity, angular velocity, temperature, magnetic field). :class:`I2CBus` routes
-transfers by device address, as the board's I2C master would.
+including gravity, angular velocity, temperature, magnetic field). The shared
+:class:`~hwbridge.devices.buses.I2CBus` routes transfers by device address, as the board's I2C
+master would.
 
 Modelled: WHO_AM_I, reset values (the 6050 wakes up asleep, data registers zero and frozen until
 PWR_MGMT_1's SLEEP bit is cleared; the 9250 wakes up awake), DEVICE_RESET, SMPLRT_DIV and the
@@ -26,10 +27,11 @@ from __future__ import annotations
 import math
 import sys
 from dataclasses import dataclass
-from typing import Final, Protocol, SupportsIndex
+from typing import Final, SupportsIndex
 
 import numpy as np
 
+from hwbridge.devices.buses import I2CError, I2CTarget
 from hwbridge.devices.world import STANDARD_GRAVITY
 from hwbridge.errors import HwBridgeError
 
@@ -73,10 +75,6 @@ __all__ = [
     "ChipErrors",
     "ChipSpec",
     "FullScales",
-    "I2CBus",
-    "I2CChip",
-    "I2CError",
-    "I2CTarget",
     "ImuConfigError",
     "ImuError",
     "ImuTruth",
@@ -188,10 +186,6 @@ def gyro_output_rate(dlpf_cfg: int) -> float:
     return 8000.0 if dlpf_cfg in (0, 7) else 1000.0
 
 
-class I2CError(HwBridgeError):
-    """An I2C transfer was not acknowledged (no device at the address, or a bad register)."""
-
-
 @dataclass(frozen=True)
 class ChipSpec:
     """Datasheet figures of one chip model."""
@@ -295,55 +289,6 @@ class ChipErrors:
             gyro_offset=uniform((gyro_max, gyro_max, gyro_max)),
             gyro_scale=uniform((tol, tol, tol)),
         )
-
-
-class I2CTarget(Protocol):
-    """Something answering register transfers at one I2C address."""
-
-    def write(self, reg: int, data: bytes) -> None:
-        """Write ``data`` from register ``reg`` on (auto-increment)."""
-
-    def read(self, reg: int, n: int) -> bytes:
-        """Read ``n`` bytes from register ``reg`` on (auto-increment)."""
-        ...
-
-
-class I2CChip(Protocol):
-    """A chip on the bus: says which target, if any, answers at an address."""
-
-    def i2c_target(self, address: int) -> I2CTarget | None:
-        """The target answering at ``address`` now, or None."""
-
-
-class I2CBus:
-    """Emulated I2C bus: routes register transfers to the chip answering at an address."""
-
-    def __init__(self, *chips: I2CChip) -> None:
-        self._chips: list[I2CChip] = list(chips)
-        self.transfers = 0
-
-    def attach(self, chip: I2CChip) -> None:
-        """Put ``chip`` on the bus."""
-        self._chips.append(chip)
-
-    def _target(self, address: int) -> I2CTarget:
-        self.transfers += 1
-        for chip in self._chips:
-            target = chip.i2c_target(address)
-            if target is not None:
-                return target
-        raise I2CError(
-            f"no acknowledge from I2C address 0x{address:02X}: check wiring, the address pin "
-            "(AD0) and, for an MPU-9250's magnetometer, that bypass mode is enabled"
-        )
-
-    def write(self, address: int, reg: int, data: bytes) -> None:
-        """Write ``data`` to registers from ``reg`` of the device at ``address``."""
-        self._target(address).write(reg, bytes(data))
-
-    def read(self, address: int, reg: int, n: int) -> bytes:
-        """Read ``n`` bytes from registers from ``reg`` of the device at ``address``."""
-        return self._target(address).read(reg, n)
 
 
 def _int16(value: float) -> int:

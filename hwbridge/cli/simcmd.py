@@ -59,8 +59,8 @@ def sim(
 ) -> None:
     """Run an AVR firmware in simavr until Ctrl-C. The first line printed is the URL of its
     UART0 (serial:///dev/pts/N): give it to 'hwbridge connect' or a robot file's --link."""
-    from hwbridge.devices.pins import PinMap, PinWorld
     from hwbridge.emulator.board import load_board
+    from hwbridge.emulator.pins import PinMap, PinWorld
     from hwbridge.errors import HwBridgeError
     from hwbridge.firmware.sim import SimAvr
     from hwbridge.firmware.sim.examples import EXAMPLES_DIR, build_sketch_for_sim

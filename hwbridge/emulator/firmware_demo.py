@@ -2,7 +2,7 @@
 
 The DiffDriveBase example sketch is built for an ATmega328P (an Uno) and run in simavr
 (:class:`~hwbridge.firmware.sim.SimAvr`); the emulator's world drives its pins
-(:class:`~hwbridge.devices.pins.PinWorld`: encoder edges, motor PWM read back, the sonar's
+(:class:`~hwbridge.emulator.pins.PinWorld`: encoder edges, motor PWM read back, the sonar's
 echo, the MPU-6050 on I2C). The robot file is brought up as ``hwbridge up`` brings it up
 (:class:`~hwbridge.robot.runtime.RobotRuntime`) with its board's link on the simulator's pty, so
 the same host nodes make ``odom``, ``range`` and ``imu`` from what the firmware publishes. The
@@ -24,9 +24,9 @@ from typing import Any
 
 from rich.console import Console
 
-from hwbridge.devices.pins import PinWorld
 from hwbridge.emulator.board import ROBOTS_DIR, load_board
 from hwbridge.emulator.demo import print_ending, wait_connected
+from hwbridge.emulator.pins import PinWorld
 from hwbridge.errors import HwBridgeError
 from hwbridge.firmware.sim import SimAvr
 from hwbridge.firmware.sim.examples import build_example

@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from hwbridge.devices.encoders import DiffDriveBase
+from hwbridge.devices.diffdrive.encoders import DiffDriveBase
 from hwbridge.devices.imu.mpu import ImuTruth
 from hwbridge.devices.world import STANDARD_GRAVITY, Pose2D
 

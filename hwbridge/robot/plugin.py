@@ -11,6 +11,9 @@ A robot file (:mod:`hwbridge.robot.config`) lists devices by ``type``; each type
   (the topics the firmware would publish and subscribe, read from the emulator's world);
 * its **host node** (:meth:`DevicePlugin.host_node`): the graph node that turns the board's raw
   topics into the messages users want (odometry, Range, Imu, joint states);
+* its **pin-level model** (:meth:`DevicePlugin.pin_model`, a :class:`PinModel`): the device on
+  the pins of real firmware running in simavr (:class:`hwbridge.emulator.pins.PinWorld`), if it
+  has one;
 * the **firmware driver** it pairs with (:attr:`DevicePlugin.firmware`, a name in the Arduino
   library; None until the firmware has one);
 * the **topics and services** it uses with given settings (:meth:`DevicePlugin.topics`, a
@@ -31,7 +34,10 @@ from __future__ import annotations
 import abc
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Any, ClassVar, Final, Literal, Protocol
+from typing import TYPE_CHECKING, Any, ClassVar, Final, Literal, Protocol
+
+if TYPE_CHECKING:
+    from hwbridge.firmware.sim import Tick
 
 __all__ = [
     "REQUIRED",
@@ -40,6 +46,8 @@ __all__ = [
     "EmulatedBoard",
     "Field",
     "HostContext",
+    "PinBoard",
+    "PinModel",
     "TopicUse",
     "Where",
 ]
@@ -142,6 +150,63 @@ class EmulatedBoard(Protocol):
         ...
 
 
+class PinBoard(Protocol):
+    """What the pin-level twin of a board (:class:`hwbridge.emulator.pins.PinWorld`: the
+    emulator's world on the pins of firmware in simavr) offers the pin models of its devices."""
+
+    @property
+    def world(self) -> Any:
+        """The simulated world (:class:`hwbridge.emulator.world.World`)."""
+        ...
+
+    @property
+    def pins(self) -> Any:
+        """Where the devices sit (:class:`hwbridge.emulator.pins.PinMap`)."""
+        ...
+
+    @property
+    def mcu(self) -> str:
+        """The simulated AVR (``atmega328p``, ``atmega2560``), for
+        :func:`hwbridge.firmware.sim.arduino_pin`."""
+        ...
+
+    @property
+    def seed(self) -> int:
+        """The board's random seed (a device adds its own offset for its noise)."""
+        ...
+
+    @property
+    def last_time(self) -> float:
+        """The simulated time (s) the world was last stepped to."""
+        ...
+
+    def command(self, line: str) -> None:
+        """Send one command line to the simulator (see ``hwbridge/firmware/sim/runner.c``)."""
+        ...
+
+
+class PinModel:
+    """One device on the pins of a :class:`PinBoard`: set up before the AVR runs (and at each
+    restart of the simulation), then stepped at each of the simulator's reports."""
+
+    def setup(self, board: PinBoard) -> None:
+        """Put the device on its pins (the AVR is held)."""
+        raise NotImplementedError
+
+    def tick(self, board: PinBoard, tick: Tick, dt: float) -> None:
+        """Before the world steps by ``dt``: read the firmware's outputs into the world."""
+
+    def after(self, board: PinBoard, now: float) -> None:
+        """After the world stepped to ``now``: put its state on the pins."""
+
+    def i2c_write(self, board: PinBoard, address: int, register: int, data: bytes) -> None:
+        """The firmware wrote registers of an I2C device."""
+
+    def packet(self, board: PinBoard, uart: str, data: bytes) -> bytes | None:
+        """The firmware sent ``data`` on bus UART ``uart``: the reply, if this device answers."""
+        return None
+
+
 @dataclass
 class HostContext:
     """What a host node gets: where it runs and what it is attached to."""
@@ -182,6 +247,12 @@ class DevicePlugin(abc.ABC):
 
     def host_node(self, settings: Mapping[str, Any], context: HostContext) -> Closeable | None:
         """Start the host node for the device; None if it needs none."""
+        return None
+
+    def pin_model(self, settings: Mapping[str, Any], board: PinBoard) -> PinModel | None:
+        """The device's model on the pins of ``board`` (board devices); None if it has none
+        there, or none on this board (the board's pins lack what it needs): the device is then
+        left out of the simulation."""
         return None
 
     def topics(self, settings: Mapping[str, Any]) -> tuple[TopicUse, ...] | None:

@@ -25,11 +25,11 @@ __all__ = [
 ENTRY_POINT_GROUP: Final = "hwbridge.devices"
 
 BUILTIN_DEVICES: Final[dict[str, str]] = {
-    "diffdrive": "hwbridge.devices.plugins:DiffDrivePlugin",
-    "hcsr04": "hwbridge.devices.plugins:HcSr04Plugin",
-    "mpu6050": "hwbridge.devices.plugins:Mpu6050Plugin",
-    "mpu9250": "hwbridge.devices.plugins:Mpu9250Plugin",
-    "dynamixel": "hwbridge.devices.plugins:BoardServoPlugin",
+    "diffdrive": "hwbridge.devices.diffdrive.plugin:DiffDrivePlugin",
+    "hcsr04": "hwbridge.devices.ultrasonic.plugin:HcSr04Plugin",
+    "mpu6050": "hwbridge.devices.imu.plugin:Mpu6050Plugin",
+    "mpu9250": "hwbridge.devices.imu.plugin:Mpu9250Plugin",
+    "dynamixel": "hwbridge.devices.dynamixel.plugin:BoardServoPlugin",
     "dynamixel_bus": "hwbridge.devices.dynamixel.plugin:DynamixelBusPlugin",
 }
 """Built-in device types (``module:attr``)."""

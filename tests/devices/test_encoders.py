@@ -1,4 +1,5 @@
-"""hwbridge.devices.encoders: counters, quadrature, odometry, cmd_vel and the emulated base."""
+"""hwbridge.devices.diffdrive.encoders: counters, quadrature, odometry, cmd_vel and the
+emulated base."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from hwbridge import msg
-from hwbridge.devices.encoders import (
+from hwbridge.devices.diffdrive.encoders import (
     ARC_THRESHOLD,
     CommandWatchdog,
     DiffDriveBase,

@@ -26,6 +26,12 @@ from hwbridge.devices.imu import (
     MpuImu,
     decode_burst,
 )
+from hwbridge.devices.imu.host import (
+    accel_scale,
+    gyro_scale,
+    sample_rate_divider,
+    sensitivity_adjustment,
+)
 from hwbridge.devices.imu.mpu import (
     ACCEL_CONFIG,
     ACCEL_LSB_PER_G,
@@ -47,12 +53,6 @@ from hwbridge.devices.imu.mpu import (
     WHO_AM_I,
     ChipSpec,
     MpuChip,
-)
-from hwbridge.devices.imu.plugin import (
-    accel_scale,
-    gyro_scale,
-    sample_rate_divider,
-    sensitivity_adjustment,
 )
 from hwbridge.devices.world import STANDARD_GRAVITY
 from hwbridge.emulator.board import load_board

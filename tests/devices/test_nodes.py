@@ -1,4 +1,5 @@
-"""Host device nodes (hwbridge.devices.nodes) on a real Zenoh graph (router on a free port)."""
+"""Host device nodes (each device's ``node`` module) on a real Zenoh graph (a router on a
+free port)."""
 
 from __future__ import annotations
 
@@ -13,11 +14,12 @@ import numpy as np
 import pytest
 
 from hwbridge import msg
-from hwbridge.devices.encoders import DiffDriveOdometry, DiffDriveParams
+from hwbridge.devices.diffdrive.encoders import DiffDriveOdometry, DiffDriveParams
+from hwbridge.devices.diffdrive.node import DiffDriveNode
 from hwbridge.devices.imu import ChipErrors, ImuTruth, Mpu6050, Mpu9250, MpuChip
+from hwbridge.devices.imu.host import decode_burst
 from hwbridge.devices.imu.mpu import ACCEL_CONFIG, ACCEL_XOUT_H, GYRO_CONFIG, PWR_MGMT_1
-from hwbridge.devices.imu.plugin import decode_burst
-from hwbridge.devices.nodes import DiffDriveNode, ImuNode
+from hwbridge.devices.imu.node import ImuNode
 from hwbridge.devices.world import STANDARD_GRAVITY
 from hwbridge.graph import Graph
 from tests.netutil import wait_until

@@ -1,8 +1,8 @@
-"""The built-in board device plugins (hwbridge.devices.plugins): their settings, and each emulated
-model paired with the plugin's own host node, with the robot file's settings honoured (topics,
-frames, ranges). No link and no bridge here: a :class:`RecordingBoard` is the virtual board and
-a :class:`Wire` carries its bytes to and from the graph as the bridge would; the same pairing
-through a real bridge is in tests/hwbridge/test_emulator.py.
+"""The built-in board device plugins (``devices/<device>/plugin.py``): their settings, and each
+emulated model paired with the plugin's own host node, with the robot file's settings honoured
+(topics, frames, ranges). No link and no bridge here: a :class:`RecordingBoard` is the virtual
+board and a :class:`Wire` carries its bytes to and from the graph as the bridge would; the same
+pairing through a real bridge is in tests/hwbridge/test_emulator.py.
 """
 
 from __future__ import annotations

@@ -1,4 +1,5 @@
-"""hwbridge.devices.ultrasonic: HC-SR04 physics, the emulated module and sensor_msgs/Range."""
+"""hwbridge.devices.ultrasonic.hcsr04: HC-SR04 physics, the emulated module and
+sensor_msgs/Range."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from hwbridge import msg
-from hwbridge.devices.ultrasonic import (
+from hwbridge.devices.ultrasonic.hcsr04 import (
     FIELD_OF_VIEW,
     MAX_RANGE,
     MIN_RANGE,

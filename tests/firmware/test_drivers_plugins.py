@@ -12,7 +12,8 @@ from hwbridge.cli import main
 from hwbridge.robot.registry import BUILTIN_DEVICES, get_device
 
 INCLUDE = Path(__file__).resolve().parents[2] / "firmware" / "HwBridge" / "src"
-WITH_DRIVERS = ("diffdrive", "hcsr04", "mpu6050", "mpu9250", "dynamixel", "dynamixel_bus")
+WITH_DRIVERS = tuple(BUILTIN_DEVICES)
+"""Every built-in device names its driver (the registry's list, not a copy of it)."""
 
 
 def _pairs(firmware: str) -> list[tuple[str, str]]:

@@ -17,7 +17,7 @@ import yaml
 
 from hwbridge import msg
 from hwbridge.bridge import BoardSpec, Bridge
-from hwbridge.devices.nodes import ImuNode
+from hwbridge.devices.imu.node import ImuNode
 from hwbridge.emulator import BoardConfig, VirtualBoard, World, WorldConfig, load_board
 from hwbridge.errors import HwBridgeError
 from hwbridge.graph import Graph

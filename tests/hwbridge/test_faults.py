@@ -15,7 +15,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from hwbridge.devices.nodes import DiffDriveNode
+from hwbridge.devices.diffdrive.node import DiffDriveNode
 from hwbridge.emulator import VirtualBoard, load_board
 from hwbridge.emulator.faults import LinkFaults
 from hwbridge.graph import Graph

@@ -105,8 +105,8 @@ def test_sim_command_prints_the_url_first(probe_elf: Path) -> None:
 def test_mega_pan_servo_on_serial2(runner: Path) -> None:
     """DiffDriveBase for a Mega: the pan servo on Serial2 is the emulated Dynamixel bus;
     a goal from the graph moves it and joint_states reports it; odometry comes too."""
-    from hwbridge.devices.pins import PinWorld
     from hwbridge.emulator.board import load_board
+    from hwbridge.emulator.pins import PinWorld
     from hwbridge.graph import Graph, GraphConfig
     from hwbridge.robot.runtime import RobotRuntime
     from tests.netutil import wait_until

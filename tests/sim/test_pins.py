@@ -9,9 +9,9 @@ from pathlib import Path
 
 import pytest
 
-from hwbridge.devices.pins import PinMap, PinWorld
-from hwbridge.devices.ultrasonic import echo_for_distance
+from hwbridge.devices.ultrasonic.hcsr04 import echo_for_distance
 from hwbridge.emulator.board import load_board
+from hwbridge.emulator.pins import PinMap, PinWorld
 from hwbridge.errors import HwBridgeError
 from hwbridge.firmware.sim import SimAvr
 from tests.sim.conftest import Terminal

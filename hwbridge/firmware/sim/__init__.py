@@ -8,7 +8,7 @@ on its stdin and stdout (see ``runner.c``): watched output pins report their dut
 period together with the simulated time, input pins are driven, quadrature encoders are moved to
 a position (the edges spread over the next period), HC-SR04 triggers are answered with an echo
 of a set width, and I2C register files answer on the TWI bus (the firmware's writes are
-reported). :mod:`hwbridge.devices.pins` puts the emulator's world on these pins.
+reported). :mod:`hwbridge.emulator.pins` puts the emulator's world on these pins.
 """
 
 from __future__ import annotations

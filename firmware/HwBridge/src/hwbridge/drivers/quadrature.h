@@ -1,7 +1,7 @@
 // Quadrature wheel encoders on interrupt pins, with a wrapping counter (hwbridge_msgs/WheelTicks).
 //
-// Pairs with the `diffdrive` device plugin (devices/plugins.py): the host node takes signed
-// deltas of the counters modulo 2^counter_bits, so the counters here simply wrap.
+// Pairs with the `diffdrive` device plugin (devices/diffdrive/plugin.py): the host node takes
+// signed deltas of the counters modulo 2^counter_bits, so the counters here simply wrap.
 //
 //   hwbridge::drivers::QuadratureEncoder<2, 4> left;     // A on pin 2, B on pin 4
 //   left.begin();                                          // in setup()

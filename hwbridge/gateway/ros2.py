@@ -24,7 +24,7 @@ import os
 import sys
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final
@@ -498,7 +498,3 @@ def run_ros2_gateway(
         retry,
         announce,
     )
-
-
-def describe_bridged(bridged: dict[str, str]) -> Sequence[str]:
-    return [f"{name}: {what}" for name, what in sorted(bridged.items())]

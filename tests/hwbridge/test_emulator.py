@@ -200,10 +200,10 @@ def test_a_failing_device_reading_is_logged_and_the_board_keeps_running(
 ) -> None:
     board = VirtualBoard(load_board("diffbot"), seed=5, speed=2.0)
 
-    def broken() -> tuple[int, bytes]:
+    def broken() -> bytes:
         raise ValueError("I2C bus stuck")
 
-    board._readers.insert(0, (100.0, broken))  # a device read before the others, every step
+    board.publisher("stuck", "std_msgs/Empty", 100.0, broken)  # fails at every reading
     link = open_link(f"pty://?symlink={tmp_path / 'diffbot'}")
     graph = Graph.embedded(listen=[f"tcp/127.0.0.1:{free_port()}"], domain="emufail")
     bridge = Bridge(graph)

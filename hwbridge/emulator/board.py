@@ -94,7 +94,7 @@ class VirtualBoard:
         self._readers: list[tuple[float, Callable[[], tuple[int, bytes] | None]]] = []
         self._steps: list[Callable[[float], None]] = []
         self._resets: list[Callable[[], None]] = []
-        self._channel_names: dict[int, str] = {}
+        self._reads: dict[str, Callable[[], bytes | None]] = {}
         self._inputs: dict[int, Callable[[bytes], None]] = {}
         for device in config.devices:
             try:
@@ -130,7 +130,6 @@ class VirtualBoard:
         self._topics.append(
             ns.TopicEntry(channel, kind, name, type_name, self.registry.md5(type_name))
         )
-        self._channel_names[channel] = name
         return channel
 
     def publisher(
@@ -144,7 +143,27 @@ class VirtualBoard:
             return None if payload is None else (channel, payload)
 
         self._readers.append((float(rate), reading))
+        self._reads[topic] = read
         return channel
+
+    @property
+    def topics(self) -> tuple[ns.TopicEntry, ...]:
+        """The board's topic table (its publishers and subscribers, by channel), as it
+        announces it to the host."""
+        return tuple(self._topics)
+
+    def read(self, topic: str) -> bytes | None:
+        """One reading of the board publisher ``topic``, taken now from the world as it stands
+        and returned instead of sent (None: the device has nothing to report). For checking a
+        device model without a link: step ``world`` between readings, as the physics thread
+        does. An error for a topic the board does not publish."""
+        read = self._reads.get(topic)
+        if read is None:
+            published = ", ".join(self._reads) or "none"
+            raise HwBridgeError(
+                f"{self.config.name} publishes no topic {topic!r} (its publishers: {published})"
+            )
+        return read()
 
     def subscriber(self, topic: str, type_name: str, handle: Callable[[bytes], None]) -> int:
         """A board subscriber; ``handle(payload)`` runs on the protocol's thread."""

@@ -3,11 +3,12 @@
 The DiffDriveBase example sketch is built for an ATmega328P (an Uno) and run in simavr
 (:class:`~hwbridge.firmware.sim.SimAvr`); the emulator's world drives its pins
 (:class:`~hwbridge.emulator.pins.PinWorld`: encoder edges, motor PWM read back, the sonar's
-echo, the MPU-6050 on I2C). The robot file is brought up as ``hwbridge up`` brings it up
-(:class:`~hwbridge.robot.runtime.RobotRuntime`) with its board's link on the simulator's pty, so
-the same host nodes make ``odom``, ``range`` and ``imu`` from what the firmware publishes. The
-same driver as ``hwbridge demo`` steers, and the run ends with the same line:
-``odometry error: E% of D m``.
+echo, the MPU-6050 on I2C). The run is ``hwbridge demo``'s
+(:func:`hwbridge.emulator.demo.drive`) with this module's board side (:class:`FirmwareSide`):
+the robot file is brought up as ``hwbridge up`` brings it up with its board's link on the
+simulator's pty, so the same host nodes make ``odom``, ``range`` and ``imu`` from what the
+firmware publishes, the same driver steers, and the run ends with the same line: ``odometry
+error: E% of D m``. Its screen is a status line every 5 s.
 
 An Uno decodes its encoders x2 (one interrupt pin per wheel), so the host's ``counts_per_rev``
 is halved for this run, as the sketch's comment asks of a robot file for an Uno.
@@ -16,30 +17,24 @@ is halved for this run, as the sketch's comment asks of a robot file for an Uno.
 from __future__ import annotations
 
 import dataclasses
-import math
-import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 from rich.console import Console
 
-from hwbridge.emulator.board import ROBOTS_DIR, load_board
-from hwbridge.emulator.demo import print_ending, wait_connected
+from hwbridge.emulator.board import load_board
+from hwbridge.emulator.demo import BOARD, ROBOT_FILE, BoardSide, Seen, Truth, drive
 from hwbridge.emulator.pins import PinWorld
-from hwbridge.errors import HwBridgeError
+from hwbridge.emulator.world import WorldConfig
 from hwbridge.firmware.sim import SimAvr
 from hwbridge.firmware.sim.examples import build_example
-from hwbridge.graph import Graph, GraphConfig
+from hwbridge.graph import Graph
 from hwbridge.robot.config import load_robot
 from hwbridge.robot.model import Robot
 from hwbridge.robot.runtime import RobotRuntime
-from hwbridge.viz.pathplot import PathPlot
 
-__all__ = ["FirmwareDemoResult", "run_firmware_demo", "uno_robot"]
+__all__ = ["FirmwareDemoResult", "FirmwareSide", "run_firmware_demo", "uno_robot"]
 
-ROBOT_FILE = ROBOTS_DIR / "diffbot.yaml"
-BOARD = "base"
 SKETCH = "DiffDriveBase"
 
 
@@ -81,32 +76,81 @@ def uno_robot(robot: Robot, board: str = BOARD, decoding: int = 2) -> Robot:
     return dataclasses.replace(robot, boards=tuple(boards))
 
 
-class _Driver:
-    """Cruise forward; turn in place while the sonar sees something closer than 0.5 m
-    (``hwbridge demo``'s driver)."""
+class FirmwareSide(BoardSide[FirmwareDemoResult]):
+    """The demo robot's board as the DiffDriveBase firmware (or ``elf``) for an ATmega328P in
+    simavr, its pins driven by the emulator's world; ``reset_at`` (s) resets the AVR once
+    mid-run."""
 
-    def __init__(self) -> None:
-        self.turning_until = 0.0
+    label = "the firmware in simavr"
+    connect_timeout = 30.0
+    settle = 1.0
+    ticks_of = "the firmware's"
+    plot_note = "firmware in simavr; "
+    keep_note = (
+        "The simulated board and the bridge keep running: try 'hwbridge topic list' in another "
+        "terminal. Ctrl-C ends."
+    )
 
-    def command(self, now: float, sonar: Any) -> tuple[float, float]:
-        near = sonar is not None and math.isfinite(sonar.range) and sonar.range < 0.5
-        if near or (sonar is not None and sonar.range == -math.inf):
-            self.turning_until = now + 0.8
-        if now < self.turning_until:
-            return 0.0, 1.2
-        return 0.25, 0.3 * math.sin(now * 0.7)
+    def __init__(
+        self, seed: int = 0, *, reset_at: float | None = None, elf: Path | None = None
+    ) -> None:
+        self.seed = seed
+        self.reset_at = reset_at
+        self.firmware = elf or build_example(SKETCH, "uno")
+        self.robot = uno_robot(load_robot(ROBOT_FILE))
+        self.plot_title = (
+            f"hwbridge demo --firmware: {self.robot.name}, odometry against ground truth"
+        )
+        self.sim = SimAvr(self.firmware, mcu="atmega328p")
+        self.pins: PinWorld | None = None
 
+    def open(self) -> str:
+        self.sim.start(hold=True)
+        self.pins = PinWorld(self.sim, load_board(str(ROBOT_FILE), BOARD), seed=self.seed).attach()
+        self.sim.go()
+        return self.sim.url
 
-class _Seen:
-    def __init__(self, node: Any, topics: dict[str, str]) -> None:
-        self.values: dict[str, Any] = dict.fromkeys(topics)
-        self.counts: dict[str, int] = dict.fromkeys(topics, 0)
-        for topic, type_name in topics.items():
-            node.subscriber(topic, type_name, lambda m, t=topic: self._set(t, m))
+    def _world(self) -> PinWorld:
+        if self.pins is None:
+            raise RuntimeError("the simulated board is not open")
+        return self.pins
 
-    def _set(self, topic: str, message: Any) -> None:
-        self.values[topic] = message
-        self.counts[topic] += 1
+    def intro(self, graph: Graph, namespace: str) -> list[str]:
+        lines = [
+            f"[bold]hwbridge demo --firmware[/]: {SKETCH} for the ATmega328P "
+            f"({self.firmware.name}) in simavr on {self.sim.path}; robot {self.robot.name} up "
+            f"with board {BOARD}; graph on {graph.config.describe()}; topics under {namespace}"
+        ]
+        skipped = self._world().skipped
+        if skipped:
+            lines.append(f"no pins on the Uno for: {', '.join(skipped)}")
+        return lines
+
+    @property
+    def world(self) -> WorldConfig:
+        return self._world().world.config
+
+    def truth(self) -> Truth:
+        pins = self._world()
+        with pins.lock:
+            pose = pins.world.pose
+            return Truth(pose.x, pose.y, pins.world.base.distance, pins.world.sonar_distance())
+
+    def during(self, elapsed: float, out: Console) -> None:
+        if self.reset_at is not None and elapsed >= self.reset_at:
+            self.reset_at = None
+            out.print(f"{elapsed:5.1f} s: resetting the AVR")
+            self.sim.reset()
+
+    def result(self, distance: float, error: float) -> FirmwareDemoResult:
+        return FirmwareDemoResult(distance, error, self.sim.time, self.sim.resets)
+
+    def summary(self, runtime: RobotRuntime, seen: Seen, namespace: str) -> str:
+        counts = ", ".join(f"{namespace}/{t}: {n}" for t, n in seen.counts.items())
+        return f"{self.sim.time:.1f} s of AVR time; messages {counts}; AVR resets {self.sim.resets}"
+
+    def close(self) -> None:
+        self.sim.close()
 
 
 def run_firmware_demo(
@@ -122,117 +166,11 @@ def run_firmware_demo(
 ) -> FirmwareDemoResult:
     """Run the demo on the firmware in simavr. ``reset_at`` (s) resets the AVR once mid-run
     (the bridge has to recover on its own); ``elf`` replaces the DiffDriveBase build."""
-    out = console or Console(stderr=False)
-    firmware = elf or build_example(SKETCH, "uno")
-    robot = uno_robot(load_robot(ROBOT_FILE))
-    namespace = robot.board(BOARD).namespace
-    sim = SimAvr(firmware, mcu="atmega328p")
-    graph: Graph | None = None
-    runtime: RobotRuntime | None = None
-    try:
-        sim.start(hold=True)
-        pins = PinWorld(sim, load_board(str(ROBOT_FILE), BOARD), seed=seed).attach()
-        sim.go()
-        graph = Graph(GraphConfig.embedded([endpoint] if endpoint else None))
-        runtime = RobotRuntime(robot.with_links({BOARD: sim.url}), graph).start()
-        view = graph.node("demo_driver", namespace=namespace)
-        seen = _Seen(
-            view,
-            {"odom": "nav_msgs/Odometry", "range": "sensor_msgs/Range", "imu": "sensor_msgs/Imu"},
-        )
-        cmd_vel = view.publisher("cmd_vel", "geometry_msgs/Twist")
-        out.print(
-            f"[bold]hwbridge demo --firmware[/]: {SKETCH} for the ATmega328P "
-            f"({firmware.name}) in simavr on {sim.path}; robot {robot.name} up with board "
-            f"{BOARD}; graph on {graph.config.describe()}; topics under {namespace}"
-        )
-        if pins.skipped:
-            out.print(f"no pins on the Uno for: {', '.join(pins.skipped)}")
-        wait_connected(runtime, 30.0, "the firmware in simavr")
-        world = pins.world.config
-        path_plot = PathPlot(
-            room=world.room,
-            obstacles=world.obstacles,
-            title=f"hwbridge demo --firmware: {robot.name}, odometry against ground truth",
-        )
-        driver = _Driver()
-        started = time.monotonic()
-        last_line = 0.0
-        reset_done = reset_at is None
-        try:
-            while True:
-                elapsed = time.monotonic() - started
-                if elapsed >= duration:
-                    break
-                if not reset_done and reset_at is not None and elapsed >= reset_at:
-                    reset_done = True
-                    out.print(f"{elapsed:5.1f} s: resetting the AVR")
-                    sim.reset()
-                v, w = driver.command(elapsed, seen.values["range"])
-                cmd_vel.publish({"linear": {"x": v}, "angular": {"z": w}})
-                _sample(path_plot, pins, seen.values["odom"])
-                if elapsed - last_line >= 5.0:
-                    last_line = elapsed
-                    out.print(_status(pins, seen, namespace, elapsed))
-                time.sleep(0.1)
-            cmd_vel.publish({})
-            time.sleep(1.0)  # the robot stops; the last ticks arrive
-            _sample(path_plot, pins, seen.values["odom"])
-            if keep:
-                out.print(
-                    "The simulated board and the bridge keep running: try 'hwbridge topic "
-                    "list' in another terminal. Ctrl-C ends."
-                )
-                while True:
-                    time.sleep(1.0)
-        except KeyboardInterrupt:
-            out.print("interrupted")
-        result = _result(pins, seen.values["odom"], sim)
-        counts = ", ".join(f"{namespace}/{t}: {n}" for t, n in seen.counts.items())
-        out.print(f"{sim.time:.1f} s of AVR time; messages {counts}; AVR resets {sim.resets}")
-        print_ending(out, result, path_plot, plot, note="firmware in simavr; ")
-        return result
-    finally:
-        if runtime is not None:
-            runtime.stop()
-        if graph is not None:
-            graph.close()
-        sim.close()
-
-
-def _status(pins: PinWorld, seen: _Seen, namespace: str, elapsed: float) -> str:
-    with pins.lock:
-        truth = pins.world.pose
-        sonar = pins.world.sonar_distance()
-    odom, rng, imu = seen.values["odom"], seen.values["range"], seen.values["imu"]
-    parts = [f"{elapsed:5.1f} s: truth {truth.x:+.2f}, {truth.y:+.2f} m"]
-    if odom is not None:
-        p = odom.pose.pose.position
-        parts.append(f"{namespace}/odom {float(p.x):+.2f}, {float(p.y):+.2f} m")
-    if rng is not None:
-        shown = f"{sonar:.2f}" if sonar is not None else "-"
-        parts.append(f"{namespace}/range {float(rng.range):.2f} m (truth {shown})")
-    if imu is not None:
-        parts.append(f"{namespace}/imu accel z {float(imu.linear_acceleration.z):.2f} m/s²")
-    return "; ".join(parts)
-
-
-def _sample(plot: PathPlot, pins: PinWorld, odom: Any) -> None:
-    with pins.lock:
-        truth = pins.world.pose
-    position = odom.pose.pose.position if odom is not None else None
-    plot.add(
-        (float(position.x), float(position.y)) if position is not None else None,
-        (truth.x, truth.y),
+    return drive(
+        FirmwareSide(seed, reset_at=reset_at, elf=elf),
+        duration=duration,
+        endpoint=endpoint,
+        keep=keep,
+        console=console,
+        plot=plot,
     )
-
-
-def _result(pins: PinWorld, odom: Any, sim: SimAvr) -> FirmwareDemoResult:
-    if odom is None:
-        raise HwBridgeError("no odometry arrived: the firmware's ticks did not reach the host")
-    with pins.lock:
-        truth = pins.world.pose
-        distance = pins.world.base.distance
-    position = odom.pose.pose.position
-    error = math.hypot(float(position.x) - truth.x, float(position.y) - truth.y)
-    return FirmwareDemoResult(distance, error, sim.time, sim.resets)

@@ -15,11 +15,12 @@ exclusions winning.
 
 from __future__ import annotations
 
+import contextlib
 import fnmatch
 import logging
 import queue
 import threading
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Final, Protocol, TypeVar
 
@@ -33,8 +34,11 @@ __all__ = [
     "Announcer",
     "GraphChange",
     "GraphWatcher",
+    "MirrorOptions",
     "Reporter",
     "Selection",
+    "apply_change",
+    "close_all",
     "open_graph_with_retry",
     "run_until_stopped",
 ]
@@ -63,6 +67,21 @@ class Selection:
         if any(fnmatch.fnmatchcase(name, pattern) for pattern in self.exclude):
             return False
         return any(fnmatch.fnmatchcase(name, pattern) for pattern in self.include)
+
+
+@dataclass
+class MirrorOptions:
+    """What a gateway mirrors, whatever the ROS. Patterns are shell patterns on graph/ROS
+    names."""
+
+    topics: Selection = field(default_factory=Selection)
+    services: Selection = field(default_factory=Selection)
+    ros_services: Selection = field(default_factory=lambda: Selection(()))
+    """ROS services served on the graph (none unless named)."""
+    node_name: str = GATEWAY_NODE
+    service_timeout: float = 5.0
+    rosout: bool = True
+    """Board logs (the graph's ``/rosout``) to ROS's ``/rosout``, whatever ``topics`` says."""
 
 
 class Reporter:
@@ -131,6 +150,13 @@ class GraphWatcher:
         self._dirty = threading.Event()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="gateway-watch", daemon=True)
+
+    def next_change(self, timeout: float) -> GraphChange | None:
+        """The next change, waiting up to ``timeout`` s for one (None: none came)."""
+        try:
+            return self.changes.get(timeout=timeout)
+        except queue.Empty:
+            return None
 
     def claim(self, name: str, kind: str = "topic") -> None:
         """Take ``name`` out of the watch: the gateway handles it from the start (``/rosout``,
@@ -249,6 +275,36 @@ def claim_rosout(
     if rosout and Selection(exclude=tuple(exclude))(ROSOUT):
         watcher.claim(ROSOUT)
         apply(GraphChange("to_ros", ROSOUT, "rosgraph_msgs/Log"))
+
+
+def apply_change(
+    change: GraphChange,
+    to_ros: Callable[[str, str], None],
+    from_ros: Callable[[str, str], None],
+    serve_in_ros: Callable[[str, str], None],
+    report: Reporter,
+    passes: tuple[type[HwBridgeError], ...] = (),
+) -> None:
+    """Hand ``change`` to the gateway's handler for its kind, each called with (name, type); a
+    handler's error is reported once per name ('NAME: not mirrored: ...') and the name is left
+    alone, except errors of the types in ``passes``: those are the caller's to report."""
+    handler = {"to_ros": to_ros, "from_ros": from_ros}.get(change.kind, serve_in_ros)
+    try:
+        handler(change.name, change.type)
+    except passes:
+        raise
+    except HwBridgeError as exc:
+        report.once(f"name:{change.name}", f"{change.name}: not mirrored: {exc}")
+
+
+def close_all(items: Iterable[object]) -> None:
+    """Close each of ``items`` that has ``close()`` (a gateway's graph subscribers, services,
+    publishers), ignoring their errors: the gateway is going away anyway."""
+    for item in items:
+        close = getattr(item, "close", None)
+        if close is not None:
+            with contextlib.suppress(Exception):
+                close()
 
 
 class _Gateway(Protocol):

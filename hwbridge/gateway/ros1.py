@@ -23,7 +23,7 @@ import socket
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Final
 
 from hwbridge.errors import HwBridgeError
@@ -32,9 +32,11 @@ from hwbridge.gateway.common import (
     Announcer,
     GraphChange,
     GraphWatcher,
+    MirrorOptions,
     Reporter,
-    Selection,
+    apply_change,
     claim_rosout,
+    close_all,
     run_until_stopped,
 )
 from hwbridge.gateway.tcpros import (
@@ -68,16 +70,12 @@ _SEND_TIMEOUT: Final = 2.0
 
 
 @dataclass
-class Ros1Options:
+class Ros1Options(MirrorOptions):
+    """What to mirror (:class:`~hwbridge.gateway.common.MirrorOptions`), the master to use and
+    the parameters to copy to the graph."""
+
     master_uri: str = "http://127.0.0.1:11311"
-    topics: Selection = field(default_factory=Selection)
-    services: Selection = field(default_factory=Selection)
-    ros_services: Selection = field(default_factory=lambda: Selection(()))
     params: tuple[str, ...] = ()
-    node_name: str = "hwbridge_gateway"
-    service_timeout: float = 5.0
-    rosout: bool = True
-    """Board logs (the graph's ``/rosout``) to ROS's ``/rosout``, whatever ``topics`` says."""
 
 
 class _Publication:
@@ -266,9 +264,7 @@ class Ros1Gateway:
         self._main.join(_CLOSE_JOIN)  # it waits 0.1 s at a time; a master call may take longer
         if self.master_up.is_set():
             self._unregister_all()
-        for item in reversed(self._keep):
-            with contextlib.suppress(Exception):
-                item.close()
+        close_all(reversed(self._keep))
         for publication in list(self._publications.values()):
             publication.close()
         for subscription in list(self._subscriptions.values()):
@@ -283,11 +279,9 @@ class Ros1Gateway:
                 self._check_master()
                 if self.master_up.is_set() and self.options.ros_services.include:
                     self._poll_ros_services()
-            try:
-                change = self._watcher.changes.get(timeout=0.1)
-            except Exception:  # noqa: BLE001 - queue.Empty
-                continue
-            self._apply(change)
+            change = self._watcher.next_change(0.1)
+            if change is not None:
+                self._apply(change)
 
     # ------------------------------------------------------------------ the master
     def _check_master(self) -> None:
@@ -487,15 +481,7 @@ class Ros1Gateway:
 
     # ------------------------------------------------------------------ graph changes
     def _apply(self, change: GraphChange) -> None:
-        try:
-            if change.kind == "to_ros":
-                self._to_ros(change.name, change.type)
-            elif change.kind == "from_ros":
-                self._from_ros(change.name, change.type)
-            elif change.name not in self._ros_services:
-                self._serve_in_ros(change.name, change.type)
-        except HwBridgeError as exc:
-            self.report.once(f"name:{change.name}", f"{change.name}: not mirrored: {exc}")
+        apply_change(change, self._to_ros, self._from_ros, self._serve_in_ros, self.report)
 
     def _known(self, type_name: str) -> tuple[str, str] | None:
         """(md5, definition) of a message type known here, else None."""
@@ -567,6 +553,8 @@ class Ros1Gateway:
         self._say("%s: ROS 1 -> graph (%s)", topic, type_name)
 
     def _serve_in_ros(self, name: str, type_name: str) -> None:
+        if name in self._ros_services:
+            return  # our own mirror of a ROS service
         try:
             md5 = self.graph.registry.service(type_name).md5
         except HwBridgeError:

@@ -24,7 +24,7 @@ import os
 import sys
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final
@@ -35,9 +35,11 @@ from hwbridge.gateway.common import (
     Announcer,
     GraphChange,
     GraphWatcher,
+    MirrorOptions,
     Reporter,
-    Selection,
+    apply_change,
     claim_rosout,
+    close_all,
     run_until_stopped,
 )
 from hwbridge.gateway.qos import ROSOUT_KIND, QosKind, QosRules
@@ -136,19 +138,13 @@ def _qos(rclpy_qos: Any, kind: QosKind) -> Any:
 
 
 @dataclass
-class Ros2Options:
-    """What to mirror. Patterns are shell patterns on graph/ROS names."""
+class Ros2Options(MirrorOptions):
+    """What to mirror (:class:`~hwbridge.gateway.common.MirrorOptions`), with QoS and how often
+    ROS 2's services are looked for."""
 
-    topics: Selection = field(default_factory=Selection)
-    services: Selection = field(default_factory=Selection)
-    ros_services: Selection = field(default_factory=lambda: Selection(()))
-    node_name: str = "hwbridge_gateway"
     qos: QosRules = field(default_factory=QosRules)
     """Per-topic QoS rules (``--qos PATTERN=KIND``, the robot file's ``ros: {qos:}``), before
     the defaults of :func:`qos_kind`."""
-    service_timeout: float = 5.0
-    rosout: bool = True
-    """Board logs (the graph's ``/rosout``) to ROS 2's ``/rosout``, whatever ``topics`` says."""
     poll: float = 1.0
 
 
@@ -220,9 +216,7 @@ class Ros2Gateway:
             self._closing = True
         self._executor.shutdown(timeout_sec=2)
         self._spin.join(5)
-        for item in reversed(self._keep):
-            with contextlib.suppress(Exception):
-                item.close()
+        close_all(reversed(self._keep))
         with contextlib.suppress(Exception):
             self.node.destroy_node()
         self._shutdown_context()
@@ -238,10 +232,7 @@ class Ros2Gateway:
     def _run(self) -> None:
         last_poll = 0.0
         while not self._stop.is_set():
-            try:
-                change = self._watcher.changes.get(timeout=0.1)
-            except Exception:  # noqa: BLE001 - queue.Empty
-                change = None
+            change = self._watcher.next_change(0.1)
             if change is not None:
                 self._apply(change)
             if (
@@ -253,20 +244,20 @@ class Ros2Gateway:
 
     def _apply(self, change: GraphChange) -> None:
         try:
-            if change.kind == "to_ros":
-                self._to_ros(change.name, change.type)
-            elif change.kind == "from_ros":
-                self._from_ros(change.name, change.type)
-            else:
-                self._serve_in_ros(change.name, change.type)
+            apply_change(
+                change,
+                self._to_ros,
+                self._from_ros,
+                self._serve_in_ros,
+                self.report,
+                passes=(TypeMapError,),
+            )
         except TypeMapError as exc:
             self.report.once(
                 f"type:{change.type}",
                 f"{change.name}: {change.type} has no ROS 2 counterpart ({exc}); not mirrored "
                 "(further topics of this type are skipped silently)",
             )
-        except HwBridgeError as exc:
-            self.report.once(f"name:{change.name}", f"{change.name}: not mirrored: {exc}")
 
     # ------------------------------------------------------------------ types
     def _ros2_class(self, ros2_name: str) -> Any:
@@ -498,7 +489,3 @@ def run_ros2_gateway(
         retry,
         announce,
     )
-
-
-def describe_bridged(bridged: dict[str, str]) -> Sequence[str]:
-    return [f"{name}: {what}" for name, what in sorted(bridged.items())]

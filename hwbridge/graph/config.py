@@ -91,11 +91,6 @@ class GraphConfig:
             config_file=_env_file(),
         )
 
-    @classmethod
-    def isolated(cls, domain: str = "0") -> GraphConfig:
-        """A peer that neither listens nor connects: one process, nothing on the network."""
-        return cls(mode="peer", domain=domain)
-
     def to_zenoh(self) -> zenoh.Config:
         """The Zenoh config object (imports Zenoh)."""
         import zenoh

@@ -356,12 +356,11 @@ else:  # pragma: no cover - other interpreters
     atexit.register(_close_open_graphs)
 
 
-_MAX_QUERIERS: Final = 64
-"""Queriers one node keeps declared for its calls (one per service, type and timeout)."""
-
-
 class Node:
     """A named participant; topic and service names resolve in its namespace."""
+
+    max_queriers: int = 64
+    """Queriers kept declared for calls, one per service, type and timeout; then one-off gets."""
 
     def __init__(self, graph: Graph, name: str, namespace: str = "/") -> None:
         self.graph = graph
@@ -523,7 +522,7 @@ class Node:
             found = self._call_targets.get((name, srv_type, md5, timeout))
             if found is not None:
                 return found
-            if len(self._call_targets) >= _MAX_QUERIERS:
+            if len(self._call_targets) >= self.max_queriers:
                 # Many distinct timeouts (computed ones, say): plain gets, nothing declared.
                 return resolved, functools.partial(session.get, key, **options), attachment
             querier = self.graph.keep(session.declare_querier(key, **options))

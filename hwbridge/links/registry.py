@@ -1,12 +1,14 @@
 """The scheme registry: which class opens ``serial://``, ``socket://``, ``spy+...`` and friends.
 
-One table, looked up by the URL's scheme, filled from three places (first match wins):
+A :class:`~hwbridge.protocols.plugins.NamedRegistry`, as protocols and device types use, looked
+up by the URL's scheme and filled from three places (first match wins):
 
 1. :func:`register_scheme` calls (tests, applications);
-2. the built-in table below, as ``"module:Class"`` strings imported on first use, so that
-   ``import hwbridge.links`` loads neither pyserial nor anything else it does not need;
-3. the ``hwbridge.links`` entry-point group of installed distributions, read lazily (and read
-   again when a scheme is not found, so a plugin installed at run time is seen).
+2. the built-in table below (the one place hwbridge's own schemes are declared), as
+   ``"module:Class"`` strings imported on first use, so that ``import hwbridge.links`` loads
+   neither pyserial nor anything else it does not need;
+3. the ``hwbridge.links`` entry-point group of other installed distributions, read lazily (and
+   read again when a scheme is not found, so a plugin installed at run time is seen).
 
 A scheme written ``A+B`` (``spy+serial``) is looked up as a whole first, then by its prefix ``A``,
 whose factory receives the whole URL and opens the rest itself (the spy wrapper does that).
@@ -15,16 +17,14 @@ A string without ``://`` is a serial port path (``/dev/ttyUSB0``, ``COM3``).
 
 from __future__ import annotations
 
-import importlib
 import logging
 import re
-import threading
 from collections.abc import Callable
-from importlib.metadata import EntryPoint, entry_points
 from typing import Any, Final, cast
 
 from hwbridge.errors import LinkError
 from hwbridge.links.base import Link, closest
+from hwbridge.protocols.plugins import NamedRegistry
 
 __all__ = [
     "BUILTIN_SCHEMES",
@@ -54,6 +54,8 @@ BUILTIN_SCHEMES: Final[dict[str, str]] = {
     "spy": "hwbridge.links.spy:SpyLink",
     "udp": "hwbridge.links.udp:UdpLink",
     "udp-listen": "hwbridge.links.udp:UdpListenLink",
+    "can": "hwbridge.links.can:CanLink",
+    "mavlink": "hwbridge.mavlink.link:mavlink_link",
 }
 
 _EXAMPLES: Final = (
@@ -73,10 +75,16 @@ _SCHEME_RE: Final = re.compile(r"^([A-Za-z][A-Za-z0-9+.\-]*)://")
 _WRAPPER_RE: Final = re.compile(r"^([A-Za-z][A-Za-z0-9.\-]*)\+")
 _VALID_SCHEME: Final = re.compile(r"^[a-z][a-z0-9+.\-]*$")
 
-_lock = threading.RLock()  # reentrant: a plugin may register schemes as it is imported
-_registered: dict[str, LinkFactory | str] = {}
-_resolved: dict[str, LinkFactory] = {}
-_entry_points: dict[str, EntryPoint] | None = None
+
+def _factory(loaded: object, name: str) -> LinkFactory:
+    if not callable(loaded):
+        raise LinkError(f"the link scheme {name!r} resolves to {loaded!r}, which is not callable")
+    return cast("LinkFactory", loaded)
+
+
+_REGISTRY: Final = NamedRegistry(
+    "link scheme", ENTRY_POINT_GROUP, BUILTIN_SCHEMES, _factory, LinkError, fold_case=True
+)
 
 
 def register_scheme(scheme: str, factory: LinkFactory | str) -> None:
@@ -92,21 +100,14 @@ def register_scheme(scheme: str, factory: LinkFactory | str) -> None:
         )
     if not callable(factory) and not (isinstance(factory, str) and ":" in factory):
         raise TypeError(f"factory for {name!r} must be callable or a 'module:attr' string")
-    with _lock:
-        if name in BUILTIN_SCHEMES or name in _registered:
-            log.debug("scheme %r re-registered to %r", name, factory)
-        _registered[name] = factory
-        _resolved.pop(name, None)
+    if name in _REGISTRY.names():
+        log.debug("scheme %r re-registered to %r", name, factory)
+    _REGISTRY.register(name, factory)
 
 
 def schemes() -> dict[str, str]:
     """Every known scheme and where it comes from (``"module:attr"``), sorted by scheme."""
-    with _lock:
-        plugins = _load_entry_points(refresh=False)
-        table: dict[str, str] = {name: ep.value for name, ep in plugins.items()}
-        table.update(BUILTIN_SCHEMES)
-        table.update({name: _describe(target) for name, target in _registered.items()})
-    return dict(sorted(table.items()))
+    return dict(sorted(_REGISTRY.sources().items()))
 
 
 def scheme_of(url: str) -> str:
@@ -153,93 +154,18 @@ def open_link(url: str, **options: Any) -> Link:
 # ------------------------------------------------------------------------------------ internals
 
 
-def _describe(target: LinkFactory | str) -> str:
-    if isinstance(target, str):
-        return target
-    module = getattr(target, "__module__", "?")
-    name = getattr(target, "__qualname__", type(target).__name__)
-    return f"{module}:{name}"
-
-
 def _lookup(scheme: str, url: str) -> LinkFactory:
+    """The factory for ``scheme``, else for the wrapper prefix of ``A+B``; the entry points are
+    read again only when neither is known."""
     candidates = [scheme]
     if "+" in scheme:
         candidates.append(scheme.split("+", 1)[0])
-    with _lock:
-        for refresh in (False, True):
-            plugins = _load_entry_points(refresh=refresh)
-            for name in candidates:
-                factory = _find(name, plugins)
-                if factory is not None:
-                    return factory
-        known = set(plugins) | set(BUILTIN_SCHEMES) | set(_registered)
-    raise LinkError(_unknown_scheme_message(scheme, url, known))
-
-
-def _find(name: str, plugins: dict[str, EntryPoint]) -> LinkFactory | None:
-    """The factory for ``name`` (lock held), importing it on first use; None if unknown."""
-    cached = _resolved.get(name)
-    if cached is not None:
-        return cached
-    target: LinkFactory | str | EntryPoint
-    if name in _registered:
-        target = _registered[name]
-    elif name in BUILTIN_SCHEMES:
-        target = BUILTIN_SCHEMES[name]
-    elif name in plugins:
-        target = plugins[name]
-    else:
-        return None
-    factory = _resolve(name, target)
-    _resolved[name] = factory
-    return factory
-
-
-def _resolve(name: str, target: LinkFactory | str | EntryPoint) -> LinkFactory:
-    if not isinstance(target, (str, EntryPoint)):
-        return target
-    where = target if isinstance(target, str) else f"{target.value} (entry point)"
-    try:
-        if isinstance(target, EntryPoint):
-            loaded = target.load()
-        else:
-            module_name, _, attr = target.partition(":")
-            loaded = importlib.import_module(module_name)
-            for part in attr.split("."):
-                loaded = getattr(loaded, part)
-    except (ImportError, AttributeError) as exc:
-        raise LinkError(
-            f"the link scheme {name!r} is provided by {where}, which failed to load: {exc}; "
-            "reinstall the package that provides it"
-        ) from exc
-    if not callable(loaded):
-        raise LinkError(f"the link scheme {name!r} points at {where}, which is not callable")
-    return cast("LinkFactory", loaded)
-
-
-def _load_entry_points(*, refresh: bool) -> dict[str, EntryPoint]:
-    """The plugin schemes (lock held); read once, or again when ``refresh`` is set."""
-    global _entry_points  # noqa: PLW0603 (a lazily filled module cache)
-    if _entry_points is not None and not refresh:
-        return _entry_points
-    found: dict[str, EntryPoint] = {}
-    for ep in entry_points(group=ENTRY_POINT_GROUP):
-        name = ep.name.strip().lower()
-        if name in found and found[name].value != ep.value:
-            log.warning(
-                "link scheme %r is declared twice (%s and %s); using the first",
-                name,
-                found[name].value,
-                ep.value,
-            )
-            continue
-        if name in BUILTIN_SCHEMES and ep.value != BUILTIN_SCHEMES[name]:
-            log.warning(
-                "entry point %s = %s cannot replace the built-in scheme; ignored", name, ep.value
-            )
-        found.setdefault(name, ep)
-    _entry_points = found
-    return found
+    for reread in (False, True):
+        for name in candidates:
+            factory = _REGISTRY.find(name, reread=reread)
+            if factory is not None:
+                return factory
+    raise LinkError(_unknown_scheme_message(scheme, url, set(_REGISTRY.names())))
 
 
 def _unknown_scheme_message(scheme: str, url: str, known: set[str]) -> str:

@@ -120,11 +120,6 @@ class _UdpBase(Link):
             self._waker.close()
         self._sock = self._waker = self._selector = None
 
-    @property
-    def local_port(self) -> int:
-        """The UDP port this end uses (0 when closed)."""
-        return int(self._sock.getsockname()[1]) if self._sock is not None else 0
-
 
 class UdpLink(_UdpBase):
     """``udp://HOST:PORT``: a board listening at HOST:PORT (see the module docstring)."""

@@ -345,11 +345,6 @@ class ReliableSender:
         """Frames sent and not yet acknowledged."""
         return len(self._in_flight)
 
-    @property
-    def queued_bytes(self) -> int:
-        """Payload bytes queued but not yet released into the window."""
-        return self._pending_bytes
-
     def queue(self, channel: int, payload: bytes, *, force: bool = False) -> bool:
         """Queue one message; False (nothing queued) when the queue is over its limit.
 

@@ -35,7 +35,6 @@ from hwbridge.protocols.native._session.config import (
     ExpectedType,
     HostConfig,
     LinkParams,
-    NativeStats,
     SessionConfig,
     SessionError,
     SessionResetError,
@@ -64,6 +63,7 @@ from hwbridge.protocols.native._session.events import (
     TopicAnnounced,
 )
 from hwbridge.protocols.native._session.host import HostSession
+from hwbridge.protocols.native._session.stats import NativeStats, SessionCounters
 
 __all__ = [
     "ACK_DELAY_MAX",
@@ -93,6 +93,7 @@ __all__ = [
     "ServiceRequest",
     "ServiceResponse",
     "SessionConfig",
+    "SessionCounters",
     "SessionError",
     "SessionResetError",
     "SessionState",

@@ -5,6 +5,8 @@ failed adapter dropped or reported and counted without hurting the other boards.
 from __future__ import annotations
 
 import itertools
+import os
+import select
 import time
 from collections.abc import Callable, Iterator
 
@@ -28,6 +30,22 @@ def wait_for(condition: Callable[[], object], timeout: float = 10.0) -> bool:
             return True
         time.sleep(0.02)
     return bool(condition())
+
+
+def _ask(port: int, line: str, answered: Callable[[bytes], bool] | None = None) -> bytes:
+    """Send one SLCAN command line to an adapter's serial port; what it answers, read until
+    ``answered`` says it is all there (by default: up to a CR, or a BEL for a refusal)."""
+    os.write(port, line.encode("ascii") + b"\r")
+    answer = b""
+    while not (answered or _ends_a_line)(answer):
+        ready, _, _ = select.select([port], [], [], 5.0)
+        assert ready, f"no answer to {line!r} (so far {answer!r})"
+        answer += os.read(port, 256)
+    return answer
+
+
+def _ends_a_line(answer: bytes) -> bool:
+    return answer.endswith((b"\r", b"\a"))
 
 
 @pytest.fixture
@@ -219,13 +237,22 @@ def test_slcan_adapter_through_python_can(opened: list[CanLink], fd: bool) -> No
         assert adapter.frames_to_bus > 0
         assert adapter.frames_to_host > 0
         assert (adapter.fd_frames > 0) == fd
-        # The adapter refuses what it cannot parse and goes on.
-        assert adapter._command("Txyz") == b"\a"
-        assert adapter._command("T0000000191122") == b"\a"
-        assert adapter._command("V").startswith(b"V")
         host.close()
         opened.remove(host)
         assert wait_for(lambda: not adapter.is_open, 5)
+        # The adapter refuses what it cannot parse and goes on, as a serial terminal sees it.
+        port = os.open(adapter.path, os.O_RDWR | os.O_NOCTTY)
+        try:
+            # answers still on their way to the closed host's port (its 'C' was answered)
+            # come first; the adapter answers in order, so they come before this one
+            _ask(port, "N", lambda answer: answer.endswith(b"NHWB1\r"))
+            refused = adapter.refused
+            assert _ask(port, "Txyz") == b"\a"
+            assert _ask(port, "T0000000191122") == b"\a"  # length 9 in a classic frame
+            assert _ask(port, "V").startswith(b"V")
+            assert adapter.refused == refused + 2
+        finally:
+            os.close(port)
 
 
 def test_failed_adapter_loses_every_link(opened: list[CanLink]) -> None:

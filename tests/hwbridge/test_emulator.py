@@ -22,6 +22,7 @@ from hwbridge.emulator import BoardConfig, VirtualBoard, World, WorldConfig, loa
 from hwbridge.errors import HwBridgeError
 from hwbridge.graph import Graph
 from hwbridge.links import open_link
+from hwbridge.protocols.native.control import EntryKind
 from hwbridge.robot.config import device_config
 from hwbridge.robot.plugin import HostContext
 from hwbridge.robot.registry import get_device
@@ -178,14 +179,12 @@ def test_mpu9250_magnetometer_option(magnetometer: bool) -> None:
     )
     config = dataclasses.replace(load_board("diffbot"), devices=(device,))
     board = VirtualBoard(config, seed=1)
-    ((_, read),) = board._readers
+    assert [(t.name, t.kind) for t in board.topics] == [("imu_raw", EntryKind.PUBLISHER)]
     raws = []
     for _ in range(3):
         board.world.step(0.02)  # the AK8963 measures at 100 Hz: one is ready every reading
-        reading = read()
-        assert reading is not None
-        channel, payload = reading
-        assert board._channel_names[channel] == "imu_raw"
+        payload = board.read("imu_raw")
+        assert payload is not None
         raws.append(msg.decode(payload, "hwbridge_msgs/ImuRaw"))
     assert [bool(raw.mag_valid) for raw in raws] == [magnetometer] * 3
     if magnetometer:
@@ -193,6 +192,8 @@ def test_mpu9250_magnetometer_option(magnetometer: bool) -> None:
         assert int(raws[-1].mag_st2) == 0x10  # 16-bit output, no overflow
     else:
         assert list(raws[-1].mag) == [0, 0, 0]
+    with pytest.raises(HwBridgeError, match="publishes no topic 'imu'"):
+        board.read("imu")
 
 
 def test_a_failing_device_reading_is_logged_and_the_board_keeps_running(
@@ -200,10 +201,10 @@ def test_a_failing_device_reading_is_logged_and_the_board_keeps_running(
 ) -> None:
     board = VirtualBoard(load_board("diffbot"), seed=5, speed=2.0)
 
-    def broken() -> tuple[int, bytes]:
+    def broken() -> bytes:
         raise ValueError("I2C bus stuck")
 
-    board._readers.insert(0, (100.0, broken))  # a device read before the others, every step
+    board.publisher("stuck", "std_msgs/Empty", 100.0, broken)  # fails at every reading
     link = open_link(f"pty://?symlink={tmp_path / 'diffbot'}")
     graph = Graph.embedded(listen=[f"tcp/127.0.0.1:{free_port()}"], domain="emufail")
     bridge = Bridge(graph)

@@ -215,10 +215,8 @@ def test_other_process_publishes_and_exits_without_closing(
 
 
 def test_calls_keep_a_querier_per_timeout_and_cope_with_many_timeouts(
-    router: Graph, client: Graph, monkeypatch: pytest.MonkeyPatch
+    router: Graph, client: Graph
 ) -> None:
-    from hwbridge.graph import core
-
     node = client.node("caller")
     # Declared before the server exists: the first call finds nobody, later ones reach it.
     with pytest.raises(HwBridgeTimeoutError, match=r"service /late \(is its server running"):
@@ -231,13 +229,12 @@ def test_calls_keep_a_querier_per_timeout_and_cope_with_many_timeouts(
 
     router.node("board").service("/late", "std_srvs/Trigger", handler)
     call_when_ready(node, "/late", "std_srvs/Trigger", {})
-    monkeypatch.setattr(core, "_MAX_QUERIERS", 3)
+    node.max_queriers = 3  # past the cap, calls with further timeouts make one-off gets
     answers = [
         node.call("/late", "std_srvs/Trigger", {}, timeout=2.0 + index / 10).message
         for index in range(6)
     ]
     assert answers == [f"call {len(served) - 5 + index}" for index in range(6)]
-    assert len(node._call_targets) == 3  # the cap: further timeouts use one-off gets
     with pytest.raises(HwBridgeTimeoutError, match=r"service /gone \(is its server running"):
         node.call("/gone", "std_srvs/Trigger", {}, timeout=0.2)  # past the cap too
 

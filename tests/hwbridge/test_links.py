@@ -825,14 +825,47 @@ def test_entry_point_plugins_are_found(tmp_path: Path, monkeypatch: pytest.Monke
     link.close()
 
 
-def test_declared_entry_points_match_the_builtin_table() -> None:
-    from importlib.metadata import entry_points
+def test_builtins_are_declared_once_in_their_tables_not_as_entry_points() -> None:
+    """hwbridge's own schemes, protocols and device types live in the registries' built-in
+    tables; its pyproject.toml declares no entry point naming one (entry points are how other
+    packages add theirs)."""
+    if sys.version_info < (3, 11):
+        pytest.skip("tomllib is Python 3.11+")
+    import tomllib
 
-    from hwbridge.links.registry import BUILTIN_SCHEMES, ENTRY_POINT_GROUP
+    from hwbridge.links.registry import BUILTIN_SCHEMES
+    from hwbridge.links.registry import ENTRY_POINT_GROUP as LINKS
+    from hwbridge.protocols.registry import BUILTIN_PROTOCOLS
+    from hwbridge.protocols.registry import ENTRY_POINT_GROUP as PROTOCOLS
+    from hwbridge.robot.registry import BUILTIN_DEVICES
+    from hwbridge.robot.registry import ENTRY_POINT_GROUP as DEVICES
 
-    for ep in entry_points(group=ENTRY_POINT_GROUP):
-        if ep.name in BUILTIN_SCHEMES:
-            assert ep.value == BUILTIN_SCHEMES[ep.name], ep
+    project = tomllib.loads((Path(__file__).parents[2] / "pyproject.toml").read_text())["project"]
+    declared = project.get("entry-points", {})
+    for group, table in (
+        (LINKS, BUILTIN_SCHEMES),
+        (PROTOCOLS, BUILTIN_PROTOCOLS),
+        (DEVICES, BUILTIN_DEVICES),
+    ):
+        entries: dict[str, str] = declared.get(group, {})
+        assert not entries.keys() & table.keys(), group
+        assert not set(entries.values()) & set(table.values()), group
+
+
+def test_an_entry_point_cannot_replace_a_builtin_scheme(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    dist = tmp_path / "hwbridge_ep_override-1.0.dist-info"
+    dist.mkdir()
+    (dist / "METADATA").write_text(
+        "Metadata-Version: 2.1\nName: hwbridge-ep-override\nVersion: 1.0\n"
+    )
+    (dist / "entry_points.txt").write_text("[hwbridge.links]\nMEMORY = elsewhere:Link\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    with pytest.raises(LinkError, match="unknown link scheme 'zzz-reread'"):
+        create_link("zzz-reread://x")  # an unknown scheme makes the registry read them again
+    assert any("cannot replace the built-in" in r.getMessage() for r in caplog.records)
+    assert schemes()["memory"] == "hwbridge.links.memory:MemoryLink"
 
 
 def test_importing_links_loads_no_io_library() -> None:

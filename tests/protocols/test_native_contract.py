@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import json
 import logging
@@ -31,6 +32,7 @@ from hwbridge.protocols.native.framing import (
     encode_datagram,
     encode_frame,
 )
+from hwbridge.protocols.native.reliable import SequenceStats
 from hwbridge.protocols.native.session import (
     Connected,
     DeviceConfig,
@@ -39,6 +41,7 @@ from hwbridge.protocols.native.session import (
     HostSession,
     ServiceRequest,
     ServiceResponse,
+    SessionCounters,
     TopicEntry,
 )
 from hwbridge.protocols.native.spec import PROTOCOL, NativeDetector
@@ -237,6 +240,19 @@ def test_connected_and_stats_carry_the_shared_fields() -> None:
     assert info["board"] == BOARD.name and info["unique_id"] == BOARD.unique_id.hex()
     assert info["mtu"] == host.link.mtu if host.link else False
     json.dumps(info)
+
+
+def test_native_stats_list_each_counter_once_from_where_it_is_counted() -> None:
+    """``as_dict()`` lists the shared counters, then the sequencing layer's and the session's
+    own (each declared once, on the object that counts it), then the RTT estimate."""
+    shared = [f.name for f in dataclasses.fields(SessionStats) if f.name != "detail"]
+    counted = [f.name for f in dataclasses.fields(SequenceStats)]
+    counted += [f.name for f in dataclasses.fields(SessionCounters) if f.name not in shared]
+    stats = HostSession().stats
+    assert list(stats.as_dict()) == [*shared, *counted, "rtt", "rto"]
+    assert (stats.retransmits, stats.stalls, stats.rtt) == (0, 0, None)
+    with pytest.raises(AttributeError, match="no attribute 'retransmit'"):
+        getattr(stats, "retransmit")  # noqa: B009
 
 
 # --- start-up --------------------------------------------------------------------------------

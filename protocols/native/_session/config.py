@@ -1,4 +1,4 @@
-"""Configuration, descriptions and counters of native sessions, and their errors."""
+"""Configuration and descriptions of native sessions, and their errors."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from dataclasses import dataclass
 from enum import Enum
 from typing import Final, TypeAlias
 
-from hwbridge.protocols.base import Endpoint, SessionStats
+from hwbridge.protocols.base import Endpoint
 from hwbridge.protocols.errors import HwBridgeError, ProtocolMismatchError
 from hwbridge.protocols.native._control.common import (
     ALL_FEATURES,
@@ -244,54 +244,3 @@ class SessionState(Enum):
     """Table done: topics, services, params, time and logs work."""
     CLOSED = "closed"
     """``close()`` was called; nothing more happens."""
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class NativeStats(SessionStats):
-    """Counters of one end of a native link (cumulative over sessions) and its RTT estimate.
-
-    The shared :class:`~hwbridge.protocols.base.SessionStats` counters (frames and bytes each
-    way, ``bad_frames`` for runs the decoder rejected for any reason, CRC errors included,
-    ``non_frame_bytes``, ``dropped_messages`` for messages on channels that are unknown, refused
-    or not yet connected, ``protocol_errors``, ``sessions`` established) plus native's own;
-    ``as_dict()`` gives them all by name.
-    """
-
-    be_frames_sent: int = 0
-    be_frames_received: int = 0
-    be_frames_lost: int = 0
-    """Best-effort frames the peer sent that never arrived (seq gaps)."""
-    be_frames_late: int = 0
-    be_resyncs: int = 0
-    be_messages_sent: int = 0
-    be_messages_received: int = 0
-    be_messages_incomplete: int = 0
-    be_fragments_discarded: int = 0
-    rel_frames_sent: int = 0
-    rel_frames_received: int = 0
-    rel_messages_sent: int = 0
-    rel_messages_received: int = 0
-    retransmits: int = 0
-    fast_retransmits: int = 0
-    duplicates: int = 0
-    out_of_window: int = 0
-    acks_sent: int = 0
-    acks_received: int = 0
-    oversize_messages: int = 0
-    malformed_messages: int = 0
-    ignored_frames: int = 0
-    """Valid frames that did not belong to the current session (e.g. before the handshake)."""
-    tx_refused: int = 0
-    """Sends refused because the session was not connected or the queue was full."""
-    hellos_sent: int = 0
-    heartbeats_sent: int = 0
-    link_losses: int = 0
-    """Sessions ended by the link timeout or the retry limit."""
-    peer_resets: int = 0
-    """Sessions ended because the peer restarted or dropped the session."""
-    stalls: int = 0
-    """Times this end was not run for longer than twice the heartbeat interval (a starved or
-    stopped process); that time does not count towards the link timeout (PROTOCOL.md 2.9)."""
-    rtt: float | None = None
-    """Smoothed round-trip time of reliable frames, seconds."""
-    rto: float = 0.0

@@ -33,7 +33,6 @@ from hwbridge.protocols.native._session.config import (
     _U32,
     BoardInfo,
     LinkParams,
-    NativeStats,
     SessionConfig,
     SessionError,
     SessionResetError,
@@ -41,6 +40,7 @@ from hwbridge.protocols.native._session.config import (
     TopicEntry,
 )
 from hwbridge.protocols.native._session.events import DebugOutput, Error
+from hwbridge.protocols.native._session.stats import NativeStats, SessionCounters, native_detail
 from hwbridge.protocols.native.control import (
     ControlMessage,
     GoodbyeMsg,
@@ -73,22 +73,6 @@ class _Pending:
     channel: int
     name: str
     deadline: float
-
-
-@dataclass(slots=True)
-class _Counters:
-    frames_sent: int = 0
-    bytes_sent: int = 0
-    ignored_frames: int = 0
-    dropped_messages: int = 0
-    tx_refused: int = 0
-    protocol_errors: int = 0
-    hellos_sent: int = 0
-    heartbeats_sent: int = 0
-    sessions: int = 0
-    link_losses: int = 0
-    peer_resets: int = 0
-    stalls: int = 0
 
 
 def _truncate(text: str, limit: int) -> bytes:
@@ -141,7 +125,7 @@ class SessionCore(Generic[_E]):
         """The latest time seen (0.0 before the first); the clock of every action."""
         self._started = False
         """True once a time was seen: the timers start from that time."""
-        self._c = _Counters()
+        self._c = SessionCounters()
         self._seq = SequenceStats()
         self._rtt = RttEstimator(config.rto_initial, config.rto_min, config.rto_max)
         self._be_tx = BestEffortSender(self._seq)
@@ -246,7 +230,6 @@ class SessionCore(Generic[_E]):
             + d.oversize
         )
         c = self._c
-        q = self._seq
         return NativeStats(
             frames_sent=c.frames_sent,
             bytes_sent=c.bytes_sent,
@@ -258,36 +241,7 @@ class SessionCore(Generic[_E]):
             dropped_messages=c.dropped_messages,
             protocol_errors=c.protocol_errors,
             sessions=c.sessions,
-            ignored_frames=c.ignored_frames,
-            tx_refused=c.tx_refused,
-            hellos_sent=c.hellos_sent,
-            heartbeats_sent=c.heartbeats_sent,
-            link_losses=c.link_losses,
-            peer_resets=c.peer_resets,
-            stalls=c.stalls,
-            rtt=self._rtt.srtt,
-            rto=self._rtt.rto,
-            be_frames_sent=q.be_frames_sent,
-            be_frames_received=q.be_frames_received,
-            be_frames_lost=q.be_frames_lost,
-            be_frames_late=q.be_frames_late,
-            be_resyncs=q.be_resyncs,
-            be_messages_sent=q.be_messages_sent,
-            be_messages_received=q.be_messages_received,
-            be_messages_incomplete=q.be_messages_incomplete,
-            be_fragments_discarded=q.be_fragments_discarded,
-            rel_frames_sent=q.rel_frames_sent,
-            rel_frames_received=q.rel_frames_received,
-            rel_messages_sent=q.rel_messages_sent,
-            rel_messages_received=q.rel_messages_received,
-            retransmits=q.retransmits,
-            fast_retransmits=q.fast_retransmits,
-            duplicates=q.duplicates,
-            out_of_window=q.out_of_window,
-            acks_sent=q.acks_sent,
-            acks_received=q.acks_received,
-            oversize_messages=q.oversize_messages,
-            malformed_messages=q.malformed_messages,
+            detail=native_detail(self._seq, c, self._rtt.srtt, self._rtt.rto),
         )
 
     def counters(self) -> NativeStats:

@@ -44,15 +44,6 @@ def _best_sample(samples: Iterable[_S]) -> _S:
 class TimeSync(SessionCore[Any]):
     """What both ends do: start an exchange, schedule the next one."""
 
-    def request_time_sync(self, now: float | None = None) -> bool:
-        """Start a time sync exchange now (they also run every ``time_sync_interval``)."""
-        self._advance_opt(now)
-        if not self.connected or not self._link or not self._link.features & Features.TIME_SYNC:
-            return False
-        self._send_time_request()
-        self._time_next = self._now + self._cfg.time_sync_retry
-        return True
-
     def _time_answered(self) -> None:
         self._time_next = self._now + self._cfg.time_sync_interval
 

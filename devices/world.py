@@ -1,4 +1,5 @@
-"""Small shared physics helpers for the device models: constants, planar poses, yaw quaternions.
+"""Small shared physics helpers for the device models: constants, planar poses, yaw quaternions,
+the air around the robot.
 
 Kept minimal on purpose: the full world model (obstacles, beams, bodies) is built on top of these
 and of the device models in :mod:`hwbridge.devices.diffdrive.encoders`,
@@ -13,7 +14,9 @@ from typing import Final
 
 __all__ = [
     "ORIGIN",
+    "STANDARD_ATMOSPHERE",
     "STANDARD_GRAVITY",
+    "Air",
     "Pose2D",
     "Quaternion",
     "normalize_angle",
@@ -57,3 +60,18 @@ class Pose2D:
 
 ORIGIN: Final = Pose2D()
 """The pose at the origin, heading +x."""
+
+STANDARD_ATMOSPHERE: Final = 101325.0
+"""Sea-level pressure of the standard atmosphere, Pa."""
+
+
+@dataclass(frozen=True)
+class Air:
+    """The air around the robot, as environmental sensors (a BME280) measure it."""
+
+    temperature: float = 20.0
+    """Degrees Celsius."""
+    pressure: float = STANDARD_ATMOSPHERE
+    """Pa."""
+    humidity: float = 45.0
+    """Relative humidity, % (0..100)."""

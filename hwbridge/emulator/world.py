@@ -1,4 +1,5 @@
-"""The emulated world: a room with walls, a differential-drive base, what its sensors feel.
+"""The emulated world: a room with walls, a differential-drive base, the air, what its sensors
+feel.
 
 Deterministic for a seed; stepped by the caller (real time or faster). Ground truth is public,
 for tests and for the demo's score.
@@ -14,7 +15,7 @@ import numpy as np
 
 from hwbridge.devices.diffdrive.encoders import DiffDriveBase
 from hwbridge.devices.imu.mpu import ImuTruth
-from hwbridge.devices.world import STANDARD_GRAVITY, Pose2D
+from hwbridge.devices.world import STANDARD_GRAVITY, Air, Pose2D
 
 __all__ = ["Segment", "World", "WorldConfig"]
 
@@ -42,6 +43,9 @@ class WorldConfig:
     """Standard deviation of floor vibration felt by the IMU while moving (m/s^2)."""
     magnetic_field: tuple[float, float, float] = (2.0e-5, 0.0, -4.5e-5)
     """Earth's field in the world frame (T)."""
+    air: Air = field(default_factory=Air)
+    """The air around the robot (temperature degC, pressure Pa, humidity %); a robot file
+    gives any of them as ``air: {temperature: 20.0, pressure: 101325.0, humidity: 45.0}``."""
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> WorldConfig:
@@ -52,6 +56,11 @@ class WorldConfig:
             values["obstacles"] = tuple(tuple(o) for o in values["obstacles"])
         if "magnetic_field" in values:
             values["magnetic_field"] = tuple(values["magnetic_field"])
+        if "air" in values:
+            air = values["air"]
+            if not isinstance(air, dict):
+                raise ValueError("air must be a mapping (temperature, pressure, humidity)")
+            values["air"] = Air(**{key: float(value) for key, value in air.items()})
         return cls(**values)
 
 
@@ -85,6 +94,8 @@ class World:
         ]
         self._rng = np.random.default_rng(self.seed + 1)
         self._accel = 0.0
+        self.air: Air = cfg.air
+        """The air now (set it to change the weather)."""
 
     @property
     def time(self) -> float:

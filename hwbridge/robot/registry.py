@@ -29,6 +29,7 @@ BUILTIN_DEVICES: Final[dict[str, str]] = {
     "hcsr04": "hwbridge.devices.ultrasonic.plugin:HcSr04Plugin",
     "mpu6050": "hwbridge.devices.imu.plugin:Mpu6050Plugin",
     "mpu9250": "hwbridge.devices.imu.plugin:Mpu9250Plugin",
+    "bme280": "hwbridge.devices.bme280.plugin:Bme280Plugin",
     "dynamixel": "hwbridge.devices.dynamixel.plugin:BoardServoPlugin",
     "dynamixel_bus": "hwbridge.devices.dynamixel.plugin:DynamixelBusPlugin",
 }

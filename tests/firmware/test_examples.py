@@ -46,7 +46,7 @@ REQUIRED = (
     "DxlArm",
 )
 DIFFBOT = ROOT / "examples" / "robots" / "diffbot.yaml"
-WITH_DRIVERS = ("DiffDriveBase", "DxlArm", "Imu", "Sonar")
+WITH_DRIVERS = ("Bme280", "DiffDriveBase", "DxlArm", "Imu", "Sonar")
 BOARDS = {"uno": "arduino:avr:uno", "mega": "arduino:avr:mega:cpu=atmega2560"}
 HWBRIDGE = [sys.executable, "-m", "hwbridge"]  # the `hwbridge` command of this environment
 CTAGS_PATTERN = (

@@ -50,6 +50,7 @@ def test_library_covers_the_device_plugins_types() -> None:
         "hwbridge_msgs/WheelTargets",
         "hwbridge_msgs/SonarEcho",
         "hwbridge_msgs/ImuRaw",
+        "hwbridge_msgs/Bme280",
         "sensor_msgs/JointState",
         "std_msgs/Float64",
         "std_msgs/Bool",

@@ -318,6 +318,7 @@ def _signal_after(
     return Outcome(name, delay, returncode, latency, log.read_text(errors="replace"))
 
 
+@pytest.mark.timeout(max(300, TRIALS * 60))  # the 50 trials a command take minutes
 def test_every_long_running_command_stops_within_2_s_of_sigint(
     commands: tuple[list[Command], str, dict[str, str]], tmp_path: Path
 ) -> None:

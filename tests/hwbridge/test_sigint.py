@@ -17,8 +17,11 @@ A signal that lands while the interpreter itself is still starting, before any h
 has run, is counted apart ("early") and not failed: it dies by SIGINT's default action with no
 output, or Python reports that its initialization (``site``, the standard streams) or its
 import of ``runpy`` for ``-m`` was interrupted, or prints a KeyboardInterrupt traceback with
-no frame of ours (runpy, an import hook of site-packages). Nothing of ours runs by then;
-Python's own handling is what a user gets.
+no frame of ours (runpy, an import hook of site-packages), or drops the KeyboardInterrupt
+that it raised in a callback of its import system ("Exception ignored in: <function
+_get_module_lock...>") and starts the command as if nothing had come (the trial then runs until
+it is killed). Nothing of ours runs by then; Python's own handling is what a user gets, and
+the next Ctrl-C stops the command.
 
 ``HWBRIDGE_SIGINT_TRIALS`` trials per command (default 8; the issue's figure is 50),
 ``HWBRIDGE_SIGINT_JOBS`` at once (default 4), ``HWBRIDGE_SIGINT_SEED`` (default 25),
@@ -94,11 +97,32 @@ class Outcome:
             f'File "{ROOT / "hwbridge"}' not in self.output
         ):  # 'python -m' interrupted while importing runpy itself (status 1)
             return True
+        if self._swallowed_by_the_import_system():
+            return True
         if self.returncode != -signal.SIGINT:
             return False
         ours = f'File "{ROOT / "hwbridge"}'
         return not self.output.strip() or (
             self.output.rstrip().endswith("KeyboardInterrupt") and ours not in self.output
+        )
+
+    def _swallowed_by_the_import_system(self) -> bool:
+        """Python's own KeyboardInterrupt, raised in a weakref callback of the import system
+        (a module lock collected while the interpreter imports ``runpy``, ``site`` or the
+        ``hwbridge`` package itself) and printed as "Exception ignored": the interpreter drops
+        it and carries on, so the command starts as if no signal had come. That can only happen
+        before ``hwbridge/__init__.py`` takes the signal over: its handler exits without
+        raising, and from ``main`` on a watcher thread ends the process whatever the main
+        thread does with the exception."""
+        head, marker, rest = self.output.partition(
+            "Exception ignored in: <function _get_module_lock"
+        )
+        traceback = rest.split("KeyboardInterrupt", 1)[0]
+        return (
+            bool(marker)
+            and "hwbridge" not in head
+            and "KeyboardInterrupt" in rest
+            and f'File "{ROOT / "hwbridge"}' not in traceback
         )
 
     @property

@@ -41,7 +41,7 @@ HWB_NODE void HWB_SELF::deliver(const Frame& f) {
 HWB_NODE void HWB_SELF::onBestEffort(const Frame& f) {
   const uint8_t* p = f.payload;
   if (f.channel == kControlChannel && f.size >= 8 && p[0] == 0x01 && p[1] == 1) {
-    const uint32_t peer = detail::get32(p + 4);  // a HELLO: a new session has its own seq space
+    const uint32_t peer = wire::get32(p + 4);  // a HELLO: a new session has its own seq space
     if (peer != be_peer_ && peer != id_) {
       be_peer_ = peer;
       be_rx_.resync();
@@ -125,15 +125,15 @@ HWB_NODE void HWB_SELF::onControl(const uint8_t* p, size_t n, bool reliable) {
     case 0x06: {  // HOST_TIME_REQUEST: t1 echoed, t2 = t3 = now
       if (!(Profile::kFeatures & 1)) break;
       if (!flag(kTimeSynced)) {  // a first estimate of host time: t1 plus the one-way delay
-        host_sec_ = detail::get32(p + 1);
-        host_nsec_ = detail::get32(p + 5);
+        host_sec_ = wire::get32(p + 1);
+        host_nsec_ = wire::get32(p + 5);
         board_ref_ = now_;
       }
       uint8_t r[17];
       r[0] = 0x07;
       memcpy(r + 1, p + 1, 8);
-      detail::put32(r + 9, now_);
-      detail::put32(r + 13, now_);
+      wire::put32(r + 9, now_);
+      wire::put32(r + 13, now_);
       sendControlBe(r, 17);
       break;
     }
@@ -188,8 +188,8 @@ HWB_NODE void HWB_SELF::onControl(const uint8_t* p, size_t n, bool reliable) {
 }
 
 HWB_NODE void HWB_SELF::onHello(const uint8_t* p) {
-  const uint32_t session = detail::get32(p + 4);
-  const uint32_t peer_session = detail::get32(p + 8);
+  const uint32_t session = wire::get32(p + 4);
+  const uint32_t peer_session = wire::get32(p + 8);
   if (p[1] != 1 || p[2] != 0) {  // another version, or the peer is a board (or an echo)
     protocolError();
     return;
@@ -199,7 +199,7 @@ HWB_NODE void HWB_SELF::onHello(const uint8_t* p) {
     teardown();
   }
   if (!established()) {
-    if (detail::get16(p + 12) < (kFragments ? kMinMtu : Profile::kTxBuffer) || p[18] == 0 || detail::get32(p + 14) == 0 || session == 0) {
+    if (wire::get16(p + 12) < (kFragments ? kMinMtu : Profile::kTxBuffer) || p[18] == 0 || wire::get32(p + 14) == 0 || session == 0) {
       protocolError();
       return;
     }
@@ -210,12 +210,12 @@ HWB_NODE void HWB_SELF::onHello(const uint8_t* p) {
 }
 
 HWB_NODE void HWB_SELF::establish(const uint8_t* h) {
-  const uint16_t host_mtu = detail::get16(h + 12);
+  const uint16_t host_mtu = wire::get16(h + 12);
   mtu_ = kFixedMtu || host_mtu > Profile::kMtu ? Profile::kMtu : host_mtu;
   // the host's window is at least 1 (onHello refused 0)
   uint8_t window = Profile::kWindow == 1 || h[18] > Profile::kWindow ? Profile::kWindow : h[18];
   if (window > kMaxWindow) window = kMaxWindow;
-  const uint32_t peer_max = detail::get32(h + 14);
+  const uint32_t peer_max = wire::get32(h + 14);
   peer_max_ = peer_max > 0xFFFFUL ? 0xFFFFu : static_cast<uint16_t>(peer_max);
   features_ = static_cast<uint8_t>(h[20] & Profile::kFeatures);
   rel_tx_.reset(isn_, window, kFixedMtu ? Profile::kMtu : mtu_);

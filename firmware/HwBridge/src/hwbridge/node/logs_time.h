@@ -33,15 +33,15 @@ HWB_NODE void HWB_SELF::requestSyncTime() {
   clock();  // t1 is now
   uint8_t r[5];
   r[0] = 0x03;
-  detail::put32(r + 1, now_);
+  wire::put32(r + 1, now_);
   sendControlBe(r, 5);
 }
 
 HWB_NODE void HWB_SELF::onTimeResponse(const uint8_t* p) {
-  const uint32_t elapsed = now_ - detail::get32(p + 1);
+  const uint32_t elapsed = now_ - wire::get32(p + 1);
   if (elapsed > kMaxTimeAgeUs) return;
-  const uint32_t t2s = detail::get32(p + 5), t2n = detail::get32(p + 9);
-  const uint32_t t3s = detail::get32(p + 13), t3n = detail::get32(p + 17);
+  const uint32_t t2s = wire::get32(p + 5), t2n = wire::get32(p + 9);
+  const uint32_t t3s = wire::get32(p + 13), t3n = wire::get32(p + 17);
   const uint32_t busy_s = t3s - t2s;
   if (busy_s > 10 || t2n >= 1000000000UL || t3n >= 1000000000UL) return;  // nonsense: ignored
   // host busy time t3 - t2 in us

@@ -134,10 +134,10 @@ HWB_NODE void HWB_SELF::sendHello() {
   h[1] = 1;  // version
   h[2] = 1;  // role: board
   h[3] = established() ? 1 : 0;
-  detail::put32(h + 4, id_);
-  detail::put32(h + 8, peer_);
-  detail::put16(h + 12, Profile::kMtu);
-  detail::put32(h + 14, Profile::kMaxMessage);
+  wire::put32(h + 4, id_);
+  wire::put32(h + 8, peer_);
+  wire::put16(h + 12, Profile::kMtu);
+  wire::put32(h + 14, Profile::kMaxMessage);
   h[18] = Profile::kWindow;
   h[19] = isn_;
   h[20] = Profile::kFeatures;

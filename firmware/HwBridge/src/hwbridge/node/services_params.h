@@ -11,7 +11,7 @@
 
 HWB_NODE void HWB_SELF::onServiceRequest(const uint8_t* p, size_t n) {
   const uint8_t channel = p[1];
-  const uint16_t id = detail::get16(p + 2);
+  const uint16_t id = wire::get16(p + 2);
   if (!txFree() || peer_max_ < 5) {  // no room to answer (now, or ever): the host's call times out
     ++stats_.tx_refused;
     return;
@@ -34,14 +34,14 @@ HWB_NODE void HWB_SELF::onServiceRequest(const uint8_t* p, size_t n) {
   }
   tx_[0] = 0x21;
   tx_[1] = channel;
-  detail::put16(tx_ + 2, id);
+  wire::put16(tx_ + 2, id);
   tx_[4] = status;
   pending_ch_ = kControlChannel;
   pending_len_ = static_cast<uint16_t>(5 + len);
 }
 
 HWB_NODE void HWB_SELF::onServiceResponse(const uint8_t* p, size_t n) {
-  if (call_state_ != 1 || detail::get16(p + 2) != call_id_ || call_entry_ == nullptr ||
+  if (call_state_ != 1 || wire::get16(p + 2) != call_id_ || call_entry_ == nullptr ||
       p[1] != call_entry_->channel_) {
     return;  // late, or not ours
   }
@@ -64,7 +64,7 @@ HWB_NODE uint8_t HWB_SELF::call(Entry& e, size_t len, uint16_t timeout_ms, void*
   call_id_ = newRequestId();
   tx_[0] = 0x20;
   tx_[1] = e.channel_;
-  detail::put16(tx_ + 2, call_id_);
+  wire::put16(tx_ + 2, call_id_);
   pending_ch_ = kControlChannel;
   pending_len_ = static_cast<uint16_t>(len + 4);
   call_entry_ = &e;
@@ -110,10 +110,10 @@ HWB_NODE uint16_t HWB_SELF::requestParam(const char* name, uint8_t type, ParamCa
   if (subscribe) push_cb_ = cb;
   uint8_t* p = tx_;
   *p++ = 0x30;
-  p = detail::put16(p, param_id_);
+  p = wire::put16(p, param_id_);
   *p++ = type;
   *p++ = subscribe ? 1 : 0;
-  p = detail::put16(p, max_count);
+  p = wire::put16(p, max_count);
   memcpy(p, name, len);
   pending_ch_ = kControlChannel;
   pending_len_ = static_cast<uint16_t>(7 + len);
@@ -141,7 +141,7 @@ HWB_NODE void HWB_SELF::finishParam(uint8_t status, const ParamValue* v) {
 
 HWB_NODE void HWB_SELF::onParamValue(const uint8_t* p, size_t n) {
   ParamValue v;
-  v.request_id = detail::get16(p + 1);
+  v.request_id = wire::get16(p + 1);
   v.status = p[3];
   v.name_len = p[4];
   v.name = reinterpret_cast<const char*>(p + 5);
@@ -160,14 +160,14 @@ HWB_NODE void HWB_SELF::onParamValue(const uint8_t* p, size_t n) {
       if (good) {
         v.count_ = 1;
         if (v.type & 0x80) {
-          v.count_ = detail::get16(p + at);
+          v.count_ = wire::get16(p + at);
           at += 2;
         }
         v.elems_ = p + at;
         const uint8_t es = detail::param_elem_size(scalar);
         for (uint16_t i = 0; good && i < v.count_; ++i) {  // every element within the payload
           size_t step = es;
-          if (es == 0) step = at + 2 <= n ? 2u + detail::get16(p + at) : n + 1;
+          if (es == 0) step = at + 2 <= n ? 2u + wire::get16(p + at) : n + 1;
           good = at + step <= n;
           at += step;
         }

@@ -343,6 +343,116 @@ def _frame(schema: Schema) -> Iterator[str]:
         raise ValueError(f"schema frame CRC {crc['name']} is not hwbridge_wire.h's crc16")
 
 
+# -- the board's view ------------------------------------------------------------------------
+#
+# The board does not link the structs and bounded codecs above: it reads a received payload in
+# place (its size checked once against kMinSize) and writes the fixed start of a message
+# straight into its transmit buffer. For that the generator gives, per message the board reads
+# or writes, a struct in namespace board with the opcode, the size of the fixed fields, getters
+# at their offsets and a put() of them: inline, no tables, so that a sketch compiles to the
+# loads and stores a hand-written parser would make.
+
+_GET: Final = {"u8": "p[{at}]", "u16": "wire::get16(p + {at})", "u32": "wire::get32(p + {at})"}
+_PUT: Final = {
+    "u8": "p[{at}] = {value};",
+    "u16": "wire::put16(p + {at}, {value});",
+    "u32": "wire::put32(p + {at}, {value});",
+}
+
+
+def _fixed_layout(schema: Schema, spec: MessageSpec) -> tuple[list[tuple[str, str, int]], int]:
+    """(name, wire type, offset) of the scalar fields at fixed offsets (struct fields flattened
+    as NAME_SUB), and the offset where the first field of another kind starts."""
+    out: list[tuple[str, str, int]] = []
+    at = 1
+    for field in spec.fields:
+        if field.is_scalar and field.type in _GET:
+            out.append((field.name, field.type, at))
+        elif field.type in schema.structs:
+            sub_at = at
+            for sub in schema.structs[field.type]:
+                out.append((f"{field.name}_{sub.name}", sub.type, sub_at))
+                sub_at += schema.width(sub)
+        else:
+            return out, at
+        at += schema.width(field)
+    return out, at
+
+
+def _board_struct(schema: Schema, spec: MessageSpec) -> Iterator[str]:
+    reads = spec.direction in ("host->board", "both")
+    writes = spec.direction in ("board->host", "both")
+    layout, end = _fixed_layout(schema, spec)
+    consts = {f.name: f.const for f in spec.fields if f.const is not None}
+    yield ""
+    does = "reads and writes" if reads and writes else "reads" if reads else "writes"
+    yield f"/** {spec.name} as the board {does} it: its fixed fields at their offsets. */"
+    yield f"struct {spec.class_name.removesuffix('Msg')} {{"
+    yield f"  static const uint8_t kOpcode = Opcode::{spec.name};"
+    yield "  /** Bytes of the opcode and the fixed fields: the shortest valid payload. */"
+    yield f"  static const uint8_t kMinSize = {_min_size(schema, spec)};"
+    # offsets of what follows the fixed start: variable fields, and fields sent on a condition
+    at: int | None = 1
+    for field in spec.fields:
+        width = schema.width(field)
+        if at is not None and field.type not in schema.structs:
+            if field.length == "u8":
+                yield f"  /** {field.name}: its u8 length here, its bytes after it. */"
+            if field.length is not None or field.when is not None or not field.is_scalar:
+                yield f"  static const uint8_t k{_camel(field.name)} = {at};"
+        at = at + width if at is not None and width else None
+        if field.when is not None and at is not None:
+            name, value, equal = field.when
+            cond = f"{name} {'==' if equal else '!='} {value}"
+            yield f"  /** Bytes up to {field.name} when it is sent ({cond}). */"
+            yield f"  static const uint8_t k{_camel(field.name)}End = {at};"
+    if reads:
+        for name, typ, off in layout:
+            get = _GET[typ].format(at=off)
+            yield f"  static {_ctype(typ)} {name}(const uint8_t* p) {{ return {get}; }}"
+    if writes:
+        args = [f"{_ctype(typ)} {name}" for name, typ, _ in layout if name not in consts]
+        yield "  /** Writes the opcode and the fixed fields at p; returns the end of them. */"
+        yield f"  static uint8_t* put(uint8_t* p{''.join(', ' + a for a in args)}) {{"
+        yield "    p[0] = kOpcode;"
+        for name, typ, off in layout:
+            value = consts.get(name, name)
+            yield "    " + _PUT[typ].format(at=off, value=value)
+        yield f"    return p + {end};"
+        yield "  }"
+    yield "};"
+
+
+def _camel(name: str) -> str:
+    return "".join(part.capitalize() for part in name.split("_"))
+
+
+def _min_size(schema: Schema, spec: MessageSpec) -> int:
+    """Opcode and every field before the first optional one, a length prefix counted."""
+    size = 1
+    for field in spec.fields:
+        if field.when is not None:
+            break
+        width = schema.width(field)
+        if width:
+            size += width
+        elif field.length in SCALARS_SIZE:
+            size += SCALARS_SIZE[field.length]
+            break
+        else:
+            break
+    return size
+
+
+def _board(schema: Schema) -> Iterator[str]:
+    yield ""
+    yield "/** The board's view of the control messages: in place, no copies (gen_control.py). */"
+    yield "namespace board {"
+    for spec in schema.messages:
+        yield from _board_struct(schema, spec)
+    yield "}  // namespace board"
+
+
 def generate_control_header(schema: Schema | None = None) -> str:
     """The text of ``hwbridge_control.h``."""
     schema = schema or load_schema()
@@ -379,6 +489,7 @@ def generate_control_header(schema: Schema | None = None) -> str:
     out.extend(_param_value(schema))
     for spec in schema.messages:
         out.extend(_message(schema, spec))
+    out.extend(_board(schema))
     out += ["", "}  // namespace control", "}  // namespace hwbridge", "", "#endif", ""]
     return "\n".join(out)
 

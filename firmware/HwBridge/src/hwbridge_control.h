@@ -992,6 +992,262 @@ inline bool decode(const uint8_t* buf, size_t len, LogMsg* m) {
   return r.ok();
 }
 
+/** The board's view of the control messages: in place, no copies (gen_control.py). */
+namespace board {
+
+/** HELLO as the board reads and writes it: its fixed fields at their offsets. */
+struct Hello {
+  static const uint8_t kOpcode = Opcode::HELLO;
+  /** Bytes of the opcode and the fixed fields: the shortest valid payload. */
+  static const uint8_t kMinSize = 21;
+  static uint8_t version(const uint8_t* p) { return p[1]; }
+  static uint8_t role(const uint8_t* p) { return p[2]; }
+  static uint8_t flags(const uint8_t* p) { return p[3]; }
+  static uint32_t session(const uint8_t* p) { return wire::get32(p + 4); }
+  static uint32_t peer_session(const uint8_t* p) { return wire::get32(p + 8); }
+  static uint16_t mtu(const uint8_t* p) { return wire::get16(p + 12); }
+  static uint32_t max_message(const uint8_t* p) { return wire::get32(p + 14); }
+  static uint8_t window(const uint8_t* p) { return p[18]; }
+  static uint8_t isn(const uint8_t* p) { return p[19]; }
+  static uint8_t features(const uint8_t* p) { return p[20]; }
+  /** Writes the opcode and the fixed fields at p; returns the end of them. */
+  static uint8_t* put(uint8_t* p, uint8_t role, uint8_t flags, uint32_t session, uint32_t peer_session, uint16_t mtu, uint32_t max_message, uint8_t window, uint8_t isn, uint8_t features) {
+    p[0] = kOpcode;
+    p[1] = PROTOCOL_VERSION;
+    p[2] = role;
+    p[3] = flags;
+    wire::put32(p + 4, session);
+    wire::put32(p + 8, peer_session);
+    wire::put16(p + 12, mtu);
+    wire::put32(p + 14, max_message);
+    p[18] = window;
+    p[19] = isn;
+    p[20] = features;
+    return p + 21;
+  }
+};
+
+/** HEARTBEAT as the board reads and writes it: its fixed fields at their offsets. */
+struct Heartbeat {
+  static const uint8_t kOpcode = Opcode::HEARTBEAT;
+  /** Bytes of the opcode and the fixed fields: the shortest valid payload. */
+  static const uint8_t kMinSize = 1;
+  /** Writes the opcode and the fixed fields at p; returns the end of them. */
+  static uint8_t* put(uint8_t* p) {
+    p[0] = kOpcode;
+    return p + 1;
+  }
+};
+
+/** TIME_REQUEST as the board writes it: its fixed fields at their offsets. */
+struct TimeRequest {
+  static const uint8_t kOpcode = Opcode::TIME_REQUEST;
+  /** Bytes of the opcode and the fixed fields: the shortest valid payload. */
+  static const uint8_t kMinSize = 5;
+  /** Writes the opcode and the fixed fields at p; returns the end of them. */
+  static uint8_t* put(uint8_t* p, uint32_t t1) {
+    p[0] = kOpcode;
+    wire::put32(p + 1, t1);
+    return p + 5;
+  }
+};
+
+/** TIME_RESPONSE as the board reads it: its fixed fields at their offsets. */
+struct TimeResponse {
+  static const uint8_t kOpcode = Opcode::TIME_RESPONSE;
+  /** Bytes of the opcode and the fixed fields: the shortest valid payload. */
+  static const uint8_t kMinSize = 21;
+  static uint32_t t1(const uint8_t* p) { return wire::get32(p + 1); }
+  static uint32_t t2_sec(const uint8_t* p) { return wire::get32(p + 5); }
+  static uint32_t t2_nsec(const uint8_t* p) { return wire::get32(p + 9); }
+  static uint32_t t3_sec(const uint8_t* p) { return wire::get32(p + 13); }
+  static uint32_t t3_nsec(const uint8_t* p) { return wire::get32(p + 17); }
+};
+
+/** GOODBYE as the board reads and writes it: its fixed fields at their offsets. */
+struct Goodbye {
+  static const uint8_t kOpcode = Opcode::GOODBYE;
+  /** Bytes of the opcode and the fixed fields: the shortest valid payload. */
+  static const uint8_t kMinSize = 1;
+  /** Writes the opcode and the fixed fields at p; returns the end of them. */
+  static uint8_t* put(uint8_t* p) {
+    p[0] = kOpcode;
+    return p + 1;
+  }
+};
+
+/** HOST_TIME_REQUEST as the board reads it: its fixed fields at their offsets. */
+struct HostTimeRequest {
+  static const uint8_t kOpcode = Opcode::HOST_TIME_REQUEST;
+  /** Bytes of the opcode and the fixed fields: the shortest valid payload. */
+  static const uint8_t kMinSize = 9;
+  static uint32_t t1_sec(const uint8_t* p) { return wire::get32(p + 1); }
+  static uint32_t t1_nsec(const uint8_t* p) { return wire::get32(p + 5); }
+};
+
+/** HOST_TIME_RESPONSE as the board writes it: its fixed fields at their offsets. */
+struct HostTimeResponse {
+  static const uint8_t kOpcode = Opcode::HOST_TIME_RESPONSE;
+  /** Bytes of the opcode and the fixed fields: the shortest valid payload. */
+  static const uint8_t kMinSize = 17;
+  /** Writes the opcode and the fixed fields at p; returns the end of them. */
+  static uint8_t* put(uint8_t* p, uint32_t t1_sec, uint32_t t1_nsec, uint32_t t2, uint32_t t3) {
+    p[0] = kOpcode;
+    wire::put32(p + 1, t1_sec);
+    wire::put32(p + 5, t1_nsec);
+    wire::put32(p + 9, t2);
+    wire::put32(p + 13, t3);
+    return p + 17;
+  }
+};
+
+/** BOARD_INFO as the board writes it: its fixed fields at their offsets. */
+struct BoardInfo {
+  static const uint8_t kOpcode = Opcode::BOARD_INFO;
+  /** Bytes of the opcode and the fixed fields: the shortest valid payload. */
+  static const uint8_t kMinSize = 3;
+  /** name: its u8 length here, its bytes after it. */
+  static const uint8_t kName = 2;
+  /** Writes the opcode and the fixed fields at p; returns the end of them. */
+  static uint8_t* put(uint8_t* p, uint8_t topic_count) {
+    p[0] = kOpcode;
+    p[1] = topic_count;
+    return p + 2;
+  }
+};
+
+/** TOPIC as the board writes it: its fixed fields at their offsets. */
+struct Topic {
+  static const uint8_t kOpcode = Opcode::TOPIC;
+  /** Bytes of the opcode and the fixed fields: the shortest valid payload. */
+  static const uint8_t kMinSize = 21;
+  static const uint8_t kMd5 = 4;
+  /** name: its u8 length here, its bytes after it. */
+  static const uint8_t kName = 20;
+  /** Writes the opcode and the fixed fields at p; returns the end of them. */
+  static uint8_t* put(uint8_t* p, uint8_t channel, uint8_t kind, uint8_t flags) {
+    p[0] = kOpcode;
+    p[1] = channel;
+    p[2] = kind;
+    p[3] = flags;
+    return p + 4;
+  }
+};
+
+/** TABLE_END as the board writes it: its fixed fields at their offsets. */
+struct TableEnd {
+  static const uint8_t kOpcode = Opcode::TABLE_END;
+  /** Bytes of the opcode and the fixed fields: the shortest valid payload. */
+  static const uint8_t kMinSize = 2;
+  /** Writes the opcode and the fixed fields at p; returns the end of them. */
+  static uint8_t* put(uint8_t* p, uint8_t count) {
+    p[0] = kOpcode;
+    p[1] = count;
+    return p + 2;
+  }
+};
+
+/** TOPIC_ACK as the board reads it: its fixed fields at their offsets. */
+struct TopicAck {
+  static const uint8_t kOpcode = Opcode::TOPIC_ACK;
+  /** Bytes of the opcode and the fixed fields: the shortest valid payload. */
+  static const uint8_t kMinSize = 3;
+  static const uint8_t kHostMd5 = 3;
+  /** Bytes up to host_md5 when it is sent (status != ACCEPTED). */
+  static const uint8_t kHostMd5End = 19;
+  static const uint8_t kDetail = 19;
+  static uint8_t channel(const uint8_t* p) { return p[1]; }
+  static uint8_t status(const uint8_t* p) { return p[2]; }
+};
+
+/** READY as the board reads it: its fixed fields at their offsets. */
+struct Ready {
+  static const uint8_t kOpcode = Opcode::READY;
+  /** Bytes of the opcode and the fixed fields: the shortest valid payload. */
+  static const uint8_t kMinSize = 2;
+  static uint8_t accepted(const uint8_t* p) { return p[1]; }
+};
+
+/** SERVICE_REQUEST as the board reads and writes it: its fixed fields at their offsets. */
+struct ServiceRequest {
+  static const uint8_t kOpcode = Opcode::SERVICE_REQUEST;
+  /** Bytes of the opcode and the fixed fields: the shortest valid payload. */
+  static const uint8_t kMinSize = 4;
+  static const uint8_t kBody = 4;
+  static uint8_t channel(const uint8_t* p) { return p[1]; }
+  static uint16_t request_id(const uint8_t* p) { return wire::get16(p + 2); }
+  /** Writes the opcode and the fixed fields at p; returns the end of them. */
+  static uint8_t* put(uint8_t* p, uint8_t channel, uint16_t request_id) {
+    p[0] = kOpcode;
+    p[1] = channel;
+    wire::put16(p + 2, request_id);
+    return p + 4;
+  }
+};
+
+/** SERVICE_RESPONSE as the board reads and writes it: its fixed fields at their offsets. */
+struct ServiceResponse {
+  static const uint8_t kOpcode = Opcode::SERVICE_RESPONSE;
+  /** Bytes of the opcode and the fixed fields: the shortest valid payload. */
+  static const uint8_t kMinSize = 5;
+  static const uint8_t kBody = 5;
+  static uint8_t channel(const uint8_t* p) { return p[1]; }
+  static uint16_t request_id(const uint8_t* p) { return wire::get16(p + 2); }
+  static uint8_t status(const uint8_t* p) { return p[4]; }
+  /** Writes the opcode and the fixed fields at p; returns the end of them. */
+  static uint8_t* put(uint8_t* p, uint8_t channel, uint16_t request_id, uint8_t status) {
+    p[0] = kOpcode;
+    p[1] = channel;
+    wire::put16(p + 2, request_id);
+    p[4] = status;
+    return p + 5;
+  }
+};
+
+/** PARAM_GET as the board writes it: its fixed fields at their offsets. */
+struct ParamGet {
+  static const uint8_t kOpcode = Opcode::PARAM_GET;
+  /** Bytes of the opcode and the fixed fields: the shortest valid payload. */
+  static const uint8_t kMinSize = 7;
+  static const uint8_t kName = 7;
+  /** Writes the opcode and the fixed fields at p; returns the end of them. */
+  static uint8_t* put(uint8_t* p, uint16_t request_id, uint8_t type, uint8_t flags, uint16_t max_count) {
+    p[0] = kOpcode;
+    wire::put16(p + 1, request_id);
+    p[3] = type;
+    p[4] = flags;
+    wire::put16(p + 5, max_count);
+    return p + 7;
+  }
+};
+
+/** PARAM_VALUE as the board reads it: its fixed fields at their offsets. */
+struct ParamValue {
+  static const uint8_t kOpcode = Opcode::PARAM_VALUE;
+  /** Bytes of the opcode and the fixed fields: the shortest valid payload. */
+  static const uint8_t kMinSize = 5;
+  /** name: its u8 length here, its bytes after it. */
+  static const uint8_t kName = 4;
+  static uint16_t request_id(const uint8_t* p) { return wire::get16(p + 1); }
+  static uint8_t status(const uint8_t* p) { return p[3]; }
+};
+
+/** LOG as the board reads and writes it: its fixed fields at their offsets. */
+struct Log {
+  static const uint8_t kOpcode = Opcode::LOG;
+  /** Bytes of the opcode and the fixed fields: the shortest valid payload. */
+  static const uint8_t kMinSize = 2;
+  static const uint8_t kText = 2;
+  static uint8_t level(const uint8_t* p) { return p[1]; }
+  /** Writes the opcode and the fixed fields at p; returns the end of them. */
+  static uint8_t* put(uint8_t* p, uint8_t level) {
+    p[0] = kOpcode;
+    p[1] = level;
+    return p + 2;
+  }
+};
+}  // namespace board
+
 }  // namespace control
 }  // namespace hwbridge
 

@@ -7,6 +7,9 @@
 
 namespace hwbridge {
 
+/** The control messages as the board reads and writes them, generated from the schema. */
+namespace board = control::board;
+
 namespace detail {
 
 /** Copies up to cap bytes of a RAM string; returns the end. */

@@ -7,7 +7,7 @@
 #include <avr/sleep.h>
 #include <avr/interrupt.h>
 #include <util/crc16.h>
-#include "hwbridge/crc16.h"
+#include "hwbridge_wire.h"
 
 static void out(char c) {
   while (!(UCSR0A & (1 << UDRE0))) {}

@@ -109,9 +109,10 @@ def generate(
         ),
     ] = None,
 ) -> None:
-    """Write C++ headers: hwbridge_control.h (control messages) and one per message type."""
+    """Write C++ headers: hwbridge_control.h (control messages), one per message type, and the
+    fixed hwbridge_msg.h and hwbridge_wire.h they include."""
     from hwbridge.cli.common import Context
-    from hwbridge.firmware.gen_control import HEADER_NAME, generate_control_header
+    from hwbridge.firmware.gen_control import generate_control_files
     from hwbridge.firmware.gen_msgs import Capacities, MessageHeaders, parse_capacity
     from hwbridge.msg import registry
 
@@ -129,7 +130,7 @@ def generate(
         "std_msgs/Float64",
         "sensor_msgs/JointState",
     ]
-    files = {HEADER_NAME: generate_control_header(), **MessageHeaders(reg, limits).headers(names)}
+    files = {**generate_control_files(), **MessageHeaders(reg, limits).headers(names)}
     for rel, text in files.items():
         path = outdir / rel
         path.parent.mkdir(parents=True, exist_ok=True)

@@ -13,9 +13,11 @@ header-only, no heap, no exceptions. Per message a struct and
   UTF-8 where the schema wants it well-formed; never reads at or past ``buf + len``. Strings and
   byte strings are views (:code:`Bytes`) into ``buf``: valid while ``buf`` is.
 
-Plus the frame header (``FrameHeader``, its encode/decode of the 3 header bytes) and
-``crc16()``, the enums, flags and constants. Everything is in ``namespace hwbridge { namespace
-control {``.
+Plus the frame header (``FrameHeader``, its encode/decode of the 3 header bytes), the enums,
+flags and constants. Everything is in ``namespace hwbridge { namespace control {``. The fixed
+text (``templates/control_prelude.h``) reads and writes with the library's one bounded
+Reader/Writer and CRC, ``hwbridge_wire.h``, copied next to the header
+(:func:`generate_control_files`).
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ from __future__ import annotations
 from collections.abc import Iterator
 from typing import Final
 
+from hwbridge.firmware._templates import WIRE_NAME, template
 from hwbridge.protocols.native._control.schema import (
     SCALARS,
     FieldSpec,
@@ -31,9 +34,10 @@ from hwbridge.protocols.native._control.schema import (
     load_schema,
 )
 
-__all__ = ["HEADER_NAME", "generate_control_header"]
+__all__ = ["HEADER_NAME", "WIRE_NAME", "generate_control_files", "generate_control_header"]
 
 HEADER_NAME: Final = "hwbridge_control.h"
+PRELUDE_NAME: Final = "control_prelude.h"
 
 _CTYPES: Final = {
     "u8": "uint8_t",
@@ -44,179 +48,9 @@ _CTYPES: Final = {
     "f32": "float",
 }
 
-_PRELUDE: Final = """\
-#include <stddef.h>
-#include <stdint.h>
-#include <string.h>
-
-namespace hwbridge {
-namespace control {
-
-static_assert(sizeof(float) == 4, "f32 fields need a 4-byte IEEE-754 float");
-
-/** A run of bytes: a view into a decoded payload, or the caller's data to encode. */
-struct Bytes {
-  const uint8_t* data;
-  size_t size;
-  Bytes() : data(nullptr), size(0) {}
-  Bytes(const uint8_t* d, size_t n) : data(d), size(n) {}
-};
-
-namespace detail {
-
-/** Bounded little-endian writes: once one does not fit, nothing more is written. */
-class Writer {
- public:
-  Writer(uint8_t* buf, size_t cap) : buf_(buf), cap_(cap), pos_(0), ok_(true) {}
-  void u8(uint8_t v) {
-    if (room(1)) buf_[pos_++] = v;
-  }
-  void u16(uint16_t v) {
-    if (!room(2)) return;
-    buf_[pos_++] = static_cast<uint8_t>(v);
-    buf_[pos_++] = static_cast<uint8_t>(v >> 8);
-  }
-  void u32(uint32_t v) {
-    if (!room(4)) return;
-    for (uint8_t i = 0; i < 4; ++i) buf_[pos_++] = static_cast<uint8_t>(v >> (8 * i));
-  }
-  void u64(uint64_t v) {
-    if (!room(8)) return;
-    for (uint8_t i = 0; i < 8; ++i) buf_[pos_++] = static_cast<uint8_t>(v >> (8 * i));
-  }
-  void i32(int32_t v) { u32(static_cast<uint32_t>(v)); }
-  void f32(float v) {
-    uint32_t u;
-    memcpy(&u, &v, 4);
-    u32(u);
-  }
-  void raw(const uint8_t* p, size_t n) {
-    if (n == 0 || !room(n)) return;
-    memcpy(buf_ + pos_, p, n);
-    pos_ += n;
-  }
-  void fail() { ok_ = false; }
-  bool finish(size_t* len) {
-    if (!ok_) return false;
-    *len = pos_;
-    return true;
-  }
-
- private:
-  bool room(size_t n) {
-    if (!ok_ || cap_ - pos_ < n) ok_ = false;
-    return ok_;
-  }
-  uint8_t* buf_;
-  size_t cap_;
-  size_t pos_;
-  bool ok_;
-};
-
-/** Bounded little-endian reads: a read past the end yields 0 and marks the reader failed. */
-class Reader {
- public:
-  Reader(const uint8_t* buf, size_t len) : buf_(buf), len_(len), pos_(0), ok_(true) {}
-  uint8_t u8() { return have(1) ? buf_[pos_++] : 0; }
-  uint16_t u16() {
-    if (!have(2)) return 0;
-    uint16_t v = static_cast<uint16_t>(buf_[pos_] | (buf_[pos_ + 1] << 8));
-    pos_ += 2;
-    return v;
-  }
-  uint32_t u32() {
-    if (!have(4)) return 0;
-    uint32_t v = 0;
-    for (uint8_t i = 0; i < 4; ++i) v |= static_cast<uint32_t>(buf_[pos_++]) << (8 * i);
-    return v;
-  }
-  uint64_t u64() {
-    if (!have(8)) return 0;
-    uint64_t v = 0;
-    for (uint8_t i = 0; i < 8; ++i) v |= static_cast<uint64_t>(buf_[pos_++]) << (8 * i);
-    return v;
-  }
-  int32_t i32() { return static_cast<int32_t>(u32()); }
-  float f32() {
-    uint32_t u = u32();
-    float v;
-    memcpy(&v, &u, 4);
-    return v;
-  }
-  Bytes take(size_t n) {
-    if (!have(n)) return Bytes();
-    Bytes b(buf_ + pos_, n);
-    pos_ += n;
-    return b;
-  }
-  Bytes rest() { return take(len_ - pos_); }
-  void copy(uint8_t* out, size_t n) {
-    Bytes b = take(n);
-    if (ok_ && n) memcpy(out, b.data, n);
-  }
-  void fail() { ok_ = false; }
-  bool ok() const { return ok_; }
-
- private:
-  bool have(size_t n) {
-    if (!ok_ || len_ - pos_ < n) ok_ = false;
-    return ok_;
-  }
-  const uint8_t* buf_;
-  size_t len_;
-  size_t pos_;
-  bool ok_;
-};
-
-/** True if b is well-formed UTF-8 (no overlong forms, surrogates or code points > U+10FFFF). */
-inline bool utf8_valid(const Bytes& b) {
-  size_t i = 0;
-  while (i < b.size) {
-    uint8_t c = b.data[i];
-    if (c < 0x80) {
-      ++i;
-      continue;
-    }
-    size_t n;
-    uint8_t lo = 0x80, hi = 0xBF;
-    if (c >= 0xC2 && c <= 0xDF) {
-      n = 1;
-    } else if (c >= 0xE0 && c <= 0xEF) {
-      n = 2;
-      if (c == 0xE0) lo = 0xA0;
-      if (c == 0xED) hi = 0x9F;
-    } else if (c >= 0xF0 && c <= 0xF4) {
-      n = 3;
-      if (c == 0xF0) lo = 0x90;
-      if (c == 0xF4) hi = 0x8F;
-    } else {
-      return false;
-    }
-    if (b.size - i - 1 < n) return false;
-    for (size_t k = 1; k <= n; ++k) {
-      uint8_t d = b.data[i + k];
-      if (d < (k == 1 ? lo : 0x80) || d > (k == 1 ? hi : 0xBF)) return false;
-    }
-    i += n + 1;
-  }
-  return true;
-}
-
-}  // namespace detail
-"""
-
-_CRC: Final = """
-/** {name} of n bytes (poly {poly:#06x}, init {init:#06x}); chain calls with crc. */
-inline uint16_t crc16(const uint8_t* p, size_t n, uint16_t crc = {init:#06x}) {{
-  while (n--) {{
-    crc = static_cast<uint16_t>(crc ^ (static_cast<uint16_t>(*p++) << 8));
-    for (uint8_t b = 0; b < 8; ++b)
-      crc = (crc & 0x8000) ? static_cast<uint16_t>((crc << 1) ^ {poly:#06x})
-                           : static_cast<uint16_t>(crc << 1);
-  }}
-  return crc;
-}}
-"""
+_CRC_POLY: Final = 0x1021
+_CRC_INIT: Final = 0xFFFF
+"""The CRC ``hwbridge_wire.h`` computes; the schema's frame CRC must be this one."""
 
 
 def _ctype(typ: str) -> str:
@@ -402,7 +236,7 @@ def _message(schema: Schema, spec: MessageSpec) -> Iterator[str]:
             yield "  }"
         else:
             yield from ("  " + line for line in body)
-    yield "  return w.finish(len);"
+    yield "  return detail::finish(w, len);"
     yield "}"
     yield ""
     yield f"inline bool decode(const uint8_t* buf, size_t len, {cls}* {m}) {{"
@@ -483,7 +317,7 @@ def _frame(schema: Schema) -> Iterator[str]:
     yield f"  w.u8(static_cast<uint8_t>({' | '.join(parts)}));"
     for f in header[1:]:
         yield f"  w.{f['type']}(h.{f['name']});"
-    yield "  return w.finish(len);"
+    yield "  return detail::finish(w, len);"
     yield "}"
     yield ""
     yield "/** false for another version or the reserved type; the reserved bits are ignored. */"
@@ -505,7 +339,118 @@ def _frame(schema: Schema) -> Iterator[str]:
     yield "  return r.ok();"
     yield "}"
     crc = frame["crc"]
-    yield _CRC.format(name=crc["name"], poly=crc["poly"], init=crc["init"]).rstrip("\n")
+    if (crc["poly"], crc["init"]) != (_CRC_POLY, _CRC_INIT):
+        raise ValueError(f"schema frame CRC {crc['name']} is not hwbridge_wire.h's crc16")
+
+
+# -- the board's view ------------------------------------------------------------------------
+#
+# The board does not link the structs and bounded codecs above: it reads a received payload in
+# place (its size checked once against kMinSize) and writes the fixed start of a message
+# straight into its transmit buffer. For that the generator gives, per message the board reads
+# or writes, a struct in namespace board with the opcode, the size of the fixed fields, getters
+# at their offsets and a put() of them: inline, no tables, so that a sketch compiles to the
+# loads and stores a hand-written parser would make.
+
+_GET: Final = {"u8": "p[{at}]", "u16": "wire::get16(p + {at})", "u32": "wire::get32(p + {at})"}
+_PUT: Final = {
+    "u8": "p[{at}] = {value};",
+    "u16": "wire::put16(p + {at}, {value});",
+    "u32": "wire::put32(p + {at}, {value});",
+}
+
+
+def _fixed_layout(schema: Schema, spec: MessageSpec) -> tuple[list[tuple[str, str, int]], int]:
+    """(name, wire type, offset) of the scalar fields at fixed offsets (struct fields flattened
+    as NAME_SUB), and the offset where the first field of another kind starts."""
+    out: list[tuple[str, str, int]] = []
+    at = 1
+    for field in spec.fields:
+        if field.is_scalar and field.type in _GET:
+            out.append((field.name, field.type, at))
+        elif field.type in schema.structs:
+            sub_at = at
+            for sub in schema.structs[field.type]:
+                out.append((f"{field.name}_{sub.name}", sub.type, sub_at))
+                sub_at += schema.width(sub)
+        else:
+            return out, at
+        at += schema.width(field)
+    return out, at
+
+
+def _board_struct(schema: Schema, spec: MessageSpec) -> Iterator[str]:
+    reads = spec.direction in ("host->board", "both")
+    writes = spec.direction in ("board->host", "both")
+    layout, end = _fixed_layout(schema, spec)
+    consts = {f.name: f.const for f in spec.fields if f.const is not None}
+    yield ""
+    does = "reads and writes" if reads and writes else "reads" if reads else "writes"
+    yield f"/** {spec.name} as the board {does} it: its fixed fields at their offsets. */"
+    yield f"struct {spec.class_name.removesuffix('Msg')} {{"
+    yield f"  static const uint8_t kOpcode = Opcode::{spec.name};"
+    yield "  /** Bytes of the opcode and the fixed fields: the shortest valid payload. */"
+    yield f"  static const uint8_t kMinSize = {_min_size(schema, spec)};"
+    # offsets of what follows the fixed start: variable fields, and fields sent on a condition
+    at: int | None = 1
+    for field in spec.fields:
+        width = schema.width(field)
+        if at is not None and field.type not in schema.structs:
+            if field.length == "u8":
+                yield f"  /** {field.name}: its u8 length here, its bytes after it. */"
+            if field.length is not None or field.when is not None or not field.is_scalar:
+                yield f"  static const uint8_t k{_camel(field.name)} = {at};"
+        at = at + width if at is not None and width else None
+        if field.when is not None and at is not None:
+            name, value, equal = field.when
+            cond = f"{name} {'==' if equal else '!='} {value}"
+            yield f"  /** Bytes up to {field.name} when it is sent ({cond}). */"
+            yield f"  static const uint8_t k{_camel(field.name)}End = {at};"
+    if reads:
+        for name, typ, off in layout:
+            get = _GET[typ].format(at=off)
+            yield f"  static {_ctype(typ)} {name}(const uint8_t* p) {{ return {get}; }}"
+    if writes:
+        args = [f"{_ctype(typ)} {name}" for name, typ, _ in layout if name not in consts]
+        yield "  /** Writes the opcode and the fixed fields at p; returns the end of them. */"
+        yield f"  static uint8_t* put(uint8_t* p{''.join(', ' + a for a in args)}) {{"
+        yield "    p[0] = kOpcode;"
+        for name, typ, off in layout:
+            value = consts.get(name, name)
+            yield "    " + _PUT[typ].format(at=off, value=value)
+        yield f"    return p + {end};"
+        yield "  }"
+    yield "};"
+
+
+def _camel(name: str) -> str:
+    return "".join(part.capitalize() for part in name.split("_"))
+
+
+def _min_size(schema: Schema, spec: MessageSpec) -> int:
+    """Opcode and every field before the first optional one, a length prefix counted."""
+    size = 1
+    for field in spec.fields:
+        if field.when is not None:
+            break
+        width = schema.width(field)
+        if width:
+            size += width
+        elif field.length in SCALARS_SIZE:
+            size += SCALARS_SIZE[field.length]
+            break
+        else:
+            break
+    return size
+
+
+def _board(schema: Schema) -> Iterator[str]:
+    yield ""
+    yield "/** The board's view of the control messages: in place, no copies (gen_control.py). */"
+    yield "namespace board {"
+    for spec in schema.messages:
+        yield from _board_struct(schema, spec)
+    yield "}  // namespace board"
 
 
 def generate_control_header(schema: Schema | None = None) -> str:
@@ -519,7 +464,7 @@ def generate_control_header(schema: Schema | None = None) -> str:
         "#ifndef HWBRIDGE_CONTROL_H",
         "#define HWBRIDGE_CONTROL_H",
         "",
-        _PRELUDE,
+        template(PRELUDE_NAME),
     ]
     for name, value in schema.constants.items():
         ctype = "uint32_t" if value > 0xFFFF else "uint8_t" if value <= 0xFF else "uint16_t"
@@ -544,5 +489,11 @@ def generate_control_header(schema: Schema | None = None) -> str:
     out.extend(_param_value(schema))
     for spec in schema.messages:
         out.extend(_message(schema, spec))
+    out.extend(_board(schema))
     out += ["", "}  // namespace control", "}  // namespace hwbridge", "", "#endif", ""]
     return "\n".join(out)
+
+
+def generate_control_files(schema: Schema | None = None) -> dict[str, str]:
+    """File name -> text: ``hwbridge_control.h`` and the ``hwbridge_wire.h`` it includes."""
+    return {HEADER_NAME: generate_control_header(schema), WIRE_NAME: template(WIRE_NAME)}

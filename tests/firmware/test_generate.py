@@ -24,7 +24,11 @@ from rosbags.interfaces import Nodetype
 from hwbridge import msg
 from hwbridge.cli import main
 from hwbridge.errors import HwBridgeError
-from hwbridge.firmware.gen_control import HEADER_NAME, generate_control_header
+from hwbridge.firmware.gen_control import (
+    HEADER_NAME,
+    generate_control_files,
+    generate_control_header,
+)
 from hwbridge.firmware.gen_msgs import Capacities, MessageHeaders, parse_capacity
 from hwbridge.protocols.errors import ProtocolError
 from hwbridge.protocols.msgtypes import INT_RANGES, ros1_name
@@ -237,7 +241,8 @@ def control_inputs() -> Iterator[tuple[str, bytes, bool]]:
 
 @needs_gxx
 def test_the_control_header_against_the_python_codec(tmp_path: Path) -> None:
-    (tmp_path / HEADER_NAME).write_text(generate_control_header())
+    for name, text in generate_control_files().items():
+        (tmp_path / name).write_text(text)
     inputs = list(control_inputs())
     frames = json_frames()
     stdin = "".join(f"C {p.hex()}\n" for _, p, _ in inputs)
@@ -526,9 +531,8 @@ int main() {
 def test_float64_conversions_for_4_byte_double(tmp_path: Path) -> None:
     """binary64 <-> binary32 by hand (AVR): as the host's own conversion, subnormals, infinities,
     NaN and ties to even included."""
-    (tmp_path / "hwbridge_msg.h").write_text(
-        MessageHeaders(msg.registry()).headers([])["hwbridge_msg.h"]
-    )
+    for name, text in MessageHeaders(msg.registry()).headers([]).items():
+        (tmp_path / name).write_text(text)
     rng = random.Random(3)
     doubles = [0.0, -0.0, 1.0, 1.5, -2.25, 1e-40, 1e-45, 7e-46, 3.4028235e38, 3.5e38, 1e300, 1e-300]
     doubles += [float("inf"), -float("inf"), 1 + 2**-24, 1 + 3 * 2**-24, 1 + 2**-24 + 2**-50]
@@ -561,7 +565,8 @@ def test_the_headers_compile_for_the_atmega328p(tmp_path: Path) -> None:
     assert AVR_GXX is not None
     reg = msg.registry()
     write_headers(tmp_path, reg)
-    (tmp_path / HEADER_NAME).write_text(generate_control_header())
+    for name, text in generate_control_files().items():
+        (tmp_path / name).write_text(text)
     includes = "".join(f'#include "{name}.h"\n' for name in MSG_TYPES)
     source = f'#include "{HEADER_NAME}"\n{includes}' + (
         "#include <avr/pgmspace.h>\n"
@@ -620,17 +625,19 @@ def test_the_command_writes_the_headers(tmp_path: Path, capsys: pytest.CaptureFi
     assert written == [
         "hwbridge_control.h",
         "hwbridge_msg.h",
+        "hwbridge_msgs/Bme280.h",
         "hwbridge_msgs/ImuRaw.h",
         "hwbridge_msgs/SonarEcho.h",
         "hwbridge_msgs/WheelTargets.h",
         "hwbridge_msgs/WheelTicks.h",
+        "hwbridge_wire.h",
         "sensor_msgs/JointState.h",
         "std_msgs/Bool.h",
         "std_msgs/Float64.h",
         "std_msgs/Header.h",
         "std_msgs/String.h",
     ]
-    assert "11 headers written" in capsys.readouterr().out
+    assert "13 headers written" in capsys.readouterr().out
     assert (tmp_path / "a" / HEADER_NAME).read_text() == generate_control_header()
     pkg = tmp_path / "msgs" / "my_pkg" / "msg"
     pkg.mkdir(parents=True)

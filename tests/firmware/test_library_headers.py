@@ -1,10 +1,10 @@
 """The generated headers committed into the HwBridge library never go stale.
 
 ``firmware/HwBridge/src`` holds the output of ``hwbridge firmware generate`` (``hwbridge_msg.h``,
-``hwbridge_control.h`` and one header per message or service type under ``PKG/Type.h``) so that
-sketches build from the library alone, as Arduino users build. This test regenerates exactly
-those types into a temporary folder with the command and compares every file byte for byte; a
-difference names the file and says how to refresh the library.
+``hwbridge_control.h``, ``hwbridge_wire.h`` and one header per message or service type under
+``PKG/Type.h``) so that sketches build from the library alone, as Arduino users build. This test
+regenerates exactly those types into a temporary folder with the command and compares every file
+byte for byte; a difference names the file and says how to refresh the library.
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ def _committed() -> dict[str, Path]:
         for p in LIBRARY_SRC.glob("*/*.h")
         if p.parent.name != "hwbridge"
     }
-    for name in ("hwbridge_msg.h", "hwbridge_control.h"):
+    for name in ("hwbridge_msg.h", "hwbridge_control.h", "hwbridge_wire.h"):
         found[name] = LIBRARY_SRC / name
     return found
 

@@ -8,7 +8,7 @@
 #define HWBRIDGE_H
 
 #include "hwbridge/config.h"
-#include "hwbridge/crc16.h"
+#include "hwbridge_wire.h"
 #include "hwbridge/cobs.h"
 #include "hwbridge/frame.h"
 #include "hwbridge/decoder.h"

@@ -5,9 +5,14 @@
 #ifndef HWBRIDGE_CONTROL_H
 #define HWBRIDGE_CONTROL_H
 
+// The fixed start of hwbridge_control.h (copied by `hwbridge firmware generate` from
+// hwbridge/firmware/templates/control_prelude.h): the control codec reads and writes with the
+// library's bounded Reader and Writer and checks frames with its CRC (hwbridge_wire.h).
 #include <stddef.h>
 #include <stdint.h>
 #include <string.h>
+
+#include "hwbridge_wire.h"
 
 namespace hwbridge {
 namespace control {
@@ -15,118 +20,21 @@ namespace control {
 static_assert(sizeof(float) == 4, "f32 fields need a 4-byte IEEE-754 float");
 
 /** A run of bytes: a view into a decoded payload, or the caller's data to encode. */
-struct Bytes {
-  const uint8_t* data;
-  size_t size;
-  Bytes() : data(nullptr), size(0) {}
-  Bytes(const uint8_t* d, size_t n) : data(d), size(n) {}
-};
+using wire::Bytes;
+/** The frame CRC (CRC-16/CCITT-FALSE, chain calls with crc). */
+using ::hwbridge::crc16;
 
 namespace detail {
 
-/** Bounded little-endian writes: once one does not fit, nothing more is written. */
-class Writer {
- public:
-  Writer(uint8_t* buf, size_t cap) : buf_(buf), cap_(cap), pos_(0), ok_(true) {}
-  void u8(uint8_t v) {
-    if (room(1)) buf_[pos_++] = v;
-  }
-  void u16(uint16_t v) {
-    if (!room(2)) return;
-    buf_[pos_++] = static_cast<uint8_t>(v);
-    buf_[pos_++] = static_cast<uint8_t>(v >> 8);
-  }
-  void u32(uint32_t v) {
-    if (!room(4)) return;
-    for (uint8_t i = 0; i < 4; ++i) buf_[pos_++] = static_cast<uint8_t>(v >> (8 * i));
-  }
-  void u64(uint64_t v) {
-    if (!room(8)) return;
-    for (uint8_t i = 0; i < 8; ++i) buf_[pos_++] = static_cast<uint8_t>(v >> (8 * i));
-  }
-  void i32(int32_t v) { u32(static_cast<uint32_t>(v)); }
-  void f32(float v) {
-    uint32_t u;
-    memcpy(&u, &v, 4);
-    u32(u);
-  }
-  void raw(const uint8_t* p, size_t n) {
-    if (n == 0 || !room(n)) return;
-    memcpy(buf_ + pos_, p, n);
-    pos_ += n;
-  }
-  void fail() { ok_ = false; }
-  bool finish(size_t* len) {
-    if (!ok_) return false;
-    *len = pos_;
-    return true;
-  }
+using wire::Reader;
+using wire::Writer;
 
- private:
-  bool room(size_t n) {
-    if (!ok_ || cap_ - pos_ < n) ok_ = false;
-    return ok_;
-  }
-  uint8_t* buf_;
-  size_t cap_;
-  size_t pos_;
-  bool ok_;
-};
-
-/** Bounded little-endian reads: a read past the end yields 0 and marks the reader failed. */
-class Reader {
- public:
-  Reader(const uint8_t* buf, size_t len) : buf_(buf), len_(len), pos_(0), ok_(true) {}
-  uint8_t u8() { return have(1) ? buf_[pos_++] : 0; }
-  uint16_t u16() {
-    if (!have(2)) return 0;
-    uint16_t v = static_cast<uint16_t>(buf_[pos_] | (buf_[pos_ + 1] << 8));
-    pos_ += 2;
-    return v;
-  }
-  uint32_t u32() {
-    if (!have(4)) return 0;
-    uint32_t v = 0;
-    for (uint8_t i = 0; i < 4; ++i) v |= static_cast<uint32_t>(buf_[pos_++]) << (8 * i);
-    return v;
-  }
-  uint64_t u64() {
-    if (!have(8)) return 0;
-    uint64_t v = 0;
-    for (uint8_t i = 0; i < 8; ++i) v |= static_cast<uint64_t>(buf_[pos_++]) << (8 * i);
-    return v;
-  }
-  int32_t i32() { return static_cast<int32_t>(u32()); }
-  float f32() {
-    uint32_t u = u32();
-    float v;
-    memcpy(&v, &u, 4);
-    return v;
-  }
-  Bytes take(size_t n) {
-    if (!have(n)) return Bytes();
-    Bytes b(buf_ + pos_, n);
-    pos_ += n;
-    return b;
-  }
-  Bytes rest() { return take(len_ - pos_); }
-  void copy(uint8_t* out, size_t n) {
-    Bytes b = take(n);
-    if (ok_ && n) memcpy(out, b.data, n);
-  }
-  void fail() { ok_ = false; }
-  bool ok() const { return ok_; }
-
- private:
-  bool have(size_t n) {
-    if (!ok_ || len_ - pos_ < n) ok_ = false;
-    return ok_;
-  }
-  const uint8_t* buf_;
-  size_t len_;
-  size_t pos_;
-  bool ok_;
-};
+/** Ends an encode: false when something did not fit, else true with *len the bytes written. */
+inline bool finish(const Writer& w, size_t* len) {
+  if (!w.ok()) return false;
+  *len = w.finish();
+  return true;
+}
 
 /** True if b is well-formed UTF-8 (no overlong forms, surrogates or code points > U+10FFFF). */
 inline bool utf8_valid(const Bytes& b) {
@@ -480,7 +388,7 @@ inline bool encode(const FrameHeader& h, uint8_t* buf, size_t cap, size_t* len) 
   w.u8(static_cast<uint8_t>((1 << 6) | (h.type << 4) | (h.frag << 2) | (0 << 0)));
   w.u8(h.channel);
   w.u8(h.seq);
-  return w.finish(len);
+  return detail::finish(w, len);
 }
 
 /** false for another version or the reserved type; the reserved bits are ignored. */
@@ -495,17 +403,6 @@ inline bool decode(const uint8_t* buf, size_t len, FrameHeader* h) {
   h->channel = r.u8();
   h->seq = r.u8();
   return r.ok();
-}
-
-/** CRC-16/CCITT-FALSE of n bytes (poly 0x1021, init 0xffff); chain calls with crc. */
-inline uint16_t crc16(const uint8_t* p, size_t n, uint16_t crc = 0xffff) {
-  while (n--) {
-    crc = static_cast<uint16_t>(crc ^ (static_cast<uint16_t>(*p++) << 8));
-    for (uint8_t b = 0; b < 8; ++b)
-      crc = (crc & 0x8000) ? static_cast<uint16_t>((crc << 1) ^ 0x1021)
-                           : static_cast<uint16_t>(crc << 1);
-  }
-  return crc;
 }
 
 /** Bytes of a well-formed value of this type at the start of v (after the type byte),
@@ -568,7 +465,7 @@ inline bool encode(const HelloMsg& m, uint8_t* buf, size_t cap, size_t* len) {
   w.u8(m.window);
   w.u8(m.isn);
   w.u8(static_cast<uint8_t>(m.features & 0x07));
-  return w.finish(len);
+  return detail::finish(w, len);
 }
 
 inline bool decode(const uint8_t* buf, size_t len, HelloMsg* m) {
@@ -601,7 +498,7 @@ struct HeartbeatMsg {
 inline bool encode(const HeartbeatMsg& /*m*/, uint8_t* buf, size_t cap, size_t* len) {
   detail::Writer w(buf, cap);
   w.u8(HeartbeatMsg::OPCODE);
-  return w.finish(len);
+  return detail::finish(w, len);
 }
 
 inline bool decode(const uint8_t* buf, size_t len, HeartbeatMsg* /*m*/) {
@@ -621,7 +518,7 @@ inline bool encode(const TimeRequestMsg& m, uint8_t* buf, size_t cap, size_t* le
   detail::Writer w(buf, cap);
   w.u8(TimeRequestMsg::OPCODE);
   w.u32(m.t1);
-  return w.finish(len);
+  return detail::finish(w, len);
 }
 
 inline bool decode(const uint8_t* buf, size_t len, TimeRequestMsg* m) {
@@ -651,7 +548,7 @@ inline bool encode(const TimeResponseMsg& m, uint8_t* buf, size_t cap, size_t* l
   w.u32(m.t3.sec);
   if (m.t3.nsec > 999999999u) return false;
   w.u32(m.t3.nsec);
-  return w.finish(len);
+  return detail::finish(w, len);
 }
 
 inline bool decode(const uint8_t* buf, size_t len, TimeResponseMsg* m) {
@@ -677,7 +574,7 @@ struct GoodbyeMsg {
 inline bool encode(const GoodbyeMsg& /*m*/, uint8_t* buf, size_t cap, size_t* len) {
   detail::Writer w(buf, cap);
   w.u8(GoodbyeMsg::OPCODE);
-  return w.finish(len);
+  return detail::finish(w, len);
 }
 
 inline bool decode(const uint8_t* buf, size_t len, GoodbyeMsg* /*m*/) {
@@ -699,7 +596,7 @@ inline bool encode(const HostTimeRequestMsg& m, uint8_t* buf, size_t cap, size_t
   w.u32(m.t1.sec);
   if (m.t1.nsec > 999999999u) return false;
   w.u32(m.t1.nsec);
-  return w.finish(len);
+  return detail::finish(w, len);
 }
 
 inline bool decode(const uint8_t* buf, size_t len, HostTimeRequestMsg* m) {
@@ -729,7 +626,7 @@ inline bool encode(const HostTimeResponseMsg& m, uint8_t* buf, size_t cap, size_
   w.u32(m.t1.nsec);
   w.u32(m.t2);
   w.u32(m.t3);
-  return w.finish(len);
+  return detail::finish(w, len);
 }
 
 inline bool decode(const uint8_t* buf, size_t len, HostTimeResponseMsg* m) {
@@ -765,7 +662,7 @@ inline bool encode(const BoardInfoMsg& m, uint8_t* buf, size_t cap, size_t* len)
   w.u8(static_cast<uint8_t>(m.unique_id.size));
   w.raw(m.unique_id.data, m.unique_id.size);
   w.raw(m.firmware_version.data, m.firmware_version.size);
-  return w.finish(len);
+  return detail::finish(w, len);
 }
 
 inline bool decode(const uint8_t* buf, size_t len, BoardInfoMsg* m) {
@@ -805,7 +702,7 @@ inline bool encode(const TopicMsg& m, uint8_t* buf, size_t cap, size_t* len) {
   w.u8(static_cast<uint8_t>(m.name.size));
   w.raw(m.name.data, m.name.size);
   w.raw(m.type.data, m.type.size);
-  return w.finish(len);
+  return detail::finish(w, len);
 }
 
 inline bool decode(const uint8_t* buf, size_t len, TopicMsg* m) {
@@ -836,7 +733,7 @@ inline bool encode(const TableEndMsg& m, uint8_t* buf, size_t cap, size_t* len) 
   detail::Writer w(buf, cap);
   w.u8(TableEndMsg::OPCODE);
   w.u8(m.count);
-  return w.finish(len);
+  return detail::finish(w, len);
 }
 
 inline bool decode(const uint8_t* buf, size_t len, TableEndMsg* m) {
@@ -869,7 +766,7 @@ inline bool encode(const TopicAckMsg& m, uint8_t* buf, size_t cap, size_t* len) 
   if (m.status != TopicStatus::ACCEPTED) {
     w.raw(m.detail.data, m.detail.size);
   }
-  return w.finish(len);
+  return detail::finish(w, len);
 }
 
 inline bool decode(const uint8_t* buf, size_t len, TopicAckMsg* m) {
@@ -899,7 +796,7 @@ inline bool encode(const ReadyMsg& m, uint8_t* buf, size_t cap, size_t* len) {
   detail::Writer w(buf, cap);
   w.u8(ReadyMsg::OPCODE);
   w.u8(m.accepted);
-  return w.finish(len);
+  return detail::finish(w, len);
 }
 
 inline bool decode(const uint8_t* buf, size_t len, ReadyMsg* m) {
@@ -925,7 +822,7 @@ inline bool encode(const ServiceRequestMsg& m, uint8_t* buf, size_t cap, size_t*
   w.u8(m.channel);
   w.u16(m.request_id);
   w.raw(m.body.data, m.body.size);
-  return w.finish(len);
+  return detail::finish(w, len);
 }
 
 inline bool decode(const uint8_t* buf, size_t len, ServiceRequestMsg* m) {
@@ -956,7 +853,7 @@ inline bool encode(const ServiceResponseMsg& m, uint8_t* buf, size_t cap, size_t
   if (!valid_ServiceStatus(m.status)) return false;
   w.u8(m.status);
   w.raw(m.body.data, m.body.size);
-  return w.finish(len);
+  return detail::finish(w, len);
 }
 
 inline bool decode(const uint8_t* buf, size_t len, ServiceResponseMsg* m) {
@@ -993,7 +890,7 @@ inline bool encode(const ParamGetMsg& m, uint8_t* buf, size_t cap, size_t* len) 
   w.u16(m.max_count);
   if (m.name.size > 255u) return false;
   w.raw(m.name.data, m.name.size);
-  return w.finish(len);
+  return detail::finish(w, len);
 }
 
 inline bool decode(const uint8_t* buf, size_t len, ParamGetMsg* m) {
@@ -1040,7 +937,7 @@ inline bool encode(const ParamValueMsg& m, uint8_t* buf, size_t cap, size_t* len
     if (param_value_size(m.type, m.value) != m.value.size) return false;
     w.raw(m.value.data, m.value.size);
   }
-  return w.finish(len);
+  return detail::finish(w, len);
 }
 
 inline bool decode(const uint8_t* buf, size_t len, ParamValueMsg* m) {
@@ -1082,7 +979,7 @@ inline bool encode(const LogMsg& m, uint8_t* buf, size_t cap, size_t* len) {
   if (!valid_LogLevel(m.level)) return false;
   w.u8(m.level);
   w.raw(m.text.data, m.text.size);
-  return w.finish(len);
+  return detail::finish(w, len);
 }
 
 inline bool decode(const uint8_t* buf, size_t len, LogMsg* m) {
@@ -1094,6 +991,262 @@ inline bool decode(const uint8_t* buf, size_t len, LogMsg* m) {
   m->text = r.rest();
   return r.ok();
 }
+
+/** The board's view of the control messages: in place, no copies (gen_control.py). */
+namespace board {
+
+/** HELLO as the board reads and writes it: its fixed fields at their offsets. */
+struct Hello {
+  static const uint8_t kOpcode = Opcode::HELLO;
+  /** Bytes of the opcode and the fixed fields: the shortest valid payload. */
+  static const uint8_t kMinSize = 21;
+  static uint8_t version(const uint8_t* p) { return p[1]; }
+  static uint8_t role(const uint8_t* p) { return p[2]; }
+  static uint8_t flags(const uint8_t* p) { return p[3]; }
+  static uint32_t session(const uint8_t* p) { return wire::get32(p + 4); }
+  static uint32_t peer_session(const uint8_t* p) { return wire::get32(p + 8); }
+  static uint16_t mtu(const uint8_t* p) { return wire::get16(p + 12); }
+  static uint32_t max_message(const uint8_t* p) { return wire::get32(p + 14); }
+  static uint8_t window(const uint8_t* p) { return p[18]; }
+  static uint8_t isn(const uint8_t* p) { return p[19]; }
+  static uint8_t features(const uint8_t* p) { return p[20]; }
+  /** Writes the opcode and the fixed fields at p; returns the end of them. */
+  static uint8_t* put(uint8_t* p, uint8_t role, uint8_t flags, uint32_t session, uint32_t peer_session, uint16_t mtu, uint32_t max_message, uint8_t window, uint8_t isn, uint8_t features) {
+    p[0] = kOpcode;
+    p[1] = PROTOCOL_VERSION;
+    p[2] = role;
+    p[3] = flags;
+    wire::put32(p + 4, session);
+    wire::put32(p + 8, peer_session);
+    wire::put16(p + 12, mtu);
+    wire::put32(p + 14, max_message);
+    p[18] = window;
+    p[19] = isn;
+    p[20] = features;
+    return p + 21;
+  }
+};
+
+/** HEARTBEAT as the board reads and writes it: its fixed fields at their offsets. */
+struct Heartbeat {
+  static const uint8_t kOpcode = Opcode::HEARTBEAT;
+  /** Bytes of the opcode and the fixed fields: the shortest valid payload. */
+  static const uint8_t kMinSize = 1;
+  /** Writes the opcode and the fixed fields at p; returns the end of them. */
+  static uint8_t* put(uint8_t* p) {
+    p[0] = kOpcode;
+    return p + 1;
+  }
+};
+
+/** TIME_REQUEST as the board writes it: its fixed fields at their offsets. */
+struct TimeRequest {
+  static const uint8_t kOpcode = Opcode::TIME_REQUEST;
+  /** Bytes of the opcode and the fixed fields: the shortest valid payload. */
+  static const uint8_t kMinSize = 5;
+  /** Writes the opcode and the fixed fields at p; returns the end of them. */
+  static uint8_t* put(uint8_t* p, uint32_t t1) {
+    p[0] = kOpcode;
+    wire::put32(p + 1, t1);
+    return p + 5;
+  }
+};
+
+/** TIME_RESPONSE as the board reads it: its fixed fields at their offsets. */
+struct TimeResponse {
+  static const uint8_t kOpcode = Opcode::TIME_RESPONSE;
+  /** Bytes of the opcode and the fixed fields: the shortest valid payload. */
+  static const uint8_t kMinSize = 21;
+  static uint32_t t1(const uint8_t* p) { return wire::get32(p + 1); }
+  static uint32_t t2_sec(const uint8_t* p) { return wire::get32(p + 5); }
+  static uint32_t t2_nsec(const uint8_t* p) { return wire::get32(p + 9); }
+  static uint32_t t3_sec(const uint8_t* p) { return wire::get32(p + 13); }
+  static uint32_t t3_nsec(const uint8_t* p) { return wire::get32(p + 17); }
+};
+
+/** GOODBYE as the board reads and writes it: its fixed fields at their offsets. */
+struct Goodbye {
+  static const uint8_t kOpcode = Opcode::GOODBYE;
+  /** Bytes of the opcode and the fixed fields: the shortest valid payload. */
+  static const uint8_t kMinSize = 1;
+  /** Writes the opcode and the fixed fields at p; returns the end of them. */
+  static uint8_t* put(uint8_t* p) {
+    p[0] = kOpcode;
+    return p + 1;
+  }
+};
+
+/** HOST_TIME_REQUEST as the board reads it: its fixed fields at their offsets. */
+struct HostTimeRequest {
+  static const uint8_t kOpcode = Opcode::HOST_TIME_REQUEST;
+  /** Bytes of the opcode and the fixed fields: the shortest valid payload. */
+  static const uint8_t kMinSize = 9;
+  static uint32_t t1_sec(const uint8_t* p) { return wire::get32(p + 1); }
+  static uint32_t t1_nsec(const uint8_t* p) { return wire::get32(p + 5); }
+};
+
+/** HOST_TIME_RESPONSE as the board writes it: its fixed fields at their offsets. */
+struct HostTimeResponse {
+  static const uint8_t kOpcode = Opcode::HOST_TIME_RESPONSE;
+  /** Bytes of the opcode and the fixed fields: the shortest valid payload. */
+  static const uint8_t kMinSize = 17;
+  /** Writes the opcode and the fixed fields at p; returns the end of them. */
+  static uint8_t* put(uint8_t* p, uint32_t t1_sec, uint32_t t1_nsec, uint32_t t2, uint32_t t3) {
+    p[0] = kOpcode;
+    wire::put32(p + 1, t1_sec);
+    wire::put32(p + 5, t1_nsec);
+    wire::put32(p + 9, t2);
+    wire::put32(p + 13, t3);
+    return p + 17;
+  }
+};
+
+/** BOARD_INFO as the board writes it: its fixed fields at their offsets. */
+struct BoardInfo {
+  static const uint8_t kOpcode = Opcode::BOARD_INFO;
+  /** Bytes of the opcode and the fixed fields: the shortest valid payload. */
+  static const uint8_t kMinSize = 3;
+  /** name: its u8 length here, its bytes after it. */
+  static const uint8_t kName = 2;
+  /** Writes the opcode and the fixed fields at p; returns the end of them. */
+  static uint8_t* put(uint8_t* p, uint8_t topic_count) {
+    p[0] = kOpcode;
+    p[1] = topic_count;
+    return p + 2;
+  }
+};
+
+/** TOPIC as the board writes it: its fixed fields at their offsets. */
+struct Topic {
+  static const uint8_t kOpcode = Opcode::TOPIC;
+  /** Bytes of the opcode and the fixed fields: the shortest valid payload. */
+  static const uint8_t kMinSize = 21;
+  static const uint8_t kMd5 = 4;
+  /** name: its u8 length here, its bytes after it. */
+  static const uint8_t kName = 20;
+  /** Writes the opcode and the fixed fields at p; returns the end of them. */
+  static uint8_t* put(uint8_t* p, uint8_t channel, uint8_t kind, uint8_t flags) {
+    p[0] = kOpcode;
+    p[1] = channel;
+    p[2] = kind;
+    p[3] = flags;
+    return p + 4;
+  }
+};
+
+/** TABLE_END as the board writes it: its fixed fields at their offsets. */
+struct TableEnd {
+  static const uint8_t kOpcode = Opcode::TABLE_END;
+  /** Bytes of the opcode and the fixed fields: the shortest valid payload. */
+  static const uint8_t kMinSize = 2;
+  /** Writes the opcode and the fixed fields at p; returns the end of them. */
+  static uint8_t* put(uint8_t* p, uint8_t count) {
+    p[0] = kOpcode;
+    p[1] = count;
+    return p + 2;
+  }
+};
+
+/** TOPIC_ACK as the board reads it: its fixed fields at their offsets. */
+struct TopicAck {
+  static const uint8_t kOpcode = Opcode::TOPIC_ACK;
+  /** Bytes of the opcode and the fixed fields: the shortest valid payload. */
+  static const uint8_t kMinSize = 3;
+  static const uint8_t kHostMd5 = 3;
+  /** Bytes up to host_md5 when it is sent (status != ACCEPTED). */
+  static const uint8_t kHostMd5End = 19;
+  static const uint8_t kDetail = 19;
+  static uint8_t channel(const uint8_t* p) { return p[1]; }
+  static uint8_t status(const uint8_t* p) { return p[2]; }
+};
+
+/** READY as the board reads it: its fixed fields at their offsets. */
+struct Ready {
+  static const uint8_t kOpcode = Opcode::READY;
+  /** Bytes of the opcode and the fixed fields: the shortest valid payload. */
+  static const uint8_t kMinSize = 2;
+  static uint8_t accepted(const uint8_t* p) { return p[1]; }
+};
+
+/** SERVICE_REQUEST as the board reads and writes it: its fixed fields at their offsets. */
+struct ServiceRequest {
+  static const uint8_t kOpcode = Opcode::SERVICE_REQUEST;
+  /** Bytes of the opcode and the fixed fields: the shortest valid payload. */
+  static const uint8_t kMinSize = 4;
+  static const uint8_t kBody = 4;
+  static uint8_t channel(const uint8_t* p) { return p[1]; }
+  static uint16_t request_id(const uint8_t* p) { return wire::get16(p + 2); }
+  /** Writes the opcode and the fixed fields at p; returns the end of them. */
+  static uint8_t* put(uint8_t* p, uint8_t channel, uint16_t request_id) {
+    p[0] = kOpcode;
+    p[1] = channel;
+    wire::put16(p + 2, request_id);
+    return p + 4;
+  }
+};
+
+/** SERVICE_RESPONSE as the board reads and writes it: its fixed fields at their offsets. */
+struct ServiceResponse {
+  static const uint8_t kOpcode = Opcode::SERVICE_RESPONSE;
+  /** Bytes of the opcode and the fixed fields: the shortest valid payload. */
+  static const uint8_t kMinSize = 5;
+  static const uint8_t kBody = 5;
+  static uint8_t channel(const uint8_t* p) { return p[1]; }
+  static uint16_t request_id(const uint8_t* p) { return wire::get16(p + 2); }
+  static uint8_t status(const uint8_t* p) { return p[4]; }
+  /** Writes the opcode and the fixed fields at p; returns the end of them. */
+  static uint8_t* put(uint8_t* p, uint8_t channel, uint16_t request_id, uint8_t status) {
+    p[0] = kOpcode;
+    p[1] = channel;
+    wire::put16(p + 2, request_id);
+    p[4] = status;
+    return p + 5;
+  }
+};
+
+/** PARAM_GET as the board writes it: its fixed fields at their offsets. */
+struct ParamGet {
+  static const uint8_t kOpcode = Opcode::PARAM_GET;
+  /** Bytes of the opcode and the fixed fields: the shortest valid payload. */
+  static const uint8_t kMinSize = 7;
+  static const uint8_t kName = 7;
+  /** Writes the opcode and the fixed fields at p; returns the end of them. */
+  static uint8_t* put(uint8_t* p, uint16_t request_id, uint8_t type, uint8_t flags, uint16_t max_count) {
+    p[0] = kOpcode;
+    wire::put16(p + 1, request_id);
+    p[3] = type;
+    p[4] = flags;
+    wire::put16(p + 5, max_count);
+    return p + 7;
+  }
+};
+
+/** PARAM_VALUE as the board reads it: its fixed fields at their offsets. */
+struct ParamValue {
+  static const uint8_t kOpcode = Opcode::PARAM_VALUE;
+  /** Bytes of the opcode and the fixed fields: the shortest valid payload. */
+  static const uint8_t kMinSize = 5;
+  /** name: its u8 length here, its bytes after it. */
+  static const uint8_t kName = 4;
+  static uint16_t request_id(const uint8_t* p) { return wire::get16(p + 1); }
+  static uint8_t status(const uint8_t* p) { return p[3]; }
+};
+
+/** LOG as the board reads and writes it: its fixed fields at their offsets. */
+struct Log {
+  static const uint8_t kOpcode = Opcode::LOG;
+  /** Bytes of the opcode and the fixed fields: the shortest valid payload. */
+  static const uint8_t kMinSize = 2;
+  static const uint8_t kText = 2;
+  static uint8_t level(const uint8_t* p) { return p[1]; }
+  /** Writes the opcode and the fixed fields at p; returns the end of them. */
+  static uint8_t* put(uint8_t* p, uint8_t level) {
+    p[0] = kOpcode;
+    p[1] = level;
+    return p + 2;
+  }
+};
+}  // namespace board
 
 }  // namespace control
 }  // namespace hwbridge

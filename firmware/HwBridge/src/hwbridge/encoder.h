@@ -7,7 +7,7 @@
 #include <stdint.h>
 
 #include "cobs.h"
-#include "crc16.h"
+#include "../hwbridge_wire.h"
 #include "frame.h"
 
 namespace hwbridge {
@@ -40,8 +40,7 @@ struct Body {
     size = kEnvelope + n1 + n2;
     uint16_t v = crc16(env, kHeaderSize);
     for (const ByteSpan* s = pieces; s != pieces + 2; ++s) v = crc16(s->data, s->size, v);
-    env[3] = static_cast<uint8_t>(v);
-    env[4] = static_cast<uint8_t>(v >> 8);
+    wire::put16(env + kHeaderSize, v);
   }
   /** Body byte i (i < size). */
   __attribute__((noinline)) uint8_t at(size_t i) const {

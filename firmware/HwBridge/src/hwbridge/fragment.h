@@ -8,7 +8,7 @@
 #include <string.h>
 
 #include "config.h"
-#include "crc16.h"
+#include "../hwbridge_wire.h"
 #include "encoder.h"
 #include "frame.h"
 
@@ -84,8 +84,7 @@ class Fragmenter {
       out->size = len_;
     } else if (pos_ == 0) {
       out->header.frag = Frag::First;
-      const uint32_t total = static_cast<uint32_t>(len_);
-      for (uint8_t i = 0; i < kLengthPrefix; ++i) out->prefix[i] = static_cast<uint8_t>(total >> (8 * i));
+      wire::put32(out->prefix, static_cast<uint32_t>(len_));
       out->prefix_size = kLengthPrefix;
       out->size = mtu_ - kLengthPrefix;
     } else {
@@ -250,8 +249,7 @@ class Reassembler {
       ++stats_.malformed;
       return;
     }
-    uint32_t total = 0;
-    for (uint8_t i = 0; i < kLengthPrefix; ++i) total |= static_cast<uint32_t>(f.payload[i]) << (8 * i);
+    const uint32_t total = wire::get32(f.payload);
     const size_t chunk = f.size - kLengthPrefix;
     sp.channel = f.channel;
     sp.first_seq = f.seq;

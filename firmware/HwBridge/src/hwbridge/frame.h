@@ -7,7 +7,7 @@
 #include <stdint.h>
 
 #include "cobs.h"
-#include "crc16.h"
+#include "../hwbridge_wire.h"
 
 namespace hwbridge {
 
@@ -76,7 +76,7 @@ inline constexpr size_t max_wire_size(size_t n) { return max_frame(n) + 1; }
  */
 inline FrameError parse_body(const uint8_t* body, size_t n, size_t max_payload, Frame* out) {
   if (n < kEnvelope) return FrameError::TooShort;
-  const uint16_t sent = static_cast<uint16_t>(body[n - 2] | body[n - 1] << 8);
+  const uint16_t sent = wire::get16(body + n - kCrcSize);
   if (crc16(body, n - kCrcSize) != sent) return FrameError::Crc;
   const uint8_t byte0 = body[0];
   if ((byte0 & 0xC0) != kVersion << 6) return FrameError::Version;  // bits, not shifts: AVR

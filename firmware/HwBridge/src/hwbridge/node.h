@@ -30,6 +30,7 @@
 #include "timesync.h"
 #include "progmem.h"
 #include "../hwbridge_msg.h"
+#include "../hwbridge_control.h"
 
 namespace hwbridge {
 

@@ -7,43 +7,11 @@
 
 namespace hwbridge {
 
+/** The control messages as the board reads and writes them, generated from the schema. */
+namespace board = control::board;
+
 namespace detail {
 
-#if defined(__BYTE_ORDER__) && __BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__
-// little-endian targets (AVR, ARM, x86): the wire order is the memory order, plain copies
-inline uint16_t get16(const uint8_t* p) {
-  uint16_t v;
-  memcpy(&v, p, 2);
-  return v;
-}
-inline uint32_t get32(const uint8_t* p) {
-  uint32_t v;
-  memcpy(&v, p, 4);
-  return v;
-}
-inline uint8_t* put16(uint8_t* p, uint16_t v) {
-  memcpy(p, &v, 2);
-  return p + 2;
-}
-inline uint8_t* put32(uint8_t* p, uint32_t v) {
-  memcpy(p, &v, 4);
-  return p + 4;
-}
-#else
-inline uint16_t get16(const uint8_t* p) { return static_cast<uint16_t>(p[0] | p[1] << 8); }
-inline uint32_t get32(const uint8_t* p) {
-  return static_cast<uint32_t>(get16(p)) | static_cast<uint32_t>(get16(p + 2)) << 16;
-}
-inline uint8_t* put16(uint8_t* p, uint16_t v) {
-  p[0] = static_cast<uint8_t>(v);
-  p[1] = static_cast<uint8_t>(v >> 8);
-  return p + 2;
-}
-inline uint8_t* put32(uint8_t* p, uint32_t v) {
-  put16(p, static_cast<uint16_t>(v));
-  return put16(p + 2, static_cast<uint16_t>(v >> 16));
-}
-#endif
 /** Copies up to cap bytes of a RAM string; returns the end. */
 inline uint8_t* put_str(uint8_t* p, const char* s, size_t cap) {
   while (cap-- && *s) *p++ = static_cast<uint8_t>(*s++);
@@ -60,7 +28,7 @@ inline uint8_t param_elem_size(uint8_t scalar) {
   return scalar == kParamBool ? 1 : (scalar == kParamInt32 || scalar == kParamFloat32) ? 4 : 0;
 }
 inline float f32(const uint8_t* p) {
-  const uint32_t v = get32(p);
+  const uint32_t v = wire::get32(p);
   float f;
   memcpy(&f, &v, 4);
   return f;
@@ -75,7 +43,7 @@ inline int32_t ParamValue::asInt(uint16_t i) const {
   if (i >= count_) return 0;
   const uint8_t scalar = static_cast<uint8_t>(type & 0x7F);
   if (scalar == kParamBool) return elems_[i];
-  if (scalar == kParamInt32) return static_cast<int32_t>(detail::get32(elems_ + 4 * i));
+  if (scalar == kParamInt32) return static_cast<int32_t>(wire::get32(elems_ + 4 * i));
   if (scalar == kParamFloat32) return static_cast<int32_t>(detail::f32(elems_ + 4 * i));
   return 0;
 }
@@ -89,8 +57,8 @@ inline size_t ParamValue::asString(char* out, size_t cap, uint16_t i) const {
   if (cap) out[0] = 0;
   if (i >= count_ || (type & 0x7F) != kParamString) return 0;
   const uint8_t* p = elems_;
-  for (uint16_t k = 0; k < i; ++k) p += 2 + detail::get16(p);
-  const size_t n = detail::get16(p);
+  for (uint16_t k = 0; k < i; ++k) p += 2 + wire::get16(p);
+  const size_t n = wire::get16(p);
   if (cap) {
     const size_t m = n < cap - 1 ? n : cap - 1;
     memcpy(out, p + 2, m);

@@ -9,7 +9,7 @@
 #include <stdint.h>
 #include <string.h>
 
-#include "../crc16.h"
+#include "../../hwbridge_wire.h"
 
 namespace hwbridge {
 namespace can {

@@ -22,6 +22,8 @@
 
 #include <stdint.h>
 
+#include "../../hwbridge_wire.h"
+
 namespace hwbridge {
 namespace drivers {
 
@@ -71,8 +73,9 @@ struct Calibration {
   int8_t h6;
 };
 
-inline uint16_t u16le(const uint8_t* b) { return static_cast<uint16_t>(b[0] | (b[1] << 8)); }
-inline int16_t s16le(const uint8_t* b) { return static_cast<int16_t>(u16le(b)); }
+// the trimming words are little-endian (datasheet table 16): the library's loads
+inline uint16_t u16le(const uint8_t* b) { return wire::get16(b); }
+inline int16_t s16le(const uint8_t* b) { return static_cast<int16_t>(wire::get16(b)); }
 
 /** Parse 24 bytes from 0x88, the byte at 0xA1 and 7 bytes from 0xE1. */
 inline Calibration parse_calibration(const uint8_t* tp, uint8_t h1, const uint8_t* h) {

@@ -40,8 +40,10 @@ HWB_NODE void HWB_SELF::deliver(const Frame& f) {
 
 HWB_NODE void HWB_SELF::onBestEffort(const Frame& f) {
   const uint8_t* p = f.payload;
-  if (f.channel == kControlChannel && f.size >= 8 && p[0] == 0x01 && p[1] == 1) {
-    const uint32_t peer = detail::get32(p + 4);  // a HELLO: a new session has its own seq space
+  // a HELLO, as far as its session id (the rest is checked in onControl)
+  if (f.channel == kControlChannel && f.size >= 8 && p[0] == board::Hello::kOpcode &&
+      board::Hello::version(p) == control::PROTOCOL_VERSION) {
+    const uint32_t peer = board::Hello::session(p);  // a HELLO: a new session has its own seq space
     if (peer != be_peer_ && peer != id_) {
       be_peer_ = peer;
       be_rx_.resync();
@@ -76,7 +78,8 @@ HWB_NODE void HWB_SELF::onData(const Message& m) {
 
 HWB_NODE void HWB_SELF::onControl(const uint8_t* p, size_t n, bool reliable) {
   // the fixed size of each opcode's fields (0: unknown); variable ones give their minimum
-  static const uint8_t kBe[8] HWBRIDGE_PROGMEM = {0, 21, 1, 0, 21, 1, 9, 0};  // opcodes 0x00..0x07 (board's view)
+  // (board's view: 0 for what only a board sends); from the schema, in flash for opcodes 0..7
+  static const uint8_t kBe[8] HWBRIDGE_PROGMEM = {0, board::Hello::kMinSize, board::Heartbeat::kMinSize, 0, board::TimeResponse::kMinSize, board::Goodbye::kMinSize, board::HostTimeRequest::kMinSize, 0};
   if (n == 0) {
     protocolError();
     return;
@@ -85,26 +88,26 @@ HWB_NODE void HWB_SELF::onControl(const uint8_t* p, size_t n, bool reliable) {
   uint8_t need = 0;
   if (op < 8) {
     need = flash_byte(reinterpret_cast<const char*>(kBe) + op);
-  } else if (op == 0x13) {
-    need = 3;
-  } else if (op == 0x14) {
-    need = 2;
-  } else if (op == 0x20) {
-    need = 4;
-  } else if (op == 0x21) {
-    need = 5;
-  } else if (op == 0x31) {
-    need = 5;
-  } else if (op == 0x40) {
-    need = 2;
+  } else if (op == board::TopicAck::kOpcode) {
+    need = board::TopicAck::kMinSize;
+  } else if (op == board::Ready::kOpcode) {
+    need = board::Ready::kMinSize;
+  } else if (op == board::ServiceRequest::kOpcode) {
+    need = board::ServiceRequest::kMinSize;
+  } else if (op == board::ServiceResponse::kOpcode) {
+    need = board::ServiceResponse::kMinSize;
+  } else if (op == board::ParamValue::kOpcode) {
+    need = board::ParamValue::kMinSize;
+  } else if (op == board::Log::kOpcode) {
+    need = board::Log::kMinSize;
   }
-  if (need == 0 || n < need || (op < 0x10) == reliable) {  // unknown, short, or wrong stream
+  if (need == 0 || n < need || (op < control::FIRST_OPCODE_RELIABLE) == reliable) {  // unknown, short, or wrong stream
     protocolError();
     return;
   }
   // a sign of life (2.9), a HELLO too; before a session it counts for nothing (establish sets it)
   last_rx_ = tick_;
-  if (op == 0x01) {
+  if (op == board::Hello::kOpcode) {
     onHello(p);
     return;
   }
@@ -113,73 +116,70 @@ HWB_NODE void HWB_SELF::onControl(const uint8_t* p, size_t n, bool reliable) {
     return;
   }
   switch (op) {
-    case 0x02:  // HEARTBEAT
+    case board::Heartbeat::kOpcode:
       break;
-    case 0x04:  // TIME_RESPONSE: only a board that asks (kTimeSyncMs) reads the answers
+    case board::TimeResponse::kOpcode:  // only a board that asks (kTimeSyncMs) reads the answers
       if (Profile::kTimeSyncMs) onTimeResponse(p);
       break;
-    case 0x05:  // GOODBYE
+    case board::Goodbye::kOpcode:
       ++stats_.peer_resets;
       teardown();
       break;
-    case 0x06: {  // HOST_TIME_REQUEST: t1 echoed, t2 = t3 = now
-      if (!(Profile::kFeatures & 1)) break;
+    case board::HostTimeRequest::kOpcode: {  // t1 echoed, t2 = t3 = now
+      if (!(Profile::kFeatures & control::Features::TIME_SYNC)) break;
+      const uint32_t sec = board::HostTimeRequest::t1_sec(p), nsec = board::HostTimeRequest::t1_nsec(p);
       if (!flag(kTimeSynced)) {  // a first estimate of host time: t1 plus the one-way delay
-        host_sec_ = detail::get32(p + 1);
-        host_nsec_ = detail::get32(p + 5);
+        host_sec_ = sec;
+        host_nsec_ = nsec;
         board_ref_ = now_;
       }
-      uint8_t r[17];
-      r[0] = 0x07;
-      memcpy(r + 1, p + 1, 8);
-      detail::put32(r + 9, now_);
-      detail::put32(r + 13, now_);
-      sendControlBe(r, 17);
+      uint8_t r[board::HostTimeResponse::kMinSize];
+      board::HostTimeResponse::put(r, sec, nsec, now_, now_);
+      sendControlBe(r, sizeof r);
       break;
     }
-    case 0x13:
+    case board::TopicAck::kOpcode:
       onTopicAck(p, n);
       break;
-    case 0x14:  // READY
+    case board::Ready::kOpcode:
       if (state_ != kConfiguring) break;
       {
         uint8_t accepted = 0;
         for (Entry* e = entries_; e; e = e->next_) accepted = static_cast<uint8_t>(accepted + e->accepted_);
-        if (accepted != p[1]) protocolError();
+        if (accepted != board::Ready::accepted(p)) protocolError();
       }
       state_ = kConnected;
       time_.schedule(tick_, 0);  // the first time request right after CONNECTED
       break;
-    case 0x20:
+    case board::ServiceRequest::kOpcode:
       if (on_request_) {
         on_request_(this, p, n);
       } else if (txFree()) {  // this board serves nothing: NO_SERVICE
-        memcpy(tx_, p, 4);
-        tx_[0] = 0x21;
-        tx_[4] = 2;
+        board::ServiceResponse::put(tx_, board::ServiceRequest::channel(p), board::ServiceRequest::request_id(p),
+                                    control::ServiceStatus::NO_SERVICE);
         pending_ch_ = kControlChannel;
-        pending_len_ = 5;
+        pending_len_ = board::ServiceResponse::kBody;
       }
       break;
-    case 0x21:  // SERVICE_RESPONSE: only to a board with a service client
-      if (on_response_ && p[4] <= 2) {
+    case board::ServiceResponse::kOpcode:  // only to a board with a service client
+      if (on_response_ && board::ServiceResponse::status(p) <= control::ServiceStatus::NO_SERVICE) {
         on_response_(this, p, n);
       } else {
         protocolError();
       }
       break;
-    case 0x31:
+    case board::ParamValue::kOpcode:
       if (on_param_) {
         on_param_(this, p, n);
       } else {  // this board asked for no parameter
         protocolError();
       }
       break;
-    case 0x40:  // LOG from the host: never sent to a board without HOST_LOG (4) in its features
-      if (!(Profile::kFeatures & 4) || p[1] > 4) {
+    case board::Log::kOpcode:  // from the host: never sent to a board without HOST_LOG
+      if (!(Profile::kFeatures & control::Features::HOST_LOG) || board::Log::level(p) > control::LogLevel::FATAL) {
         protocolError();
       } else if (log_cb_ != nullptr) {
-        log_cb_(p[1], reinterpret_cast<const char*>(p + 2), n - 2);
+        log_cb_(board::Log::level(p), reinterpret_cast<const char*>(p + board::Log::kText), n - board::Log::kText);
       }
       break;
     default:  // an opcode only a board sends
@@ -188,9 +188,10 @@ HWB_NODE void HWB_SELF::onControl(const uint8_t* p, size_t n, bool reliable) {
 }
 
 HWB_NODE void HWB_SELF::onHello(const uint8_t* p) {
-  const uint32_t session = detail::get32(p + 4);
-  const uint32_t peer_session = detail::get32(p + 8);
-  if (p[1] != 1 || p[2] != 0) {  // another version, or the peer is a board (or an echo)
+  typedef board::Hello H;
+  const uint32_t session = H::session(p);
+  const uint32_t peer_session = H::peer_session(p);
+  if (H::version(p) != control::PROTOCOL_VERSION || H::role(p) != control::Role::HOST) {  // another version, or the peer is a board (or an echo)
     protocolError();
     return;
   }
@@ -199,27 +200,28 @@ HWB_NODE void HWB_SELF::onHello(const uint8_t* p) {
     teardown();
   }
   if (!established()) {
-    if (detail::get16(p + 12) < (kFragments ? kMinMtu : Profile::kTxBuffer) || p[18] == 0 || detail::get32(p + 14) == 0 || session == 0) {
+    if (H::mtu(p) < (kFragments ? kMinMtu : Profile::kTxBuffer) || H::window(p) == 0 || H::max_message(p) == 0 || session == 0) {
       protocolError();
       return;
     }
     peer_ = session;
     if (peer_session == id_) establish(p);
   }
-  if (!(p[3] & 1)) sendHello();
+  if (!(H::flags(p) & control::HelloFlags::ESTABLISHED)) sendHello();
 }
 
 HWB_NODE void HWB_SELF::establish(const uint8_t* h) {
-  const uint16_t host_mtu = detail::get16(h + 12);
+  typedef board::Hello H;
+  const uint16_t host_mtu = H::mtu(h);
   mtu_ = kFixedMtu || host_mtu > Profile::kMtu ? Profile::kMtu : host_mtu;
   // the host's window is at least 1 (onHello refused 0)
-  uint8_t window = Profile::kWindow == 1 || h[18] > Profile::kWindow ? Profile::kWindow : h[18];
+  uint8_t window = Profile::kWindow == 1 || H::window(h) > Profile::kWindow ? Profile::kWindow : H::window(h);
   if (window > kMaxWindow) window = kMaxWindow;
-  const uint32_t peer_max = detail::get32(h + 14);
+  const uint32_t peer_max = H::max_message(h);
   peer_max_ = peer_max > 0xFFFFUL ? 0xFFFFu : static_cast<uint16_t>(peer_max);
-  features_ = static_cast<uint8_t>(h[20] & Profile::kFeatures);
+  features_ = static_cast<uint8_t>(H::features(h) & Profile::kFeatures);
   rel_tx_.reset(isn_, window, kFixedMtu ? Profile::kMtu : mtu_);
-  rel_rx_.reset(h[19], window);
+  rel_rx_.reset(H::isn(h), window);
   reasm_.reset(FrameType::Reliable);
   // the receiver's limit becomes the negotiated MTU (2.5); for a board that does not fragment
   // and whose largest message fills its MTU, that is always its own (smaller host MTUs refused)
@@ -259,19 +261,21 @@ HWB_NODE void HWB_SELF::teardown() {
 }
 
 HWB_NODE void HWB_SELF::onTopicAck(const uint8_t* p, size_t n) {
-  const uint8_t status = p[2];
+  typedef board::TopicAck A;
+  const uint8_t status = A::status(p);
   Entry* e = entries_;
-  while (e && e->channel_ != p[1]) e = e->next_;
-  if (e == nullptr || status > 2 || (status != 0 && n < 19)) {
+  while (e && e->channel_ != A::channel(p)) e = e->next_;
+  if (e == nullptr || status > control::TopicStatus::INVALID ||
+      (status != control::TopicStatus::ACCEPTED && n < A::kHostMd5End)) {
     protocolError();
     return;
   }
-  if (status == 0) {
+  if (status == control::TopicStatus::ACCEPTED) {
     e->accepted_ = true;
     return;
   }
   protocolError();
-  if (status == 1) {
+  if (status == control::TopicStatus::MISMATCH) {
     ++stats_.mismatches;
   } else {
     ++stats_.refused_entries;

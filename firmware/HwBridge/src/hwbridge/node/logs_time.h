@@ -16,11 +16,10 @@ HWB_NODE bool HWB_SELF::log(uint8_t level, const char* text) {
     ++stats_.tx_refused;
     return false;
   }
-  tx_[0] = 0x40;
-  tx_[1] = level;
-  size_t n = static_cast<size_t>(detail::put_str(tx_ + 2, text, cap - 2) - tx_ - 2);
+  uint8_t* start = board::Log::put(tx_, level);
+  size_t n = static_cast<size_t>(detail::put_str(start, text, cap - board::Log::kText) - start);
   while (n && (static_cast<uint8_t>(text[n]) & 0xC0) == 0x80) --n;  // cut on a UTF-8 boundary
-  uint8_t* end = tx_ + 2 + n;
+  uint8_t* end = start + n;
   pending_ch_ = kControlChannel;
   pending_len_ = static_cast<uint16_t>(end - tx_);
   pump();
@@ -31,17 +30,17 @@ HWB_NODE bool HWB_SELF::log(uint8_t level, const char* text) {
 HWB_NODE void HWB_SELF::requestSyncTime() {
   if (state_ != kConnected || !(features_ & 1)) return;
   clock();  // t1 is now
-  uint8_t r[5];
-  r[0] = 0x03;
-  detail::put32(r + 1, now_);
-  sendControlBe(r, 5);
+  uint8_t r[board::TimeRequest::kMinSize];
+  board::TimeRequest::put(r, now_);
+  sendControlBe(r, sizeof r);
 }
 
 HWB_NODE void HWB_SELF::onTimeResponse(const uint8_t* p) {
-  const uint32_t elapsed = now_ - detail::get32(p + 1);
+  typedef board::TimeResponse T;
+  const uint32_t elapsed = now_ - T::t1(p);
   if (elapsed > kMaxTimeAgeUs) return;
-  const uint32_t t2s = detail::get32(p + 5), t2n = detail::get32(p + 9);
-  const uint32_t t3s = detail::get32(p + 13), t3n = detail::get32(p + 17);
+  const uint32_t t2s = T::t2_sec(p), t2n = T::t2_nsec(p);
+  const uint32_t t3s = T::t3_sec(p), t3n = T::t3_nsec(p);
   const uint32_t busy_s = t3s - t2s;
   if (busy_s > 10 || t2n >= 1000000000UL || t3n >= 1000000000UL) return;  // nonsense: ignored
   // host busy time t3 - t2 in us

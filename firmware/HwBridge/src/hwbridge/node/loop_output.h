@@ -65,8 +65,9 @@ HWB_NODE void HWB_SELF::runTimers() {
   }
   if (static_cast<Tick>(tick_ - last_tx_) >= kHeartbeat) {
     ++stats_.heartbeats_sent;
-    const uint8_t hb = 0x02;
-    sendControlBe(&hb, 1);
+    uint8_t hb[board::Heartbeat::kMinSize];
+    board::Heartbeat::put(hb);
+    sendControlBe(hb, sizeof hb);
   }
   hw_.flush();
 }
@@ -129,20 +130,11 @@ HWB_NODE void HWB_SELF::sendBe(uint8_t channel, const uint8_t* p, size_t n) {
 
 HWB_NODE void HWB_SELF::sendHello() {
   ++stats_.hellos_sent;
-  uint8_t h[21];
-  h[0] = 0x01;
-  h[1] = 1;  // version
-  h[2] = 1;  // role: board
-  h[3] = established() ? 1 : 0;
-  detail::put32(h + 4, id_);
-  detail::put32(h + 8, peer_);
-  detail::put16(h + 12, Profile::kMtu);
-  detail::put32(h + 14, Profile::kMaxMessage);
-  h[18] = Profile::kWindow;
-  h[19] = isn_;
-  h[20] = Profile::kFeatures;
+  uint8_t h[board::Hello::kMinSize];
+  board::Hello::put(h, control::Role::DEVICE, established() ? control::HelloFlags::ESTABLISHED : 0, id_, peer_,
+                    Profile::kMtu, Profile::kMaxMessage, Profile::kWindow, isn_, Profile::kFeatures);
   setFlag(kLead, true);  // 1.3: a HELLO is always led by 0x00
-  sendControlBe(h, 21);
+  sendControlBe(h, sizeof h);
 }
 
 /** After input: the ACK that is due (every one at once: this board never holds ACKs back),
@@ -179,8 +171,7 @@ HWB_NODE bool HWB_SELF::queueTable() {
   const size_t cap = Profile::kTxBuffer;
   static_assert(Profile::kTxBuffer >= 24, "kTxBuffer must hold at least 24 bytes");
   if (table_pos_ == 0) {  // BOARD_INFO
-    *p++ = 0x10;
-    *p++ = entry_count_;
+    p = board::BoardInfo::put(p, entry_count_);
     uint8_t* len = p++;
     p = detail::put_str(p, name_, cap - 5 < 255 ? cap - 5 : 255);
     *len = static_cast<uint8_t>(p - len - 1);
@@ -193,10 +184,7 @@ HWB_NODE bool HWB_SELF::queueTable() {
   } else if (table_pos_ <= entry_count_) {  // TOPIC
     Entry* e = entries_;
     for (uint8_t i = 1; i < table_pos_; ++i) e = e->next_;
-    *p++ = 0x11;
-    *p++ = e->channel_;
-    *p++ = e->kind_;
-    *p++ = e->reliable_ ? 1 : 0;
+    p = board::Topic::put(p, e->channel_, e->kind_, e->reliable_ ? control::EntryFlags::RELIABLE : 0);
     flash_copy(p, e->hook_(e, Entry::kOpMd5, nullptr, nullptr, nullptr), 16);
     p += 16;
     uint8_t* len = p++;
@@ -205,8 +193,7 @@ HWB_NODE bool HWB_SELF::queueTable() {
     p = detail::put_str_P(p, e->hook_(e, Entry::kOpType, nullptr, nullptr, nullptr),
                           cap - static_cast<size_t>(p - tx_));
   } else {  // TABLE_END
-    *p++ = 0x12;
-    *p++ = entry_count_;
+    p = board::TableEnd::put(p, entry_count_);
   }
   ++table_pos_;
   pending_ch_ = kControlChannel;

@@ -10,8 +10,8 @@
 // Services
 
 HWB_NODE void HWB_SELF::onServiceRequest(const uint8_t* p, size_t n) {
-  const uint8_t channel = p[1];
-  const uint16_t id = detail::get16(p + 2);
+  const uint8_t channel = board::ServiceRequest::channel(p);
+  const uint16_t id = board::ServiceRequest::request_id(p);
   if (!txFree() || peer_max_ < 5) {  // no room to answer (now, or ever): the host's call times out
     ++stats_.tx_refused;
     return;
@@ -23,8 +23,8 @@ HWB_NODE void HWB_SELF::onServiceRequest(const uint8_t* p, size_t n) {
     const size_t cap = Profile::kTxBuffer - 5;
     const size_t limit = static_cast<size_t>(peer_max_) - 5 < cap ? static_cast<size_t>(peer_max_) - 5 : cap;
     ServiceOut out = {tx_ + 5, limit};
-    len = n - 4;
-    const char* err = e->hook_(e, Entry::kOpDeliver, p + 4, &len, &out);
+    len = n - board::ServiceRequest::kBody;
+    const char* err = e->hook_(e, Entry::kOpDeliver, p + board::ServiceRequest::kBody, &len, &out);
     status = 0;
     if (err != nullptr) {
       status = 1;  // ERROR, with the reason as the body
@@ -32,23 +32,21 @@ HWB_NODE void HWB_SELF::onServiceRequest(const uint8_t* p, size_t n) {
       len = static_cast<size_t>(end - tx_ - 5);
     }
   }
-  tx_[0] = 0x21;
-  tx_[1] = channel;
-  detail::put16(tx_ + 2, id);
-  tx_[4] = status;
+  board::ServiceResponse::put(tx_, channel, id, status);
   pending_ch_ = kControlChannel;
-  pending_len_ = static_cast<uint16_t>(5 + len);
+  pending_len_ = static_cast<uint16_t>(board::ServiceResponse::kBody + len);
 }
 
 HWB_NODE void HWB_SELF::onServiceResponse(const uint8_t* p, size_t n) {
-  if (call_state_ != 1 || detail::get16(p + 2) != call_id_ || call_entry_ == nullptr ||
-      p[1] != call_entry_->channel_) {
+  typedef board::ServiceResponse R;
+  if (call_state_ != 1 || R::request_id(p) != call_id_ || call_entry_ == nullptr ||
+      R::channel(p) != call_entry_->channel_) {
     return;  // late, or not ours
   }
-  call_status_ = p[4];
+  call_status_ = R::status(p);
   if (call_status_ == kCallOk) {
-    size_t len = n - 5;
-    if (call_entry_->hook_(call_entry_, Entry::kOpDeliver, p + 5, &len, call_res_) != nullptr) {
+    size_t len = n - R::kBody;
+    if (call_entry_->hook_(call_entry_, Entry::kOpDeliver, p + R::kBody, &len, call_res_) != nullptr) {
       call_status_ = kCallBadResponse;
     }
   }
@@ -62,9 +60,7 @@ HWB_NODE uint8_t HWB_SELF::call(Entry& e, size_t len, uint16_t timeout_ms, void*
     return kCallNotConnected;
   }
   call_id_ = newRequestId();
-  tx_[0] = 0x20;
-  tx_[1] = e.channel_;
-  detail::put16(tx_ + 2, call_id_);
+  board::ServiceRequest::put(tx_, e.channel_, call_id_);
   pending_ch_ = kControlChannel;
   pending_len_ = static_cast<uint16_t>(len + 4);
   call_entry_ = &e;
@@ -109,11 +105,7 @@ HWB_NODE uint16_t HWB_SELF::requestParam(const char* name, uint8_t type, ParamCa
   param_id_ = newRequestId();
   if (subscribe) push_cb_ = cb;
   uint8_t* p = tx_;
-  *p++ = 0x30;
-  p = detail::put16(p, param_id_);
-  *p++ = type;
-  *p++ = subscribe ? 1 : 0;
-  p = detail::put16(p, max_count);
+  p = board::ParamGet::put(p, param_id_, type, subscribe ? control::ParamGetFlags::SUBSCRIBE : 0, max_count);
   memcpy(p, name, len);
   pending_ch_ = kControlChannel;
   pending_len_ = static_cast<uint16_t>(7 + len);
@@ -141,15 +133,16 @@ HWB_NODE void HWB_SELF::finishParam(uint8_t status, const ParamValue* v) {
 
 HWB_NODE void HWB_SELF::onParamValue(const uint8_t* p, size_t n) {
   ParamValue v;
-  v.request_id = detail::get16(p + 1);
-  v.status = p[3];
-  v.name_len = p[4];
-  v.name = reinterpret_cast<const char*>(p + 5);
+  typedef board::ParamValue V;
+  v.request_id = V::request_id(p);
+  v.status = V::status(p);
+  v.name_len = p[V::kName];  // the name's u8 length, its bytes after it
+  v.name = reinterpret_cast<const char*>(p + V::kName + 1);
   v.type = 0;
   v.count_ = 0;
   v.elems_ = nullptr;
   v.size_ = 0;
-  size_t at = 5u + v.name_len;
+  size_t at = V::kName + 1u + v.name_len;
   bool good = v.status <= 3 && at <= n;
   if (good && v.status == kParamOk) {
     good = at < n;
@@ -160,14 +153,14 @@ HWB_NODE void HWB_SELF::onParamValue(const uint8_t* p, size_t n) {
       if (good) {
         v.count_ = 1;
         if (v.type & 0x80) {
-          v.count_ = detail::get16(p + at);
+          v.count_ = wire::get16(p + at);
           at += 2;
         }
         v.elems_ = p + at;
         const uint8_t es = detail::param_elem_size(scalar);
         for (uint16_t i = 0; good && i < v.count_; ++i) {  // every element within the payload
           size_t step = es;
-          if (es == 0) step = at + 2 <= n ? 2u + detail::get16(p + at) : n + 1;
+          if (es == 0) step = at + 2 <= n ? 2u + wire::get16(p + at) : n + 1;
           good = at + step <= n;
           at += step;
         }

@@ -326,7 +326,11 @@ BOARD = "robot: fake\nboards:\n  - name: base\n    link: pty://\n    devices:\n"
             "{type: fake_sensor, pin: 1, rat: 3}",
             "unknown key 'rat' (did you mean 'rate'?); known: type, name, pin, rate, mode",
         ),
-        ("{type: fake_broken}", "type fake_broken cannot be loaded: ModuleNotFoundError"),
+        (
+            "{type: fake_broken}",
+            "the device type 'fake_broken' is provided by hwbridge_no_such_module_xyz:Plugin, "
+            "which failed to load: No module named",
+        ),
         ("{type: fake_bus, ids: {}}", "a host device: list it under host_devices"),
         ("{name: x}", "missing 'type'"),
         ("[fake_sensor]", "must be a mapping"),
@@ -508,8 +512,9 @@ def test_cli_in_process(fakes: None, tmp_path: Path, capsys: pytest.CaptureFixtu
     captured = capsys.readouterr()
     assert captured.out == ""
     assert captured.err.splitlines() == [
-        f"error: {path}:6: board base: device 1: type fake_broken cannot be loaded: "
-        "ModuleNotFoundError: No module named 'hwbridge_no_such_module_xyz'",
+        f"error: {path}:6: board base: device 1: the device type 'fake_broken' is provided by "
+        "hwbridge_no_such_module_xyz:Plugin, which failed to load: No module named "
+        "'hwbridge_no_such_module_xyz'; reinstall the package that provides it",
         f"error: {path}:7: board base: fake_sensor: missing setting 'pin' (the board pin)",
     ]
 

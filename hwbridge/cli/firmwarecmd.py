@@ -10,11 +10,13 @@ from typing import Annotated
 import typer
 
 from hwbridge.cli.simcmd import sim
+from hwbridge.cli.uploadcmd import upload
 
 __all__ = ["firmware_app"]
 
 firmware_app = typer.Typer(
-    help="Firmware: build sketches, measure them, generate headers, run them in simavr.",
+    help="Firmware: build sketches, measure them, generate headers, run them in simavr, "
+    "upload them.",
     no_args_is_help=True,
 )
 
@@ -139,3 +141,4 @@ def generate(
 
 
 firmware_app.command("sim")(sim)
+firmware_app.command("upload")(upload)

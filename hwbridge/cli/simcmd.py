@@ -15,12 +15,13 @@ __all__ = ["sim"]
 
 def sim(
     firmware: Annotated[
-        str,
+        str | None,
         typer.Argument(
-            metavar="ELF",
-            help="An AVR ELF, a sketch folder, or the name of a HwBridge example (HelloWorld).",
+            metavar="[ELF]",
+            help="An AVR ELF, a sketch folder, or the name of a HwBridge example (HelloWorld); "
+            "with --bootloader also an Intel HEX, or nothing (blank flash).",
         ),
-    ],
+    ] = None,
     mcu: Annotated[
         str, typer.Option("--mcu", help="atmega328p (Uno) or atmega2560 (Mega).")
     ] = "atmega328p",
@@ -48,6 +49,14 @@ def sim(
     ] = 1.0,
     frequency: Annotated[int, typer.Option("--frequency", help="Clock (Hz).")] = 16_000_000,
     seed: Annotated[int, typer.Option("--seed", help="The world's seed.")] = 0,
+    bootloader: Annotated[
+        bool,
+        typer.Option(
+            "--bootloader",
+            help="Run an Uno's Optiboot: the AVR resets into it whenever the pty is opened, so "
+            "'hwbridge firmware upload SKETCH --port PTY' (avrdude) uploads to it (Uno only).",
+        ),
+    ] = False,
     symlink: Annotated[
         Path | None,
         typer.Option(
@@ -58,20 +67,37 @@ def sim(
     ] = None,
 ) -> None:
     """Run an AVR firmware in simavr until Ctrl-C. The first line printed is the URL of its
-    UART0 (serial:///dev/pts/N): give it to 'hwbridge connect' or a robot file's --link."""
+    UART0 (serial:///dev/pts/N): give it to 'hwbridge connect' or a robot file's --link.
+
+    With --bootloader the simulated Uno has Optiboot at 0x7E00 and starts there; opening the
+    pty resets it into the bootloader (as the Uno's DTR auto-reset does), which takes an upload
+    for a second before it starts the application in flash. Uploaded flash lasts until the
+    simulator stops."""
     from hwbridge.emulator.board import load_board
     from hwbridge.emulator.pins import PinMap, PinWorld
     from hwbridge.errors import HwBridgeError
     from hwbridge.firmware.sim import SimAvr
+    from hwbridge.firmware.sim.bootloader import optiboot_hex
     from hwbridge.firmware.sim.examples import EXAMPLES_DIR, build_sketch_for_sim
 
-    path = Path(firmware)
     board_name = "mega" if mcu == "atmega2560" else "uno"
-    if path.is_dir():
-        path = build_sketch_for_sim(path, board_name)
-    elif not path.exists() and (EXAMPLES_DIR / firmware).is_dir():
-        path = build_sketch_for_sim(EXAMPLES_DIR / firmware, board_name)
-    simulation = SimAvr(path, mcu=mcu, frequency=frequency, speed=speed, symlink=symlink)
+    boot: Path | None = None
+    if bootloader:
+        if mcu != "atmega328p":
+            raise HwBridgeError("--bootloader: only the Uno's (atmega328p) Optiboot is supported")
+        boot = optiboot_hex()
+    elif firmware is None:
+        raise HwBridgeError("give the firmware to run (an ELF, a sketch, an example's name)")
+    path: Path | None = None
+    if firmware is not None:
+        path = Path(firmware)
+        if path.is_dir():
+            path = build_sketch_for_sim(path, board_name)
+        elif not path.exists() and (EXAMPLES_DIR / firmware).is_dir():
+            path = build_sketch_for_sim(EXAMPLES_DIR / firmware, board_name)
+    simulation = SimAvr(
+        path, bootloader=boot, mcu=mcu, frequency=frequency, speed=speed, symlink=symlink
+    )
     try:
         simulation.start(hold=True)
         if robot is not None:

@@ -164,14 +164,20 @@ class SimAvr:
     """The runner with one ELF. ``start()`` returns once the UART's pty exists (:attr:`url`);
     with ``hold`` the AVR waits until :meth:`go` so that devices are in place before it boots.
 
+    With ``bootloader`` (an Intel HEX, see :func:`~hwbridge.firmware.sim.bootloader.optiboot_hex`)
+    the CPU starts at the bootloader, each open of the pty resets the AVR into it (an Uno's
+    auto-reset), and ``elf`` (an ELF or an Intel HEX, or None) is the application already in
+    flash: upload another one through the pty with avrdude.
+
     Callbacks run on the reader thread, in the order the runner reported: ``on_tick(tick)``,
     ``on_i2c_write(address, register, data)``, ``on_uart(name, packet)``, ``on_reset()`` and
     ``on_exit(state)``."""
 
     def __init__(
         self,
-        elf: Path | str,
+        elf: Path | str | None,
         *,
+        bootloader: Path | str | None = None,
         mcu: str = "atmega328p",
         frequency: int = 16_000_000,
         speed: float = 1.0,
@@ -180,9 +186,14 @@ class SimAvr:
     ) -> None:
         if mcu not in MCUS:
             raise SimError(f"unknown MCU {mcu!r}: choose {' or '.join(MCUS)}")
-        self.elf = Path(elf)
-        if not self.elf.is_file():
+        self.elf = Path(elf) if elf is not None else None
+        if self.elf is not None and not self.elf.is_file():
             raise SimError(f"no firmware at {self.elf}")
+        self.bootloader = Path(bootloader) if bootloader is not None else None
+        if self.bootloader is None and self.elf is None:
+            raise SimError("no firmware to run")
+        if self.bootloader is not None and not self.bootloader.is_file():
+            raise SimError(f"no bootloader at {self.bootloader}")
         self.mcu = mcu
         self.frequency = frequency
         self.speed = speed
@@ -225,7 +236,8 @@ class SimAvr:
             "--report-us",
             str(self.report_us),
             "--hold",
-            str(self.elf),
+            *(["--bootloader", str(self.bootloader)] if self.bootloader is not None else []),
+            *([str(self.elf)] if self.elf is not None else []),
         ]
         self._process = subprocess.Popen(
             command,

@@ -3,8 +3,14 @@
  * pins, driven line by line from a controlling process (hwbridge.firmware.sim).
  *
  *   hwbridge-simavr --mcu atmega328p --freq 16000000 [--speed 1.0] [--report-us 5000] [--hold]
- *                   FIRMWARE.elf
+ *                   [--bootloader BOOT.hex] FIRMWARE.elf
  *
+ * With --bootloader (an Intel HEX at the top of flash, Optiboot's 0x7E00) the CPU starts at the
+ * bootloader, as the BOOTRST fuse makes it, and FIRMWARE (an ELF or an Intel HEX) is optional:
+ * the application already in flash. An open of the pty resets the AVR with EXTRF set in MCUSR,
+ * as an Uno's auto-reset does when the host opens the port (DTR falls): a pty has no modem lines
+ * avrdude could toggle, so the open is what the runner sees (inotify). Flash written by the
+ * bootloader (SPM) stays for the rest of the run: resets keep it.
  * stdout, one event per line (the first line is the UART's URL):
  *   serial:///dev/pts/N           UART0's pseudo-terminal
  *   t US PIN=DUTY ...             every report period: simulated time (us since power-on) and the
@@ -40,7 +46,10 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <strings.h>
 #include <time.h>
+#include <poll.h>
+#include <sys/inotify.h>
 #include <unistd.h>
 
 #include <avr_extint.h>
@@ -50,6 +59,7 @@
 #include <parts/uart_pty.h>
 #include <sim_avr.h>
 #include <sim_elf.h>
+#include <sim_hex.h>
 #include <sim_irq.h>
 #include <sim_time.h>
 
@@ -125,6 +135,8 @@ static avr_cycle_count_t cycle_start;
 static char inbuf[8192];
 static size_t inlen;
 static int want_reset, want_quit, want_go;
+static int boot_mode;        // --bootloader: resets set EXTRF, opens of the pty reset
+static int open_watch = -1;  // inotify on the pty's slave: IN_OPEN
 
 static void out_line(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
 static void out_line(const char *fmt, ...) {
@@ -606,6 +618,72 @@ static void read_commands(void) {
   }
 }
 
+/* ------------------------------------------------------------------ bootloader mode */
+/* Whether the host opened the pty since the last look (the auto-reset of an Uno). */
+static int pty_opened(void) {
+  if (open_watch < 0) return 0;
+  int opened = 0;
+  char events[4096] __attribute__((aligned(__alignof__(struct inotify_event))));
+  ssize_t n;
+  while ((n = read(open_watch, events, sizeof events)) > 0)
+    for (char *at = events; at < events + n;) {
+      const struct inotify_event *e = (const struct inotify_event *)at;
+      if (e->mask & IN_OPEN) opened = 1;
+      at += sizeof *e + e->len;
+    }
+  return opened;
+}
+
+/* Copy an Intel HEX file into flash; the lowest address loaded goes to *lowest. */
+static int load_hex(const char *path, uint32_t *lowest) {
+  ihex_chunk_p chunks = NULL;
+  int n = read_ihex_chunks(path, &chunks);
+  if (n <= 0) {
+    fprintf(stderr, "hwbridge-simavr: cannot read the Intel HEX file %s\n", path);
+    return -1;
+  }
+  uint32_t low = avr->flashend + 1;
+  for (int i = 0; i < n; i++) {
+    uint32_t base = chunks[i].baseaddr, size = chunks[i].size;
+    if (base + size > avr->flashend + 1) {
+      fprintf(stderr,
+              "hwbridge-simavr: %s has bytes at 0x%04x..0x%04x, past the end of flash (0x%04x)\n",
+              path, base, base + size - 1, avr->flashend);
+      free_ihex_chunks(chunks);
+      return -1;
+    }
+    memcpy(avr->flash + base, chunks[i].data, size);
+    if (size && base < low) low = base;
+  }
+  free_ihex_chunks(chunks);
+  *lowest = low;
+  return 0;
+}
+
+static int ends_with(const char *s, const char *tail) {
+  size_t a = strlen(s), b = strlen(tail);
+  return a >= b && strcasecmp(s + a - b, tail) == 0;
+}
+
+static void external_reset(void) {
+  avr_reset(avr);
+  if (boot_mode) avr_regbit_set(avr, avr->reset_flags.extrf);
+}
+
+/* The AVR stopped (blank flash, a crashed application): like a hung board, it waits for its
+   reset, an open of the pty (the next upload) or the "reset" command. */
+static void wait_for_reset(void) {
+  while (!want_reset && !want_quit) {
+    struct pollfd fds[2] = {{.fd = 0, .events = POLLIN}, {.fd = open_watch, .events = POLLIN}};
+    if (poll(fds, 2, -1) < 0 && errno != EINTR) {
+      want_quit = 1;
+      break;
+    }
+    if (fds[0].revents) read_commands();
+    if (pty_opened()) want_reset = 1;
+  }
+}
+
 /* ------------------------------------------------------------------ the tick */
 static double wall_seconds(void) {
   struct timespec now;
@@ -649,6 +727,7 @@ static avr_cycle_count_t tick(avr_t *a, avr_cycle_count_t when, void *param) {
   (void)a;
   (void)param;
   read_commands();
+  if (pty_opened()) want_reset = 1;
   flush_buses();
   if (avr->cycle - last_report >= avr_usec_to_cycles(avr, report_us))
     report();
@@ -677,7 +756,7 @@ static void start_timers(void) {
 static void usage(void) {
   fprintf(stderr,
           "usage: hwbridge-simavr [--mcu atmega328p] [--freq 16000000] [--speed 1.0] "
-          "[--report-us 5000] [--hold] FIRMWARE.elf\n");
+          "[--report-us 5000] [--hold] [--bootloader BOOT.hex] FIRMWARE.elf\n");
   exit(2);
 }
 
@@ -686,6 +765,7 @@ int main(int argc, char **argv) {
   const char *elf = NULL;
   uint32_t freq = 16000000;
   int hold = 0;
+  const char *boot = NULL;
   for (int i = 1; i < argc; i++) {
     if (!strcmp(argv[i], "--mcu") && i + 1 < argc)
       mcu = argv[++i];
@@ -697,17 +777,20 @@ int main(int argc, char **argv) {
       report_us = (uint32_t)strtoul(argv[++i], NULL, 10);
     else if (!strcmp(argv[i], "--hold"))
       hold = 1;
+    else if (!strcmp(argv[i], "--bootloader") && i + 1 < argc)
+      boot = argv[++i];
     else if (argv[i][0] == '-')
       usage();
     else
       elf = argv[i];
   }
-  if (!elf) usage();
+  if (!elf && !boot) usage();
+  int app_hex = elf && boot && ends_with(elf, ".hex");
   avr_global_logger_set(quiet_logger);
 
   elf_firmware_t fw;
   memset(&fw, 0, sizeof fw);
-  if (elf_read_firmware(elf, &fw) != 0) {
+  if (elf && !app_hex && elf_read_firmware(elf, &fw) != 0) {
     fprintf(stderr, "hwbridge-simavr: cannot read %s\n", elf);
     return 1;
   }
@@ -720,8 +803,20 @@ int main(int argc, char **argv) {
   avr_init(avr);
   avr->log = LOG_WARNING;
   fw.frequency = freq;
-  avr_load_firmware(avr, &fw);
+  if (elf && !app_hex) avr_load_firmware(avr, &fw);
   avr->frequency = freq;
+  if (boot) {
+    uint32_t start = 0, boot_start = 0;
+    if (app_hex && load_hex(elf, &start) != 0) return 1;
+    if (load_hex(boot, &boot_start) != 0) return 1;
+    boot_mode = 1;
+    avr->codeend = avr->flashend;  // the application may grow to the bootloader
+    avr->reset_pc = boot_start;    // BOOTRST: resets start the bootloader
+    avr->pc = boot_start;
+    // Power-on: PORF, and Optiboot starts the application; with none yet, EXTRF as if the
+    // reset button were pressed, and the bootloader waits for an upload first.
+    if (!elf) avr_regbit_set(avr, avr->reset_flags.extrf);
+  }
 
   // uart_pty prints its pty names on stdout: keep stdout for our own lines.
   fflush(stdout);
@@ -732,6 +827,12 @@ int main(int argc, char **argv) {
   fflush(stdout);
   dup2(saved, 1);
   close(saved);
+  if (boot_mode) {
+    open_watch = inotify_init1(IN_NONBLOCK | IN_CLOEXEC);
+    if (open_watch < 0 || inotify_add_watch(open_watch, uart.port[0].slavename, IN_OPEN) < 0)
+      fprintf(stderr, "hwbridge-simavr: cannot watch %s for opens: %s\n", uart.port[0].slavename,
+              strerror(errno));
+  }
   out_line("serial://%s\n", uart.port[0].slavename);
 
   static const char *twi_names[2] = {"<twi.in", ">twi.out"};
@@ -767,10 +868,18 @@ int main(int argc, char **argv) {
   int state = cpu_Running;
   while (!want_quit) {
     state = avr_run(avr);
+    if ((state == cpu_Done || state == cpu_Crashed) && boot_mode) {
+      fprintf(stderr, "hwbridge-simavr: the AVR stopped (%s) at 0x%04x; it waits for a reset\n",
+              state == cpu_Crashed ? "crashed" : "done", avr->pc);
+      wait_for_reset();
+      if (want_quit) break;
+      state = cpu_Running;
+    }
     if (state == cpu_Done || state == cpu_Crashed) break;
     if (want_reset) {
       want_reset = 0;
-      avr_reset(avr);
+      external_reset();
+      avr->state = cpu_Running;
     }
     if (avr->pc == avr->reset_pc && avr_cycle_timer_status(avr, tick, NULL) == 0) {
       // avr_reset (ours, or the watchdog's) cleared the cycle timers and the registers.

@@ -1,0 +1,144 @@
+"""``hwbridge firmware upload`` for real: ``hwbridge firmware sim --bootloader`` runs Optiboot on a
+simulated Uno, avrdude uploads the HelloWorld example through the pty, and the sketch then
+reaches the graph behind a bridge. A port held by the bridge, a corrupted HEX file (refused; the
+firmware in flash keeps running) and a port that does not exist give their clear errors."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+import threading
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from hwbridge.errors import HwBridgeError
+from hwbridge.firmware.build import LIBRARY_DIR
+from hwbridge.firmware.sim.bootloader import optiboot_hex
+from tests.bridgeproc import BridgeProcess
+from tests.netutil import wait_until
+
+HELLO = LIBRARY_DIR / "examples" / "HelloWorld"
+
+
+def _hwbridge(*argv: str, timeout: float = 300) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "hwbridge", *argv],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        check=False,
+    )
+
+
+class SimProcess:
+    """``hwbridge firmware sim --bootloader`` in a subprocess; :attr:`path` is its pty."""
+
+    def __init__(self) -> None:
+        self.process = subprocess.Popen(
+            [sys.executable, "-m", "hwbridge", "firmware", "sim", "--bootloader"],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        self.lines: list[str] = []
+        self.errors: list[str] = []
+        for stream, into in ((self.process.stdout, self.lines), (self.process.stderr, self.errors)):
+            threading.Thread(target=self._collect, args=(stream, into), daemon=True).start()
+
+    @staticmethod
+    def _collect(stream: object, into: list[str]) -> None:
+        for line in stream:  # type: ignore[attr-defined]
+            into.append(line.rstrip())
+
+    @property
+    def path(self) -> str:
+        assert wait_until(lambda: bool(self.lines) or self.process.poll() is not None, 120), (
+            "the simulator printed no URL"
+        )
+        assert self.lines, f"the simulator stopped: {self.errors}"
+        return self.lines[0].removeprefix("serial://")
+
+    def stop(self) -> None:
+        self.process.send_signal(2)  # SIGINT, as Ctrl-C
+        try:
+            self.process.wait(15)
+        finally:
+            if self.process.poll() is None:
+                self.process.kill()
+                self.process.wait(5)
+
+
+@pytest.fixture
+def simulator(runner: Path) -> Iterator[SimProcess]:
+    del runner  # built (or skipped) first
+    if shutil.which("avrdude") is None:
+        pytest.skip("avrdude is not installed (apt-get install avrdude)")
+    try:
+        optiboot_hex()
+    except HwBridgeError as exc:
+        pytest.skip(f"no Optiboot here: {exc}")
+    sim = SimProcess()
+    yield sim
+    sim.stop()
+
+
+def _chatter(bridge: BridgeProcess) -> str:
+    done = bridge.cli("topic", "echo", "/chatter", "-n", "1", "--timeout", "30")
+    assert done.returncode == 0, done.stderr + bridge.output()
+    return done.stdout
+
+
+def test_upload_then_the_sketch_reaches_the_graph(simulator: SimProcess, tmp_path: Path) -> None:
+    sketch = tmp_path / "HelloWorld"
+    shutil.copytree(HELLO, sketch, ignore=shutil.ignore_patterns("build"))
+    port = simulator.path
+
+    done = _hwbridge("firmware", "upload", str(sketch), "--port", port)
+    assert done.returncode == 0, done.stderr
+    for step in ("built ", "reset: the bootloader answered", "write: ", "verify: ", "verified"):
+        assert step in done.stderr, done.stderr
+    hex_file = sketch / "build" / "uno" / "HelloWorld.hex"
+    assert str(hex_file) in done.stderr
+
+    bridge = BridgeProcess(port, tmp_path, "upload_test")
+    try:
+        bridge.wait_ready()
+        assert "data: hello world!" in _chatter(bridge)
+        # the bridge holds the port: an upload is refused, saying who has it
+        busy = _hwbridge("firmware", "upload", str(hex_file), "--port", port)
+        assert busy.returncode == 1
+        assert "busy" in busy.stderr and "hwbridge connect" in busy.stderr, busy.stderr
+    finally:
+        bridge.stop()
+
+    # a corrupted image (one data byte changed, its record's checksum no longer matches) is
+    # refused before the board is touched
+    lines = hex_file.read_text().splitlines()
+    record = lines[10]
+    lines[10] = record[:9] + ("0" if record[9] != "0" else "1") + record[10:]
+    corrupted = tmp_path / "corrupted.hex"
+    corrupted.write_text("\n".join(lines) + "\n")
+    refused = _hwbridge("firmware", "upload", str(corrupted), "--port", port)
+    assert refused.returncode == 1
+    assert "error: refusing to upload" in refused.stderr, refused.stderr
+    assert "bad checksum" in refused.stderr and "line 11" in refused.stderr, refused.stderr
+
+    # the firmware uploaded first still runs (opening the port resets it through Optiboot)
+    again = BridgeProcess(port, tmp_path, "upload_test_again")
+    try:
+        again.wait_ready()
+        assert "data: hello world!" in _chatter(again)
+    finally:
+        again.stop()
+    assert simulator.process.poll() is None, simulator.errors
+
+
+def test_upload_to_a_missing_port(tmp_path: Path) -> None:
+    image = tmp_path / "empty.hex"
+    image.write_text(":0400000000000000FC\n:00000001FF\n")
+    done = _hwbridge("firmware", "upload", str(image), "--port", str(tmp_path / "ttyNONE"))
+    assert done.returncode == 1
+    assert f"error: no such port: {tmp_path / 'ttyNONE'}" in done.stderr, done.stderr

@@ -84,7 +84,8 @@ COMMANDS: dict[str, LazyCommand] = {
     ),
     "robot": LazyCommand(_CLI + "robotcmd:robot_app", "Robot files: check, show, devices, acl."),
     "board": LazyCommand(
-        _CLI + "bridgecmd:board_app", "Boards of the running bridge: list, info, stats."
+        _CLI + "bridgecmd:board_app",
+        "Boards: scan the serial ports; list, info, stats of the running bridge's.",
     ),
     "record": LazyCommand(
         _CLI + "recordcmd:record",

@@ -29,7 +29,8 @@ __all__ = [
 ]
 
 board_app = typer.Typer(
-    help="Boards of the running bridge: list, info, stats.", no_args_is_help=True
+    help="Boards: scan the serial ports; list, info, stats of the running bridge's.",
+    no_args_is_help=True,
 )
 log = logging.getLogger("hwbridge.cli")
 
@@ -301,6 +302,77 @@ def board_stats(ctx: typer.Context, board: BoardArg = None, as_json: JsonOpt = F
         },
         as_json,
     )
+
+
+@board_app.command("scan")
+def board_scan(
+    probe: Annotated[
+        bool,
+        typer.Option(
+            "--probe",
+            help="Open each port and tell whether a hwbridge (native) or rosserial board "
+            "answers (this usually resets an Arduino; a port in use is reported, not taken).",
+        ),
+    ] = False,
+    probe_timeout: Annotated[
+        float,
+        typer.Option(
+            "--probe-timeout",
+            metavar="SECONDS",
+            min=0.1,
+            max=60,
+            help="How long to listen on each port (they are probed together).",
+        ),
+    ] = 3.0,
+    baud: Annotated[
+        int | None,
+        typer.Option("--baud", "-b", min=50, help="Baud rate to probe at (default 115200)."),
+    ] = None,
+    as_json: JsonOpt = False,
+) -> None:
+    """List the serial ports, the board or USB-serial chip behind each (by USB ID) and its
+    stable /dev/serial/by-id name.
+
+    A robot file's link may then be usb:VID:PID (or usb:VID:PID:SERIAL), or auto for the one
+    port with a known board."""
+    from hwbridge.links.discovery import ProbeResult, list_serial_ports, probe_port
+
+    ports = list_serial_ports()
+    probed: list[ProbeResult | None] = [None] * len(ports)
+    if probe and ports:
+        from concurrent.futures import ThreadPoolExecutor
+
+        with ThreadPoolExecutor(min(len(ports), 8)) as pool:
+            probed = list(pool.map(lambda p: probe_port(p.device, probe_timeout, baud), ports))
+    if as_json:
+        rows = []
+        for port, result in zip(ports, probed, strict=True):
+            row = port.as_dict()
+            if probe:
+                row["protocol"] = result.protocol if result else None
+                row["probe"] = result.describe() if result else None
+            rows.append(row)
+        emit_json(rows)
+        return
+    if not ports:
+        typer.echo("no serial ports found")
+        return
+    header = ["PORT", "USB ID", "WHAT", *(["ANSWERS"] if probe else []), "BY-ID"]
+    table = [header]
+    for port, result in zip(ports, probed, strict=True):
+        what = port.board or (port.description if port.description != "n/a" else "") or "-"
+        table.append(
+            [
+                port.device,
+                port.usb_id or "-",
+                what,
+                *([result.describe() if result else "-"] if probe else []),
+                port.by_id or "-",
+            ]
+        )
+    widths = [max(len(cells[i]) for cells in table) for i in range(len(header))]
+    for cells in table:
+        typer.echo("  ".join(c.ljust(w) for c, w in zip(cells, widths, strict=True)).rstrip())
 
 
 def _print(data: dict[str, Any], as_json: bool) -> None:

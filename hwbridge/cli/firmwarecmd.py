@@ -140,5 +140,44 @@ def generate(
     sys.stdout.write(f"{len(files)} headers written to {outdir}\n")
 
 
+@firmware_app.command("library")
+def library(
+    zip_it: Annotated[
+        bool,
+        typer.Option(
+            "--zip", help="Write the library as a zip for the Arduino IDE's Add .ZIP Library."
+        ),
+    ] = False,
+    out: Annotated[
+        Path | None,
+        typer.Argument(
+            metavar="[OUT]", help="The zip to write, with --zip (default: HwBridge.zip here)."
+        ),
+    ] = None,
+) -> None:
+    """Where the HwBridge Arduino library is, or with --zip a zip of it for the Arduino IDE.
+
+    In the IDE: Sketch > Include Library > Add .ZIP Library..., then pick the zip; its
+    examples show under File > Examples > HwBridge."""
+    from hwbridge.firmware.build import LIBRARY_DIR
+
+    if not zip_it:
+        if out is not None:
+            raise typer.BadParameter("OUT is the zip to write: add --zip", param_hint="OUT")
+        sys.stdout.write(f"{LIBRARY_DIR}\n")
+        return
+    from hwbridge.firmware.libzip import write_library_zip
+
+    target = out if out is not None else Path("HwBridge.zip")
+    if target.is_dir():
+        target = target / "HwBridge.zip"
+    names = write_library_zip(target)
+    examples = sum(1 for name in names if name.endswith(".ino"))
+    sys.stdout.write(
+        f"{target}: the HwBridge library, {len(names)} files, {examples} examples; in the "
+        "Arduino IDE: Sketch > Include Library > Add .ZIP Library...\n"
+    )
+
+
 firmware_app.command("sim")(sim)
 firmware_app.command("upload")(upload)

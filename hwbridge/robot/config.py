@@ -36,7 +36,9 @@ problem at once, each as ``FILE:LINE: what is wrong``, in file order, in one
   the emulator; at least one board or host device. Unknown keys are errors that name the known
   ones (and the closest, when one is close).
 - a board: ``name`` (required, ``[A-Za-z_][A-Za-z0-9_]*``) and ``link`` (required; parsed by
-  :func:`hwbridge.links.create_link`, never opened: ``hwbridge up`` opens it); ``protocol``
+  :func:`hwbridge.links.create_link`, never opened: ``hwbridge up`` opens it;
+  ``usb:VID:PID[:SERIAL]`` and ``auto`` name a USB board, resolved to its port by ``hwbridge up``,
+  see :mod:`hwbridge.links.discovery`); ``protocol``
   (default ``auto``), ``namespace`` (default ``/``, a graph name), ``baud`` (a whole number above
   0), ``service_timeout`` (default 5 s), ``start_delay`` (default 0 s), ``devices`` (a list).
 - a device: ``type`` (a registered device type) and an optional ``name``, unique on its board
@@ -334,9 +336,11 @@ def _checked(
 
 def _check_link(url: Any, baud: int | None) -> str:
     from hwbridge.links import create_link
+    from hwbridge.links.discovery import parse_usb_link
 
     if not isinstance(url, str) or not url:
         raise ValueError(f"expected a link URL, got {url!r}")
+    parse_usb_link(url)  # usb:VID:PID and auto are resolved at 'up'; their syntax is checked here
     create_link(url, **({"baud": baud} if baud is not None else {}))  # parses, does not open
     return url
 

@@ -20,8 +20,9 @@ from __future__ import annotations
 
 import logging
 import threading
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from hwbridge.bridge import BoardSpec, Bridge
 from hwbridge.errors import HwBridgeError
@@ -29,6 +30,9 @@ from hwbridge.graph import Graph, GraphConfig
 from hwbridge.robot.model import DeviceConfig, Robot, RobotFileError
 from hwbridge.robot.plugin import Closeable, HostContext
 from hwbridge.robot.registry import get_device
+
+if TYPE_CHECKING:
+    from hwbridge.links.discovery import SerialPort
 
 __all__ = ["RobotRuntime", "RunningDevice"]
 
@@ -58,8 +62,13 @@ class RobotRuntime:
         config: GraphConfig | None = None,
         params: dict[str, Any] | None = None,
         wait_for_boards: bool = False,
+        list_ports: Callable[[], Sequence[SerialPort]] | None = None,
     ) -> None:
+        """``list_ports`` lists the serial ports that ``usb:`` and ``auto`` links are resolved
+        against when the robot starts (default: :func:`hwbridge.links.discovery.
+        list_serial_ports`)."""
         self.robot = robot
+        self._list_ports = list_ports
         self._own_graph = graph is None
         self.graph = graph if graph is not None else Graph(config or GraphConfig.embedded())
         self.bridge = Bridge(self.graph, params=params)
@@ -79,12 +88,52 @@ class RobotRuntime:
         not open, a device that cannot start) stops what started and raises
         :class:`~hwbridge.robot.model.RobotFileError` naming the file and line."""
         try:
+            self._resolve_links()
             self._start_boards()
             self._start_devices()
         except BaseException:
             self.stop()
             raise
         return self
+
+    def _resolve_links(self) -> None:
+        """Replace the ``usb:VID:PID`` and ``auto`` links with the ports they name now; a link
+        that matches no port or several, or two links that name one port, is a RobotFileError
+        naming the file and line."""
+        from hwbridge.links.discovery import is_usb_link, list_serial_ports, resolve_link
+
+        linked = [(b.name, b.link, b.source, f"board {b.name}") for b in self.robot.boards]
+        linked += [
+            (h.device.name, h.link, h.source, f"host device {h.device.name}")
+            for h in self.robot.host_devices
+        ]
+        wanted = [item for item in linked if is_usb_link(item[1])]
+        if not wanted:
+            return
+        ports = (self._list_ports or list_serial_ports)()
+        problems: list[str] = []
+        links: dict[str, str] = {}
+        taken: dict[str, str] = {}
+        for name, url, source, what in wanted:
+            where = source or str(self.robot.path)
+            try:
+                resolved, port = resolve_link(url, ports)
+            except HwBridgeError as exc:
+                problems.append(f"{where}: {what}: link {exc} (--link {name}=URL gives another)")
+                continue
+            device = port.device if port is not None else resolved
+            if device in taken:
+                problems.append(
+                    f"{where}: {what}: link {url} is {device}, which {taken[device]} uses "
+                    "too; name the port of each (usb:VID:PID:SERIAL or its path)"
+                )
+                continue
+            taken[device] = what
+            links[name] = resolved
+            log.info("%s: link %s is %s", what, url, port.describe() if port else resolved)
+        if problems:
+            raise RobotFileError(problems)
+        self.robot = self.robot.with_links(links)
 
     def _start_boards(self) -> None:
         problems: list[str] = []

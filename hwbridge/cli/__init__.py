@@ -105,7 +105,8 @@ COMMANDS: dict[str, LazyCommand] = {
     ),
     "firmware": LazyCommand(
         _CLI + "firmwarecmd:firmware_app",
-        "Firmware: build sketches, measure them, generate headers, run them in simavr.",
+        "Firmware: build sketches, measure them, generate headers, run them in simavr, "
+        "upload them.",
     ),
     "dxl": LazyCommand(
         _CLI + "dxlcmd:dxl_app", "Dynamixel servos on a serial bus: scan, ping, read, write."

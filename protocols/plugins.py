@@ -6,7 +6,8 @@ the installed distributions, read lazily and read again when a name is not found
 installed while the program runs is seen). What a name resolves to is checked and kept.
 
 The built-in table is the only place a built-in is declared: hwbridge's own ``pyproject.toml``
-declares no entry points in these groups; they are for other packages' plugins.
+declares none of them as an entry point (a test checks it); the entry points are for other
+packages' plugins (``mavlink_vehicle`` is one: it needs pymavlink, an optional extra).
 """
 
 from __future__ import annotations

@@ -24,6 +24,7 @@ the IDE, no function prototypes are generated, so a sketch declares a function b
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import logging
 import os
@@ -192,7 +193,9 @@ def _core_archive(board: Board, progress: Progress = _no_progress) -> Path:
     out.mkdir(parents=True, exist_ok=True)
     log.info("compiling the Arduino core for %s (once; cached in %s)", board.name, out)
     # Objects and archive in a folder of this process: two first builds at once (two terminals,
-    # parallel tests) each compile their own, and the archive is put in place atomically.
+    # parallel tests) each compile their own, and the first to finish puts its archive in place
+    # (a hard link: atomic, and never over an archive that another build may be linking with;
+    # the linker opens it more than once, and a replaced one no longer matches its index).
     work = Path(tempfile.mkdtemp(prefix="build.", dir=out))
     try:
         objects = []
@@ -212,7 +215,8 @@ def _core_archive(board: Board, progress: Progress = _no_progress) -> Path:
             objects.append(str(obj))
         partial = work / "core.a"
         _run([ar, "rcs", str(partial), *objects], "archiving the core")
-        partial.replace(archive)
+        with contextlib.suppress(FileExistsError):  # another build's is there: use that one
+            os.link(partial, archive)
     finally:
         shutil.rmtree(work, ignore_errors=True)
     return archive

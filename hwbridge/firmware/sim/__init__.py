@@ -220,6 +220,8 @@ class SimAvr:
         self._process: subprocess.Popen[str] | None = None
         self._reader: threading.Thread | None = None
         self._write_lock = threading.Lock()
+        self._stopping = False
+        """Set when :meth:`close` begins: the runner may still report ticks it ran before."""
         self._ticked = threading.Condition()
 
     # ------------------------------------------------------------------ life
@@ -356,6 +358,7 @@ class SimAvr:
         process = self._process
         if process is None:
             return
+        self._stopping = True
         with contextlib.suppress(SimError):
             self.command("quit")
         try:
@@ -388,10 +391,19 @@ class SimAvr:
     def _handle(self, line: str) -> None:
         try:
             self._event(line.split())
-        except Exception:
-            self.callback_errors += 1
-            if self.callback_errors == 1:
-                log.exception("simavr: handling %r failed", line.strip())
+        except SimError:
+            if self._stopping:  # a model answering a last tick after "quit": nothing to tell
+                return
+            self._callback_failed(line)
+        except Exception:  # noqa: BLE001 - a model's bug must not stop the reader
+            self._callback_failed(line)
+
+    def _callback_failed(self, line: str) -> None:
+        """Count a failed event callback; the first is logged with its traceback (call it from
+        an ``except`` block)."""
+        self.callback_errors += 1
+        if self.callback_errors == 1:
+            log.exception("simavr: handling %r failed", line.strip())
 
     def _event(self, words: list[str]) -> None:
         if not words:

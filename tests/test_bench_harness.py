@@ -183,6 +183,10 @@ def test_soak_bench_counts_every_message_and_prints_samples_and_a_summary() -> N
     assert summary["bench"] == "soak" and summary["boards"] == 2 and summary["emulators"] == 2
     assert summary["published"] > 0 and summary["refused_by_board"] == 0
     assert summary["reliable_lost"] == 0 and summary["best_effort_lost"] == 0
+    ends = summary["board_session_ends"]
+    assert set(ends) == {"link_losses", "peer_resets"} and all(
+        isinstance(count, int) for count in ends.values()
+    )
     assert summary["calls"] > 0 and summary["calls_failed"] == 0
     for key in ("p50_ms", "p99_ms", "cpu_cores", "rss_growth_pct", "messages_per_s", "drain_s"):
         assert isinstance(summary[key], float), key

@@ -29,11 +29,12 @@ bridge's mean), ``rss_growth_pct`` and ``fds_growth`` from the sample at minute 
 fifth of a shorter run) to the last, p50/p99 latency (ms, over the whole run), reliable
 messages lost (published by the boards minus received by the client, exact: every message is
 numbered) and best-effort ones lost, messages/s received against offered, service calls and
-their p50/p99, ``drain_s`` (after the boards stop, how long until every reliable message
-arrived or nothing more came for 5 s), and the acceptance figures (below one core, RSS growth
-below 5 %, no reliable message lost). ``peer`` is null: micro-ROS's agent (the software
-those reports are about) is not packaged for this machine; the baseline is this bridge at 1
-and 8 boards in the same run.
+their p50/p99, ``board_session_ends`` (the boards' sessions lost or reset by the peer: a
+reset drops what a reliable queue held), ``drain_s`` (after the boards stop, how long until
+every reliable message arrived or nothing more came for 5 s), and the acceptance figures
+(below one core, RSS growth below 5 %, no reliable message lost). ``peer`` is null:
+micro-ROS's agent (the software those reports are about) is not packaged for this machine; the
+baseline is this bridge at 1 and 8 boards in the same run.
 
 If the emulators saturate the machine (``emulator_cpu_cores`` near the cores there are, or
 ``late_ticks`` growing), fewer messages are offered than asked; ``offered_per_s`` says how many.
@@ -132,6 +133,16 @@ class _Board:
     def connected(self) -> bool:
         return bool(self.pump.call(lambda s: s.connected))
 
+    def session_ends(self) -> dict[str, int]:
+        """How often this board's session ended and started again (a reset loses what its
+        reliable queue held): link losses, peer resets, sessions established."""
+        stats = self.pump.call(lambda s: s.stats)
+        return {
+            "link_losses": int(stats.link_losses),
+            "peer_resets": int(stats.peer_resets),
+            "sessions": int(stats.sessions),
+        }
+
     def publish_all(self, session: Any) -> None:
         """Under the pump's lock: one message on each topic."""
         seq, published, refused = self.seq, self.published, self.refused
@@ -194,6 +205,7 @@ def emulator_main(first: int, ports: list[int], topics: int, rate: float, reliab
                     "published": board.published,
                     "refused": board.refused,
                     "served": board.served,
+                    **board.session_ends(),
                 }
                 for i, board in enumerate(boards)
             }
@@ -587,6 +599,10 @@ def _summary(
         "max_ms": final["max_ms"],
         "reliable_lost": reliable_lost,
         "best_effort_lost": best_effort_lost,
+        "board_session_ends": {
+            key: sum(counts[board_name(index)][key] for index in range(boards))
+            for key in ("link_losses", "peer_resets")
+        },
         "out_of_order": sum(final["out_of_order"].values()),
         "published": published,
         "refused_by_board": refused,

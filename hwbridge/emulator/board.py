@@ -289,6 +289,11 @@ class VirtualBoard:
         except HwBridgeError as exc:  # the link went away under us, a full queue: try later
             log.debug("%s: publishing a reading failed: %s", self.config.name, exc)
 
+    @property
+    def running(self) -> bool:
+        """The board's simulation runs (started, not stopped, and not ended by an error)."""
+        return self._thread is not None and self._thread.is_alive()
+
     def stop(self) -> None:
         self._stop.set()
         if self._thread is not None:

@@ -99,18 +99,19 @@ class MulticastGateway(Relay):
             if message is None:
                 continue
             key = _key(message)
-            with self._lock:
+            with self._lock:  # counted before it goes: its echo may be back before send returns
                 sent = self._sent.setdefault(key, deque())
                 sent.append(time.monotonic())
+                self.frames_out += 1
             try:
                 group.send(message)
             except (can.CanError, OSError):
-                if self._stop.is_set():
-                    return
                 with self._lock:
                     sent.pop()
+                    self.frames_out -= 1
+                if self._stop.is_set():
+                    return
                 continue
-            self.frames_out += 1
 
     def _inbound(self) -> None:
         import can

@@ -9,6 +9,7 @@ from pathlib import Path
 import pytest
 
 from hwbridge.firmware.sim import SimAvr, SimError, Tick, arduino_pin, runner_binary
+from tests.netutil import wait_until
 from tests.sim.conftest import Terminal
 
 
@@ -64,15 +65,20 @@ def test_uart_pins_twi_and_resets(probe_elf: Path, terminal_factory: type[Termin
         # UART echo, both ways
         uart.write(b"HELLO 0123 #")
         assert uart.read_until(b"#") == b"HELLO 0123 #"
-        # quadrature: 100 steps forward are 50 edges of A (x2 decoding), then back to -31
+        # quadrature: 100 steps forward are 50 edges of A (x2 decoding), then back to -31; the
+        # runner plays the edges out over AVR time from when it reads the command, so the count
+        # is asked until it arrives (the clock the ticks report may lag the command)
+        counts: list[bytes] = []
+
+        def count_is(expected: bytes) -> bool:
+            uart.write(b"c")
+            counts.append(uart.read_until(b"\n"))
+            return counts[-1] == expected
+
         sim.command("pos 0 100")
-        sim.wait_time(sim.time + 0.02)
-        uart.write(b"c")
-        assert uart.read_until(b"\n") == b"C50\n"
+        assert wait_until(lambda: count_is(b"C50\n"), 10, step=0.02), counts[-5:]
         sim.command("pos 0 -31")
-        sim.wait_time(sim.time + 0.02)
-        uart.write(b"c")
-        assert uart.read_until(b"\n") == b"C-15\n"
+        assert wait_until(lambda: count_is(b"C-15\n"), 10, step=0.02), counts[-5:]
         # PWM on OC0B and a direction pin: duty measured over a report period
         uart.write(b"p\x40")
         uart.read_until(b"P\n")

@@ -98,7 +98,7 @@ def test_upload_then_the_sketch_reaches_the_graph(simulator: SimProcess, tmp_pat
     port = simulator.path
 
     done = _hwbridge("firmware", "upload", str(sketch), "--port", port)
-    assert done.returncode == 0, done.stderr
+    assert done.returncode == 0, done.stderr + "\nsimulator: " + "\n".join(simulator.errors)
     for step in ("built ", "reset: the bootloader answered", "write: ", "verify: ", "verified"):
         assert step in done.stderr, done.stderr
     hex_file = sketch / "build" / "uno" / "HelloWorld.hex"

@@ -771,8 +771,19 @@ static avr_cycle_count_t tick(avr_t *a, avr_cycle_count_t when, void *param) {
     sample_pins();
   if (speed > 0) {
     double sim = (double)(avr->cycle - cycle_start) / (double)avr->frequency / speed;
-    double ahead = sim - wall_seconds();
+    double wall = wall_seconds();
+    double ahead = sim - wall;
     if (ahead > 0.0002) usleep((useconds_t)(ahead * 1e6));
+    // A board that answers late looks broken to peers with wall-clock timeouts (avrdude
+    // drains for 250 ms between its sync attempts): say so when the machine holds us back.
+    static double warned_at = -10.0;
+    if (ahead < -0.25 && wall - warned_at > 5.0) {
+      warned_at = wall;
+      fprintf(stderr,
+              "hwbridge-simavr: the simulation runs %.2f s behind real time (the machine is "
+              "busy): peers with timeouts, such as avrdude, may see a slow board\n",
+              -ahead);
+    }
   }
   return when + avr_usec_to_cycles(avr, TICK_US);
 }

@@ -97,18 +97,24 @@ void setup() {
 void loop() {
   nh.spinOnce();
   if (!nh.connected()) return;
+  // the echo first: the ring empties before the counter takes the window
+  if (ring_len != 0) {
+    echo_msg.data = ring[ring_head];
+    if (echo.publish(echo_msg)) {  // a full window refuses it: the same number next time
+      ring_head = static_cast<uint8_t>((ring_head + 1) % (sizeof ring / sizeof ring[0]));
+      --ring_len;
+    }
+  }
   if (millis() - last_ms >= PERIOD_MS) {
     count_msg.data = next_count;
-    if (counter.publish(count_msg)) {  // a full window refuses it: the same number next time
+    if (counter.publish(count_msg)) {
       ++next_count;
       last_ms = millis();
     }
   }
-  if (ring_len != 0) {
-    echo_msg.data = ring[ring_head];
-    if (echo.publish(echo_msg)) {
-      ring_head = static_cast<uint8_t>((ring_head + 1) % (sizeof ring / sizeof ring[0]));
-      --ring_len;
-    }
+  if (ring_dropped != 0) {
+    char text[40];
+    snprintf(text, sizeof text, "udp_in: %lu dropped (ring full)", static_cast<unsigned long>(ring_dropped));
+    if (nh.logWarn(text)) ring_dropped = 0;
   }
 }

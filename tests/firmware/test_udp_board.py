@@ -149,6 +149,7 @@ def test_reliable_traffic_through_a_lossy_relay_arrives_exactly_once_in_order(
         relay.close()
 
 
+@pytest.mark.slow
 def test_the_board_comes_back_after_each_of_100_bridge_restarts(
     program: Path, bridge: tuple[Bridge, Graph, int]
 ) -> None:

@@ -66,33 +66,35 @@ struct IsDatagramSink {
   template <class S> static long test(...);
   static const bool value = sizeof(test<Sink>(nullptr)) == 1;
 };
-template <bool Datagram> struct FrameWriter {
-  /** A byte stream: the optional leading 0x00, COBS(body), the 0x00 delimiter. */
-  template <class Sink>
-  static size_t write(Sink& sink, const Body& body, bool lead) { return cobs_write(body, sink, lead, true); }
-};
-template <> struct FrameWriter<true> {
-  /** A datagram link (PROTOCOL.md 1.13): the body as it is, then sink.endDatagram() sends it. */
-  template <class Sink>
-  static size_t write(Sink& sink, const Body& body, bool) {
-    for (size_t i = 0; i < body.size; ++i) sink.put(body.at(i));
-    sink.endDatagram();
-    return body.size;
-  }
-};
+template <bool B, class T> struct EnableIf {};
+template <class T> struct EnableIf<true, T> { typedef T type; };
 }  // namespace detail
 
 /**
  * Writes one frame to sink.put(uint8_t): an optional leading 0x00, COBS(body), the 0x00
  * delimiter. The payload is p1 followed by p2 (either may be empty). Returns the bytes written.
  * The caller keeps the payload within the peer's MTU; nothing here is bounded by a buffer.
- * A datagram sink (detail::IsDatagramSink) gets the body alone and one endDatagram() per frame.
  */
 template <class Sink>
-size_t write_frame(Sink& sink, const FrameHeader& h, const uint8_t* p1, size_t n1,
-                   const uint8_t* p2 = nullptr, size_t n2 = 0, bool lead = false) {
+typename detail::EnableIf<!detail::IsDatagramSink<Sink>::value, size_t>::type write_frame(
+    Sink& sink, const FrameHeader& h, const uint8_t* p1, size_t n1, const uint8_t* p2 = nullptr,
+    size_t n2 = 0, bool lead = false) {
   const detail::Body body(h, p1, n1, p2, n2);
-  return detail::FrameWriter<detail::IsDatagramSink<Sink>::value>::write(sink, body, lead);
+  return detail::cobs_write(body, sink, lead, true);
+}
+
+/**
+ * The same for a datagram sink (detail::IsDatagramSink; PROTOCOL.md 1.13): the body as it is
+ * (header, payload, CRC; no COBS, no delimiter, no lead), then sink.endDatagram() sends it.
+ */
+template <class Sink>
+typename detail::EnableIf<detail::IsDatagramSink<Sink>::value, size_t>::type write_frame(
+    Sink& sink, const FrameHeader& h, const uint8_t* p1, size_t n1, const uint8_t* p2 = nullptr,
+    size_t n2 = 0, bool = false) {
+  const detail::Body body(h, p1, n1, p2, n2);
+  for (size_t i = 0; i < body.size; ++i) sink.put(body.at(i));
+  sink.endDatagram();
+  return body.size;
 }
 
 /**

@@ -105,7 +105,7 @@ def line(kind: str, times: list[float], cold: list[float], **extra: Any) -> None
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(description=(__doc__ or "").split("\n\n")[0])
     parser.add_argument("--restarts", type=int, default=100)
     parser.add_argument("--cold", type=int, default=10, help="cold starts measured (the peer)")
     parser.add_argument("--max-down", type=float, default=1.2, help="longest down time, s")

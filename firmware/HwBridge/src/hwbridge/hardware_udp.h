@@ -50,9 +50,9 @@ struct UdpStats {
  * - setHost(ip, port): to that host only, and only its datagrams are taken;
  * - otherwise (discovery, PROTOCOL.md 1.14): to the discovery address (setDiscovery; by
  *   default the broadcast 255.255.255.255 and port 2324) until a valid frame arrives; its
- *   source is then the host. A host silent for kForgetMs is forgotten, so a bridge that moved
- *   (or a new one) is found again; a bridge that restarts on the same address is found at
- *   once, as its HELLOs come from there.
+ *   source is then the host. A host silent for kForgetMs (setForgetMs) is forgotten, so a
+ *   bridge that moved (or a new one) is found again; a bridge that restarts on the same
+ *   address is found at once, as its HELLOs come from there.
  */
 template <class Udp, size_t kBuffer = 512>
 class UdpHardware {
@@ -82,6 +82,8 @@ class UdpHardware {
     discovery_ = ip;
     discovery_port_ = port;
   }
+  /** How long a discovered host may stay silent before it is forgotten (default kForgetMs). */
+  void setForgetMs(uint32_t ms) { forget_ms_ = ms; }
   /** The local UDP port (0, the default: any free one). */
   void setLocalPort(uint16_t port) { local_port_ = port; }
 
@@ -112,7 +114,7 @@ class UdpHardware {
       const Address from = udp_.remoteIP();
       const uint16_t port = udp_.remotePort();
       const uint32_t now = ::millis();
-      if (!fixed_ && (!known_ || static_cast<uint32_t>(now - heard_ms_) >= kForgetMs)) {
+      if (!fixed_ && (!known_ || static_cast<uint32_t>(now - heard_ms_) >= forget_ms_)) {
         if (!known_ || from != host_ || port != host_port_) ++stats_.discoveries;
         host_ = from;  // discovery: the first frame's source is the host
         host_port_ = port;
@@ -145,7 +147,7 @@ class UdpHardware {
       return;
     }
     if (!ready_) return;
-    const bool to_host = fixed_ || (known_ && static_cast<uint32_t>(::millis() - heard_ms_) < kForgetMs);
+    const bool to_host = hostKnown();
     const int began = to_host ? udp_.beginPacket(host_, host_port_) : udp_.beginPacket(discovery_, discovery_port_);
     if (began == 0 || udp_.write(out_, n) != n || udp_.endPacket() == 0) {
       ++stats_.send_failures;
@@ -175,7 +177,7 @@ class UdpHardware {
   /** The UDP object (its begin() is called by init). */
   Udp& udp() { return udp_; }
   /** True while frames go to a known host (set, or discovered and heard within kForgetMs). */
-  bool hostKnown() const { return fixed_ || (known_ && static_cast<uint32_t>(::millis() - heard_ms_) < kForgetMs); }
+  bool hostKnown() const { return fixed_ || (known_ && static_cast<uint32_t>(::millis() - heard_ms_) < forget_ms_); }
   /** The host's address and port (the last discovered one, or the one set). */
   Address hostIP() const { return host_; }
   uint16_t hostPort() const { return host_port_; }
@@ -192,6 +194,7 @@ class UdpHardware {
   bool known_ = false;
   bool ready_ = false;
   uint32_t heard_ms_ = 0;
+  uint32_t forget_ms_ = kForgetMs;
   size_t out_len_ = 0;
   UdpStats stats_{};
   uint8_t in_[kBuffer];

@@ -193,3 +193,27 @@ def test_the_board_finds_the_bridge_by_broadcast(
         assert program_.running()
     finally:
         program_.kill()
+
+
+def test_the_restart_bench_runs_small_and_prints_its_fields() -> None:
+    """tools/bench/udp_restart.py with 4 restarts and 2 cold starts: three JSON lines (clean,
+    crash, all) with the documented fields; no timing is judged here."""
+    import json
+    import sys
+
+    bench = Path(__file__).parents[2] / "tools" / "bench" / "udp_restart.py"
+    done = subprocess.run(
+        [sys.executable, str(bench), "--restarts", "4", "--cold", "2", "--max-down", "0.3"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
+    assert done.returncode == 0, done.stderr[-3000:]
+    lines = [json.loads(line) for line in done.stdout.splitlines()]
+    assert [line["kind"] for line in lines] == ["clean", "crash", "all"]
+    assert [line["restarts"] for line in lines] == [2, 2, 4]
+    for line in lines:
+        assert line["bench"] == "udp_restart" and line["peer"] == "cold_start"
+        assert 0 < line["p50_s"] <= line["p99_s"] <= line["max_s"] < 30
+        assert line["ratio"] == pytest.approx(line["p99_s"] / line["peer_p50_s"], rel=0.01)

@@ -84,7 +84,8 @@ class UdpHardware {
   }
   /** How long a discovered host may stay silent before it is forgotten (default kForgetMs). */
   void setForgetMs(uint32_t ms) { forget_ms_ = ms; }
-  /** The local UDP port (0, the default: any free one). */
+  /** The local UDP port (0, the default: any free one). Not the bridge's port: other boards'
+   * broadcast HELLOs would arrive there. */
   void setLocalPort(uint16_t port) { local_port_ = port; }
 
   /** The node's init: begins the UDP class on the local port (the network must be up). */
@@ -102,8 +103,7 @@ class UdpHardware {
       if (size <= 0) return nullptr;
       if (static_cast<size_t>(size) > kBuffer) {
         ++stats_.oversize;
-        udp_.flush();
-        continue;
+        continue;  // the next parsePacket() drops what is left of it
       }
       const int got = udp_.read(in_, static_cast<size_t>(size));
       Frame f;
@@ -115,11 +115,11 @@ class UdpHardware {
       const uint16_t port = udp_.remotePort();
       const uint32_t now = ::millis();
       if (!fixed_ && (!known_ || static_cast<uint32_t>(now - heard_ms_) >= forget_ms_)) {
-        if (!known_ || from != host_ || port != host_port_) ++stats_.discoveries;
+        if (!known_ || !(from == host_) || port != host_port_) ++stats_.discoveries;
         host_ = from;  // discovery: the first frame's source is the host
         host_port_ = port;
         known_ = true;
-      } else if (from != host_ || port != host_port_) {
+      } else if (!(from == host_) || port != host_port_) {  // (== is all every IPAddress has)
         ++stats_.foreign;
         continue;
       }

@@ -157,6 +157,12 @@ struct NodeStats {
 
 class NodeBase;
 
+namespace detail {
+/** Tags of the two kinds of link the node reads (detail::IsDatagramSink tells them apart). */
+struct StreamLink {};
+struct DatagramLink {};
+}  // namespace detail
+
 /** Where a service server's response goes (the node's transmit buffer). */
 struct ServiceOut {
   uint8_t* buf;
@@ -307,6 +313,9 @@ class ServiceClient : public Entry {
  *
  * Hardware concept: init(baud) (bool), int read() (a byte or -1), put(uint8_t) and flush()
  * (bytes out), uint32_t micros() (wrapping), uint32_t seed() (entropy for the session id).
+ * A datagram Hardware (`static const bool kDatagram = true`, hardware_udp.h) has instead of
+ * read() `const uint8_t* receive(size_t* n)` (the next datagram, or nullptr) and, after the
+ * put() of each frame's body, endDatagram() (PROTOCOL.md 1.13: no COBS, one frame a datagram).
  */
 template <class Hardware, class Profile = HelloWorldProfile>
 class NodeHandle_ : public NodeBase {
@@ -443,6 +452,8 @@ class NodeHandle_ : public NodeBase {
   static const uint16_t kReassembly = Profile::kMaxMessage > Profile::kMtu ? Profile::kMaxMessage : 0;
 
   bool add(Entry& e);
+  void readInput(detail::StreamLink*);
+  void readInput(detail::DatagramLink*);
   bool established() const { return state_ >= kConfiguring; }
   __attribute__((noinline)) void onFrame(const Frame& f);
   void onBestEffort(const Frame& f);

@@ -18,7 +18,7 @@ from hwbridge.emulator.slcan import SlcanAdapter
 from hwbridge.errors import LinkError
 from hwbridge.links import LinkClosedError, create_link
 from hwbridge.links.can import CanLink, frame_bits
-from hwbridge.protocols.can.transport import Kind, encode_id
+from hwbridge.protocols.can.transport import Kind, crc16, encode_id
 
 _names = itertools.count()
 
@@ -68,9 +68,11 @@ def _open(links: list[CanLink], url: str, **kwargs: object) -> CanLink:
     return link
 
 
-def _datagram(channel: int, size: int, reliable: bool = False) -> bytes:
+def _datagram(channel: int, size: int, reliable: bool = False, seq: int = 0) -> bytes:
+    """A native datagram (header, payload, CRC-16): format 2 sends only valid ones."""
     flags = 0x50 if reliable else 0x40
-    return bytes([flags, channel, 0]) + bytes((i * 7) & 0xFF for i in range(size))
+    body = bytes([flags, channel, seq]) + bytes((i * 7) & 0xFF for i in range(size))
+    return body + crc16(body).to_bytes(2, "little")
 
 
 def test_urls() -> None:
@@ -121,8 +123,9 @@ def test_datagrams_both_ways_on_one_shared_bus(
             data = _datagram(board.local, size, reliable=size % 2 == 0)
             host.write(data)
             assert board.read(4096, 5.0) == data
-            board.write(data[::-1])
-            assert host.read(4096, 5.0) == data[::-1]
+            back = _datagram(board.local, size, reliable=size % 2 == 1, seq=size & 0xFF)
+            board.write(back)
+            assert host.read(4096, 5.0) == back
     stats = hosts[0].can_stats()
     assert stats["rx_crc_errors"] == stats["rx_malformed"] == stats["rx_unexpected"] == 0
     assert set(stats["claims"]) >= {1, 2}
@@ -198,8 +201,8 @@ def test_priority_queue_sheds_best_effort_and_keeps_control(
     flood = _open(opened, f"can://virtual/{channel}/node9?pace=20000&tx_queue=64")
     board = _open(opened, f"can://virtual/{channel}?node=0&local=2")
     for _ in range(40):
-        flood.write(_datagram(1, 60))  # best-effort data, 10 frames each
-    control = bytes([0x50, 0, 0, 0x10])  # a reliable control message: overtakes the flood
+        flood.write(_datagram(1, 60))  # best-effort data, 9 frames each
+    control = _datagram(0, 1, reliable=True)  # a reliable control message: overtakes the flood
     host.write(control)
     started = time.monotonic()
     assert board.read(4096, 5.0) == control
@@ -232,8 +235,9 @@ def test_slcan_adapter_through_python_can(opened: list[CanLink], fd: bool) -> No
             data = _datagram(3, size)
             host.write(data)
             assert board.read(4096, 5.0) == data
-            board.write(data[::-1])
-            assert host.read(4096, 5.0) == data[::-1]
+            back = _datagram(board.local, size, reliable=size % 2 == 1, seq=size & 0xFF)
+            board.write(back)
+            assert host.read(4096, 5.0) == back
         assert adapter.frames_to_bus > 0
         assert adapter.frames_to_host > 0
         assert (adapter.fd_frames > 0) == fd

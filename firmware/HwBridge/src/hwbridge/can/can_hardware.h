@@ -44,6 +44,7 @@ struct CanHardwareStats {
   uint32_t rx_overflow;    ///< received datagrams dropped because the read buffer was full
   uint32_t rx_ignored;     ///< transfers for us that were not from the host, or NODE messages
   uint32_t claims_sent;    ///< node-id claims sent
+  uint32_t format_changes; ///< times the host's claims changed the format spoken (CAN.md 11)
 };
 
 /**
@@ -62,9 +63,9 @@ class CanHardware {
   // constexpr and all zero: a global node lies in .bss, with neither start-up code nor a copy of
   // initial values in flash (node 0 stands for "not set": node 1)
   constexpr CanHardware()
-      : stats(), driver_(), receiver_(0), tids_(), watch_(), node_(0), uid_(), out_(), out_len_(0),
-        out_overflow_(false), ring_(), head_(0), tail_(0), count_(0), last_claim_(0),
-        claimed_(false), started_(false) {}
+      : stats(), driver_(), receiver_(0), tids_(), watch_(), node_(0), format_(kFormat2), uid_(),
+        out_(), out_len_(0), out_overflow_(false), ring_(), head_(0), tail_(0), count_(0),
+        last_claim_(0), claimed_(false), started_(false) {}
 
   /** This board's node id (1..127); the host names it in its link (can://.../nodeN). */
   void setNode(uint8_t node) {
@@ -156,8 +157,23 @@ class CanHardware {
     receiver_.expire(now);
   }
 
-  /** Sends one bare datagram to the host as a transfer; false when the driver refused it. */
+  /** Sends one bare datagram to the host as a transfer in the format the host claims in;
+   * false when the driver refused it (or, in format 2, it is not a valid native datagram:
+   * counted as tx_oversize). */
   bool sendDatagram(const uint8_t* datagram, size_t n) {
+    // The id carries the datagram's priority (arbitration between nodes); the driver is given
+    // its stream's place instead, so that a control datagram never overtakes data queued before
+    // it on the same stream (CAN.md 3: the receiver would drop that data as late).
+    if (format_ == kFormat2) {
+      NativeHeader h;
+      if (!parse_datagram(datagram, n, &h)) {
+        ++stats.tx_oversize;
+        return false;
+      }
+      const uint32_t id = encode_id2(priority_of(h.kind, h.channel), h.kind, h.channel, kHostNode,
+                                     node_, h.seq, h.frag);
+      return sendFrames(id, queue_class(h.kind), datagram + 3, n - 5, h.seq);
+    }
     uint8_t kind;
     uint8_t channel;
     kind_of(datagram, n, &kind, &channel);
@@ -168,6 +184,9 @@ class CanHardware {
     return sendTransfer(encode_id(id_priority, kind, channel, kHostNode, node_),
                         queue_class(kind), datagram, n);
   }
+
+  /** The CAN.md format this board speaks: 2 until it hears the host claim in format 1. */
+  uint8_t format() const { return format_; }
 
   /** The receiver's counters (CAN.md 5). */
   const CanStats& rxStats() const { return receiver_.stats; }
@@ -189,8 +208,11 @@ class CanHardware {
   };
 
   bool sendTransfer(uint32_t id, uint8_t priority, const uint8_t* data, size_t n) {
+    return sendFrames(id, priority, data, n, tids_.next(id));
+  }
+
+  bool sendFrames(uint32_t id, uint8_t priority, const uint8_t* data, size_t n, uint8_t tid) {
     DriverSink sink = {&driver_, priority, &stats.tx_frames};
-    const uint8_t tid = tids_.next(id);
     if (!send_transfer<kClassicMtu>(id, data, n, tid, kClassicMtu, sink)) {
       ++stats.tx_errors;
       return false;
@@ -201,8 +223,10 @@ class CanHardware {
 
   void sendClaim() {
     ++stats.claims_sent;
-    sendTransfer(encode_id(kPriorityNode, kNode, kNodeClaim, kHostNode, node_), kPriorityNode,
-                 uid_, kUidSize);
+    const uint32_t id = format_ == kFormat2
+                            ? encode_id2(kPriorityNode, kNode, kNodeClaim, kHostNode, node_, 0, 0)
+                            : encode_id(kPriorityNode, kNode, kNodeClaim, kHostNode, node_);
+    sendTransfer(id, kPriorityNode, uid_, kUidSize);
   }
 
   struct RingSink {
@@ -218,6 +242,10 @@ class CanHardware {
     if (t.id.kind == kNode) {
       if (t.id.channel == kNodeClaim && t.size == kUidSize) {
         watch_.claim(t.id.source, node_, t.payload, uid_, now);
+        if (t.id.source == kHostNode && t.id.format != format_) {
+          format_ = t.id.format;  // speak what the host claims in (CAN.md 11)
+          ++stats.format_changes;
+        }
       }
       return;
     }
@@ -225,11 +253,16 @@ class CanHardware {
       ++stats.rx_ignored;
       return;
     }
-    if (cobs_max_encoded(t.size) + 1 > ReadBuffer - count_) {
+    uint8_t whole[MaxDatagram + 5];
+    ByteSpan span = {t.payload, t.size};
+    if (t.id.format == kFormat2) {
+      span.size = rebuild_datagram(t, whole, sizeof(whole));
+      span.data = whole;
+    }
+    if (cobs_max_encoded(span.size) + 1 > ReadBuffer - count_) {
       ++stats.rx_overflow;
       return;
     }
-    ByteSpan span = {t.payload, t.size};
     RingSink sink = {this};
     cobs_encode_to(span, sink);
     sink.put(0);
@@ -240,6 +273,7 @@ class CanHardware {
   TidTable<6> tids_;
   OwnClaimWatch watch_;
   uint8_t node_;
+  uint8_t format_;
   uint8_t uid_[kUidSize];
   uint8_t out_[kOutCap];
   size_t out_len_;

@@ -253,10 +253,15 @@ class CanHardware {
       ++stats.rx_ignored;
       return;
     }
-    uint8_t whole[MaxDatagram + 5];
+    uint8_t whole[MaxDatagram];
     ByteSpan span = {t.payload, t.size};
     if (t.id.format == kFormat2) {
+      // the header and CRC-16 put back must fit what the session takes
       span.size = rebuild_datagram(t, whole, sizeof(whole));
+      if (span.size == 0) {
+        ++receiver_.stats.oversize;
+        return;
+      }
       span.data = whole;
     }
     if (cobs_max_encoded(span.size) + 1 > ReadBuffer - count_) {

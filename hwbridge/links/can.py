@@ -28,8 +28,8 @@ bridge reopens them. Options:
 * ``pace`` (bits/s: space the frames this end sends as a bus of that rate would; 0 = no);
 * ``tx_queue`` (frames waiting to be sent, 1024), ``rx_queue`` (datagrams per board, 256),
   ``transfer_timeout`` (seconds a transfer may take, 1.0);
-* ``can_format`` (2, or 1: the CAN.md format this end claims in and speaks to peers not heard
-  yet).
+* ``can_format`` (2; 1 makes this end a CAN.md version-1 node: format 1 only, format-2 frames
+  dropped as malformed, as software that predates format 2 does).
 """
 
 from __future__ import annotations
@@ -189,7 +189,9 @@ class CanHub:
         self.peer_formats: dict[int, int] = {}
         """The format each peer (node id) claimed in last: the one it is spoken to in."""
         self.encoder = TransferEncoder(local, FD_MTU if fd else CLASSIC_MTU)
-        self.decoder = TransferDecoder(local, timeout=transfer_timeout)
+        self.decoder = TransferDecoder(
+            local, timeout=transfer_timeout, format_2=format == FORMAT_2
+        )
         self.monitor = ConflictMonitor(window=3 * CLAIM_INTERVAL)
         self.links: dict[int, CanLink] = {}
         self.users = 0
@@ -342,7 +344,11 @@ class CanHub:
                 continue
             if transfer.kind is Kind.NODE:
                 self._on_node(transfer.source, transfer.channel, transfer.payload)
-                if transfer.channel == NODE_CLAIM and transfer.source != self.local:
+                if (
+                    transfer.channel == NODE_CLAIM
+                    and transfer.source != self.local
+                    and self.format == FORMAT_2
+                ):
                     self._learn_format(transfer.source, transfer.format)
                 continue
             with self._lock:

@@ -210,7 +210,7 @@ def acceptance_filters(node: int) -> list[tuple[int, int]]:
     wanted when ``frame_id & mask == id & mask`` for one pair): transfers addressed to it in
     either format, and NODE messages (claims) from anyone. A controller's acceptance filters, or
     python-can's ``can_filters``, set from these keep other nodes' traffic out (the MCP2515
-    driver sets its own, CAN.md §10)."""
+    driver sets its own, CAN.md §11)."""
     if not 0 <= node <= MAX_NODE:
         raise ValueError(f"node id must be 0..{MAX_NODE}, not {node}")
     if node == HOST_NODE:
@@ -473,7 +473,9 @@ class TransferDecoder:
     One transfer is in progress per CAN id. ``timeout`` bounds how long a transfer may take,
     ``tid_timeout`` how long a finished transfer's id is remembered to drop a repeat of it,
     ``max_transfer`` the bytes of one transfer, ``max_pending`` the transfers in progress at once
-    (the oldest is abandoned for a new one), so garbage costs bounded memory.
+    (the oldest is abandoned for a new one), so garbage costs bounded memory. ``format_2=False``
+    makes a CAN.md version-1 receiver: format-2 frames are ``malformed`` (their id bit 15 was
+    reserved), as a node that predates format 2 counts them.
     """
 
     def __init__(
@@ -484,8 +486,10 @@ class TransferDecoder:
         timeout: float = 1.0,
         tid_timeout: float = 1.0,
         max_pending: int = 256,
+        format_2: bool = True,
     ) -> None:
         self.local = local
+        self.format_2 = format_2
         self.max_transfer = max_transfer
         self.timeout = timeout
         self.tid_timeout = tid_timeout
@@ -507,6 +511,8 @@ class TransferDecoder:
         stats.frames += 1
         size = len(data)
         ident = decode_id(can_id) if extended else None
+        if ident is not None and ident.format == FORMAT_2 and not self.format_2:
+            ident = None
         if ident is None or not size or size > FD_MTU or size not in _VALID_LENGTH:
             stats.malformed += 1
             return None

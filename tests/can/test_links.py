@@ -18,7 +18,7 @@ from hwbridge.emulator.slcan import SlcanAdapter
 from hwbridge.errors import LinkError
 from hwbridge.links import LinkClosedError, create_link
 from hwbridge.links.can import CanLink, frame_bits
-from hwbridge.protocols.can.transport import Kind, crc16, encode_id
+from hwbridge.protocols.can.transport import Kind, TransferEncoder, crc16, decode_id, encode_id
 
 _names = itertools.count()
 
@@ -273,3 +273,66 @@ def test_failed_adapter_loses_every_link(opened: list[CanLink]) -> None:
             while True:
                 link.read(4096, 0.5)
         assert not info.value.local
+
+
+def _formats_on_bus(raw: can.BusABC, seconds: float = 0.3) -> dict[int, set[int]]:
+    """The formats (1 or 2, from id bit 15) of the datagrams each source node id sent while
+    ``seconds`` pass (claims left out: an end claims in its own format)."""
+    seen: dict[int, set[int]] = {}
+    deadline = time.monotonic() + seconds
+    while (left := deadline - time.monotonic()) > 0:
+        message = raw.recv(left)
+        if message is None:
+            break
+        ident = decode_id(message.arbitration_id)
+        if ident is not None and ident.kind is not Kind.NODE:
+            seen.setdefault(ident.source, set()).add(ident.format)
+    return seen
+
+
+@pytest.mark.parametrize("old", ["board", "host"])
+def test_version_1_and_version_2_ends_interoperate(
+    channel: str, opened: list[CanLink], old: str, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A CAN.md version-1 end (``can_format=1``: format 1 only, format 2 malformed) and a
+    version-2 end: the version-2 end hears the other's claims and speaks format 1 to it, so
+    datagrams flow both ways, and nothing but format 1 is on the bus once it has."""
+    host_q, board_q = ("?can_format=1", "") if old == "host" else ("", "&can_format=1")
+    host = _open(opened, f"can://virtual/{channel}/node4{host_q}")
+    board = _open(opened, f"can://virtual/{channel}?node=0&local=4{board_q}")
+    new = board if old == "host" else host
+    peer = 0 if old == "host" else 4
+    hub = new.hub
+    assert hub is not None
+    assert wait_for(lambda: hub.peer_formats.get(peer) == 1, 10), hub.peer_formats
+    raw = can.Bus(interface="virtual", channel=channel)
+    try:
+        for size in (0, 4, 9, 200):
+            data = _datagram(4, size, reliable=True, seq=size)
+            host.write(data)
+            assert board.read(4096, 5.0) == data
+            board.write(data)
+            assert host.read(4096, 5.0) == data
+        seen = _formats_on_bus(raw)
+    finally:
+        raw.shutdown()
+    assert seen.get(peer) == {1} and seen.get(4 - peer) == {1}, seen
+    stats = new.can_stats()
+    assert stats["format_changes"] == 1 and stats["peer_formats"] == {peer: 1}
+    if old == "board":
+        assert "node 4 claims in CAN.md format 1 (older firmware)" in caplog.text
+
+
+def test_a_version_1_end_drops_format_2_as_malformed(channel: str, opened: list[CanLink]) -> None:
+    """What a node that predates format 2 does with it (and why the format-2 end must hear its
+    claims first): format-2 frames are malformed, nothing is delivered."""
+    old = _open(opened, f"can://virtual/{channel}/node4?can_format=1")
+    raw = can.Bus(interface="virtual", channel=channel)
+    try:
+        body = bytes([0x40, 1, 7, 0xAA])
+        for can_id, data in TransferEncoder(4).datagram(body + crc16(body).to_bytes(2, "little"), 0):
+            raw.send(can.Message(arbitration_id=can_id, data=data, is_extended_id=True))
+        assert wait_for(lambda: old.can_stats()["rx_malformed"] >= 1, 5)
+        assert old.read(4096, 0.3) == b""
+    finally:
+        raw.shutdown()

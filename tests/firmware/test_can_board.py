@@ -220,3 +220,52 @@ def test_host_sketch_on_a_can_bus_with_an_emulated_board(
             board.wait(10)
         bridge.stop()
         log.close()
+
+
+@needs_gpp
+@pytest.mark.parametrize("old", ["board", "host"])
+def test_version_1_and_version_2_nodes_on_one_bus(
+    program: Path, bus: Bus, tmp_path: Path, old: str
+) -> None:
+    """CAN.md version 1 meets version 2 (CAN.md §11): the sketch as version-1 firmware
+    (HWBRIDGE_CAN_FORMAT=1) under a format-2 host, which says so and speaks format 1 to it; or
+    the sketch as format-2 firmware under a version-1 host (``can_format=1``, which drops
+    format-2 frames as malformed), whose claims turn the sketch and the emulated board to
+    format 1. Either way both boards connect and answer."""
+    query = "&can_format=1" if old == "host" else ""
+    bridge = BridgeProcess(
+        bus.url(NODE) + query, tmp_path, f"canv{free_port()}", bus.url(OTHER) + query
+    )
+    board: subprocess.Popen[bytes] | None = None
+    log = (tmp_path / "board.log").open("w")
+    try:
+        bridge.wait_ready()
+        env = {"HWBRIDGE_CAN": f"127.0.0.1:{bus.relay.port}", "HWBRIDGE_CAN_NODE": str(NODE)}
+        if old == "board":
+            env["HWBRIDGE_CAN_FORMAT"] = "1"
+        board = subprocess.Popen(
+            [str(program)], env={**bridge.env, **env}, stdout=log, stderr=subprocess.STDOUT
+        )
+        assert wait_until(lambda: "board 'canboard' connected" in bridge.output(), 30), (
+            bridge.output()
+        )
+        assert wait_until(lambda: "board 'node2' connected" in bridge.output(), 30), bridge.output()
+        services = bridge.cli("service", "list").stdout
+        ping = next(s for s in services.split() if s.endswith("ping"))
+        call = bridge.cli("service", "call", ping)
+        assert call.returncode == 0, call.stderr + bridge.output()
+        assert yaml.safe_load(call.stdout) == {"success": True, "message": "pong 1"}
+        who = bridge.cli("service", "call", f"/node{OTHER}/whoami")
+        assert who.returncode == 0, who.stderr + bridge.output()
+        output = bridge.output()
+        if old == "board":
+            assert f"node {NODE} claims in CAN.md format 1 (older firmware)" in output, output
+            assert f"node {OTHER} claims in CAN.md format 1" not in output, output
+        else:
+            assert "claims in CAN.md format" not in output, output
+    finally:
+        if board is not None:
+            board.kill()
+            board.wait(10)
+        bridge.stop()
+        log.close()

@@ -404,6 +404,23 @@ void hardware_format2() {
   CHECK(hw.format() == kFormat2, "still format 2 (only the host's claims choose)");
 }
 
+/** setFormat(kFormat1): a board as CAN.md version-1 firmware, whatever the host claims in. */
+void hardware_version1() {
+  Hw hw;
+  hw.setNode(5);
+  hw.setFormat(kFormat1);
+  CHECK(hw.init(115200), "init");
+  ScriptDriver& d = hw.driver();
+  CHECK(hw.read() == -1 && d.sent.size() == 1 && d.sent[0].id == encode_id(3, kNode, 1, 0, 5),
+        "a format-1 claim");
+  queue_transfer(hw, encode_id2(3, kNode, 1, 0, 0, 0, 0), Bytes(kHostUid, kHostUid + 6), 0);
+  const Bytes body = from_hex("2a000000");
+  queue_transfer(hw, encode_id2(4, kReliable, 3, 5, 0, 0xc8, 0), body, 0xc8 & kTidMask);
+  CHECK(hw.read() == -1 && hw.format() == kFormat1 && hw.rxStats().malformed == 2 &&
+            hw.rxStats().transfers == 0,
+        "format 2 refused: %u malformed", hw.rxStats().malformed);
+}
+
 }  // namespace
 
 int main() {
@@ -411,6 +428,7 @@ int main() {
   CHECK(n >= 30, "only %d vector lines", n);
   hardware();
   hardware_format2();
+  hardware_version1();
   printf("test_can_vectors: %d vector lines, %lu checks passed\n", n, g_checks);
   return 0;
 }

@@ -63,7 +63,8 @@ class CanHardware {
   // constexpr and all zero: a global node lies in .bss, with neither start-up code nor a copy of
   // initial values in flash (node 0 stands for "not set": node 1)
   constexpr CanHardware()
-      : stats(), driver_(), receiver_(0), tids_(), watch_(), node_(0), format_(kFormat2), uid_(),
+      : stats(), driver_(), receiver_(0), tids_(), watch_(), node_(0), format_(kFormat2),
+        fixed1_(false), uid_(),
         out_(), out_len_(0), out_overflow_(false), ring_(), head_(0), tail_(0), count_(0),
         last_claim_(0), claimed_(false), started_(false) {}
 
@@ -187,6 +188,13 @@ class CanHardware {
 
   /** The CAN.md format this board speaks: 2 until it hears the host claim in format 1. */
   uint8_t format() const { return format_; }
+  /** kFormat1: behave as CAN.md version-1 firmware (format 1 only, format-2 frames dropped as
+   * malformed), for buses whose other software predates format 2; kFormat2: the default. */
+  void setFormat(uint8_t format) {
+    fixed1_ = format == kFormat1;
+    format_ = fixed1_ ? kFormat1 : kFormat2;
+    receiver_.setFormat2(!fixed1_);
+  }
 
   /** The receiver's counters (CAN.md 5). */
   const CanStats& rxStats() const { return receiver_.stats; }
@@ -242,7 +250,7 @@ class CanHardware {
     if (t.id.kind == kNode) {
       if (t.id.channel == kNodeClaim && t.size == kUidSize) {
         watch_.claim(t.id.source, node_, t.payload, uid_, now);
-        if (t.id.source == kHostNode && t.id.format != format_) {
+        if (t.id.source == kHostNode && t.id.format != format_ && !fixed1_) {
           format_ = t.id.format;  // speak what the host claims in (CAN.md 11)
           ++stats.format_changes;
         }
@@ -279,6 +287,7 @@ class CanHardware {
   OwnClaimWatch watch_;
   uint8_t node_;
   uint8_t format_;
+  bool fixed1_;
   uint8_t uid_[kUidSize];
   uint8_t out_[kOutCap];
   size_t out_len_;

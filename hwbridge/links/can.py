@@ -174,7 +174,7 @@ class CanHub:
         transfer_timeout: float = 1.0,
         owns_bus: bool = True,
         uid: bytes | None = None,
-        format: int = FORMAT_2,  # noqa: A002 - the word CAN.md uses
+        format: int = FORMAT_2,
     ) -> None:
         self.key = key
         self.local = local
@@ -189,9 +189,7 @@ class CanHub:
         self.peer_formats: dict[int, int] = {}
         """The format each peer (node id) claimed in last: the one it is spoken to in."""
         self.encoder = TransferEncoder(local, FD_MTU if fd else CLASSIC_MTU)
-        self.decoder = TransferDecoder(
-            local, timeout=transfer_timeout, format_2=format == FORMAT_2
-        )
+        self.decoder = TransferDecoder(local, timeout=transfer_timeout, format_2=format == FORMAT_2)
         self.monitor = ConflictMonitor(window=3 * CLAIM_INTERVAL)
         self.links: dict[int, CanLink] = {}
         self.users = 0

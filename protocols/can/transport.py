@@ -37,10 +37,10 @@ from typing import Final
 __all__ = [
     "CLASSIC_MTU",
     "CRC_INIT",
-    "FORMAT_1",
-    "FORMAT_2",
     "FD_LENGTHS",
     "FD_MTU",
+    "FORMAT_1",
+    "FORMAT_2",
     "HOST_NODE",
     "MAX_NODE",
     "MIN_NODE",
@@ -195,14 +195,7 @@ def encode_id2(
         direction, node = _TO_HOST_BIT, source
     else:
         raise ValueError(f"format 2 goes to or from the host, not from {source} to {destination}")
-    return (
-        (base & ~0xFFFF)
-        | _FORMAT_2_BIT
-        | direction
-        | (seq >> 5) << 11
-        | frag << 9
-        | node
-    )
+    return (base & ~0xFFFF) | _FORMAT_2_BIT | direction | (seq >> 5) << 11 | frag << 9 | node
 
 
 def acceptance_filters(node: int) -> list[tuple[int, int]]:
@@ -353,7 +346,7 @@ class TransferEncoder:
         destination: int,
         priority: int | None = None,
         *,
-        format: int = FORMAT_2,  # noqa: A002 - the word CAN.md uses
+        format: int = FORMAT_2,
     ) -> list[tuple[int, bytes]]:
         """The frames carrying one native datagram to ``destination`` in ``format`` (2: without
         its header and CRC-16, which must be right: ValueError otherwise)."""
@@ -369,17 +362,21 @@ class TransferEncoder:
         flags, channel, seq = data[0], data[1], data[2]
         frame_type = (flags >> 4) & 3
         if flags & 0xC0 != _NATIVE_VERSION or frame_type == 3:
-            raise ValueError(f"not a version-1 native datagram of a known type (flags {flags:#04x})")
+            raise ValueError(
+                f"not a version-1 native datagram of a known type (flags {flags:#04x})"
+            )
         if crc16(data[:-2]) != int.from_bytes(data[-2:], "little"):
             raise ValueError("the native datagram's CRC-16 is wrong")
         kind = Kind(frame_type)
         if priority is None:
             priority = priority_of(kind, channel)
-        can_id = encode_id2(priority, kind, channel, destination, self.source, seq, (flags >> 2) & 3)
+        can_id = encode_id2(
+            priority, kind, channel, destination, self.source, seq, (flags >> 2) & 3
+        )
         frames = split_transfer(data[3:-2], seq & _TID_MASK, self.mtu)
         return [(can_id, frame) for frame in frames]
 
-    def claim(self, uid: bytes, *, format: int = FORMAT_2) -> list[tuple[int, bytes]]:  # noqa: A002
+    def claim(self, uid: bytes, *, format: int = FORMAT_2) -> list[tuple[int, bytes]]:
         """A node-id claim: this node's unique id, to every node (destination 0), in
         ``format`` (the format this node speaks: receivers learn it from the claim)."""
         if len(uid) != UID_SIZE:

@@ -257,7 +257,8 @@ def test_interleaved_nodes_with_faults(
         queue = rng.choice([q for q in queues if q])
         bus.append(queue.pop(0))
     damaged: list[tuple[int, bytes]] = []
-    for can_id, data in bus:
+    for can_id, sent_data in bus:
+        data = sent_data
         roll = rng.random()
         if fault == "loss" and roll < 0.2:
             continue

@@ -330,7 +330,9 @@ def test_a_version_1_end_drops_format_2_as_malformed(channel: str, opened: list[
     raw = can.Bus(interface="virtual", channel=channel)
     try:
         body = bytes([0x40, 1, 7, 0xAA])
-        for can_id, data in TransferEncoder(4).datagram(body + crc16(body).to_bytes(2, "little"), 0):
+        for can_id, data in TransferEncoder(4).datagram(
+            body + crc16(body).to_bytes(2, "little"), 0
+        ):
             raw.send(can.Message(arbitration_id=can_id, data=data, is_extended_id=True))
         assert wait_for(lambda: old.can_stats()["rx_malformed"] >= 1, 5)
         assert old.read(4096, 0.3) == b""

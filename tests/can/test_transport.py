@@ -17,7 +17,6 @@ from hwbridge.protocols.can.transport import (
     FD_LENGTHS,
     FD_MTU,
     FORMAT_1,
-    FORMAT_2,
     ConflictMonitor,
     Kind,
     TransferDecoder,

@@ -1,6 +1,6 @@
 """The board side of CAN (``firmware/HwBridge/src/hwbridge/can/``).
 
-- The C++ transport against ``protocols/vectors/can_frames.json`` and ``CanHardware`` with a
+- The C++ transport against ``protocols/vectors/can_frames.json`` and ``can_frames_v2.json`` and ``CanHardware`` with a
   scripted driver, plain and under ASan/UBSan with -Wall -Wextra -Werror; a seeded,
   time-bounded fuzz of the C++ receiver; the MCP2515 driver against a register-level fake of
   the chip (SPI transactions) (``firmware/tests/can/``).
@@ -10,7 +10,8 @@
   own) bridges it and an emulated board (node 2, ``hwbridge.emulator.can_bus``) on the same bus:
   a topic each way, a service and a parameter work on the sketch, and the emulated board's
   service and topic keep working, its session never renegotiated; the sketch restarted is
-  taken back.
+  taken back. The same with one side of CAN.md version 1 (``HWBRIDGE_CAN_FORMAT=1`` for the
+  sketch, ``can_format=1`` for the bridge): both boards connect and answer.
 
 ``examples/CanNode`` (the MCP2515 driver and ``CanHardware`` on an AVR) is built for the Uno and
 the Mega by both tools in ``test_examples.py`` like every example.

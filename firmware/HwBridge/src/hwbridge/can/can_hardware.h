@@ -63,7 +63,7 @@ class CanHardware {
   // constexpr and all zero: a global node lies in .bss, with neither start-up code nor a copy of
   // initial values in flash (node 0 stands for "not set": node 1)
   constexpr CanHardware()
-      : stats(), driver_(), receiver_(0), tids_(), watch_(), node_(0), format_(kFormat2),
+      : stats(), driver_(), receiver_(0), tids_(), watch_(), node_(0), speak1_(false),
         fixed1_(false), uid_(),
         out_(), out_len_(0), out_overflow_(false), ring_(), head_(0), tail_(0), count_(0),
         last_claim_(0), claimed_(false), started_(false) {}
@@ -165,7 +165,7 @@ class CanHardware {
     // The id carries the datagram's priority (arbitration between nodes); the driver is given
     // its stream's place instead, so that a control datagram never overtakes data queued before
     // it on the same stream (CAN.md 3: the receiver would drop that data as late).
-    if (format_ == kFormat2) {
+    if (!speak1_) {
       NativeHeader h;
       if (!parse_datagram(datagram, n, &h)) {
         ++stats.tx_oversize;
@@ -187,12 +187,12 @@ class CanHardware {
   }
 
   /** The CAN.md format this board speaks: 2 until it hears the host claim in format 1. */
-  uint8_t format() const { return format_; }
+  uint8_t format() const { return speak1_ ? kFormat1 : kFormat2; }
   /** kFormat1: behave as CAN.md version-1 firmware (format 1 only, format-2 frames dropped as
    * malformed), for buses whose other software predates format 2; kFormat2: the default. */
   void setFormat(uint8_t format) {
     fixed1_ = format == kFormat1;
-    format_ = fixed1_ ? kFormat1 : kFormat2;
+    speak1_ = fixed1_;
     receiver_.setFormat2(!fixed1_);
   }
 
@@ -231,7 +231,7 @@ class CanHardware {
 
   void sendClaim() {
     ++stats.claims_sent;
-    const uint32_t id = format_ == kFormat2
+    const uint32_t id = !speak1_
                             ? encode_id2(kPriorityNode, kNode, kNodeClaim, kHostNode, node_, 0, 0)
                             : encode_id(kPriorityNode, kNode, kNodeClaim, kHostNode, node_);
     sendTransfer(id, kPriorityNode, uid_, kUidSize);
@@ -250,8 +250,8 @@ class CanHardware {
     if (t.id.kind == kNode) {
       if (t.id.channel == kNodeClaim && t.size == kUidSize) {
         watch_.claim(t.id.source, node_, t.payload, uid_, now);
-        if (t.id.source == kHostNode && t.id.format != format_ && !fixed1_) {
-          format_ = t.id.format;  // speak what the host claims in (CAN.md 11)
+        if (t.id.source == kHostNode && (t.id.format == kFormat1) != speak1_ && !fixed1_) {
+          speak1_ = t.id.format == kFormat1;  // speak what the host claims in (CAN.md 11)
           ++stats.format_changes;
         }
       }
@@ -286,7 +286,7 @@ class CanHardware {
   TidTable<6> tids_;
   OwnClaimWatch watch_;
   uint8_t node_;
-  uint8_t format_;
+  bool speak1_;  // false: format 2 (members zero by default keep a global board in .bss)
   bool fixed1_;
   uint8_t uid_[kUidSize];
   uint8_t out_[kOutCap];

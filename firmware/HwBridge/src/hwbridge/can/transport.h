@@ -319,11 +319,11 @@ class TransferReceiver {
 
   // constexpr: a global node holding one is initialized at compile time (in .bss), not by code
   constexpr explicit TransferReceiver(uint8_t local = 0)
-      : stats(), local_(local), format2_(true), done_next_(0), rx_(), done_() {}
+      : stats(), local_(local), refuse2_(false), done_next_(0), rx_(), done_() {}
   void setLocal(uint8_t local) { local_ = local; }
   /** false: a CAN.md version-1 receiver (format-2 frames are malformed, as their id bit 15 was
    * reserved). */
-  void setFormat2(bool on) { format2_ = on; }
+  void setFormat2(bool on) { refuse2_ = !on; }
   uint8_t local() const { return local_; }
 
   /** An error frame seen by the controller. */
@@ -337,7 +337,7 @@ class TransferReceiver {
             Transfer* out) {
     ++stats.frames;
     CanId ident;
-    if (!extended || !decode_id(id, &ident) || (ident.format == kFormat2 && !format2_) ||
+    if (!extended || !decode_id(id, &ident) || (ident.format == kFormat2 && refuse2_) ||
         len == 0 || len > kFdMtu || !valid_length(len)) {
       ++stats.malformed;
       return false;
@@ -512,7 +512,7 @@ class TransferReceiver {
   }
 
   uint8_t local_;
-  bool format2_;
+  bool refuse2_;  // all members zero by default: a global receiver stays in .bss
   uint8_t done_next_;
   Rx rx_[Slots];
   Done done_[2 * Slots];

@@ -346,6 +346,7 @@ class CanHub:
                     transfer.channel == NODE_CLAIM
                     and transfer.source != self.local
                     and self.format == FORMAT_2
+                    and HOST_NODE in (self.local, transfer.source)  # a board talks to the host
                 ):
                     self._learn_format(transfer.source, transfer.format)
                 continue

@@ -2,8 +2,8 @@
 
 - The C++ transport against ``protocols/vectors/can_frames.json`` and ``can_frames_v2.json``
   and ``CanHardware`` with a scripted driver, plain and under ASan/UBSan with -Wall -Wextra
-  -Werror; a seeded, time-bounded fuzz of the C++ receiver; the MCP2515 driver against a register-level fake of
-  the chip (SPI transactions) (``firmware/tests/can/``).
+  -Werror; a seeded, time-bounded fuzz of the C++ receiver; the MCP2515 driver against a
+  register-level fake of the chip (SPI transactions) (``firmware/tests/can/``).
 - End to end: ``firmware/tests/can/CanE2E`` built as a host program runs as CAN node 5 through
   the host-native driver and a relay (:mod:`tests.firmware.can_relay`) onto a python-can
   ``udp_multicast`` bus; ``hwbridge connect can://udp_multicast/.../node5`` (a process of its

@@ -57,6 +57,7 @@ __all__ = [
     "ToolchainMissingError",
     "ARM_BOARDS",
     "ArmBoard",
+    "build_arm_program",
     "build_arm_sketch",
     "build_host_sketch",
     "build_sketch",
@@ -410,6 +411,43 @@ def build_arm_sketch(
     )
     _run([objcopy, "-O", "binary", str(elf), str(elf.with_suffix(".bin"))], "bin")
     return elf
+
+
+def build_arm_program(
+    sources: list[Path],
+    board_name: str,
+    out: Path,
+    *,
+    includes: list[Path] | None = None,
+    defines: list[str] | None = None,
+    semihosting: bool = True,
+    cxx_flags: list[str] | None = None,
+) -> Path:
+    """A plain C/C++ program (its own ``main``, no sketch) for an ARM board: the start-up code
+    and board support added, stdio through QEMU's semihosting unless ``semihosting`` is false.
+    Test programs use it (tests/arm); returns ``out``."""
+    board = ARM_BOARDS[board_name]
+    gcc, gpp = _arm_tool("arm-none-eabi-gcc"), _arm_tool("arm-none-eabi-g++")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    flags = [
+        *arm_flags(board),
+        *(["-DHWBRIDGE_SEMIHOSTED"] if semihosting else []),
+        *(f"-D{d}" for d in defines or []),
+        *(f"-I{folder}" for folder in includes or []),
+    ]
+    objects: list[str] = []
+    for source in [*sources, *arm_core_sources(board)]:
+        obj = out.parent / f"{out.stem}-{source.name}.o"
+        if source.suffix == ".c":
+            command = [gcc, "-c", "-std=gnu11", *ARM_WARNINGS, *flags]
+        else:
+            command = [gpp, "-c", "-std=gnu++11", "-fno-exceptions", "-fno-rtti", *flags]
+            command += cxx_flags or []
+        _run([*command, str(source), "-o", str(obj)], f"compiling {source} for {board.name}")
+        objects.append(str(obj))
+    link = [gpp, *arm_link_flags(board, semihosting=semihosting), "-o", str(out), *objects, "-lm"]
+    _run(link, f"linking {out.name}")
+    return out
 
 
 def build_sketch(

@@ -4,7 +4,7 @@
 // Hardware concept (what the node uses; see firmware/HwBridge/README.md, "Porting"): bool
 // init(baud), int read() (a byte or -1, never blocks), put(uint8_t) (one byte out; blocks only
 // while the transmitter is busy), flush(), uint32_t micros() (wrapping), uint32_t seed().
-// The microsecond clock comes from the board's start-up code (hwbridge_board_micros(), SysTick in
+// The microsecond clock comes from the board's start-up code (hwbridge_board_micros(), TIM2 in
 // hwbridge/firmware/arm/), as ArduinoHardware takes it from the Arduino core.
 #ifndef HWBRIDGE_HARDWARE_STM32F4_H
 #define HWBRIDGE_HARDWARE_STM32F4_H

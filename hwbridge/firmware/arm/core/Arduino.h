@@ -1,7 +1,7 @@
 // A minimal Arduino stand-in for the bare Cortex-M boards of `hwbridge firmware build --board
 // stm32f405|microbit`: enough for sketches like the HwBridge examples (HelloWorld,
 // ServiceServer, Parameters), not the Arduino core. main() (arduino_arm.cpp) calls setup() then
-// loop() forever; millis(), micros(), delay() come from the board's start-up code (SysTick on
+// loop() forever; millis(), micros(), delay() come from the board's start-up code (TIM2 on
 // the STM32F4, TIMER0 on the nRF51); pins are values in memory (digitalWrite/digitalRead,
 // pinMode; no GPIO is driven); Serial is the board's UART (the one the node uses: a sketch
 // that gives it to a node should not write to it too).

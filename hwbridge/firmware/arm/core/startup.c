@@ -1,7 +1,8 @@
 /* Bare-metal start-up for the Cortex-M boards of `hwbridge firmware build --board stm32f405|microbit`:
  * the vector table (the 16 core exceptions; every peripheral is polled, so no IRQ vector is
  * used), the reset handler (copies .data from flash, zeroes .bss, runs the board's set-up and the
- * C++ constructors, then main()), and a HardFault handler that reports the fault on the board's
+ * C++ constructors, then main(); a test program built with HWBRIDGE_SEMIHOSTED exits with
+ * main's result through QEMU's semihosting), and a HardFault handler that reports the fault on the board's
  * UART ("HARDFAULT pc=... cfsr=...") and stops. Symbols come from the target's linker script. */
 #include <stdint.h>
 
@@ -10,6 +11,10 @@ extern void (*__init_array_start[])(void);
 extern void (*__init_array_end[])(void);
 
 int main(void);
+#ifdef HWBRIDGE_SEMIHOSTED
+#include <stdlib.h>
+void initialise_monitor_handles(void);
+#endif
 void hwbridge_board_setup(void);
 void hwbridge_board_fault_puts(const char* text);
 
@@ -20,6 +25,10 @@ void SysTick_Handler(void) __attribute__((weak, alias("Default_Handler")));
 void NMI_Handler(void) __attribute__((weak, alias("Default_Handler")));
 void SVC_Handler(void) __attribute__((weak, alias("Default_Handler")));
 void PendSV_Handler(void) __attribute__((weak, alias("Default_Handler")));
+
+/* The C++ runtime's handle for destructors registered with __cxa_atexit (crtbegin.o defines it
+ * where the default start files are linked; here they are not). */
+__attribute__((weak)) void* __dso_handle = 0;
 
 typedef void (*Vector)(void);
 
@@ -44,9 +53,15 @@ void Reset_Handler(void) {
   for (uint32_t* to = &__bss_start; to < &__bss_end;) *to++ = 0;
   hwbridge_board_setup();
   for (void (**f)(void) = __init_array_start; f < __init_array_end; ++f) (*f)();
+#ifdef HWBRIDGE_SEMIHOSTED
+  /* test programs (tests/arm): stdio and the exit code through QEMU's semihosting */
+  initialise_monitor_handles();
+  exit(main());
+#else
   main();
   for (;;) {
   }
+#endif
 }
 
 void Default_Handler(void) {

@@ -1,54 +1,85 @@
-/* STM32F405 board support (QEMU netduinoplus2): the FPU, unaligned-access and divide-by-zero
- * traps, SysTick at 1 kHz from the 168 MHz core clock for hwbridge_board_micros(), and the fault
- * text on USART1. */
+/* STM32F405 board support (QEMU netduinoplus2): the FPU, the divide-by-zero trap, the
+ * unaligned-access trap when HWBRIDGE_UNALIGN_TRAP is 1 (not by default: Debian's newlib-nano
+ * for this core stores halfwords at odd stack addresses in printf/snprintf, which then fault), TIM2 as a free-running 32-bit counter at 1 MHz for
+ * hwbridge_board_micros(), and the fault text on USART1.
+ *
+ * Why TIM2 and not a SysTick interrupt count: QEMU delivers the SysTick interrupt late on a busy
+ * host and merges what it missed (some 400 of 1000 a second were seen), and a board whose clock
+ * runs slow misses its heartbeats; a counter read from a timer stays exact. TIM2's input clock
+ * is not the same everywhere (84 MHz on a real F405 with the core at 168 MHz; QEMU's model has
+ * its own, and it changed between versions), so at start-up it is measured against the core
+ * clock (SysTick counting processor cycles, no interrupt, for 10 ms) and TIM2's prescaler set
+ * for 1 MHz. */
 #include <stdint.h>
 
 #define REG(address) (*(volatile uint32_t*)(address))
 #define SCB_CCR 0xE000ED14u
 #define SCB_CPACR 0xE000ED88u
 #define SCB_AIRCR 0xE000ED0Cu
-#define SYST_CSR 0xE000E010u
-#define SYST_RVR 0xE000E014u
-#define SYST_CVR 0xE000E018u
+#define RCC_APB1ENR 0x40023840u
+#define TIM2 0x40000000u
+#define TIM_CR1 0x00u
+#define TIM_EGR 0x14u
+#define TIM_CNT 0x24u
+#define TIM_PSC 0x28u
+#define TIM_ARR 0x2Cu
 #define USART1_SR 0x40011000u
 #define USART1_DR 0x40011004u
 #define USART1_BRR 0x40011008u
 #define USART1_CR1 0x4001100Cu
 
+#define SYST_CSR 0xE000E010u
+#define SYST_RVR 0xE000E014u
+#define SYST_CVR 0xE000E018u
 #ifndef HWBRIDGE_CORE_HZ
 #define HWBRIDGE_CORE_HZ 168000000u
 #endif
-#define TICKS_PER_MS (HWBRIDGE_CORE_HZ / 1000u)
-#define TICKS_PER_US (HWBRIDGE_CORE_HZ / 1000000u)
 
-static volatile uint32_t ms_count;
+/* TIM2's input clock in MHz, measured: its ticks over 10 ms of core cycles. */
+static uint32_t tim2_mhz(void) {
+  const uint32_t window = HWBRIDGE_CORE_HZ / 100u; /* below SysTick's 2^24 */
+  REG(SYST_RVR) = 0x00FFFFFFu;
+  REG(SYST_CVR) = 0;
+  REG(SYST_CSR) = 5u; /* processor clock, no interrupt, enabled */
+  const uint32_t s0 = REG(SYST_CVR);
+  const uint32_t t0 = REG(TIM2 + TIM_CNT);
+  while (((s0 - REG(SYST_CVR)) & 0x00FFFFFFu) < window) {
+  }
+  const uint32_t ticks = REG(TIM2 + TIM_CNT) - t0;
+  REG(SYST_CSR) = 0;
+  const uint32_t mhz = (ticks + 5000u) / 10000u;
+  return mhz == 0 ? 1u : mhz;
+}
 
 void hwbridge_board_setup(void) {
   REG(SCB_CPACR) |= 0xFu << 20; /* CP10 and CP11: the FPU, before any float instruction */
   __asm volatile("dsb\n isb");
-  REG(SCB_CCR) |= (1u << 3) | (1u << 4); /* UNALIGN_TRP, DIV_0_TRP */
-  REG(SYST_RVR) = TICKS_PER_MS - 1u;
-  REG(SYST_CVR) = 0;
-  REG(SYST_CSR) = 7u; /* processor clock, interrupt, enabled */
+#if HWBRIDGE_UNALIGN_TRAP
+  REG(SCB_CCR) |= 1u << 3; /* UNALIGN_TRP: an unaligned load or store faults, as on a Cortex-M0 */
+#endif
+  REG(SCB_CCR) |= 1u << 4; /* DIV_0_TRP */
+  REG(RCC_APB1ENR) |= 1u;                /* TIM2's clock */
+  REG(TIM2 + TIM_PSC) = 0;
+  REG(TIM2 + TIM_ARR) = 0xFFFFFFFFu;
+  REG(TIM2 + TIM_EGR) = 1u; /* UG: load the prescaler */
+  REG(TIM2 + TIM_CR1) = 1u; /* CEN */
+  REG(TIM2 + TIM_PSC) = tim2_mhz() - 1u;
+  REG(TIM2 + TIM_EGR) = 1u;
+  REG(TIM2 + TIM_CNT) = 0;
 }
 
-void SysTick_Handler(void) { ms_count = ms_count + 1u; }
+uint32_t hwbridge_board_micros(void) { return REG(TIM2 + TIM_CNT); }
 
-uint32_t hwbridge_board_micros(void) {
-  uint32_t ms, left;
-  do {
-    ms = ms_count;
-    left = REG(SYST_CVR);
-  } while (ms != ms_count); /* a tick between the two reads: read again */
-  /* COUNTFLAG pending (the counter wrapped, the interrupt not yet taken) */
-  if ((REG(SYST_CSR) & (1u << 16)) != 0 && left > TICKS_PER_MS / 2u) {
-    ms_count = ms_count + 1u;
-    ms = ms_count;
-  }
-  return ms * 1000u + (TICKS_PER_MS - 1u - left) / TICKS_PER_US;
+/* Milliseconds since reset, wrapping at 2^32 like Arduino's millis() (the microsecond counter
+ * wraps every 71 minutes: the elapsed microseconds are summed in 64 bits at each call). */
+uint32_t hwbridge_board_millis(void) {
+  static uint32_t last_us;
+  static uint64_t total_us;
+  const uint32_t now = hwbridge_board_micros();
+  total_us += (uint32_t)(now - last_us);
+  last_us = now;
+  return (uint32_t)(total_us / 1000u);
 }
-
-uint32_t hwbridge_board_millis(void) { return ms_count; }
 
 void hwbridge_board_reset(void) {
   REG(SCB_AIRCR) = (0x05FAu << 16) | (1u << 2); /* SYSRESETREQ */
@@ -69,7 +100,8 @@ void hwbridge_board_fault_puts(const char* text) {
 }
 
 /* newlib's memcpy for ARMv7-M loads words from unaligned sources (the core allows it unless
- * CCR.UNALIGN_TRP is set); with the trap on, that faults. This one copies words only when both
+ * CCR.UNALIGN_TRP is set); with the trap on, that faults (GCC's own inlined copies are kept
+ * aligned by -mno-unaligned-access). This one copies words only when both
  * addresses are word-aligned, else bytes; being defined here, it replaces the library's. */
 #include <stddef.h>
 __attribute__((optimize("no-tree-loop-distribute-patterns"))) void* memcpy(

@@ -27,11 +27,11 @@ class Running:
 @pytest.fixture
 def run_example(
     arm_board: str, tmp_path: Path, request: pytest.FixtureRequest
-) -> Iterator[Callable[[str], Running]]:
+) -> Iterator[Callable[..., Running]]:
     started: list[Running] = []
 
-    def start(name: str) -> Running:
-        elf = build_example(name, arm_board)
+    def start(name: str, *defines: str) -> Running:
+        elf = build_example(name, arm_board, defines=list(defines))
         board = QemuBoard(elf, arm_board).start()
         bridge = BridgeProcess(board.link_url, tmp_path, request.node.name)
         running = Running(board, bridge)
@@ -51,8 +51,10 @@ def _echo(bridge: BridgeProcess, topic: str) -> str:
     return done.stdout
 
 
-def test_hello_world_and_reset(run_example: Callable[[str], Running]) -> None:
-    running = run_example("HelloWorld")
+def test_hello_world_and_reset(run_example: Callable[..., Running]) -> None:
+    # on the M4 with the unaligned-access trap on as well (HelloWorld uses no printf: newlib's
+    # faults with it; the M0 traps always)
+    running = run_example("HelloWorld", "HWBRIDGE_UNALIGN_TRAP=1")
     bridge, board = running.bridge, running.board
     assert "data: hello world!" in _echo(bridge, "/chatter")
     assert "/chatter" in bridge.cli("topic", "list").stdout
@@ -63,7 +65,7 @@ def test_hello_world_and_reset(run_example: Callable[[str], Running]) -> None:
     assert board.running
 
 
-def test_service_server(run_example: Callable[[str], Running]) -> None:
+def test_service_server(run_example: Callable[..., Running]) -> None:
     running = run_example("ServiceServer")
     bridge, board = running.bridge, running.board
     assert wait_until(lambda: "/set_led" in bridge.cli("service", "list").stdout, 30)
@@ -81,7 +83,7 @@ def test_service_server(run_example: Callable[[str], Running]) -> None:
     ), bridge.output()
 
 
-def test_parameters_and_logs(run_example: Callable[[str], Running]) -> None:
+def test_parameters_and_logs(run_example: Callable[..., Running]) -> None:
     running = run_example("Parameters")
     bridge, board = running.bridge, running.board
     done = bridge.cli("param", "set", "/gains", json.dumps([1.0, 0.5, 0.01]))

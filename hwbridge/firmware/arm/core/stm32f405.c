@@ -3,13 +3,13 @@
  * for this core stores halfwords at odd stack addresses in printf/snprintf, which then fault), TIM2 as a free-running 32-bit counter at 1 MHz for
  * hwbridge_board_micros(), and the fault text on USART1.
  *
- * Why TIM2 and not a SysTick interrupt count: QEMU delivers the SysTick interrupt late on a busy
- * host and merges what it missed (some 400 of 1000 a second were seen), and a board whose clock
- * runs slow misses its heartbeats; a counter read from a timer stays exact. TIM2's input clock
- * is not the same everywhere (84 MHz on a real F405 with the core at 168 MHz; QEMU's model has
- * its own, and it changed between versions), so at start-up it is measured against the core
- * clock (SysTick counting processor cycles, no interrupt, for 10 ms) and TIM2's prescaler set
- * for 1 MHz. */
+ * Why TIM2, read directly, and not SysTick: a millisecond count kept by the SysTick interrupt,
+ * or a 24-bit SysTick polled and extended in software, loses time whenever QEMU's CPU thread is
+ * held off the host's cores for longer than a period (on a busy 2-core host that happens: the
+ * board's clock ran at some 60% of the host's, and the host's link timeout fired). A 32-bit
+ * counter at 1 MHz read from the timer needs no help (it wraps every 71 minutes, as micros()).
+ * TIM2's input clock, HWBRIDGE_TIM2_HZ: 1 GHz in the model of Debian's QEMU (7.2; later QEMU
+ * models 48 MHz); 84 MHz on a real F405 with the core at 168 MHz and APB1 at 42 MHz. */
 #include <stdint.h>
 
 #define REG(address) (*(volatile uint32_t*)(address))
@@ -28,28 +28,9 @@
 #define USART1_BRR 0x40011008u
 #define USART1_CR1 0x4001100Cu
 
-#define SYST_CSR 0xE000E010u
-#define SYST_RVR 0xE000E014u
-#define SYST_CVR 0xE000E018u
-#ifndef HWBRIDGE_CORE_HZ
-#define HWBRIDGE_CORE_HZ 168000000u
+#ifndef HWBRIDGE_TIM2_HZ
+#define HWBRIDGE_TIM2_HZ 1000000000u
 #endif
-
-/* TIM2's input clock in MHz, measured: its ticks over 10 ms of core cycles. */
-static uint32_t tim2_mhz(void) {
-  const uint32_t window = HWBRIDGE_CORE_HZ / 100u; /* below SysTick's 2^24 */
-  REG(SYST_RVR) = 0x00FFFFFFu;
-  REG(SYST_CVR) = 0;
-  REG(SYST_CSR) = 5u; /* processor clock, no interrupt, enabled */
-  const uint32_t s0 = REG(SYST_CVR);
-  const uint32_t t0 = REG(TIM2 + TIM_CNT);
-  while (((s0 - REG(SYST_CVR)) & 0x00FFFFFFu) < window) {
-  }
-  const uint32_t ticks = REG(TIM2 + TIM_CNT) - t0;
-  REG(SYST_CSR) = 0;
-  const uint32_t mhz = (ticks + 5000u) / 10000u;
-  return mhz == 0 ? 1u : mhz;
-}
 
 void hwbridge_board_setup(void) {
   REG(SCB_CPACR) |= 0xFu << 20; /* CP10 and CP11: the FPU, before any float instruction */
@@ -59,13 +40,11 @@ void hwbridge_board_setup(void) {
 #endif
   REG(SCB_CCR) |= 1u << 4; /* DIV_0_TRP */
   REG(RCC_APB1ENR) |= 1u;                /* TIM2's clock */
-  REG(TIM2 + TIM_PSC) = 0;
+  REG(TIM2 + TIM_PSC) = HWBRIDGE_TIM2_HZ / 1000000u - 1u;
   REG(TIM2 + TIM_ARR) = 0xFFFFFFFFu;
   REG(TIM2 + TIM_EGR) = 1u; /* UG: load the prescaler */
-  REG(TIM2 + TIM_CR1) = 1u; /* CEN */
-  REG(TIM2 + TIM_PSC) = tim2_mhz() - 1u;
-  REG(TIM2 + TIM_EGR) = 1u;
   REG(TIM2 + TIM_CNT) = 0;
+  REG(TIM2 + TIM_CR1) = 1u; /* CEN */
 }
 
 uint32_t hwbridge_board_micros(void) { return REG(TIM2 + TIM_CNT); }

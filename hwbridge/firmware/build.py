@@ -61,6 +61,7 @@ __all__ = [
     "build_arm_sketch",
     "build_host_sketch",
     "build_sketch",
+    "arm_firmware_size",
     "firmware_size",
 ]
 
@@ -616,6 +617,43 @@ def firmware_size(elf: Path) -> FirmwareSize:
                 or (parts[2] in "bd" and name in core_statics)
             ):
                 owner = "core"
+            else:
+                owner = "sketch"
+            objects.append((name, size_of, owner))
+    objects.sort(key=lambda item: (-item[1], item[0]))
+    return FirmwareSize(
+        flash=text + data,
+        sram=data + bss,
+        library_sram=sum(n for _, n, owner in objects if owner == "hwbridge"),
+        core_sram=sum(n for _, n, owner in objects if owner == "core"),
+        objects=tuple(objects),
+    )
+
+
+def arm_firmware_size(elf: Path) -> FirmwareSize:
+    """Flash and static RAM of an ELF built for an ARM board (``arm-none-eabi-size -A``): flash =
+    .text + .data (the vector table, code, constants, initial values), RAM = .data + .bss (the
+    stack comes on top); the library's share from the symbols in namespace hwbridge."""
+    size, nm = _arm_tool("arm-none-eabi-size"), _arm_tool("arm-none-eabi-nm")
+    if not elf.is_file():
+        raise HwBridgeError(f"{elf}: no such ELF file")
+    done = subprocess.run([size, "-A", str(elf)], capture_output=True, text=True, check=False)
+    if done.returncode != 0:
+        raise HwBridgeError(f"{elf}: arm-none-eabi-size failed: {done.stderr.strip()}")
+    sections = {name: int(value) for name, value in _SECTION.findall(done.stdout)}
+    text, data, bss = (sections.get(k, 0) for k in ("text", "data", "bss"))
+    listed = subprocess.run(
+        [nm, "-C", "--size-sort", "-S", str(elf)], capture_output=True, text=True, check=False
+    ).stdout
+    objects: list[tuple[str, int, str]] = []
+    for line in listed.splitlines():
+        parts = line.split(None, 3)
+        if len(parts) == 4 and parts[2] in "bBdD":
+            name, size_of = parts[3], int(parts[1], 16)
+            if "hwbridge::" in name:
+                owner = "hwbridge"
+            elif name.startswith(("_", "(anonymous namespace)::")) or name in ("Serial", "errno"):
+                owner = "core"  # the C library, start-up and the Arduino stand-in
             else:
                 owner = "sketch"
             objects.append((name, size_of, owner))

@@ -49,19 +49,19 @@ from typing import Any, Final
 from hwbridge.errors import HwBridgeError
 
 __all__ = [
+    "ARM_BOARDS",
     "BOARDS",
     "CORE_DIR",
     "LIBRARY_DIR",
+    "ArmBoard",
     "Board",
     "FirmwareSize",
     "ToolchainMissingError",
-    "ARM_BOARDS",
-    "ArmBoard",
+    "arm_firmware_size",
     "build_arm_program",
     "build_arm_sketch",
     "build_host_sketch",
     "build_sketch",
-    "arm_firmware_size",
     "firmware_size",
 ]
 

@@ -15,7 +15,6 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
-import os
 import re
 import shutil
 import socket
@@ -97,7 +96,7 @@ class QemuBoard:
         """Starts QEMU and waits for the pty's path (at most ``start_timeout`` seconds)."""
         qemu = _qemu()
         self._folder = tempfile.mkdtemp(prefix="hwbridge-qemu-")
-        qmp = os.path.join(self._folder, "qmp.sock")
+        qmp = Path(self._folder) / "qmp.sock"
         command = [
             qemu,
             "-M",
@@ -132,7 +131,7 @@ class QemuBoard:
                 self.close()
                 why = "".join(self._stderr).strip() or "no pty reported"
                 raise QemuError(f"qemu-system-arm -M {self.machine} did not start: {why}")
-            if os.path.exists(qmp):
+            if qmp.exists():
                 with contextlib.suppress(OSError, ValueError):
                     self.pty = self._pty_path()
             if self.pty is None:
@@ -160,7 +159,7 @@ class QemuBoard:
         """Runs one QMP command; returns its answer (``{"return": ...}``)."""
         if self._folder is None or self._process is None or self._process.poll() is not None:
             raise QemuError("QEMU is not running")
-        path = os.path.join(self._folder, "qmp.sock")
+        path = str(Path(self._folder) / "qmp.sock")
         with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as sock:
             sock.settimeout(timeout)
             sock.connect(path)
@@ -249,7 +248,9 @@ def run_semihosted(
             process.kill()
             stdout, stderr = process.communicate()
         if run_for is None:
-            raise QemuError(f"{elf.name} did not finish in {timeout:.0f} s:\n{stdout}{stderr}")
+            raise QemuError(
+                f"{elf.name} did not finish in {timeout:.0f} s:\n{stdout}{stderr}"
+            ) from None
     finally:
         if process.poll() is None:
             process.kill()

@@ -17,7 +17,9 @@ PROGRAM = Path(__file__).with_name("programs") / "unaligned.c"
 
 def _run(board: str, tmp_path: Path, *defines: str) -> tuple[str, str]:
     need_arm_tools()
-    elf = build_arm_program([PROGRAM], board, tmp_path / f"unaligned-{board}.elf", defines=[*defines])
+    elf = build_arm_program(
+        [PROGRAM], board, tmp_path / f"unaligned-{board}.elf", defines=[*defines]
+    )
     uart = tmp_path / "uart.txt"
     done = run_semihosted(elf, board, timeout=60, serial_file=uart, run_for=3.0)
     return done.stdout, uart.read_text(errors="replace") if uart.exists() else ""

@@ -119,7 +119,9 @@ def main() -> None:
                 rate = _wall_throughput(running, args.seconds)
             finally:
                 running.close()
-            emit("arm_throughput_hello", {"board": board, "baud": BAUD}, rate, "uno_simavr", uno_rate)
+            emit(
+                "arm_throughput_hello", {"board": board, "baud": BAUD}, rate, "uno_simavr", uno_rate
+            )
             elf = build.build_sketch(service, board, tmp / f"{board}-service")
             running = QemuRunning(elf, board)
             try:

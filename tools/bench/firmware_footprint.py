@@ -101,7 +101,7 @@ MICRO_ROS = {
     "subscriber_ram": 600,
     "service_ram": 500,
     "rmw_history_static_ram": 2048,
-    "source": "micro-ROS benchmarking, eProsima Vulcanexus docs (EK-RA6M5, UDP, MTU 512, history 4)",
+    "source": "micro-ROS benchmarking, Vulcanexus docs (EK-RA6M5, UDP, MTU 512, history 4)",
 }
 
 STD_MSGS = {"String": ["string data"], "Time": ["time data"], "Empty": []}

@@ -1,9 +1,10 @@
 """The HwBridge library's example sketches built for simavr, kept in a cache.
 
 :func:`build_example` builds ``firmware/HwBridge/examples/NAME`` with
-:func:`hwbridge.firmware.build.build_sketch` for an Uno, a Mega or an ARM board (QEMU's) (which adds the core's own
-libraries, such as ``Wire``, that a sketch includes). Builds are cached under
-``~/.cache/hwbridge/sim-examples/`` by a hash of the sketch, the library and the board.
+:func:`hwbridge.firmware.build.build_sketch` for an Uno or a Mega (which adds the core's own
+libraries, such as ``Wire``, that a sketch includes), or for an ARM board run in QEMU. Builds
+are cached under ``~/.cache/hwbridge/sim-examples/`` by a hash of the sketch, the library and
+the board.
 """
 
 from __future__ import annotations

@@ -9,6 +9,10 @@
 #ifndef HWBRIDGE_HARDWARE_STM32F4_H
 #define HWBRIDGE_HARDWARE_STM32F4_H
 
+#if defined(__AVR__)
+#error "this Hardware is for 32-bit ARM boards (hwbridge firmware build --board stm32f405|microbit)"
+#endif
+
 #include <stdint.h>
 
 extern "C" uint32_t hwbridge_board_micros(void);

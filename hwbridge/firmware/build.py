@@ -423,10 +423,12 @@ def build_arm_program(
     defines: list[str] | None = None,
     semihosting: bool = True,
     cxx_flags: list[str] | None = None,
+    compile_only: bool = False,
 ) -> Path:
     """A plain C/C++ program (its own ``main``, no sketch) for an ARM board: the start-up code
     and board support added, stdio through QEMU's semihosting unless ``semihosting`` is false.
-    Test programs use it (tests/arm); returns ``out``."""
+    Test programs use it (tests/arm); returns ``out``. A source may be an object file; with
+    ``compile_only`` nothing is linked and the first source's object is returned."""
     board = ARM_BOARDS[board_name]
     gcc, gpp = _arm_tool("arm-none-eabi-gcc"), _arm_tool("arm-none-eabi-g++")
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -439,6 +441,9 @@ def build_arm_program(
     objects: list[str] = []
     for source in [*sources, *arm_core_sources(board)]:
         obj = out.parent / f"{out.stem}-{source.name}.o"
+        if source.suffix == ".o":  # compiled already (by compile_only)
+            objects.append(str(source))
+            continue
         if source.suffix == ".c":
             command = [gcc, "-c", "-std=gnu11", *ARM_WARNINGS, *flags]
         else:
@@ -446,6 +451,8 @@ def build_arm_program(
             command += cxx_flags or []
         _run([*command, str(source), "-o", str(obj)], f"compiling {source} for {board.name}")
         objects.append(str(obj))
+    if compile_only:
+        return out.parent / f"{out.stem}-{sources[0].name}.o"
     link = [gpp, *arm_link_flags(board, semihosting=semihosting), "-o", str(out), *objects, "-lm"]
     _run(link, f"linking {out.name}")
     return out

@@ -1,11 +1,12 @@
 """The HwBridge examples built for the ARM boards (STM32F405 and the micro:bit's nRF51822), run
 in qemu-system-arm behind a real bridge process, and used from the CLI: topics, services,
-parameters, logs, and a board reset (QMP system_reset) recovered by the bridge. A board that does
-not reach the graph fails the test."""
+parameters, logs, host time, and a board reset (QMP system_reset) recovered by the bridge. A
+board that does not reach the graph fails the test."""
 
 from __future__ import annotations
 
 import json
+import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -13,9 +14,11 @@ from pathlib import Path
 import pytest
 
 from hwbridge.firmware.qemu import QemuBoard
-from hwbridge.firmware.sim.examples import build_example
+from hwbridge.firmware.sim.examples import build_example, build_sketch_for_sim
 from tests.bridgeproc import BridgeProcess
 from tests.netutil import wait_until
+
+SKETCHES = Path(__file__).with_name("sketches")
 
 
 @dataclass
@@ -31,7 +34,11 @@ def run_example(
     started: list[Running] = []
 
     def start(name: str, *defines: str) -> Running:
-        elf = build_example(name, arm_board, defines=list(defines))
+        sketch = SKETCHES / name
+        if sketch.is_dir():
+            elf = build_sketch_for_sim(sketch, arm_board, defines=list(defines))
+        else:
+            elf = build_example(name, arm_board, defines=list(defines))
         board = QemuBoard(elf, arm_board).start()
         bridge = BridgeProcess(board.link_url, tmp_path, request.node.name)
         running = Running(board, bridge)
@@ -100,3 +107,12 @@ def test_parameters_and_logs(run_example: Callable[..., Running]) -> None:
     done = bridge.cli("param", "set", "/blink_period_ms", "250")
     assert done.returncode == 0, done.stderr
     assert wait_until(lambda: "blink_period_ms = 250" in bridge.output(), 30), bridge.output()
+
+
+def test_host_time(run_example: Callable[..., Running]) -> None:
+    """The board asks the host for its time and keeps it with its own clock: what it publishes
+    is the host's time (within a few seconds: the round trips of a loaded host)."""
+    running = run_example("ArmTime")
+    out = _echo(running.bridge, "/host_time")
+    published = float(out.split("data:")[1].split()[0].strip("'\""))
+    assert abs(published - time.time()) < 5.0, out

@@ -32,9 +32,9 @@ def test_sim_prints_the_url_first_and_stops_on_ctrl_c(mcu: str) -> None:
         text=True,
     )
     try:
-        assert process.stdout is not None
+        assert process.stdout is not None and process.stderr is not None
         first = process.stdout.readline().strip()
-        assert first.startswith("serial:///dev/pts/"), first + (process.stderr.read() or "")
+        assert first.startswith("serial:///dev/pts/"), first + process.stderr.read()
         pty = first.removeprefix("serial://")
         fd = os.open(pty, os.O_RDWR | os.O_NOCTTY)
         try:

@@ -53,7 +53,8 @@ def run_example(
 
 
 def _echo(bridge: BridgeProcess, topic: str) -> str:
-    done = bridge.cli("topic", "echo", topic, "-n", "1", "--timeout", "30")
+    # generous: QEMU, the bridge and the CLI share a 2-core host with whatever else runs
+    done = bridge.cli("topic", "echo", topic, "-n", "1", "--timeout", "60", timeout=150)
     assert done.returncode == 0, done.stderr + bridge.output()
     return done.stdout
 

@@ -592,7 +592,19 @@ class NodeHandle_ : public NodeBase {
   void setFlag(uint8_t f, bool on) { flags_ = static_cast<uint8_t>(on ? flags_ | f : flags_ & ~f); }
 };
 
-#if defined(ARDUINO)
+#if defined(HWBRIDGE_BOARD_STM32F4)
+}  // namespace hwbridge
+#include "hardware_stm32f4.h"
+namespace hwbridge {
+/** The default node on a bare STM32F4 (hwbridge firmware build --board stm32f405): USART1. */
+typedef NodeHandle_<Stm32f4Hardware> NodeHandle;
+#elif defined(HWBRIDGE_BOARD_NRF51)
+}  // namespace hwbridge
+#include "hardware_nrf51.h"
+namespace hwbridge {
+/** The default node on a bare nRF51 (hwbridge firmware build --board microbit): UART0. */
+typedef NodeHandle_<Nrf51Hardware> NodeHandle;
+#elif defined(ARDUINO)
 }  // namespace hwbridge
 #include "hardware_arduino.h"
 namespace hwbridge {

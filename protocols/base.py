@@ -39,6 +39,7 @@ __all__ = [
     "EntryKind",
     "Error",
     "Event",
+    "FirmwareIdentity",
     "Framing",
     "Log",
     "Message",
@@ -80,6 +81,57 @@ class Endpoint:
         return self.kind in (EntryKind.SERVICE_SERVER, EntryKind.SERVICE_CLIENT)
 
 
+@dataclass(frozen=True, slots=True)
+class FirmwareIdentity:
+    """Which firmware a board runs, as far as its protocol says (native: BOARD_INFO, PROTOCOL.md
+    2.6.1). An empty string is "not told": old boards tell nothing, and the host never treats
+    that as a fault."""
+
+    version: str = ""
+    """The sketch's own version text (``initNode``'s ``firmware`` argument)."""
+    name: str = ""
+    """What the firmware calls itself (``HWBRIDGE_FIRMWARE_NAME``)."""
+    library_version: str = ""
+    """The version of the HwBridge library it was built with."""
+    schema_hash: str = ""
+    """Hash of the control-message schema it was built with."""
+    messages_hash: str = ""
+    """Hash of the message definitions of the library's generated headers."""
+    build_tag: str = ""
+    """``<robot>/<board>@<hash of the robot file>`` of a generated firmware
+    (``HWBRIDGE_BUILD_TAG``)."""
+
+    @property
+    def known(self) -> bool:
+        """The board sent an identity (any item beyond its version text)."""
+        return bool(
+            self.name
+            or self.library_version
+            or self.schema_hash
+            or self.messages_hash
+            or self.build_tag
+        )
+
+    @property
+    def firmware_name(self) -> str:
+        """``name``, or the part of ``build_tag`` before its ``@`` (a board whose send buffer
+        cut the name off still names itself through its tag)."""
+        if self.name or "@" not in self.build_tag:
+            return self.name
+        return self.build_tag.rsplit("@", 1)[0]
+
+    def as_dict(self) -> dict[str, str]:
+        """The items, for ``hwbridge board info`` (JSON-able)."""
+        return {
+            "name": self.firmware_name,
+            "version": self.version,
+            "library_version": self.library_version,
+            "schema_hash": self.schema_hash,
+            "messages_hash": self.messages_hash,
+            "build_tag": self.build_tag,
+        }
+
+
 # --------------------------------------------------------------------------------------------
 # Events
 
@@ -94,6 +146,8 @@ class Connected:
     """What the board calls itself, where the protocol says."""
     resumed: bool = False
     """The board kept its session since the last one (it did not restart)."""
+    firmware: FirmwareIdentity | None = None
+    """Which firmware the board runs (None: its protocol does not say, as rosserial)."""
 
 
 @dataclass(frozen=True, slots=True)

@@ -38,7 +38,6 @@ from hwbridge.protocols.native.control import (
     coerce_param,
     decode_control,
 )
-from hwbridge.protocols.native.identity import format_identity
 from hwbridge.protocols.native.framing import (
     Frag,
     Frame,
@@ -48,6 +47,7 @@ from hwbridge.protocols.native.framing import (
     crc16,
     encode_frame,
 )
+from hwbridge.protocols.native.identity import format_identity
 from hwbridge.protocols.native.reliable import (
     BestEffortReceiver,
     BestEffortSender,
@@ -1698,7 +1698,7 @@ def test_old_board_info_without_identity_connects() -> None:
     (connected,) = of_type(events, Connected)
     assert connected.firmware == FirmwareIdentity(version="0.1.0")
     assert connected.firmware is not None and not connected.firmware.known
-    assert host.describe()["firmware"]["schema_hash"] == ""
+    assert host.describe()["firmware_version"] == "0.1.0"
     assert not errors(events)
 
 

@@ -85,7 +85,6 @@ class HostSession(
             "board": board.name if board is not None else None,
             "unique_id": board.unique_id.hex() if board is not None else None,
             "firmware_version": board.identity.version if board is not None else None,
-            "firmware": board.identity.as_dict() if board is not None else None,
             "mtu": link.mtu if link is not None else None,
             "window": link.window if link is not None else None,
             "host_session": self._id,

@@ -23,15 +23,17 @@ Channels. Every endpoint a board declares has an integer *channel* chosen by the
 
 from __future__ import annotations
 
+import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, fields
 from enum import IntEnum
-from typing import Any, Protocol, TypeAlias
+from typing import Any, Final, NamedTuple, Protocol, TypeAlias
 
 from hwbridge.protocols.errors import HwBridgeError
 
 __all__ = [
     "BoardSession",
+    "BuildTag",
     "Connected",
     "DebugOutput",
     "Disconnected",
@@ -49,6 +51,7 @@ __all__ = [
     "SessionStats",
     "TimeSynced",
     "TopicAnnounced",
+    "parse_build_tag",
 ]
 
 
@@ -79,6 +82,26 @@ class Endpoint:
     def is_service(self) -> bool:
         """True for service servers and clients."""
         return self.kind in (EntryKind.SERVICE_SERVER, EntryKind.SERVICE_CLIENT)
+
+
+_BUILD_TAG: Final = re.compile(r"(?P<robot>[^/@\n]+)/(?P<board>[^/@\n]+)@(?P<digest>[0-9a-f]{12})")
+
+
+class BuildTag(NamedTuple):
+    """A build tag's parts (see :func:`hwbridge.robot.identity.build_tag` for the formula)."""
+
+    robot: str
+    board: str
+    digest: str
+
+
+def parse_build_tag(text: str) -> BuildTag | None:
+    """The parts of a build tag, or None if ``text`` is not of the form ``robot/board@12hex``
+    (12 lowercase hex digits)."""
+    match = _BUILD_TAG.fullmatch(text)
+    if match is None:
+        return None
+    return BuildTag(match["robot"], match["board"], match["digest"])
 
 
 @dataclass(frozen=True, slots=True)

@@ -16,9 +16,8 @@ import functools
 import logging
 from typing import Any
 
-from hwbridge.protocols.base import FirmwareIdentity
+from hwbridge.protocols.base import FirmwareIdentity, parse_build_tag
 from hwbridge.protocols.msgtypes import TypeRegistry
-from hwbridge.robot.identity import parse_build_tag
 
 __all__ = ["FirmwareCheck", "host_hashes", "host_identity", "library_version"]
 

@@ -5,17 +5,18 @@ sketch; the board sends it in BOARD_INFO, and ``hwbridge up ROBOT.yaml`` compare
 tag of the robot file it brings up. One formula, here::
 
     <robot>/<board>@<the first 12 lowercase hex digits of SHA-256 over the robot file's bytes>
+
+(:func:`parse_build_tag` splits one; it lives with the firmware identity in
+:mod:`hwbridge.protocols.base`, so that the bridge reads tags without importing robots.)
 """
 
 from __future__ import annotations
 
 import hashlib
-import re
-from typing import Final, NamedTuple
+
+from hwbridge.protocols.base import BuildTag, parse_build_tag
 
 __all__ = ["BuildTag", "build_tag", "parse_build_tag"]
-
-_TAG: Final = re.compile(r"(?P<robot>[^/@\n]+)/(?P<board>[^/@\n]+)@(?P<digest>[0-9a-f]{12})")
 
 
 def build_tag(robot_name: str, board_name: str, robot_file_bytes: bytes) -> str:
@@ -23,19 +24,3 @@ def build_tag(robot_name: str, board_name: str, robot_file_bytes: bytes) -> str:
     ``robot_name`` whose bytes are ``robot_file_bytes``."""
     digest = hashlib.sha256(robot_file_bytes).hexdigest()[:12]
     return f"{robot_name}/{board_name}@{digest}"
-
-
-class BuildTag(NamedTuple):
-    """A build tag's parts."""
-
-    robot: str
-    board: str
-    digest: str
-
-
-def parse_build_tag(text: str) -> BuildTag | None:
-    """The parts of a build tag, or None if ``text`` is not of the form ``robot/board@12hex``."""
-    match = _TAG.fullmatch(text)
-    if match is None:
-        return None
-    return BuildTag(match["robot"], match["board"], match["digest"])

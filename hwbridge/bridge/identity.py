@@ -109,13 +109,13 @@ class FirmwareCheck:
         what = identity.firmware_name or identity.version or "without a name"
         if self.problems:
             self.log.warning(
-                "%s: the board's firmware (%s) was built with another hwbridge version: %s "
-                "differ from this host's; rebuild and upload the firmware with this hwbridge "
+                "%s: the board's firmware (%s) was built with another hwbridge version (%s); "
+                "rebuild and upload the firmware with this hwbridge "
                 "(regenerate a sketch's own headers with 'hwbridge firmware generate'), or the "
                 "board and the host may not understand each other",
                 self.board,
                 what,
-                " and ".join(self.problems),
+                "; ".join(self.problems),
             )
         self._check_build(identity)
 
@@ -125,10 +125,10 @@ class FirmwareCheck:
         schema, messages = self._host
         problems = []
         if identity.schema_hash and identity.schema_hash != schema:
-            problems.append(f"its control schema (hash {identity.schema_hash}, host {schema})")
+            problems.append(f"control schema hash {identity.schema_hash}, this host's {schema}")
         if identity.messages_hash and identity.messages_hash != messages:
             problems.append(
-                f"its message definitions (hash {identity.messages_hash}, host {messages})"
+                f"message definitions hash {identity.messages_hash}, this host's {messages}"
             )
         return problems
 

@@ -140,7 +140,7 @@ def test_a_stale_firmware_is_warned_about_once(
             assert isinstance(firmware, dict)
             assert firmware["schema_hash"] == STALE_SCHEMA
             assert firmware["problems"] == [
-                f"its control schema (hash {STALE_SCHEMA}, host {schema})"
+                f"control schema hash {STALE_SCHEMA}, this host's {schema}"
             ]
         finally:
             board.stop()

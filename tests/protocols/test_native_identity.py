@@ -176,8 +176,8 @@ def test_firmware_check_warns_once_per_identity(caplog: pytest.LogCaptureFixture
         check.check(FirmwareIdentity("0.1.0"))
     warnings = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
     assert len(warnings) == 2, warnings
-    assert "its control schema (hash 0badf00d" in warnings[0]
-    assert "its message definitions (hash 12345678" in warnings[1]
+    assert "(control schema hash 0badf00d, this host's " in warnings[0]
+    assert "(message definitions hash 12345678, this host's " in warnings[1]
     assert check.info() is None  # the last session told nothing
     check.check(good)
     info = check.info()

@@ -35,6 +35,9 @@ ROBOT_YAML = b"robot: demo\nboards:\n  - name: base\n    link: /dev/ttyACM0\n   
 """The robot file ``hwbridge up`` brings up here (the tag of the 'stale' build is its tag)."""
 STALE_SCHEMA = "0badf00d"
 STALE_WARNING = "was built with another hwbridge version"
+CONNECT_WAIT = 90.0
+"""Seconds for a board to connect (generous: the machine may be busy)."""
+CLI_TIMEOUT = 180.0
 
 pytestmark = pytest.mark.skipif(
     shutil.which("g++") is None, reason="g++ is not installed (Debian package g++)"
@@ -88,7 +91,7 @@ def _connected(output: str) -> int:
 
 
 def _info(bridge: BridgeProcess) -> dict[str, object]:
-    shown = bridge.cli("board", "info", "base", "--json")
+    shown = bridge.cli("board", "info", "base", "--json", timeout=CLI_TIMEOUT)
     assert shown.returncode == 0, shown.stderr + bridge.output()
     info: dict[str, object] = json.loads(shown.stdout)
     return info
@@ -99,7 +102,7 @@ def test_board_info_shows_the_firmware_identity(
 ) -> None:
     board = Program(named, tmp_path / "ttyBOARD")
     try:
-        assert wait_until(lambda: _connected(bridge.output()) >= 1, 30), bridge.output()
+        assert wait_until(lambda: _connected(bridge.output()) >= 1, CONNECT_WAIT), bridge.output()
         schema, messages = host_hashes(registry())
         assert _info(bridge)["firmware"] == {
             "name": "demo/base",
@@ -110,7 +113,7 @@ def test_board_info_shows_the_firmware_identity(
             "build_tag": "demo/base@000000000000",
             "problems": [],
         }
-        text = bridge.cli("board", "info", "base")
+        text = bridge.cli("board", "info", "base", timeout=CLI_TIMEOUT)
         assert text.returncode == 0, text.stderr
         for line in (
             "  name: demo/base",
@@ -133,7 +136,7 @@ def test_a_stale_firmware_is_warned_about_once(
     for session in range(1, 5):
         board = Program(stale, tmp_path / "ttyBOARD")
         try:
-            assert wait_until(lambda n=session: _connected(bridge.output()) >= n, 30), (
+            assert wait_until(lambda n=session: _connected(bridge.output()) >= n, CONNECT_WAIT), (
                 bridge.output()
             )
             firmware = _info(bridge)["firmware"]
@@ -158,8 +161,10 @@ def test_an_old_board_without_identity_connects_quietly(tmp_path: Path) -> None:
     old = BridgeProcess(tmp_path / "ttyOLD", tmp_path, f"old{free_port()}", "--name", "x")
     try:
         old.wait_ready()
-        assert wait_until(lambda: "board 'old' connected" in old.output(), 30), old.output()
-        shown = old.cli("board", "info", "x", "--json")
+        assert wait_until(lambda: "board 'old' connected" in old.output(), CONNECT_WAIT), (
+            old.output()
+        )
+        shown = old.cli("board", "info", "x", "--json", timeout=CLI_TIMEOUT)
         assert shown.returncode == 0, shown.stderr
         assert json.loads(shown.stdout)["firmware"] is None
         assert STALE_WARNING not in old.output()
@@ -180,7 +185,9 @@ def _up(robot: Path, link: str, tmp: Path, until: str) -> str:
     with log.open("w") as out:
         process = subprocess.Popen(command, stdout=out, stderr=subprocess.STDOUT, env=env)
         try:
-            shown = wait_until(lambda: until in log.read_text() or process.poll() is not None, 60)
+            shown = wait_until(
+                lambda: until in log.read_text() or process.poll() is not None, 2 * CONNECT_WAIT
+            )
             assert shown and process.poll() is None, log.read_text()
         finally:
             stop_child(process)

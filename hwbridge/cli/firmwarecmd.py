@@ -139,7 +139,8 @@ def generate(
     ] = None,
 ) -> None:
     """Write C++ headers: hwbridge_control.h (control messages), one per message type, and the
-    fixed hwbridge_msg.h and hwbridge_wire.h they include."""
+    fixed hwbridge_msg.h and hwbridge_wire.h they include; hwbridge_msgdefs.h, the hash of
+    their definitions that a board sends (PROTOCOL.md 2.6.1)."""
     from hwbridge.cli.common import Context
     from hwbridge.firmware.gen_control import generate_control_files
     from hwbridge.firmware.gen_msgs import Capacities, MessageHeaders, parse_capacity

@@ -31,6 +31,7 @@
 #include "progmem.h"
 #include "../hwbridge_msg.h"
 #include "../hwbridge_control.h"
+#include "identity.h"
 
 namespace hwbridge {
 

@@ -203,6 +203,7 @@ HWB_NODE bool HWB_SELF::queueTable() {
     if (ul) memcpy(p, uid_, ul);  // uid_ may be null when ul is 0
     p += ul;
     p = detail::put_str(p, firmware_, cap - static_cast<size_t>(p - tx_));
+    p = detail::put_str_P(p, detail::Identity<>::text, cap - static_cast<size_t>(p - tx_));
   } else if (table_pos_ <= entry_count_) {  // TOPIC
     Entry* e = entries_;
     for (uint8_t i = 1; i < table_pos_; ++i) e = e->next_;

@@ -354,17 +354,28 @@ def _max_ms(histogram: _Histogram) -> float | None:
 
 # ---------------------------------------------------------------------------------- the harness
 class _Child:
-    """A child process of this script that answers one line per command."""
+    """A child process (this script in another role, or a board program) that answers one
+    line per command; ``preamble`` lines it prints before ``ready`` are skipped."""
 
-    def __init__(self, *args: str) -> None:
+    def __init__(
+        self,
+        name: str,
+        command: list[str],
+        env: dict[str, str] | None = None,
+        preamble: int = 0,
+    ) -> None:
         self.process = subprocess.Popen(
-            [sys.executable, __file__, *args],
-            stdin=subprocess.PIPE,
-            stdout=subprocess.PIPE,
-            text=True,
+            command, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env
         )
-        self.name = args[0]
+        self.name = name
+        for _ in range(preamble):
+            self.line()
         self.expect("ready")
+
+    @classmethod
+    def script(cls, *args: str) -> _Child:
+        """This script with ``args`` (``--emulator ...`` or ``--client ...``)."""
+        return cls(args[0], [sys.executable, __file__, *args])
 
     def line(self, timeout: float = 60.0) -> str:
         return child_line(self.process, self.name, timeout)
@@ -393,6 +404,59 @@ class _Child:
                 self.process.wait()
 
 
+SKETCH = Path(__file__).resolve().parent / "SoakBoard"
+"""The firmware boards' sketch (host builds of the HwBridge library)."""
+
+
+def build_board(out: Path) -> Path:
+    """Compiles the SoakBoard sketch as a native program in ``out``; returns it."""
+    from hwbridge.firmware.build import build_host_sketch
+
+    print(f"soak: building {SKETCH.name} for the host (g++) ...", file=sys.stderr, flush=True)
+    started = time.monotonic()
+    program = build_host_sketch(SKETCH, out)
+    print(
+        f"soak: built {program} in {time.monotonic() - started:.1f} s", file=sys.stderr, flush=True
+    )
+    return program
+
+
+def start_boards(args: argparse.Namespace, ports: list[int], into: list[_Child]) -> None:
+    """Starts the board processes into ``into`` (so that the caller stops those started if a
+    later one fails): one firmware program per board (``--boards-kind firmware``), or Python
+    emulators of ``--per-emulator`` boards each."""
+    if args.boards_kind == "firmware":
+        assert args.board_program is not None
+        for index, port in enumerate(ports):
+            into.append(
+                _Child(
+                    board_name(index),
+                    [str(args.board_program), f"listen://127.0.0.1:{port}"],
+                    env=dict(
+                        os.environ,
+                        SOAK_INDEX=str(index),
+                        SOAK_TOPICS=str(args.topics),
+                        SOAK_RELIABLE=str(args.reliable),
+                        SOAK_RATE=str(args.rate),
+                    ),
+                    preamble=1,  # the link it serves
+                )
+            )
+        return
+    per = max(1, args.per_emulator)
+    for first in range(0, len(ports), per):
+        into.append(
+            _Child.script(
+                "--emulator",
+                str(first),
+                ",".join(map(str, ports[first : first + per])),
+                str(args.topics),
+                str(args.rate),
+                str(args.reliable),
+            )
+        )
+
+
 def cpu_seconds(pid: int) -> float:
     """utime + stime of process ``pid`` (all its threads), in seconds."""
     with Path(f"/proc/{pid}/stat").open(encoding="ascii") as stat:
@@ -408,19 +472,7 @@ def run_stage(args: argparse.Namespace, boards: int, minutes: float, tmp: Path) 
     bridge: subprocess.Popen[bytes] | None = None
     log = (tmp / f"bridge-{boards}.log").open("w+")
     try:
-        per = max(1, args.per_emulator)
-        for first in range(0, boards, per):
-            chunk = ports[first : first + per]
-            emulators.append(
-                _Child(
-                    "--emulator",
-                    str(first),
-                    ",".join(map(str, chunk)),
-                    str(args.topics),
-                    str(args.rate),
-                    str(args.reliable),
-                )
-            )
+        start_boards(args, ports, emulators)
         command = [*hwbridge_command(), "connect", "--listen", endpoint, "--quiet"]
         command += ["--protocol", "native"]
         for index in range(boards):
@@ -436,7 +488,7 @@ def run_stage(args: argparse.Namespace, boards: int, minutes: float, tmp: Path) 
                 log.seek(0)
                 raise RuntimeError(f"{boards} boards did not all connect: {log.read()[-2000:]}")
             time.sleep(0.2)
-        client = _Child("--client", endpoint, str(boards), str(args.topics))
+        client = _Child.script("--client", endpoint, str(boards), str(args.topics))
         time.sleep(2.0)  # the subscriptions reach the bridge
         client.ask("call")
         pids = {"bridge": proc.pid, "client": client.process.pid}
@@ -496,6 +548,7 @@ def run_stage(args: argparse.Namespace, boards: int, minutes: float, tmp: Path) 
             late += answer["late_ticks"]
         final, drain_s = _drained(client, counts, boards, args.reliable)
         summary = _summary(args, boards, minutes, samples, counts, final, bridge_cpu, late)
+        summary["emulators"] = len(emulators)
         summary["drain_s"] = drain_s
         log.seek(0)
         errors = [line for line in log.read().splitlines() if "ERROR" in line]
@@ -618,7 +671,8 @@ def _summary(
             sum(s["emulator_cpu_cores"] for s in samples) / len(samples), 3
         ),
         "client_cpu_cores": round(sum(s["client_cpu_cores"] for s in samples) / len(samples), 3),
-        "emulators": -(-boards // max(1, args.per_emulator)),
+        "boards_kind": args.boards_kind,
+        "emulators": 0,
         "cpus": os.cpu_count(),
         "loadavg": [round(x, 2) for x in os.getloadavg()],
         "peer": None,
@@ -646,7 +700,16 @@ def main() -> None:
     parser.add_argument("--topics", type=int, default=10, help="topics per board")
     parser.add_argument("--reliable", type=int, default=2, help="reliable topics per board")
     parser.add_argument("--sample", type=float, default=10.0, help="seconds between samples")
-    parser.add_argument("--per-emulator", type=int, default=4, help="boards per emulator process")
+    parser.add_argument(
+        "--boards-kind",
+        choices=("firmware", "python"),
+        default="firmware",
+        help="boards as host builds of the HwBridge library (one process each), or as Python"
+        " emulators (--per-emulator boards a process)",
+    )
+    parser.add_argument(
+        "--per-emulator", type=int, default=4, help="boards per Python emulator process"
+    )
     parser.add_argument("--emulator", nargs=5, help=argparse.SUPPRESS)
     parser.add_argument("--client", nargs=3, help=argparse.SUPPRESS)
     args = parser.parse_args()
@@ -666,6 +729,9 @@ def main() -> None:
     if len(minutes) != len(counts):
         parser.error("--minutes: give one value, or one per --boards entry")
     with tempfile.TemporaryDirectory(prefix="hwbridge-soak-") as tmp:
+        args.board_program = None
+        if args.boards_kind == "firmware":
+            args.board_program = build_board(Path(tmp) / "board")
         for boards, stage_minutes in zip(counts, minutes, strict=True):
             run_stage(args, boards, stage_minutes, Path(tmp))
 

@@ -551,8 +551,11 @@ def run_stage(args: argparse.Namespace, boards: int, minutes: float, tmp: Path) 
         summary["emulators"] = len(emulators)
         summary["drain_s"] = drain_s
         log.seek(0)
-        errors = [line for line in log.read().splitlines() if "ERROR" in line]
-        summary["bridge_errors"] = errors[:5]
+        lines = log.read().splitlines()
+        summary["bridge_errors"] = [line for line in lines if "ERROR" in line][:5]
+        warnings = [line for line in lines if "WARNING" in line]
+        summary["bridge_warnings"] = len(warnings)
+        summary["bridge_warnings_first"] = warnings[:5]
         sys.stdout.write(json.dumps(summary) + "\n")
         sys.stdout.flush()
     finally:

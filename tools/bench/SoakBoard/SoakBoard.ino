@@ -46,7 +46,7 @@ struct SoakProfile {
 };
 
 const int kMaxTopics = 64;
-const uint32_t kMaxNapUs = 2000;  // the longest poll() between two spinOnce() calls
+const uint32_t kMaxNapUs = 10000;  // the longest poll() between two spinOnce() calls
 
 typedef hwbridge::Publisher<std_msgs::String> StringPublisher;
 

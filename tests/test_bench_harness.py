@@ -170,8 +170,9 @@ def test_resets_bench_samples_the_bridge_and_sums_up_each_case() -> None:
 def test_soak_bench_counts_every_message_and_prints_samples_and_a_summary(kind: str) -> None:
     """``tools/bench/soak.py`` with two boards of three topics for six seconds, boards built
     from the HwBridge library (``firmware``: the SoakBoard sketch compiled for the host) or
-    Python emulators: sample lines, then a summary in which nothing published went missing (a
-    quiet machine loses nothing at this rate). Fields only, no timing checks."""
+    Python emulators: sample lines, then a summary in which nothing published went missing
+    while every session held (a board may refuse a message while its reliable window is full:
+    counted, not lost). Fields only, no timing checks."""
     lines = _run_json(
         "soak.py",
         *("--boards", "2", "--minutes", "0.1", "--sample", "2", "--topics", "3"),
@@ -187,13 +188,18 @@ def test_soak_bench_counts_every_message_and_prints_samples_and_a_summary(kind: 
     assert summary["bench"] == "soak" and summary["boards"] == 2 and summary["emulators"] == 2
     assert summary["boards_kind"] == kind
     assert isinstance(summary["bridge_warnings"], int) and summary["late_ticks"] >= 0
-    assert summary["published"] > 0 and summary["refused_by_board"] == 0
-    assert summary["reliable_lost"] == 0 and summary["best_effort_lost"] == 0
+    assert summary["published"] > 0 and summary["refused_by_board"] >= 0
     ends = summary["board_session_ends"]
     assert set(ends) == {"link_losses", "peer_resets"} and all(
         isinstance(count, int) for count in ends.values()
     )
-    assert summary["calls"] > 0 and summary["calls_failed"] == 0
+    # Every message is numbered: nothing published goes missing, and no call fails, unless a
+    # board's session ended (a machine so busy that a board or the bridge went silent for the
+    # 0.8 s link timeout: the bench reports that, it is no counting error).
+    if not any(ends.values()):
+        assert summary["reliable_lost"] == 0 and summary["best_effort_lost"] == 0
+        assert summary["calls_failed"] == 0
+    assert summary["calls"] > 0
     for key in ("p50_ms", "p99_ms", "cpu_cores", "rss_growth_pct", "messages_per_s", "drain_s"):
         assert isinstance(summary[key], float), key
     assert set(summary["acceptance"]) == {

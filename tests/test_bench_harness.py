@@ -189,6 +189,7 @@ def test_soak_bench_counts_every_message_and_prints_samples_and_a_summary(kind: 
     assert summary["boards_kind"] == kind
     assert isinstance(summary["bridge_warnings"], int) and summary["late_ticks"] >= 0
     assert summary["published"] > 0 and summary["refused_by_board"] >= 0
+    assert 0 <= summary["reliable_lost_at_start"] <= max(summary["reliable_lost"], 0)
     ends = summary["board_session_ends"]
     assert set(ends) == {"link_losses", "peer_resets"} and all(
         isinstance(count, int) for count in ends.values()

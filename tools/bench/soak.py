@@ -43,7 +43,10 @@ baseline is this bridge at 1 and 8 boards in the same run.
 If the boards saturate the machine (``emulator_cpu_cores``, the board processes' CPU, near the
 cores there are, or ``late_ticks`` growing: a board a whole period behind skips to the next
 tick instead of bursting), fewer messages are offered than asked; ``offered_per_s`` says how
-many. ``emulators`` counts the board processes and ``boards_kind`` says which kind ran;
+many. ``reliable_lost_at_start`` counts the reliable messages numbered below the first each
+topic delivered (published before the client's subscriptions took effect, or lost at the start
+of a run; the part of ``reliable_lost`` not lost in the steady state). ``emulators`` counts the
+board processes and ``boards_kind`` says which kind ran;
 ``bridge_warnings`` counts the bridge's WARNING lines (a session it lost is one) and
 ``bridge_warnings_first`` shows the first five.
 
@@ -268,6 +271,7 @@ def client_main(endpoint: str, boards: int, topics: int) -> None:
     received: dict[str, int] = {}
     out_of_order: dict[str, int] = {}
     last_seq: dict[str, int] = {}
+    first_seq: dict[str, int] = {}
     window, total = _Histogram(), _Histogram()
     calls, call_total = _Histogram(), _Histogram()
     failed = [0]
@@ -286,6 +290,7 @@ def client_main(endpoint: str, boards: int, topics: int) -> None:
                 out_of_order[topic] = out_of_order.get(topic, 0) + 1
             else:
                 last_seq[topic] = seq
+            first_seq.setdefault(topic, seq)
             window.add(latency)
             total.add(latency)
 
@@ -346,6 +351,7 @@ def client_main(endpoint: str, boards: int, topics: int) -> None:
                     final = {
                         "received": received,
                         "out_of_order": out_of_order,
+                        "first_seq": first_seq,
                         "messages": total.count,
                         "p50_ms": total.percentile(0.5),
                         "p99_ms": total.percentile(0.99),
@@ -632,7 +638,8 @@ def _summary(
     late: int,
 ) -> dict[str, Any]:
     received: dict[str, int] = final["received"]
-    reliable_lost = best_effort_lost = published = refused = 0
+    first_seq: dict[str, int] = final["first_seq"]
+    reliable_lost = best_effort_lost = published = refused = reliable_lost_at_start = 0
     for index in range(boards):
         board = counts[board_name(index)]
         for j in range(args.topics):
@@ -642,6 +649,7 @@ def _summary(
             refused += board["refused"][j]
             if j < args.reliable:
                 reliable_lost += lost
+                reliable_lost_at_start += first_seq.get(topic_name(index, j), sent)
             else:
                 best_effort_lost += lost
     duration = minutes * 60.0
@@ -669,6 +677,7 @@ def _summary(
         "p99_ms": final["p99_ms"],
         "max_ms": final["max_ms"],
         "reliable_lost": reliable_lost,
+        "reliable_lost_at_start": reliable_lost_at_start,
         "best_effort_lost": best_effort_lost,
         "board_session_ends": {
             key: sum(counts[board_name(index)][key] for index in range(boards))

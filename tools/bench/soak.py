@@ -643,7 +643,7 @@ def _summary(
     for index in range(boards):
         board = counts[board_name(index)]
         for j in range(args.topics):
-            sent = board["published"][j]
+            sent: int = board["published"][j]
             lost = sent - received.get(topic_name(index, j), 0)
             published += sent
             refused += board["refused"][j]

@@ -338,6 +338,45 @@ void early_frames() {
         "cumulative ACK after the gap closed");
   printf("early frames: a window-2 board holds the early frame and delivers both in order\n");
 }
+/** txReady(): false before the session, true while the window has room, false once a reliable
+ * message waits for a slot (the next publish would spin), true again after the host's ACK. */
+struct ReliableWindowBoard {
+  hwbridge::NodeHandle_<harness::FakeHardware, hwbridge::ComfortableProfile> node;
+  hwbridge::Publisher<std_msgs::String> out{"/out", true};
+  ReliableWindowBoard() : node() {}
+};
+
+void tx_ready() {
+  ReliableWindowBoard b;
+  harness::FakeHardware& hw = b.node.getHardware();
+  b.node.setIdentity(0xcafef00dUL, 0);
+  b.node.advertise(b.out);
+  hw.clock = 1000000;
+  b.node.begin("ready", "");
+  CHECK(!b.node.txReady(), "txReady before a session");
+  Host host;
+  harness::connect_scripted(b.node, hw, host, 3);
+  CHECK(b.node.connected() && b.out.accepted(), "board not connected");
+  std_msgs::String m;
+  m.data = "x";
+  std::vector<uint8_t> seqs;
+  // window 2: two frames go out unacknowledged; the third waits for a slot
+  for (int i = 0; i < 3; ++i) {
+    CHECK(b.node.txReady(), "txReady false before publish %d", i);
+    CHECK(b.out.publish(m), "publish %d refused", i);
+    std::vector<std::pair<hwbridge::Frame, Bytes> > fr = harness::frames_of(hw.take());
+    for (size_t k = 0; k < fr.size(); ++k) {
+      if (fr[k].first.type == FrameType::Reliable) seqs.push_back(fr[k].first.seq);
+    }
+  }
+  CHECK(seqs.size() == 2, "%zu reliable frames sent with a window of 2", seqs.size());
+  CHECK(!b.node.txReady(), "txReady with a message waiting for a window slot");
+  hw.feed(host.ack(seqs[0]));
+  b.node.processInput();
+  CHECK(b.node.txReady(), "txReady false after the ACK freed a slot");
+  printf("txReady: false while a reliable message waits for a window slot, true after the ACK\n");
+}
+
 /** A host MTU below what the board sends whole: a board that never fragments (kTxBuffer within
  * its MTU) refuses the host as invalid limits, counted; one that fragments establishes. */
 void small_mtu_host() {
@@ -581,6 +620,7 @@ int main() {
   restarts(tr);
   service_client();
   early_frames();
+  tx_ready();
   small_mtu_host();
   time_samples();
   send_times();

@@ -358,6 +358,10 @@ class NodeHandle_ : public NodeBase {
 
   /** CONNECTED: READY received, topics usable. */
   bool connected() const { return state_ == kConnected; }
+  /** Connected and a publish() now would not wait: no reliable message waits for a window
+   * slot (a full window makes the next publish, log or call spin the node for up to 250 ms). A
+   * sketch that must never block asks before it publishes. */
+  bool txReady() const { return state_ == kConnected && txFree(); }
 
   /** Host time now (ROS time; zeros before the first time sync answer). */
   void now(uint32_t* sec, uint32_t* nsec);

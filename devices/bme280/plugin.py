@@ -42,6 +42,7 @@ from hwbridge.devices.bme280.compensation import (
     t_fine,
 )
 from hwbridge.devices.bme280.node import Bme280Node
+from hwbridge.devices.bme280 import firmware as onboard
 from hwbridge.devices.bme280.pins import Bme280Pins
 from hwbridge.devices.buses import I2CBus, I2CError
 from hwbridge.devices.common import encode
@@ -53,8 +54,14 @@ from hwbridge.robot.plugin import (
     HostContext,
     PinBoard,
     PinModel,
+    SketchContext,
+    SketchPart,
     TopicUse,
+    Wiring,
 )
+
+if TYPE_CHECKING:
+    from hwbridge.firmware.boards import McuBoard
 
 __all__ = ["OVERSAMPLING_CHOICES", "Bme280Plugin", "BoardDriver"]
 
@@ -188,6 +195,12 @@ class Bme280Plugin(DevicePlugin):
 
     def pin_model(self, settings: Mapping[str, Any], board: PinBoard) -> PinModel:
         return Bme280Pins(Bme280(lambda: board.world.air, address=settings["address"]))
+
+    def wiring(self, settings: Mapping[str, Any], board: McuBoard) -> Wiring:
+        return onboard.wiring(settings, board)
+
+    def sketch(self, settings: Mapping[str, Any], context: SketchContext) -> SketchPart:
+        return onboard.sketch(settings, context)
 
     def host_node(self, settings: Mapping[str, Any], context: HostContext) -> Closeable:
         return Bme280Node(

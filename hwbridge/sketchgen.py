@@ -43,6 +43,7 @@ __all__ = [
     "c_identifier",
     "default_out_dir",
     "generate_sketch",
+    "generated_elf",
     "pick_board",
     "write_sketch",
 ]
@@ -203,3 +204,20 @@ def write_sketch(sketch: GeneratedSketch, out_dir: Path) -> Path:
 def default_out_dir(robot: Robot, sketch: GeneratedSketch) -> Path:
     """``ROBOTDIR/firmware/NAME``: where ``hwbridge firmware generate`` writes by default."""
     return robot.path.resolve().parent / "firmware" / sketch.name
+
+
+def generated_elf(robot_file: Path, mcu: str, board: str | None = None) -> Path:
+    """The ELF of the sketch generated from ``robot_file`` (its board ``board``, default its
+    only one) for MCU board ``mcu``, written and built once into the simulator's build cache
+    (:func:`hwbridge.firmware.sim.examples.build_sketch_for_sim`, keyed by the sketch's text and
+    the library's)."""
+    from hwbridge.firmware.sim.examples import build_sketch_for_sim, cache_root
+    from hwbridge.robot.config import load_robot
+
+    robot = load_robot(robot_file)
+    sketch = generate_sketch(robot, Path(robot_file).read_bytes(), pick_board(robot, board), mcu)
+    digest = hashlib.sha256(sketch.text.encode()).hexdigest()[:16]
+    folder = cache_root() / "generated" / digest / sketch.name
+    if not (folder / f"{sketch.name}.ino").exists():
+        write_sketch(sketch, folder)
+    return build_sketch_for_sim(folder, sketch.mcu)

@@ -12,7 +12,7 @@ bus."""
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any, ClassVar, Final
+from typing import TYPE_CHECKING, Any, ClassVar, Final
 
 from hwbridge.devices.bme280.chip import (
     ADDRESSES,

@@ -61,7 +61,7 @@ class DiffDrivePlugin(DevicePlugin):
         Field(
             "pins",
             dict,
-            None,
+            {},
             "{left_encoder: [A, B], right_encoder: [A, B], left_motor: [PWM, DIR], "
             "right_motor: [PWM, DIR]}; default DiffDriveBase's wiring for the board",
         ),

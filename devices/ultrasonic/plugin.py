@@ -47,7 +47,7 @@ class HcSr04Plugin(DevicePlugin):
         Field("frame_id", str, "sonar_link"),
         Field("min_range", float, MIN_RANGE, "m", minimum=0.0),
         Field("max_range", float, MAX_RANGE, "m", minimum=0.01),
-        Field("pins", dict, None, "{trigger: PIN, echo: PIN}; default {trigger: 8, echo: 12}"),
+        Field("pins", dict, {}, "{trigger: PIN, echo: PIN}; default {trigger: 8, echo: 12}"),
     )
 
     def emulate(self, settings: Mapping[str, Any], board: EmulatedBoard) -> None:

@@ -273,11 +273,13 @@ def _settings(
     entry: yaml.Node,
     what: str,
     problems: _Problems,
+    extra: Iterable[str] = (),
 ) -> dict[str, Any]:
-    """The device's settings checked against its plugin's fields, defaults filled in."""
+    """The device's settings checked against its plugin's fields, defaults filled in (the keys
+    ``skip`` and ``extra`` are not settings: they are listed before and after the fields)."""
     fields = {f.name: f for f in plugin.fields}
-    given = {k: v for k, v in items.items() if k not in set(skip)}
-    _unknown_keys(given, [*skip, *fields], what, problems)
+    given = {k: v for k, v in items.items() if k not in {*skip, *extra}}
+    _unknown_keys(given, [*skip, *fields, *extra], what, problems)
     settings: dict[str, Any] = {}
     for name, field in fields.items():
         if name not in given:
@@ -474,7 +476,7 @@ def _devices(node: yaml.Node, board: str, problems: _Problems) -> tuple[DeviceCo
                 f"{what}: two devices named {name!r} on board {board}",
             )
         names.add(name)
-        settings = _settings(plugin, items, ("type", "name", "only_on"), entry, what, problems)
+        settings = _settings(plugin, items, ("type", "name"), entry, what, problems, ("only_on",))
         only_on = _checked(items, "only_on", _check_only_on, what, problems, ())
         lines = {key: line for key, (_k, node) in items.items() for key, line in _lines(key, node)}
         devices.append(

@@ -22,9 +22,7 @@ def wiring(settings: Mapping[str, Any], board: McuBoard) -> Wiring:
 def sketch(settings: Mapping[str, Any], context: SketchContext) -> SketchPart:
     p, nh = context.name, context.node
     period = max(1, round(1000.0 / float(settings["rate"])))
-    oversampling = ", ".join(
-        str(int(settings[f"oversampling_{k}"])) for k in ("t", "p", "h")
-    )
+    oversampling = ", ".join(str(int(settings[f"oversampling_{k}"])) for k in ("t", "p", "h"))
     normal = "true" if settings["mode"] == "normal" else "false"
     return SketchPart(
         includes=("Wire.h", "hwbridge/drivers/bme280.h", "hwbridge_msgs/Bme280.h"),

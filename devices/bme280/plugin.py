@@ -14,6 +14,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any, ClassVar, Final
 
+from hwbridge.devices.bme280 import firmware as onboard
 from hwbridge.devices.bme280.chip import (
     ADDRESSES,
     CHIP_ID,
@@ -42,7 +43,6 @@ from hwbridge.devices.bme280.compensation import (
     t_fine,
 )
 from hwbridge.devices.bme280.node import Bme280Node
-from hwbridge.devices.bme280 import firmware as onboard
 from hwbridge.devices.bme280.pins import Bme280Pins
 from hwbridge.devices.buses import I2CBus, I2CError
 from hwbridge.devices.common import encode

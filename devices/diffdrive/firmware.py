@@ -68,17 +68,23 @@ def wiring(settings: Mapping[str, Any], board: McuBoard) -> Wiring:
             elif part == "motor" and index == 0:
                 needs = ("pwm",)
             given = key in (settings.get("pins") or {})
-            uses.append(PinUse(pin, f"{side} {part} {role}", f"pins.{key}.{index}" if given else "", needs))
+            uses.append(
+                PinUse(pin, f"{side} {part} {role}", f"pins.{key}.{index}" if given else "", needs)
+            )
     return Wiring(pins=tuple(uses))
 
 
 def sketch(settings: Mapping[str, Any], context: SketchContext) -> SketchPart:
     board = context.board
-    pins = {key: tuple(board.number(p) for p in pair) for key, pair in pins_of(settings, board.name).items()}
+    pins = {
+        key: tuple(board.number(p) for p in pair)
+        for key, pair in pins_of(settings, board.name).items()
+    }
     p, nh = context.name, context.node
     count = "uint32_t" if int(settings["counter_bits"]) == 32 else "uint16_t"
     period = max(1, round(1000.0 / float(settings["rate"])))
-    timeout = max(1, round(1000.0 * float(settings["cmd_vel_timeout"])))
+    timeout = min(65535, max(1, round(1000.0 * float(settings["cmd_vel_timeout"]))))
+    top, targets = float(settings["motor_max_speed"]), settings["targets_topic"]
     (la, lb), (ra, rb) = pins["left_encoder"], pins["right_encoder"]
     (lp, ld), (rp, rd) = pins["left_motor"], pins["right_motor"]
     globals_ = f"""\
@@ -87,13 +93,14 @@ typedef QuadratureEncoder<{la}, {lb}, {count}> {p}_Left;
 typedef QuadratureEncoder<{ra}, {rb}, {count}> {p}_Right;
 Motor {p}_left_motor({lp}, {ld});
 Motor {p}_right_motor({rp}, {rd});
-DiffDriveMotors {p}_motors({p}_left_motor, {p}_right_motor, {float(settings["motor_max_speed"])!r}f, {min(timeout, 65535)});
+DiffDriveMotors {p}_motors({p}_left_motor, {p}_right_motor, {top!r}f, {timeout});
 hwbridge_msgs::WheelTicks {p}_ticks_msg;
 hwbridge::Publisher<hwbridge_msgs::WheelTicks> {p}_ticks_pub("{settings["ticks_topic"]}");
 unsigned long {p}_ticks_ms = 0;
 
 void {p}_on_targets(const hwbridge_msgs::WheelTargets& targets) {{ {p}_motors.command(targets); }}
-hwbridge::Subscriber<hwbridge_msgs::WheelTargets> {p}_targets_sub("{settings["targets_topic"]}", &{p}_on_targets);
+hwbridge::Subscriber<hwbridge_msgs::WheelTargets> {p}_targets_sub("{targets}",
+                                                                   &{p}_on_targets);
 
 void {p}_on_reset(const std_srvs::Trigger::Request&, std_srvs::Trigger::Response& res) {{
   {p}_Left::reset();

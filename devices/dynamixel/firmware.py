@@ -50,7 +50,7 @@ def sketch(settings: Mapping[str, Any], context: SketchContext) -> SketchPart:
     period = max(1, round(1000.0 / float(settings["rate"])))
     serial, direction = str(settings["serial"]), context.board.number(settings["direction_pin"])
     per_tick, zero = float(model.radians_per_tick), float(model.zero_tick)
-    joint = str(settings["joint"])
+    joint, servo = str(settings["joint"]), int(settings["id"])
     return SketchPart(
         includes=(
             "hwbridge/drivers/dynamixel.h",
@@ -94,13 +94,15 @@ void {p}_step() {{
   if (millis() - {p}_ms < {period} && !{p}_goal_pending) return;
   if (!{p}_torque_on) {{
     {p}_ms = millis();
-    if ({p}_bus.start_write_int({int(settings["id"])}, {torque.address}, 1, {torque.size})) {p}_job = 1;
+    if ({p}_bus.start_write_int({servo}, {torque.address}, 1, {torque.size})) {p}_job = 1;
   }} else if ({p}_goal_pending) {{
     {p}_goal_pending = false;
-    if ({p}_bus.start_write_int({int(settings["id"])}, {goal.address}, {p}_goal_ticks, {goal.size})) {p}_job = 2;
+    if ({p}_bus.start_write_int({servo}, {goal.address}, {p}_goal_ticks, {goal.size})) {{
+      {p}_job = 2;
+    }}
   }} else {{
     {p}_ms = millis();
-    if ({p}_bus.start_read({int(settings["id"])}, {present.address}, {present.size})) {p}_job = 3;
+    if ({p}_bus.start_read({servo}, {present.address}, {present.size})) {p}_job = 3;
   }}
 }}
 """,

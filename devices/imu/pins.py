@@ -1,7 +1,7 @@
 """``mpu6050`` / ``mpu9250`` on the pins of firmware in simavr: the chip's register file on the
-TWI bus at its address (0x68 by default) (the register-level :class:`~hwbridge.devices.imu.mpu.MpuChip`: asleep at
-power-on, WHO_AM_I, ranges from its configuration registers, a 14-byte burst from 0x3B),
-sampling the world's motion."""
+TWI bus at its ``address`` setting (the register-level
+:class:`~hwbridge.devices.imu.mpu.MpuChip`: asleep at power-on, WHO_AM_I, ranges from its
+configuration registers, a 14-byte burst from 0x3B), sampling the world's motion."""
 
 from __future__ import annotations
 

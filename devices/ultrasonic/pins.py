@@ -24,9 +24,7 @@ STUCK_ECHO_US: Final = 60_000_000
 
 
 class SonarPins(PinModel):
-    def __init__(
-        self, settings: Mapping[str, Any], pins: Mapping[str, PinName], seed: int
-    ) -> None:
+    def __init__(self, settings: Mapping[str, Any], pins: Mapping[str, PinName], seed: int) -> None:
         self.pins = pins
         self.model = HcSr04Model(
             temperature_c=settings["temperature"],

@@ -30,6 +30,7 @@ __all__ = ["PinWorld"]
 
 log = logging.getLogger("hwbridge.devices.pins")
 
+
 class PinWorld:
     """A robot-file board's world on the pins of ``sim``. Call :meth:`attach` while the AVR is
     held (``sim.start(hold=True)``, then ``attach()``, then ``sim.go()``); a restart of the
@@ -59,7 +60,9 @@ class PinWorld:
         for device in config.devices:
             if device.only_on and self.pins.name not in device.only_on:
                 self.skipped.append(device.type)
-                log.info("%s: %s is only on %s", config.name, device.name, ", ".join(device.only_on))
+                log.info(
+                    "%s: %s is only on %s", config.name, device.name, ", ".join(device.only_on)
+                )
                 continue
             model = get_device(device.type).pin_model(device.settings, self)
             if model is None:

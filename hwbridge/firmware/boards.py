@@ -74,9 +74,8 @@ class McuBoard:
         """The Arduino number of ``pin`` (``"A4"`` -> 18 on an Uno); HwBridgeError, saying which
         pins there are, if the board has no such pin."""
         last_digital = self.digital - 1
-        known = (
-            f"the {self.name} has pins 0-{last_digital} and A0-A{self.analog - 1}"
-            + (f" (A{self.analog - 2}, A{self.analog - 1} analog only)" if self.analog_only else "")
+        known = f"the {self.name} has pins 0-{last_digital} and A0-A{self.analog - 1}" + (
+            f" (A{self.analog - 2}, A{self.analog - 1} analog only)" if self.analog_only else ""
         )
         if isinstance(pin, bool):
             raise HwBridgeError(f"{pin!r} is not a pin; {known}")

@@ -622,8 +622,8 @@ def _parse_robot(text: str, path: str) -> Robot:
 
         for board in boards:
             if board.mcu is not None:
-                for line, text in board_problems(board, board.mcu):
-                    problems.at_line(line, f"board {board.name} ({board.mcu}): {text}")
+                for line, problem in board_problems(board, board.mcu):
+                    problems.at_line(line, f"board {board.name} ({board.mcu}): {problem}")
     if problems.lines:
         raise RobotFileError(problems.lines)
     return Robot(name, Path(path), tuple(boards), tuple(hosts), world, **gateways)

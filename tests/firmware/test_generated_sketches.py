@@ -152,8 +152,12 @@ def test_the_cli_writes_builds_and_measures(tmp_path: Path) -> None:
     assert done.returncode == 0, done.stderr
     lines = done.stdout.splitlines()
     assert lines[0] == str(tmp_path / "out" / "hcsr04_alone_uno.ino")
-    assert re.match(r".*/hcsr04_alone_uno\.elf: flash \d+ B of 32256 .*SRAM \d+ B of 2048", lines[1])
-    assert lines[2].endswith("hcsr04_alone_uno.hex: the image to upload (hwbridge firmware upload, or avrdude)")
+    assert re.match(
+        r".*/hcsr04_alone_uno\.elf: flash \d+ B of 32256 .*SRAM \d+ B of 2048", lines[1]
+    )
+    assert lines[2].endswith(
+        "hcsr04_alone_uno.hex: the image to upload (hwbridge firmware upload, or avrdude)"
+    )
     assert "[1/" in done.stderr  # progress
 
 

@@ -133,19 +133,26 @@ def test_sim_command_prints_the_url_first(probe_elf: Path) -> None:
         assert process.wait(15) in (0, 130)  # 130: Ctrl-C before the command's loop
 
 
-def test_mega_pan_servo_on_serial2(runner: Path) -> None:
-    """DiffDriveBase for a Mega: the pan servo on Serial2 is the emulated Dynamixel bus;
-    a goal from the graph moves it and joint_states reports it; odometry comes too."""
+@pytest.mark.parametrize("firmware", ["DiffDriveBase", "generated"])
+def test_mega_pan_servo_on_serial2(runner: Path, firmware: str) -> None:
+    """DiffDriveBase for a Mega, and the firmware generated from diffbot.yaml for it: the pan
+    servo on Serial2 is the emulated Dynamixel bus; a goal from the graph moves it and
+    joint_states reports it; odometry comes too."""
     from hwbridge.emulator.board import load_board
     from hwbridge.emulator.pins import PinWorld
     from hwbridge.graph import Graph, GraphConfig
     from hwbridge.robot.runtime import RobotRuntime
     from tests.netutil import wait_until
 
+    from hwbridge.sketchgen import generated_elf
+
     try:
-        elf = build_example("DiffDriveBase", "mega")
+        if firmware == "generated":
+            elf = generated_elf(ROBOT_FILE, "mega")
+        else:
+            elf = build_example("DiffDriveBase", "mega")
     except HwBridgeError as exc:
-        pytest.skip(f"DiffDriveBase does not build here: {str(exc).splitlines()[0]}")
+        pytest.skip(f"{firmware} does not build here: {str(exc).splitlines()[0]}")
     sim = SimAvr(elf, mcu="atmega2560")
     packets: list[bytes] = []
     sim.on_uart.append(lambda _uart, data: packets.append(data))

@@ -142,9 +142,8 @@ def test_mega_pan_servo_on_serial2(runner: Path, firmware: str) -> None:
     from hwbridge.emulator.pins import PinWorld
     from hwbridge.graph import Graph, GraphConfig
     from hwbridge.robot.runtime import RobotRuntime
-    from tests.netutil import wait_until
-
     from hwbridge.sketchgen import generated_elf
+    from tests.netutil import wait_until
 
     try:
         if firmware == "generated":

@@ -16,9 +16,10 @@ Before anything is written the board's wiring is checked against the MCU board's
 (:func:`hwbridge.robot.wiring.check_wiring`). Devices whose ``only_on`` leaves the MCU board out
 are left out of its sketch (named in the sketch's head and in the command's output).
 
-The sketch defines ``HWBRIDGE_FIRMWARE_NAME`` (``ROBOT/BOARD``) and ``HWBRIDGE_BUILD_TAG``
-(``ROBOT/BOARD@`` and the first 12 hex digits of the robot file's SHA-256, :func:`build_tag`)
-before it includes ``HwBridge.h``, so that a board can say which robot file it was built from.
+The sketch defines ``HWBRIDGE_FIRMWARE_NAME`` (``ROBOT/BOARD``, BOARD the robot file's board
+name) and ``HWBRIDGE_BUILD_TAG`` (``ROBOT/BOARD@`` and the first 12 hex digits of the robot
+file's SHA-256, :func:`build_tag`) before it includes ``HwBridge.h``, so that a board says which
+robot file it was built from and ``hwbridge up`` can compare it with the file it brings up.
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ from pathlib import Path
 
 from hwbridge.errors import HwBridgeError
 from hwbridge.firmware.boards import mcu_board
+from hwbridge.robot import identity
 from hwbridge.robot.model import Robot, RobotBoardConfig
 from hwbridge.robot.plugin import SketchContext, SketchPart, Wiring
 from hwbridge.robot.registry import get_device
@@ -54,9 +56,10 @@ DEFAULT_BAUD = 115200
 
 
 def build_tag(robot_name: str, board_name: str, robot_file_bytes: bytes) -> str:
-    """``ROBOT/BOARD@`` and the first 12 hex digits of the SHA-256 of the robot file's bytes."""
-    digest = hashlib.sha256(robot_file_bytes).hexdigest()[:12]
-    return f"{robot_name}/{board_name}@{digest}"
+    """``ROBOT/BOARD@`` and the first 12 hex digits of the SHA-256 of the robot file's bytes:
+    the one formula of :func:`hwbridge.robot.identity.build_tag`, which ``hwbridge up`` compares
+    the board's tag with (BOARD is the robot file's board name, ``base``)."""
+    return identity.build_tag(robot_name, board_name, robot_file_bytes)
 
 
 def c_identifier(name: str) -> str:
@@ -153,8 +156,8 @@ def _assemble(
         + (", ".join(n for n, _ in parts) or "none")
         + (f"; left out on the {mcu} (only_on): {', '.join(left_out)}" if left_out else "")
         + ".",
-        f'#define HWBRIDGE_FIRMWARE_NAME "{robot.name}/{mcu}"',
-        f'#define HWBRIDGE_BUILD_TAG "{build_tag(robot.name, mcu, robot_file_bytes)}"',
+        f'#define HWBRIDGE_FIRMWARE_NAME "{robot.name}/{board.name}"',
+        f'#define HWBRIDGE_BUILD_TAG "{build_tag(robot.name, board.name, robot_file_bytes)}"',
         "#include <HwBridge.h>",
         *(f"#include <{i}>" for i in system),
         *(f"#include <{i}>" for i in library),

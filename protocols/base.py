@@ -23,15 +23,17 @@ Channels. Every endpoint a board declares has an integer *channel* chosen by the
 
 from __future__ import annotations
 
+import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, fields
 from enum import IntEnum
-from typing import Any, Protocol, TypeAlias
+from typing import Any, Final, NamedTuple, Protocol, TypeAlias
 
 from hwbridge.protocols.errors import HwBridgeError
 
 __all__ = [
     "BoardSession",
+    "BuildTag",
     "Connected",
     "DebugOutput",
     "Disconnected",
@@ -39,6 +41,7 @@ __all__ = [
     "EntryKind",
     "Error",
     "Event",
+    "FirmwareIdentity",
     "Framing",
     "Log",
     "Message",
@@ -48,6 +51,7 @@ __all__ = [
     "SessionStats",
     "TimeSynced",
     "TopicAnnounced",
+    "parse_build_tag",
 ]
 
 
@@ -80,6 +84,77 @@ class Endpoint:
         return self.kind in (EntryKind.SERVICE_SERVER, EntryKind.SERVICE_CLIENT)
 
 
+_BUILD_TAG: Final = re.compile(r"(?P<robot>[^/@\n]+)/(?P<board>[^/@\n]+)@(?P<digest>[0-9a-f]{12})")
+
+
+class BuildTag(NamedTuple):
+    """A build tag's parts (see :func:`hwbridge.robot.identity.build_tag` for the formula)."""
+
+    robot: str
+    board: str
+    digest: str
+
+
+def parse_build_tag(text: str) -> BuildTag | None:
+    """The parts of a build tag, or None if ``text`` is not of the form ``robot/board@12hex``
+    (12 lowercase hex digits)."""
+    match = _BUILD_TAG.fullmatch(text)
+    if match is None:
+        return None
+    return BuildTag(match["robot"], match["board"], match["digest"])
+
+
+@dataclass(frozen=True, slots=True)
+class FirmwareIdentity:
+    """Which firmware a board runs, as far as its protocol says (native: BOARD_INFO, PROTOCOL.md
+    2.6.1). An empty string is "not told": old boards tell nothing, and the host never treats
+    that as a fault."""
+
+    version: str = ""
+    """The sketch's own version text (``initNode``'s ``firmware`` argument)."""
+    name: str = ""
+    """What the firmware calls itself (``HWBRIDGE_FIRMWARE_NAME``)."""
+    library_version: str = ""
+    """The version of the HwBridge library it was built with."""
+    schema_hash: str = ""
+    """Hash of the control-message schema it was built with."""
+    messages_hash: str = ""
+    """Hash of the message definitions of the library's generated headers."""
+    build_tag: str = ""
+    """``<robot>/<board>@<hash of the robot file>`` of a generated firmware
+    (``HWBRIDGE_BUILD_TAG``)."""
+
+    @property
+    def known(self) -> bool:
+        """The board sent an identity (any item beyond its version text)."""
+        return bool(
+            self.name
+            or self.library_version
+            or self.schema_hash
+            or self.messages_hash
+            or self.build_tag
+        )
+
+    @property
+    def firmware_name(self) -> str:
+        """``name``, or the part of ``build_tag`` before its ``@`` (a board whose send buffer
+        cut the name off still names itself through its tag)."""
+        if self.name or "@" not in self.build_tag:
+            return self.name
+        return self.build_tag.rsplit("@", 1)[0]
+
+    def as_dict(self) -> dict[str, str]:
+        """The items, for ``hwbridge board info`` (JSON-able)."""
+        return {
+            "name": self.firmware_name,
+            "version": self.version,
+            "library_version": self.library_version,
+            "schema_hash": self.schema_hash,
+            "messages_hash": self.messages_hash,
+            "build_tag": self.build_tag,
+        }
+
+
 # --------------------------------------------------------------------------------------------
 # Events
 
@@ -94,6 +169,8 @@ class Connected:
     """What the board calls itself, where the protocol says."""
     resumed: bool = False
     """The board kept its session since the last one (it did not restart)."""
+    firmware: FirmwareIdentity | None = None
+    """Which firmware the board runs (None: its protocol does not say, as rosserial)."""
 
 
 @dataclass(frozen=True, slots=True)

@@ -9,10 +9,10 @@ hwbridge_setup() {
     local spec="$ROOT"
     [ -n "${HWBRIDGE_EXTRA:-}" ] && spec="$ROOT[$HWBRIDGE_EXTRA]"
     if [ ! -x "$VENV/bin/python" ]; then
-        printf '==> creating virtual environment %s\n' "$VENV" >&2
+        printf '==> [%ss] creating virtual environment %s\n' "$SECONDS" "$VENV" >&2
         "${PYTHON:-python3}" -m venv "$VENV"
         "$VENV/bin/python" -m pip install -q --disable-pip-version-check --upgrade pip >&2
     fi
-    printf '==> pip install -e .%s\n' "${spec#"$ROOT"}" >&2
+    printf '==> [%ss] pip install -e .%s\n' "$SECONDS" "${spec#"$ROOT"}" >&2
     "$VENV/bin/python" -m pip install -q --disable-pip-version-check -e "$spec" >&2
 }

@@ -10,6 +10,13 @@
 #include <vector>
 
 #include "check.h"
+
+// The golden board's identity (PROTOCOL.md 2.12): example values, as
+// tests/protocols/test_native_session.py's GOLDEN_IDENTITY, not this build's hashes.
+#define HWBRIDGE_SCHEMA_HASH "5c0e1a2b"
+#define HWBRIDGE_MSGS_HASH "7d3f9e46"
+#define HWBRIDGE_LIBRARY_VERSION "0.1.0"
+#define HWBRIDGE_FIRMWARE_NAME "golden"
 #include <hwbridge/node.h>
 #include <std_msgs/String.h>
 #include <std_srvs/Trigger.h>
@@ -94,7 +101,8 @@ inline void on_reset(const std_srvs::TriggerRequest&, std_srvs::TriggerResponse&
   res.message.assign("ok");
 }
 
-/** The golden board: "uno", unique id 01..08, firmware 0.1.0, /chatter and /reset. */
+/** The golden board: "uno", unique id 01..08, firmware 0.1.0 (and the identity above), /chatter
+ * and /reset. */
 struct GoldenBoard {
   Node node;
   hwbridge::Publisher<Raw> chatter{"/chatter"};

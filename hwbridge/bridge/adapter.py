@@ -149,6 +149,7 @@ class SessionAdapter:
         self._withdraw_others(event.endpoints, before)
         self._wire_publishers()
         self.port.set_state("connected", board=event.board_name or None, resumed=event.resumed)
+        self.port.on_firmware(event.firmware)
         if not self._announced:
             self._announced = True
             self.log.info(

@@ -29,6 +29,7 @@ from pathlib import PurePosixPath
 from typing import TYPE_CHECKING, Any, TypeVar
 
 from hwbridge.bridge.adapter import SessionAdapter
+from hwbridge.bridge.identity import FirmwareCheck
 from hwbridge.bridge.port import BoardPort
 from hwbridge.errors import HwBridgeError, LinkError
 from hwbridge.graph import Node, resolve_name
@@ -107,6 +108,8 @@ class BoardSpec:
         name: str | None = None,
         start_delay: float = 0.0,
         service_timeout: float = DEFAULT_SERVICE_TIMEOUT,
+        build_tag: str | None = None,
+        robot_file: str = "",
     ) -> None:
         if protocol != "auto":
             get_protocol(protocol)  # UnknownProtocolError listing the known ones
@@ -117,6 +120,10 @@ class BoardSpec:
         self.namespace = resolve_name(namespace) if namespace != "/" else "/"
         self.name = name or _name_from_url(url)
         self.start_delay = start_delay
+        self.build_tag = build_tag
+        """The build tag (PROTOCOL.md 2.6.1) of firmware generated for this board from
+        ``robot_file`` (``hwbridge up``); a board that reports another one is warned about."""
+        self.robot_file = robot_file
         create_link(url, **self.link_options())  # a bad URL is refused here, before any thread
         """Seconds of silence after the link opens before the first probe (0: probe at once)."""
 
@@ -154,6 +161,14 @@ class BoardConnection:
         self._opened_once = threading.Event()
         self.first_open_problem: str | None = None
         """Why the first attempt to open the link failed (None: it opened, or not tried yet)."""
+        self.firmware = FirmwareCheck(
+            self.name,
+            self.log,
+            bridge.registry,
+            expected_build=spec.build_tag,
+            robot_file=spec.robot_file,
+        )
+        """The firmware the board runs, checked against this host once per identity."""
         self._thread = threading.Thread(target=self._run, name=f"board-{self.name}", daemon=True)
         self._token = bridge.graph.announce("board", self.name, spec.url, spec.protocol)
         self._info = bridge.graph.keep(
@@ -188,6 +203,7 @@ class BoardConnection:
             set_state=self.set_state,
             get_param=self.bridge.get_param,
             on_param_update=self.bridge.params.on_update,
+            on_firmware=self.firmware.check,
         )
 
     # ------------------------------------------------------------------ info
@@ -201,6 +217,7 @@ class BoardConnection:
             "service_timeout": self.spec.service_timeout,
             "state": self.state,
             "connects": self.connects,
+            "firmware": self.firmware.info(),
             "topics": adapter.topics() if adapter else {},
             "session": adapter.describe() if adapter else {},
             "stats": adapter.stats() if adapter else {},

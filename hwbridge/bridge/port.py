@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 from typing import Any, Protocol, TypeVar
 
 from hwbridge.graph import Node
-from hwbridge.protocols.base import BoardSession
+from hwbridge.protocols.base import BoardSession, FirmwareIdentity
 
 __all__ = ["BoardPort", "ParamListener", "SessionCall", "SetState"]
 
@@ -41,6 +41,10 @@ class SetState(Protocol):
     def __call__(self, state: str, **detail: Any) -> None: ...
 
 
+def _ignore_firmware(identity: FirmwareIdentity | None) -> None:
+    """A port that checks no firmware (a test's)."""
+
+
 @dataclass(eq=False)
 class BoardPort:
     """The board as one session's adapter sees it (one port per session).
@@ -61,6 +65,9 @@ class BoardPort:
     get_param: Callable[[str], Any]
     """A parameter's value (ParamError if missing)."""
     on_param_update: Callable[[ParamListener], Callable[[], None]]
+    on_firmware: Callable[[FirmwareIdentity | None], None] = _ignore_firmware
+    """The session connected with this firmware identity (None: its protocol does not say);
+    the board's connection checks it (:class:`hwbridge.bridge.identity.FirmwareCheck`)."""
     _removers: list[Callable[[], None]] = field(default_factory=list, init=False, repr=False)
     _closed: bool = field(default=False, init=False)
     _lock: threading.Lock = field(default_factory=threading.Lock, init=False, repr=False)

@@ -28,20 +28,34 @@ def build(
         Path, typer.Argument(metavar="SKETCH", help="A sketch folder (NAME/NAME.ino) or .ino file.")
     ],
     board: Annotated[
-        str, typer.Option("--board", "-b", help="uno, mega, or host (a native program).")
+        str,
+        typer.Option(
+            "--board",
+            "-b",
+            help="uno, mega, stm32f405 or microbit (bare ARM, run in QEMU), or host (a native "
+            "program).",
+        ),
     ] = "uno",
     out: Annotated[
         Path | None,
         typer.Option("--out", "-o", help="Build folder (default: SKETCH/build/BOARD)."),
     ] = None,
 ) -> None:
-    """Build a sketch with the HwBridge library for an AVR board (prints the ELF and its size), or
-    as a native program with --board host (prints its path; run it, then connect to the URL it
-    prints first).
+    """Build a sketch with the HwBridge library for an AVR board or a bare ARM board (prints the
+    ELF and its size), or as a native program with --board host (prints its path; run it, then
+    connect to the URL it prints first).
 
     An AVR build ends with the Intel HEX file to upload. SKETCH may be relative: '.' in the
     sketch's folder."""
-    from hwbridge.firmware.build import BOARDS, HOST_BOARD, build_sketch, firmware_size
+    from hwbridge.cli.simcmd import ARM_MCUS
+    from hwbridge.firmware.build import (
+        ARM_BOARDS,
+        BOARDS,
+        HOST_BOARD,
+        arm_firmware_size,
+        build_sketch,
+        firmware_size,
+    )
 
     def progress(line: str) -> None:
         sys.stderr.write(f"hwbridge: {line}\n")
@@ -50,6 +64,17 @@ def build(
     elf = build_sketch(sketch, board, out, progress=progress)
     if board == HOST_BOARD:
         sys.stdout.write(f"{elf}: a native program; it prints the URL to connect to\n")
+        return
+    if board in ARM_BOARDS:
+        size = arm_firmware_size(elf)
+        arm = ARM_BOARDS[board]
+        mcu = next(name for name, of in ARM_MCUS.items() if of == board)
+        sys.stdout.write(
+            f"{elf}: flash {size.flash} B of {arm.flash} ({100 * size.flash / arm.flash:.1f}%), "
+            f"RAM {size.sram} B of {arm.sram} ({100 * size.sram / arm.sram:.1f}%)\n"
+            f"{elf.with_suffix('.bin')}: the raw image to flash; in QEMU: "
+            f"hwbridge firmware sim {elf} --mcu {mcu}\n"
+        )
         return
     size = firmware_size(elf)
     limits = BOARDS[board]
@@ -65,10 +90,12 @@ def size(
     elf: Annotated[Path, typer.Argument(metavar="ELF", help="A built AVR ELF file.")],
     as_json: Annotated[bool, typer.Option("--json", help="Machine-readable JSON output.")] = False,
 ) -> None:
-    """Flash and static RAM of an ELF, as avr-size counts them, and the library's own RAM."""
-    from hwbridge.firmware.build import firmware_size
+    """Flash and static RAM of an ELF, as avr-size (or arm-none-eabi-size) counts them, and the
+    library's own RAM."""
+    from hwbridge.firmware.build import arm_firmware_size, firmware_size
 
-    found = firmware_size(elf)
+    arm = elf.is_file() and elf.read_bytes()[18:20] == b"\x28\x00"  # e_machine EM_ARM
+    found = arm_firmware_size(elf) if arm else firmware_size(elf)
     if as_json:
         sys.stdout.write(json.dumps(found.as_dict()) + "\n")
         return
@@ -109,7 +136,8 @@ def headers(
     ] = None,
 ) -> None:
     """Write C++ headers: hwbridge_control.h (control messages), one per message type, and the
-    fixed hwbridge_msg.h and hwbridge_wire.h they include."""
+    fixed hwbridge_msg.h and hwbridge_wire.h they include; hwbridge_msgdefs.h, the hash of
+    their definitions that a board sends (PROTOCOL.md 2.6.1)."""
     _write_headers(ctx, outdir, types, msg_path, capacity)
 
 

@@ -1,15 +1,62 @@
-"""``hwbridge firmware sim``: an AVR firmware in simavr, UART0 on a pty, the robot on its pins."""
+"""``hwbridge firmware sim``: an AVR firmware in simavr, UART0 on a pty, the robot on its pins;
+or an ARM firmware (``--mcu stm32f405`` or ``--mcu nrf51822``) in qemu-system-arm, its UART on a
+pty."""
 
 from __future__ import annotations
 
+import contextlib
 import sys
 import threading
+import time
 from pathlib import Path
 from typing import Annotated
 
 import typer
 
-__all__ = ["sim"]
+__all__ = ["ARM_MCUS", "sim"]
+
+ARM_MCUS = {"stm32f405": "stm32f405", "nrf51822": "microbit", "microbit": "microbit"}
+"""--mcu values run in QEMU, and the build board of each."""
+
+
+def _sim_arm(
+    firmware: str | None, board: str, *, symlink: Path | None, robot: str | None, bootloader: bool
+) -> None:
+    """An ARM firmware in QEMU until Ctrl-C (QEMU stopped on the way out)."""
+    from hwbridge.errors import HwBridgeError
+    from hwbridge.firmware.qemu import QemuBoard
+    from hwbridge.firmware.sim.examples import EXAMPLES_DIR, build_sketch_for_sim
+
+    if robot is not None or bootloader:
+        raise HwBridgeError("--robot and --bootloader are for the AVR boards in simavr only")
+    if firmware is None:
+        raise HwBridgeError("give the firmware to run (an ELF, a sketch, an example's name)")
+    path = Path(firmware)
+    if path.is_dir():
+        path = build_sketch_for_sim(path, board)
+    elif not path.exists() and (EXAMPLES_DIR / firmware).is_dir():
+        path = build_sketch_for_sim(EXAMPLES_DIR / firmware, board)
+    elif not path.exists():
+        raise HwBridgeError(f"{firmware}: no such ELF, sketch folder or example")
+    with QemuBoard(path, board) as machine:
+        url = machine.link_url
+        if symlink is not None:
+            with contextlib.suppress(FileNotFoundError):
+                symlink.unlink()
+            symlink.symlink_to(machine.pty or "")
+            url = f"serial://{symlink}"
+        sys.stdout.write(url + "\n")
+        sys.stdout.flush()
+        try:
+            while machine.running:
+                time.sleep(0.2)
+        except KeyboardInterrupt:
+            return
+        finally:
+            if symlink is not None:
+                with contextlib.suppress(FileNotFoundError):
+                    symlink.unlink()
+        raise HwBridgeError(f"QEMU stopped (exit code {machine.exit_code})")
 
 
 def sim(
@@ -22,7 +69,12 @@ def sim(
         ),
     ] = None,
     mcu: Annotated[
-        str, typer.Option("--mcu", help="atmega328p (Uno) or atmega2560 (Mega).")
+        str,
+        typer.Option(
+            "--mcu",
+            help="atmega328p (Uno) or atmega2560 (Mega) in simavr; stm32f405 (QEMU's "
+            "netduinoplus2) or nrf51822 (QEMU's microbit) in qemu-system-arm.",
+        ),
     ] = "atmega328p",
     robot: Annotated[
         str | None,
@@ -57,8 +109,9 @@ def sim(
         ),
     ] = None,
 ) -> None:
-    """Run an AVR firmware in simavr until Ctrl-C. The first line printed is the URL of its
-    UART0 (serial:///dev/pts/N): give it to 'hwbridge connect' or a robot file's --link.
+    """Run an AVR firmware in simavr, or an ARM one in QEMU (--mcu stm32f405 or nrf51822),
+    until Ctrl-C. The first line printed is the URL of its UART (serial:///dev/pts/N): give it
+    to 'hwbridge connect' or a robot file's --link.
 
     With --bootloader the simulated Uno has Optiboot at 0x7E00 and starts there; opening the
     pty resets it into the bootloader (as the Uno's DTR auto-reset does), which takes an upload
@@ -71,6 +124,9 @@ def sim(
     from hwbridge.firmware.sim.bootloader import optiboot_hex
     from hwbridge.firmware.sim.examples import EXAMPLES_DIR, build_sketch_for_sim
 
+    if mcu in ARM_MCUS:
+        _sim_arm(firmware, ARM_MCUS[mcu], symlink=symlink, robot=robot, bootloader=bootloader)
+        return
     board_name = "mega" if mcu == "atmega2560" else "uno"
     boot: Path | None = None
     if bootloader:

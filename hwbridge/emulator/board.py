@@ -14,6 +14,7 @@ packaged in ``robots/`` (``examples/robots/diffbot.yaml``).
 
 from __future__ import annotations
 
+import functools
 import logging
 import threading
 import time
@@ -32,9 +33,21 @@ from hwbridge.protocols.native.control import EntryKind
 from hwbridge.pump import SessionPump
 from hwbridge.robot.model import DeviceConfig
 
-__all__ = ["ROBOTS_DIR", "BoardConfig", "VirtualBoard", "load_board"]
+__all__ = ["ROBOTS_DIR", "BoardConfig", "VirtualBoard", "emulator_firmware", "load_board"]
 
 log = logging.getLogger("hwbridge.emulator")
+
+
+@functools.cache
+def emulator_firmware() -> str:
+    """The ``firmware_version`` text of a virtual board: "hwbridge-emulator" and the identity of
+    firmware built with this hwbridge (PROTOCOL.md 2.6.1), so that the bridge finds nothing to
+    warn about."""
+    from hwbridge.bridge.identity import host_identity
+    from hwbridge.protocols.native.identity import format_identity
+
+    return format_identity(host_identity(msg.registry(), "hwbridge-emulator"))
+
 
 ROBOTS_DIR = Path(__file__).with_name("robots")
 PHYSICS_HZ = 200.0
@@ -125,7 +138,7 @@ class VirtualBoard:
 
     def _new_session(self) -> ns.DeviceSession:
         return ns.DeviceSession(
-            ns.BoardInfo(self.config.name, self.seed.to_bytes(4, "little"), "hwbridge-emulator"),
+            ns.BoardInfo(self.config.name, self.seed.to_bytes(4, "little"), emulator_firmware()),
             self._topics,
         )
 

@@ -34,7 +34,7 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from hwbridge import msg
-from hwbridge.emulator.board import BoardConfig, VirtualBoard, load_board
+from hwbridge.emulator.board import BoardConfig, VirtualBoard, emulator_firmware, load_board
 from hwbridge.emulator.faults import FaultySession
 from hwbridge.emulator.virtual_bus import shared_virtual_bus
 from hwbridge.emulator.world import WorldConfig
@@ -183,7 +183,7 @@ class CanBoard(VirtualBoard):
 
     def _new_session(self) -> ns.DeviceSession:
         return ns.DeviceSession(
-            ns.BoardInfo(self.config.name, self.seed.to_bytes(4, "little"), "hwbridge-emulator"),
+            ns.BoardInfo(self.config.name, self.seed.to_bytes(4, "little"), emulator_firmware()),
             self._topics,
             ns.DeviceConfig(mtu=getattr(self, "mtu", 64)),
             framing=NativeDatagramFraming(),

@@ -8,6 +8,15 @@ with ``-Wall -Wextra -Werror``; the Arduino core with the warnings it always has
 compiled once per board and kept in a cache. ``hwbridge firmware size ELF`` reports flash and
 SRAM as ``avr-size`` counts them, and the static RAM of the HwBridge library's own objects.
 
+``--board stm32f405`` (a Cortex-M4F, as QEMU's ``netduinoplus2`` models it) and ``--board
+microbit`` (the nRF51822's Cortex-M0, QEMU's ``microbit``) build it bare-metal with Debian's
+``gcc-arm-none-eabi`` and newlib-nano: the start-up code, linker scripts and a minimal Arduino
+stand-in of ``hwbridge/firmware/arm/core/`` (``setup()``/``loop()``, ``millis()``/``micros()``,
+pins in memory, ``Serial`` on the board's UART) and the node on the board's UART class
+(``hwbridge/hardware_stm32f4.h``, ``hwbridge/hardware_nrf51.h``), with ``-Wall -Wextra -Werror
+-Wcast-align=strict -Wconversion`` on the sketch and the library. ``hwbridge firmware sim`` runs
+the ELF in ``qemu-system-arm`` (``hwbridge.firmware.qemu``).
+
 ``--board host`` builds the sketch as a native program instead (``g++``, ``-Wall -Wextra
 -Werror``): a small Arduino stand-in (``firmware/HwBridge/src/hwbridge/host/``: ``setup()`` and
 ``loop()``, the clock, pins in memory, serial ports and I2C that go nowhere) and the node on a
@@ -40,12 +49,17 @@ from typing import Any, Final
 from hwbridge.errors import HwBridgeError
 
 __all__ = [
+    "ARM_BOARDS",
     "BOARDS",
     "CORE_DIR",
     "LIBRARY_DIR",
+    "ArmBoard",
     "Board",
     "FirmwareSize",
     "ToolchainMissingError",
+    "arm_firmware_size",
+    "build_arm_program",
+    "build_arm_sketch",
     "build_host_sketch",
     "build_sketch",
     "firmware_size",
@@ -247,6 +261,204 @@ def _bundled_libraries(text: str) -> list[Path]:
     return found
 
 
+@dataclass(frozen=True)
+class ArmBoard:
+    """A bare Cortex-M board built with arm-none-eabi-g++ and run in qemu-system-arm."""
+
+    name: str
+    cpu_flags: tuple[str, ...]
+    board_define: str
+    """The define that picks the node's hardware class (``hwbridge/node.h``)."""
+    support: str
+    """The board's C file and linker script in ``hwbridge/firmware/arm/core/`` (without suffix)."""
+    linker_script: str
+    qemu_machine: str
+    flash: int
+    sram: int
+    description: str
+
+
+ARM_BOARDS: Final = {
+    "stm32f405": ArmBoard(
+        "stm32f405",
+        (
+            "-mcpu=cortex-m4",
+            "-mthumb",
+            "-mfloat-abi=hard",
+            "-mfpu=fpv4-sp-d16",
+            # UNALIGN_TRP is on (start-up): no unaligned loads of our own making either
+            "-mno-unaligned-access",
+        ),
+        "HWBRIDGE_BOARD_STM32F4",
+        "stm32f405",
+        "stm32f405",
+        "netduinoplus2",
+        1024 * 1024,
+        128 * 1024,
+        "STM32F405 (Cortex-M4F, 168 MHz), USART1; QEMU netduinoplus2",
+    ),
+    "microbit": ArmBoard(
+        "microbit",
+        ("-mcpu=cortex-m0", "-mthumb", "-mfloat-abi=soft"),
+        "HWBRIDGE_BOARD_NRF51",
+        "nrf51",
+        "nrf51822",
+        "microbit",
+        256 * 1024,
+        16 * 1024,
+        "BBC micro:bit v1, nRF51822 (Cortex-M0, 16 MHz), UART0; QEMU microbit",
+    ),
+}
+ARM_CORE_DIR: Final = Path(__file__).resolve().parent / "arm" / "core"
+"""Start-up code, linker scripts and the Arduino stand-in of the ARM boards."""
+ARM_WARNINGS: Final = (*_WARNINGS, "-Wcast-align=strict", "-Wconversion")
+_ARM_PACKAGES: Final = "gcc-arm-none-eabi libnewlib-arm-none-eabi"
+
+
+def _arm_tool(name: str) -> str:
+    found = shutil.which(name)
+    if found is None:
+        raise ToolchainMissingError(
+            f"{name} is not installed: install the Debian packages {_ARM_PACKAGES} "
+            "(sudo apt-get install ...)"
+        )
+    return found
+
+
+def arm_flags(board: ArmBoard) -> list[str]:
+    """Compiler flags of every C and C++ file built for ``board``."""
+    return [
+        *board.cpu_flags,
+        "-Os",
+        "-g",
+        "-ffunction-sections",
+        "-fdata-sections",
+        f"-D{board.board_define}",
+        "-DHWBRIDGE_ARM_CORE",
+    ]
+
+
+def arm_link_flags(board: ArmBoard, *, semihosting: bool = False) -> list[str]:
+    """Linker flags for ``board``: our start-up and linker script, newlib-nano, and system
+    calls that fail (``nosys``) or, for test programs, go to QEMU's semihosting (``rdimon``)."""
+    return [
+        *board.cpu_flags,
+        "-nostartfiles",
+        "--specs=nano.specs",
+        "--specs=rdimon.specs" if semihosting else "--specs=nosys.specs",
+        f"-T{ARM_CORE_DIR / (board.linker_script + '.ld')}",
+        "-Wl,--gc-sections",
+    ]
+
+
+def arm_core_sources(board: ArmBoard) -> list[Path]:
+    """The start-up and board support C files of ``board``."""
+    return [ARM_CORE_DIR / "startup.c", ARM_CORE_DIR / f"{board.support}.c"]
+
+
+def build_arm_sketch(
+    sketch: Path,
+    board_name: str,
+    out_dir: Path | None = None,
+    *,
+    libraries: list[Path] | None = None,
+    defines: list[str] | None = None,
+    progress: Progress = _no_progress,
+) -> Path:
+    """Compile and link ``sketch`` for an ARM board of ``ARM_BOARDS``; returns the ELF (a raw
+    ``.bin`` is written next to it)."""
+    board = ARM_BOARDS[board_name]
+    gcc, gpp = _arm_tool("arm-none-eabi-gcc"), _arm_tool("arm-none-eabi-g++")
+    objcopy = _arm_tool("arm-none-eabi-objcopy")
+    name, ino = _sketch_source(sketch)
+    out = out_dir or (ino.parent / "build" / board.name)
+    out.mkdir(parents=True, exist_ok=True)
+    libs = libraries if libraries is not None else [LIBRARY_DIR]
+    includes = [f"-I{ARM_CORE_DIR}", *(f"-I{lib / 'src'}" for lib in libs), f"-I{ino.parent}"]
+    extra = [f"-D{d}" for d in defines or []]
+    cpp = out / f"{name}.ino.cpp"
+    cpp.write_text(f'#include <Arduino.h>\n#line 1 "{ino}"\n' + ino.read_text(encoding="utf-8"))
+    cpp_sources = [
+        cpp,
+        ARM_CORE_DIR / "arduino_arm.cpp",
+        *(src for lib in libs for src in sorted((lib / "src").rglob("*.cpp"))),
+    ]
+    c_sources = arm_core_sources(board)
+    total = len(cpp_sources) + len(c_sources) + 1
+    objects: list[Path] = []
+    compile_cpp = [
+        gpp,
+        "-c",
+        "-std=gnu++11",
+        "-fno-exceptions",
+        "-fno-rtti",
+        "-fno-threadsafe-statics",
+        *ARM_WARNINGS,
+        *arm_flags(board),
+        *includes,
+        *extra,
+    ]
+    compile_c = [gcc, "-c", "-std=gnu11", *ARM_WARNINGS, *arm_flags(board), *extra]
+    for number, source in enumerate([*cpp_sources, *c_sources], 1):
+        progress(f"[{number}/{total}] compiling {source.name} for {board.name}")
+        obj = out / f"{source.name}.o"
+        command = compile_cpp if source.suffix == ".cpp" else compile_c
+        _run([*command, str(source), "-o", str(obj)], f"compiling {source}")
+        objects.append(obj)
+    elf = out / f"{name}.elf"
+    progress(f"[{total}/{total}] linking {elf.name}")
+    _run(
+        [gpp, *arm_link_flags(board), "-o", str(elf), *map(str, objects), "-lm"],
+        f"linking {name}",
+    )
+    _run([objcopy, "-O", "binary", str(elf), str(elf.with_suffix(".bin"))], "bin")
+    return elf
+
+
+def build_arm_program(
+    sources: list[Path],
+    board_name: str,
+    out: Path,
+    *,
+    includes: list[Path] | None = None,
+    defines: list[str] | None = None,
+    semihosting: bool = True,
+    cxx_flags: list[str] | None = None,
+    compile_only: bool = False,
+) -> Path:
+    """A plain C/C++ program (its own ``main``, no sketch) for an ARM board: the start-up code
+    and board support added, stdio through QEMU's semihosting unless ``semihosting`` is false.
+    Test programs use it (tests/arm); returns ``out``. A source may be an object file; with
+    ``compile_only`` nothing is linked and the first source's object is returned."""
+    board = ARM_BOARDS[board_name]
+    gcc, gpp = _arm_tool("arm-none-eabi-gcc"), _arm_tool("arm-none-eabi-g++")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    flags = [
+        *arm_flags(board),
+        *(["-DHWBRIDGE_SEMIHOSTED"] if semihosting else []),
+        *(f"-D{d}" for d in defines or []),
+        *(f"-I{folder}" for folder in includes or []),
+    ]
+    objects: list[str] = []
+    for source in [*sources, *arm_core_sources(board)]:
+        obj = out.parent / f"{out.stem}-{source.name}.o"
+        if source.suffix == ".o":  # compiled already (by compile_only)
+            objects.append(str(source))
+            continue
+        if source.suffix == ".c":
+            command = [gcc, "-c", "-std=gnu11", *ARM_WARNINGS, *flags]
+        else:
+            command = [gpp, "-c", "-std=gnu++11", "-fno-exceptions", "-fno-rtti", *flags]
+            command += cxx_flags or []
+        _run([*command, str(source), "-o", str(obj)], f"compiling {source} for {board.name}")
+        objects.append(str(obj))
+    if compile_only:
+        return out.parent / f"{out.stem}-{sources[0].name}.o"
+    link = [gpp, *arm_link_flags(board, semihosting=semihosting), "-o", str(out), *objects, "-lm"]
+    _run(link, f"linking {out.name}")
+    return out
+
+
 def build_sketch(
     sketch: Path,
     board_name: str = "uno",
@@ -264,10 +476,15 @@ def build_sketch(
     if board_name == HOST_BOARD:
         progress(f"[1/1] compiling {sketch.name} as a native program (g++)")
         return build_host_sketch(sketch, out_dir, libraries=libraries, defines=defines)
+    if board_name in ARM_BOARDS:
+        return build_arm_sketch(
+            sketch, board_name, out_dir, libraries=libraries, defines=defines, progress=progress
+        )
     board = BOARDS.get(board_name)
     if board is None:
         raise HwBridgeError(
-            f"unknown board {board_name!r}; use one of {', '.join([*BOARDS, HOST_BOARD])}"
+            f"unknown board {board_name!r}; use one of "
+            f"{', '.join([*BOARDS, *ARM_BOARDS, HOST_BOARD])}"
         )
     name, ino = _sketch_source(sketch)
     gpp, gcc, objcopy = _tool("avr-g++"), _tool("avr-gcc"), _tool("avr-objcopy")
@@ -408,6 +625,43 @@ def firmware_size(elf: Path) -> FirmwareSize:
                 or (parts[2] in "bd" and name in core_statics)
             ):
                 owner = "core"
+            else:
+                owner = "sketch"
+            objects.append((name, size_of, owner))
+    objects.sort(key=lambda item: (-item[1], item[0]))
+    return FirmwareSize(
+        flash=text + data,
+        sram=data + bss,
+        library_sram=sum(n for _, n, owner in objects if owner == "hwbridge"),
+        core_sram=sum(n for _, n, owner in objects if owner == "core"),
+        objects=tuple(objects),
+    )
+
+
+def arm_firmware_size(elf: Path) -> FirmwareSize:
+    """Flash and static RAM of an ELF built for an ARM board (``arm-none-eabi-size -A``): flash =
+    .text + .data (the vector table, code, constants, initial values), RAM = .data + .bss (the
+    stack comes on top); the library's share from the symbols in namespace hwbridge."""
+    size, nm = _arm_tool("arm-none-eabi-size"), _arm_tool("arm-none-eabi-nm")
+    if not elf.is_file():
+        raise HwBridgeError(f"{elf}: no such ELF file")
+    done = subprocess.run([size, "-A", str(elf)], capture_output=True, text=True, check=False)
+    if done.returncode != 0:
+        raise HwBridgeError(f"{elf}: arm-none-eabi-size failed: {done.stderr.strip()}")
+    sections = {name: int(value) for name, value in _SECTION.findall(done.stdout)}
+    text, data, bss = (sections.get(k, 0) for k in ("text", "data", "bss"))
+    listed = subprocess.run(
+        [nm, "-C", "--size-sort", "-S", str(elf)], capture_output=True, text=True, check=False
+    ).stdout
+    objects: list[tuple[str, int, str]] = []
+    for line in listed.splitlines():
+        parts = line.split(None, 3)
+        if len(parts) == 4 and parts[2] in "bBdD":
+            name, size_of = parts[3], int(parts[1], 16)
+            if "hwbridge::" in name:
+                owner = "hwbridge"
+            elif name.startswith(("_", "(anonymous namespace)::")) or name in ("Serial", "errno"):
+                owner = "core"  # the C library, start-up and the Arduino stand-in
             else:
                 owner = "sketch"
             objects.append((name, size_of, owner))

@@ -453,6 +453,21 @@ def _board(schema: Schema) -> Iterator[str]:
     yield "}  // namespace board"
 
 
+def _identity(schema: Schema) -> Iterator[str]:
+    """The firmware identity's schema hash and keys (PROTOCOL.md 2.6.1), as macros: the board
+    joins them into one string literal at compile time (hwbridge/identity.h)."""
+    yield "// The firmware identity (PROTOCOL.md 2.6.1): this schema's hash (a test build may"
+    yield "// define another before including the library) and the key of each item."
+    yield "#ifndef HWBRIDGE_SCHEMA_HASH"
+    yield f'#define HWBRIDGE_SCHEMA_HASH "{schema.hash}"'
+    yield "#endif"
+    for attr, key in schema.identity.items.items():
+        yield f'#define HWBRIDGE_ID_KEY_{attr.upper()} "{key}"'
+    yield "// The items in the order a board sends them (each defined in hwbridge/identity.h)."
+    items = " ".join(f"HWBRIDGE_ID_{attr.upper()}_" for attr in schema.identity.items)
+    yield f"#define HWBRIDGE_ID_ITEMS_ {items}"
+
+
 def generate_control_header(schema: Schema | None = None) -> str:
     """The text of ``hwbridge_control.h``."""
     schema = schema or load_schema()
@@ -463,6 +478,8 @@ def generate_control_header(schema: Schema | None = None) -> str:
         "// C++11, header-only, no heap, no exceptions; every encode and decode is bounded.",
         "#ifndef HWBRIDGE_CONTROL_H",
         "#define HWBRIDGE_CONTROL_H",
+        "",
+        *_identity(schema),
         "",
         template(PRELUDE_NAME),
     ]

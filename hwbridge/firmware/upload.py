@@ -174,6 +174,8 @@ _STEPS: Final = (
 _NO_ANSWER: Final = re.compile(
     r"not in sync|not responding|unable to open programmer|stk500v2_getsync|timeout", re.I
 )
+_OUT_OF_STEP: Final = re.compile(r"protocol expects|programmer is out of sync", re.I)
+"""The bootloader answered, then its replies stopped matching avrdude's requests."""
 _MISMATCH: Final = re.compile(r"verification (?:error|mismatch)|mismatch", re.I)
 
 
@@ -244,7 +246,7 @@ class Upload:
         if self._stop.is_set():
             return
         if code != 0:
-            raise UploadError(self._failure(code))
+            raise UploadError(self.explain_failure(code))
         self.progress(f"done: {self.image.name} written to {self.port} and verified")
 
     def _line(self, line: str, seen: set[str]) -> None:
@@ -261,7 +263,8 @@ class Upload:
                 else:
                     self.progress("verify: reading the flash back")
 
-    def _failure(self, code: int) -> str:
+    def explain_failure(self, code: int) -> str:
+        """One sentence for a failed avrdude run (exit status ``code``), from its output."""
         text = "\n".join(self.output)
         errors = [line for line in self.output if "error" in line.lower()]
         if _MISMATCH.search(text):
@@ -273,6 +276,14 @@ class Upload:
             )
         if re.search(r"can't open device|no such file", text, re.I) and not self.port.exists():
             return f"no such port: {self.port}"
+        if _OUT_OF_STEP.search(text):
+            detail = next((line for line in errors if _OUT_OF_STEP.search(line)), "")
+            return (
+                f"the board on {self.port} answered out of step with the bootloader protocol "
+                f"({detail.removeprefix('avrdude error: ')}): it was reset during the upload, "
+                "another program wrote to the port, or an application answered instead of a "
+                "bootloader; try again"
+            )
         if _NO_ANSWER.search(text):
             return f"no bootloader answered on {self.port}: check the port and the board"
         tail = "\n".join(self.output[-8:])

@@ -11,7 +11,11 @@ each on the graph under its own name (``nodeN`` unless named)::
     can://socketcan/can0/node3?fd=1                 a Linux SocketCAN interface, CAN FD
 
 Each datagram the session writes travels as one CAN transfer (``protocols/can/CAN.md``): the
-id carries priority, kind, channel and both node ids, the tail byte sequences the frames.
+id carries priority, kind, channel and the node ids, the tail byte sequences the frames. In
+format 2 (CAN.md version 2, the default) the native header rides in the id and the tail byte and
+the native CRC-16 stays home (CAN's own CRC covers a frame, the transfer CRC a multi-frame
+transfer); each end speaks to a peer the format of the last claim it heard from that peer, so a
+board with format-1 firmware is spoken to in format 1 (logged once).
 Frames go out by priority (first come, first served within one): ACKs and control traffic
 overtake topic data when the bus is saturated, and best-effort data past ``tx_queue`` frames is
 dropped (counted). Error frames, send failures (bus-off) and the recovery are counted and
@@ -23,7 +27,9 @@ bridge reopens them. Options:
 * ``sleep_after_open`` (slcan: seconds to wait after opening the port), ``port`` (udp_multicast);
 * ``pace`` (bits/s: space the frames this end sends as a bus of that rate would; 0 = no);
 * ``tx_queue`` (frames waiting to be sent, 1024), ``rx_queue`` (datagrams per board, 256),
-  ``transfer_timeout`` (seconds a transfer may take, 1.0).
+  ``transfer_timeout`` (seconds a transfer may take, 1.0);
+* ``can_format`` (2; 1 makes this end a CAN.md version-1 node: format 1 only, format-2 frames
+  dropped as malformed, as software that predates format 2 does).
 """
 
 from __future__ import annotations
@@ -55,6 +61,8 @@ from hwbridge.links.base import (
 from hwbridge.protocols.can.transport import (
     CLASSIC_MTU,
     FD_MTU,
+    FORMAT_1,
+    FORMAT_2,
     HOST_NODE,
     MAX_NODE,
     MIN_NODE,
@@ -92,6 +100,7 @@ _OPTIONS: Final = {
     "tx_queue": opt_int,
     "rx_queue": opt_int,
     "transfer_timeout": opt_float,
+    "can_format": opt_int,
 }
 
 
@@ -138,6 +147,11 @@ class HubStats:
     """Node-id claims that contradicted another node's claim of the same id."""
     conflict_drops: int = 0
     """Datagrams dropped because their node id was claimed by two nodes."""
+    format_changes: int = 0
+    """Times a peer's claims changed the CAN.md format this end speaks to it."""
+    tx_invalid: int = 0
+    """Datagrams not sent because they were not valid native datagrams (format 2 needs the
+    header and the CRC-16 right)."""
 
     def as_dict(self) -> dict[str, int]:
         return asdict(self)
@@ -160,6 +174,7 @@ class CanHub:
         transfer_timeout: float = 1.0,
         owns_bus: bool = True,
         uid: bytes | None = None,
+        format: int = FORMAT_2,
     ) -> None:
         self.key = key
         self.local = local
@@ -169,8 +184,12 @@ class CanHub:
         self.owns_bus = owns_bus
         self.uid = uid if uid is not None else os.urandom(UID_SIZE)
         self.stats = HubStats()
+        self.format = format
+        """The CAN.md format this end claims in and speaks to peers not heard yet."""
+        self.peer_formats: dict[int, int] = {}
+        """The format each peer (node id) claimed in last: the one it is spoken to in."""
         self.encoder = TransferEncoder(local, FD_MTU if fd else CLASSIC_MTU)
-        self.decoder = TransferDecoder(local, timeout=transfer_timeout)
+        self.decoder = TransferDecoder(local, timeout=transfer_timeout, format_2=format == FORMAT_2)
         self.monitor = ConflictMonitor(window=3 * CLAIM_INTERVAL)
         self.links: dict[int, CanLink] = {}
         self.users = 0
@@ -211,6 +230,8 @@ class CanHub:
             **{f"rx_{k}": v for k, v in self.decoder.stats.as_dict().items()},
             "sending": self.sending,
             "claims": {node: uid.hex() for node, uid in self.monitor.claimed(now)},
+            "format": self.format,
+            "peer_formats": dict(self.peer_formats),
         }
 
     # ------------------------------------------------------------------ sending
@@ -220,7 +241,13 @@ class CanHub:
         if self.failed is not None:
             raise self.failed
         with self._lock:
-            frames = self.encoder.datagram(datagram, destination)
+            fmt = self.peer_formats.get(destination, self.format)
+            try:
+                frames = self.encoder.datagram(datagram, destination, format=fmt)
+            except ValueError as exc:
+                self.stats.tx_invalid += 1
+                log.warning("CAN bus %s: not sent to node %d: %s", self.key, destination, exc)
+                return
         self._queue(frames)
 
     def _queue(self, frames: list[tuple[int, bytes]]) -> None:
@@ -286,7 +313,7 @@ class CanHub:
             if now >= next_claim:
                 next_claim = now + CLAIM_INTERVAL
                 with self._lock:
-                    frames = self.encoder.claim(self.uid)
+                    frames = self.encoder.claim(self.uid, format=self.format)
                 self._queue(frames)
                 self.decoder.expire(now)
             try:
@@ -315,6 +342,13 @@ class CanHub:
                 continue
             if transfer.kind is Kind.NODE:
                 self._on_node(transfer.source, transfer.channel, transfer.payload)
+                if (
+                    transfer.channel == NODE_CLAIM
+                    and transfer.source != self.local
+                    and self.format == FORMAT_2
+                    and HOST_NODE in (self.local, transfer.source)  # a board talks to the host
+                ):
+                    self._learn_format(transfer.source, transfer.format)
                 continue
             with self._lock:
                 link = self.links.get(transfer.source)
@@ -349,6 +383,29 @@ class CanHub:
                 source,
                 payload.hex(),
             )
+
+    def _learn_format(self, node: int, fmt: int) -> None:
+        """Speak to ``node`` the format of its last claim (CAN.md §11)."""
+        with self._lock:
+            before = self.peer_formats.get(node, self.format)
+            self.peer_formats[node] = fmt
+        if before == fmt:
+            return
+        self.stats.format_changes += 1
+        if fmt < self.format:
+            log.warning(
+                "CAN bus %s: node %d claims in CAN.md format %d (older firmware) where this end "
+                "speaks format %d; talking format %d to it (update its firmware for the "
+                "shorter frames of format %d)",
+                self.key,
+                node,
+                fmt,
+                self.format,
+                fmt,
+                self.format,
+            )
+        else:
+            log.info("CAN bus %s: node %d now claims in CAN.md format %d", self.key, node, fmt)
 
     def _fail(self, error: LinkError) -> None:
         log.warning("%s", error)
@@ -443,6 +500,9 @@ class CanLink(Link):
         self.tx_queue: int = max(16, opts.get("tx_queue", 1024))
         self.rx_queue: int = max(1, opts.get("rx_queue", 256))
         self.transfer_timeout: float = opts.get("transfer_timeout", 1.0)
+        self.can_format: int = opts.get("can_format", FORMAT_2)
+        if self.can_format not in (FORMAT_1, FORMAT_2):
+            raise LinkError(f"{url}: can_format must be 1 or 2, not {self.can_format}")
         if self.pace < 0 or self.transfer_timeout <= 0:
             raise LinkError(f"{url}: pace must be >= 0 bits/s and transfer_timeout above 0 s")
         self._bus_options: dict[str, Any] = {
@@ -471,12 +531,13 @@ class CanLink(Link):
 
     def _key(self) -> tuple[Any, ...]:
         if self._given_bus is not None:
-            return ("bus", id(self._given_bus), self.local, self.fd)
+            return ("bus", id(self._given_bus), self.local, self.fd, self.can_format)
         return (
             self.interface,
             self.channel,
             self.local,
             self.fd,
+            self.can_format,
             tuple(sorted(self._bus_options.items())),
         )
 
@@ -512,6 +573,7 @@ class CanLink(Link):
                     tx_queue=self.tx_queue,
                     transfer_timeout=self.transfer_timeout,
                     owns_bus=self._given_bus is None,
+                    format=self.can_format,
                 )
                 _hubs[key] = hub
             hub.users += 1

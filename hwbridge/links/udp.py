@@ -6,17 +6,24 @@ framing (no COBS, no delimiters: PROTOCOL.md, Part 1) and no protocol detection 
 
 * ``udp://HOST:PORT``: the board listens at HOST:PORT; the host sends there from a port of its
   own and takes datagrams from that address only.
-* ``udp-listen://[HOST]:PORT``: the host listens; the board sends first, and its address (the
-  last one heard from) is where the host's datagrams go. Until a board is heard, ``connected``
-  is False.
+* ``udp-listen://[HOST]:PORT``: the host listens; the board sends first, and its address is
+  where the host's datagrams go. Until a board is heard, ``connected`` is False. The link keeps
+  to one board: while the board it follows was heard within :data:`PEER_HOLD`, datagrams from
+  other addresses are dropped (counted in ``transport_stats()["udp"]["foreign_datagrams"]``,
+  each new address logged once); after that silence the next address heard is the board (a
+  board that rebooted onto another port, a bridge that restarted). A board with
+  ``UdpHardware`` and no host configured finds this link by broadcasting its HELLOs to the
+  port (PROTOCOL.md 1.14): the answer comes from here.
 
 UDP has no connection: a board that goes away is noticed by the protocol's own timeouts.
 """
 
 from __future__ import annotations
 
+import logging
 import selectors
 import socket
+import time
 from typing import Any, ClassVar, Final
 from urllib.parse import urlsplit
 
@@ -24,10 +31,15 @@ from hwbridge.errors import LinkError
 from hwbridge.links._io import Deadline
 from hwbridge.links.base import Link, LinkClosedError, Waker
 
-__all__ = ["MAX_DATAGRAM", "UdpLink", "UdpListenLink"]
+__all__ = ["MAX_DATAGRAM", "PEER_HOLD", "UdpLink", "UdpListenLink"]
+
+log = logging.getLogger(__name__)
 
 MAX_DATAGRAM: Final = 65507
 """The largest UDP payload over IPv4."""
+PEER_HOLD: Final = 1.0
+"""Seconds a ``udp-listen://`` link keeps to the board it follows after last hearing it (a
+board's heartbeats come every 0.1 s, its HELLOs at most 0.25 s apart; its link timeout is 0.8 s)."""
 
 
 def _host_port(url: str, *, need_host: bool, example: str) -> tuple[str, int]:
@@ -151,10 +163,20 @@ class UdpListenLink(_UdpBase):
     def __init__(self, url: str, **_options: Any) -> None:
         super().__init__(url)
         self.host, self.port = _host_port(url, need_host=False, example="udp-listen://:2324")
+        self._heard = 0.0
+        self._foreign = 0
+        self._foreign_seen: set[tuple[str, int]] = set()
 
     @property
     def connected(self) -> bool:
         return self.is_open and self._peer is not None
+
+    def transport_stats(self) -> dict[str, Any]:
+        return {"udp": {"board": self._peer_text(), "foreign_datagrams": self._foreign}}
+
+    def _peer_text(self) -> str | None:
+        peer = self._peer
+        return f"{peer[0]}:{peer[1]}" if peer is not None else None
 
     def _open(self) -> None:
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -169,5 +191,25 @@ class UdpListenLink(_UdpBase):
         self._setup(sock)
 
     def _accept_from(self, address: tuple[str, int]) -> bool:
-        self._peer = address
+        now = time.monotonic()
+        if address != self._peer:
+            if self._peer is not None and now - self._heard < PEER_HOLD:
+                self._foreign += 1
+                if address not in self._foreign_seen and len(self._foreign_seen) < 64:
+                    self._foreign_seen.add(address)
+                    log.warning(
+                        "%s: datagrams from %s:%d dropped while the board at %s is heard "
+                        "(one board per udp-listen port; a board that rebooted onto a new "
+                        "port is taken after %.1f s of silence)",
+                        self.url,
+                        address[0],
+                        address[1],
+                        self._peer_text(),
+                        PEER_HOLD,
+                    )
+                return False
+            if self._peer is not None:
+                log.info("%s: the board is now at %s:%d", self.url, address[0], address[1])
+            self._peer = address
+        self._heard = now
         return True

@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING, Any
 from hwbridge.bridge import BoardSpec, Bridge
 from hwbridge.errors import HwBridgeError
 from hwbridge.graph import Graph, GraphConfig
+from hwbridge.robot.identity import build_tag
 from hwbridge.robot.model import DeviceConfig, Robot, RobotFileError
 from hwbridge.robot.plugin import Closeable, HostContext
 from hwbridge.robot.registry import get_device
@@ -135,8 +136,18 @@ class RobotRuntime:
             raise RobotFileError(problems)
         self.robot = self.robot.with_links(links)
 
+    def _robot_file_bytes(self) -> bytes | None:
+        """The robot file's bytes, for the build tags of its boards' generated firmware (None:
+        the robot was not read from a file)."""
+        try:
+            return self.robot.path.read_bytes() if self.robot.path.is_file() else None
+        except OSError as exc:
+            log.debug("%s: no build tags: %s", self.robot.path, exc)
+            return None
+
     def _start_boards(self) -> None:
         problems: list[str] = []
+        robot_bytes = self._robot_file_bytes()
         for board in self.robot.boards:
             spec = BoardSpec(
                 board.link,
@@ -146,6 +157,12 @@ class RobotRuntime:
                 name=board.name,
                 start_delay=board.start_delay,
                 service_timeout=board.service_timeout,
+                build_tag=(
+                    build_tag(self.robot.name, board.name, robot_bytes)
+                    if robot_bytes is not None
+                    else None
+                ),
+                robot_file=str(self.robot.path),
             )
             self.bridge.add_board(spec)
         if self._wait_for_boards:

@@ -12,6 +12,18 @@ The 29-bit id (bit 28 first)::
     13..7  destination node id    6..0   source node id
 
 and the last byte of every frame is the tail byte: ``start << 7 | end << 6 | toggle << 5 | tid``.
+
+That is format 1. Format 2 (CAN.md version 2, bit 15 of the id set) carries a native datagram
+without its 3-byte header and its CRC-16: type and channel are the id's kind and channel, the
+sequence number is split between the id (bits 13..11) and the tail byte's transfer id, the
+fragment position is in the id (bits 10..9), and bit 14 says which way the transfer goes between
+the host and the board of bits 6..0::
+
+    28..26 priority   25..24 kind   23..16 channel   15 = 1   14 to the host
+    13..11 seq bits 7..5   10..9 frag   8..7 reserved (0)   6..0 board node id
+
+A receiver rebuilds the datagram (header and CRC-16) before handing it on, so nothing above the
+transfer changes.
 """
 
 from __future__ import annotations
@@ -27,6 +39,8 @@ __all__ = [
     "CRC_INIT",
     "FD_LENGTHS",
     "FD_MTU",
+    "FORMAT_1",
+    "FORMAT_2",
     "HOST_NODE",
     "MAX_NODE",
     "MIN_NODE",
@@ -49,10 +63,12 @@ __all__ = [
     "crc16",
     "decode_id",
     "encode_id",
+    "encode_id2",
     "frame_lengths",
     "kind_of",
     "priority_of",
     "queue_class",
+    "rebuild_datagram",
     "split_transfer",
 ]
 
@@ -86,6 +102,16 @@ _END: Final = 0x40
 _TOGGLE: Final = 0x20
 _TID_MASK: Final = 0x1F
 _RESERVED_MASK: Final = 0x3 << 14
+_FORMAT_2_BIT: Final = 1 << 15
+_TO_HOST_BIT: Final = 1 << 14
+_RESERVED_2_MASK: Final = 0x3 << 7
+
+FORMAT_1: Final = 1
+"""CAN.md version 1: every transfer carries the whole native datagram (header and CRC-16)."""
+FORMAT_2: Final = 2
+"""CAN.md version 2: the native header in the id and the tail byte, no native CRC-16."""
+_NATIVE_VERSION: Final = 0x40
+_NATIVE_ENVELOPE: Final = 5
 
 
 class Kind(enum.IntEnum):
@@ -105,15 +131,30 @@ def crc16(data: bytes | bytearray | memoryview, value: int = CRC_INIT) -> int:
 
 @dataclass(frozen=True, slots=True)
 class CanId:
-    """The fields of a 29-bit id."""
+    """The fields of a 29-bit id (``seq_high`` and ``frag`` only in format 2)."""
 
     priority: int
     kind: Kind
     channel: int
     destination: int
     source: int
+    format: int = FORMAT_1
+    seq_high: int = 0
+    """Format 2: bits 7..5 of the native sequence number (its bits 4..0 are the transfer id)."""
+    frag: int = 0
+    """Format 2: the native fragment position (0 WHOLE, 1 FIRST, 2 MIDDLE, 3 LAST)."""
 
     def encode(self) -> int:
+        if self.format == FORMAT_2:
+            return encode_id2(
+                self.priority,
+                self.kind,
+                self.channel,
+                self.destination,
+                self.source,
+                self.seq_high << 5,
+                self.frag,
+            )
         return encode_id(self.priority, self.kind, self.channel, self.destination, self.source)
 
 
@@ -131,20 +172,72 @@ def encode_id(priority: int, kind: int, channel: int, destination: int, source: 
     return priority << 26 | kind << 24 | channel << 16 | destination << 7 | source
 
 
+def encode_id2(
+    priority: int,
+    kind: int,
+    channel: int,
+    destination: int,
+    source: int,
+    seq: int = 0,
+    frag: int = 0,
+) -> int:
+    """The format-2 id of these fields (``seq``: the whole native sequence number, of which the
+    id keeps bits 7..5). One end MUST be the host (node 0): format 2 has no board-to-board
+    transfers. ValueError for a field out of range."""
+    base = encode_id(priority, kind, channel, destination, source)
+    if not 0 <= seq <= 255:
+        raise ValueError(f"seq must be 0..255, not {seq}")
+    if not 0 <= frag <= 3:
+        raise ValueError(f"frag must be 0..3, not {frag}")
+    if source == HOST_NODE:
+        direction, node = 0, destination
+    elif destination == HOST_NODE:
+        direction, node = _TO_HOST_BIT, source
+    else:
+        raise ValueError(f"format 2 goes to or from the host, not from {source} to {destination}")
+    return (base & ~0xFFFF) | _FORMAT_2_BIT | direction | (seq >> 5) << 11 | frag << 9 | node
+
+
 def acceptance_filters(node: int) -> list[tuple[int, int]]:
     """What node ``node`` needs to receive, as (id, mask) pairs of 29-bit ids (a frame is
-    wanted when ``frame_id & mask == id & mask`` for one pair): transfers addressed to it, and
-    NODE messages (claims) from anyone. A controller's acceptance filters, or python-can's
-    ``can_filters``, set from these keep other nodes' traffic out (the MCP2515 driver sets the
-    same two)."""
+    wanted when ``frame_id & mask == id & mask`` for one pair): transfers addressed to it in
+    either format, and NODE messages (claims) from anyone. A controller's acceptance filters, or
+    python-can's ``can_filters``, set from these keep other nodes' traffic out (the MCP2515
+    driver sets its own, CAN.md §11)."""
     if not 0 <= node <= MAX_NODE:
         raise ValueError(f"node id must be 0..{MAX_NODE}, not {node}")
-    return [(node << 7, MAX_NODE << 7), (int(Kind.NODE) << 24, 3 << 24)]
+    if node == HOST_NODE:
+        format_2 = (_FORMAT_2_BIT | _TO_HOST_BIT, _FORMAT_2_BIT | _TO_HOST_BIT)
+    else:
+        format_2 = (_FORMAT_2_BIT | node, _FORMAT_2_BIT | _TO_HOST_BIT | MAX_NODE)
+    return [
+        (node << 7, MAX_NODE << 7 | _RESERVED_MASK),
+        format_2,
+        (int(Kind.NODE) << 24, 3 << 24),
+    ]
 
 
 def decode_id(can_id: int) -> CanId | None:
-    """The fields of a 29-bit id, or None when it is not one of ours (reserved bits set)."""
-    if not 0 <= can_id < 1 << 29 or can_id & _RESERVED_MASK:
+    """The fields of a 29-bit id of either format, or None when it is not one of ours (reserved
+    bits set, or a format-2 id from the host to the host or from board 0)."""
+    if not 0 <= can_id < 1 << 29:
+        return None
+    if can_id & _FORMAT_2_BIT:
+        node = can_id & 0x7F
+        to_host = bool(can_id & _TO_HOST_BIT)
+        if can_id & _RESERVED_2_MASK or (to_host and node == HOST_NODE):
+            return None
+        return CanId(
+            can_id >> 26,
+            Kind((can_id >> 24) & 3),
+            (can_id >> 16) & 0xFF,
+            HOST_NODE if to_host else node,
+            node if to_host else HOST_NODE,
+            FORMAT_2,
+            (can_id >> 11) & 7,
+            (can_id >> 9) & 3,
+        )
+    if can_id & _RESERVED_MASK:
         return None
     return CanId(
         can_id >> 26,
@@ -252,24 +345,53 @@ class TransferEncoder:
         datagram: bytes | bytearray | memoryview,
         destination: int,
         priority: int | None = None,
+        *,
+        format: int = FORMAT_2,
     ) -> list[tuple[int, bytes]]:
-        """The frames carrying one native datagram to ``destination``."""
-        kind, channel = kind_of(datagram)
+        """The frames carrying one native datagram to ``destination`` in ``format`` (2: without
+        its header and CRC-16, which must be right: ValueError otherwise)."""
+        if format == FORMAT_1:
+            kind, channel = kind_of(datagram)
+            if priority is None:
+                priority = priority_of(kind, channel)
+            can_id = encode_id(priority, kind, channel, destination, self.source)
+            return self.transfer(can_id, datagram)
+        data = bytes(datagram)
+        if len(data) < _NATIVE_ENVELOPE:
+            raise ValueError(f"a native datagram has at least 5 bytes, not {len(data)}")
+        flags, channel, seq = data[0], data[1], data[2]
+        frame_type = (flags >> 4) & 3
+        if flags & 0xC0 != _NATIVE_VERSION or frame_type == 3:
+            raise ValueError(
+                f"not a version-1 native datagram of a known type (flags {flags:#04x})"
+            )
+        if crc16(data[:-2]) != int.from_bytes(data[-2:], "little"):
+            raise ValueError("the native datagram's CRC-16 is wrong")
+        kind = Kind(frame_type)
         if priority is None:
             priority = priority_of(kind, channel)
-        return self.transfer(encode_id(priority, kind, channel, destination, self.source), datagram)
+        can_id = encode_id2(
+            priority, kind, channel, destination, self.source, seq, (flags >> 2) & 3
+        )
+        frames = split_transfer(data[3:-2], seq & _TID_MASK, self.mtu)
+        return [(can_id, frame) for frame in frames]
 
-    def claim(self, uid: bytes) -> list[tuple[int, bytes]]:
-        """A node-id claim: this node's unique id, to every node (destination 0)."""
+    def claim(self, uid: bytes, *, format: int = FORMAT_2) -> list[tuple[int, bytes]]:
+        """A node-id claim: this node's unique id, to every node (destination 0), in
+        ``format`` (the format this node speaks: receivers learn it from the claim)."""
         if len(uid) != UID_SIZE:
             raise ValueError(f"a unique id has {UID_SIZE} bytes, not {len(uid)}")
-        can_id = encode_id(PRIORITY_NODE, Kind.NODE, NODE_CLAIM, HOST_NODE, self.source)
+        if format == FORMAT_1:
+            can_id = encode_id(PRIORITY_NODE, Kind.NODE, NODE_CLAIM, HOST_NODE, self.source)
+        else:
+            can_id = encode_id2(PRIORITY_NODE, Kind.NODE, NODE_CLAIM, HOST_NODE, self.source)
         return self.transfer(can_id, uid)
 
 
 @dataclass(frozen=True, slots=True)
 class Transfer:
-    """One received transfer."""
+    """One received transfer. ``payload`` is the native datagram (rebuilt with its header and
+    CRC-16 from a format-2 transfer) or, for a NODE message, its payload."""
 
     priority: int
     kind: Kind
@@ -277,6 +399,7 @@ class Transfer:
     destination: int
     source: int
     payload: bytes
+    format: int = FORMAT_1
 
 
 @dataclass
@@ -299,8 +422,10 @@ class CanStats:
     """A frame with the toggle of the frame before it: repeated, or the one between was lost
     (then the transfer's CRC fails at its end)."""
     duplicate_transfers: int = 0
-    """A whole transfer received again: the transfer id and content of the last one on its CAN
-    id, within ``tid_timeout`` (two nodes that share a node id are told apart by content)."""
+    """A whole format-1 transfer received again: the transfer id and content of the last one on
+    its CAN id, within ``tid_timeout`` (two nodes that share a node id are told apart by
+    content). Format 2 leaves repeats to the native session, which knows them by sequence
+    number (and must see a reliable datagram resent to acknowledge it again)."""
     crc_errors: int = 0
     """Multi-frame transfers whose CRC was wrong (a frame lost, reordered or corrupted)."""
     abandoned: int = 0
@@ -345,7 +470,9 @@ class TransferDecoder:
     One transfer is in progress per CAN id. ``timeout`` bounds how long a transfer may take,
     ``tid_timeout`` how long a finished transfer's id is remembered to drop a repeat of it,
     ``max_transfer`` the bytes of one transfer, ``max_pending`` the transfers in progress at once
-    (the oldest is abandoned for a new one), so garbage costs bounded memory.
+    (the oldest is abandoned for a new one), so garbage costs bounded memory. ``format_2=False``
+    makes a CAN.md version-1 receiver: format-2 frames are ``malformed`` (their id bit 15 was
+    reserved), as a node that predates format 2 counts them.
     """
 
     def __init__(
@@ -356,8 +483,10 @@ class TransferDecoder:
         timeout: float = 1.0,
         tid_timeout: float = 1.0,
         max_pending: int = 256,
+        format_2: bool = True,
     ) -> None:
         self.local = local
+        self.format_2 = format_2
         self.max_transfer = max_transfer
         self.timeout = timeout
         self.tid_timeout = tid_timeout
@@ -379,6 +508,8 @@ class TransferDecoder:
         stats.frames += 1
         size = len(data)
         ident = decode_id(can_id) if extended else None
+        if ident is not None and ident.format == FORMAT_2 and not self.format_2:
+            ident = None
         if ident is None or not size or size > FD_MTU or size not in _VALID_LENGTH:
             stats.malformed += 1
             return None
@@ -441,7 +572,8 @@ class TransferDecoder:
         done = self._done.get(can_id)
         check = crc16(payload)
         if (
-            done is not None
+            ident.format == FORMAT_1
+            and done is not None
             and done[0] == tid
             and done[2] == check
             and now - done[1] < self.tid_timeout
@@ -455,8 +587,16 @@ class TransferDecoder:
             self._done.pop(next(iter(self._done)))
         self._done[can_id] = (tid, now, check)
         self.stats.transfers += 1
+        if ident.format == FORMAT_2 and ident.kind is not Kind.NODE:
+            payload = rebuild_datagram(ident, tid, payload)
         return Transfer(
-            ident.priority, ident.kind, ident.channel, ident.destination, ident.source, payload
+            ident.priority,
+            ident.kind,
+            ident.channel,
+            ident.destination,
+            ident.source,
+            payload,
+            ident.format,
         )
 
     def _evict(self) -> None:
@@ -471,6 +611,15 @@ class TransferDecoder:
             del self._rx[key]
         self.stats.timeouts += len(stale)
         return len(stale)
+
+
+def rebuild_datagram(ident: CanId, tid: int, payload: bytes) -> bytes:
+    """The native datagram a format-2 transfer carried: header from the id and the transfer id,
+    the payload, its CRC-16 (little-endian, as PROTOCOL.md §1.4)."""
+    seq = ident.seq_high << 5 | tid
+    body = bytes((_NATIVE_VERSION | int(ident.kind) << 4 | ident.frag << 2, ident.channel, seq))
+    body += payload
+    return body + crc16(body).to_bytes(2, "little")
 
 
 class ConflictMonitor:

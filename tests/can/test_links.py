@@ -18,7 +18,7 @@ from hwbridge.emulator.slcan import SlcanAdapter
 from hwbridge.errors import LinkError
 from hwbridge.links import LinkClosedError, create_link
 from hwbridge.links.can import CanLink, frame_bits
-from hwbridge.protocols.can.transport import Kind, encode_id
+from hwbridge.protocols.can.transport import Kind, TransferEncoder, crc16, decode_id, encode_id
 
 _names = itertools.count()
 
@@ -68,9 +68,11 @@ def _open(links: list[CanLink], url: str, **kwargs: object) -> CanLink:
     return link
 
 
-def _datagram(channel: int, size: int, reliable: bool = False) -> bytes:
+def _datagram(channel: int, size: int, reliable: bool = False, seq: int = 0) -> bytes:
+    """A native datagram (header, payload, CRC-16): format 2 sends only valid ones."""
     flags = 0x50 if reliable else 0x40
-    return bytes([flags, channel, 0]) + bytes((i * 7) & 0xFF for i in range(size))
+    body = bytes([flags, channel, seq]) + bytes((i * 7) & 0xFF for i in range(size))
+    return body + crc16(body).to_bytes(2, "little")
 
 
 def test_urls() -> None:
@@ -121,8 +123,9 @@ def test_datagrams_both_ways_on_one_shared_bus(
             data = _datagram(board.local, size, reliable=size % 2 == 0)
             host.write(data)
             assert board.read(4096, 5.0) == data
-            board.write(data[::-1])
-            assert host.read(4096, 5.0) == data[::-1]
+            back = _datagram(board.local, size, reliable=size % 2 == 1, seq=size & 0xFF)
+            board.write(back)
+            assert host.read(4096, 5.0) == back
     stats = hosts[0].can_stats()
     assert stats["rx_crc_errors"] == stats["rx_malformed"] == stats["rx_unexpected"] == 0
     assert set(stats["claims"]) >= {1, 2}
@@ -198,8 +201,8 @@ def test_priority_queue_sheds_best_effort_and_keeps_control(
     flood = _open(opened, f"can://virtual/{channel}/node9?pace=20000&tx_queue=64")
     board = _open(opened, f"can://virtual/{channel}?node=0&local=2")
     for _ in range(40):
-        flood.write(_datagram(1, 60))  # best-effort data, 10 frames each
-    control = bytes([0x50, 0, 0, 0x10])  # a reliable control message: overtakes the flood
+        flood.write(_datagram(1, 60))  # best-effort data, 9 frames each
+    control = _datagram(0, 1, reliable=True)  # a reliable control message: overtakes the flood
     host.write(control)
     started = time.monotonic()
     assert board.read(4096, 5.0) == control
@@ -232,8 +235,9 @@ def test_slcan_adapter_through_python_can(opened: list[CanLink], fd: bool) -> No
             data = _datagram(3, size)
             host.write(data)
             assert board.read(4096, 5.0) == data
-            board.write(data[::-1])
-            assert host.read(4096, 5.0) == data[::-1]
+            back = _datagram(board.local, size, reliable=size % 2 == 1, seq=size & 0xFF)
+            board.write(back)
+            assert host.read(4096, 5.0) == back
         assert adapter.frames_to_bus > 0
         assert adapter.frames_to_host > 0
         assert (adapter.fd_frames > 0) == fd
@@ -269,3 +273,68 @@ def test_failed_adapter_loses_every_link(opened: list[CanLink]) -> None:
             while True:
                 link.read(4096, 0.5)
         assert not info.value.local
+
+
+def _formats_on_bus(raw: can.BusABC, seconds: float = 0.3) -> dict[int, set[int]]:
+    """The formats (1 or 2, from id bit 15) of the datagrams each source node id sent while
+    ``seconds`` pass (claims left out: an end claims in its own format)."""
+    seen: dict[int, set[int]] = {}
+    deadline = time.monotonic() + seconds
+    while (left := deadline - time.monotonic()) > 0:
+        message = raw.recv(left)
+        if message is None:
+            break
+        ident = decode_id(message.arbitration_id)
+        if ident is not None and ident.kind is not Kind.NODE:
+            seen.setdefault(ident.source, set()).add(ident.format)
+    return seen
+
+
+@pytest.mark.parametrize("old", ["board", "host"])
+def test_version_1_and_version_2_ends_interoperate(
+    channel: str, opened: list[CanLink], old: str, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A CAN.md version-1 end (``can_format=1``: format 1 only, format 2 malformed) and a
+    version-2 end: the version-2 end hears the other's claims and speaks format 1 to it, so
+    datagrams flow both ways, and nothing but format 1 is on the bus once it has."""
+    host_q, board_q = ("?can_format=1", "") if old == "host" else ("", "&can_format=1")
+    host = _open(opened, f"can://virtual/{channel}/node4{host_q}")
+    board = _open(opened, f"can://virtual/{channel}?node=0&local=4{board_q}")
+    new = board if old == "host" else host
+    peer = 0 if old == "host" else 4
+    hub = new.hub
+    assert hub is not None
+    assert wait_for(lambda: hub.peer_formats.get(peer) == 1, 10), hub.peer_formats
+    raw = can.Bus(interface="virtual", channel=channel)
+    try:
+        for size in (0, 4, 9, 200):
+            data = _datagram(4, size, reliable=True, seq=size)
+            host.write(data)
+            assert board.read(4096, 5.0) == data
+            board.write(data)
+            assert host.read(4096, 5.0) == data
+        seen = _formats_on_bus(raw)
+    finally:
+        raw.shutdown()
+    assert seen.get(peer) == {1} and seen.get(4 - peer) == {1}, seen
+    stats = new.can_stats()
+    assert stats["format_changes"] == 1 and stats["peer_formats"] == {peer: 1}
+    if old == "board":
+        assert "node 4 claims in CAN.md format 1 (older firmware)" in caplog.text
+
+
+def test_a_version_1_end_drops_format_2_as_malformed(channel: str, opened: list[CanLink]) -> None:
+    """What a node that predates format 2 does with it (and why the format-2 end must hear its
+    claims first): format-2 frames are malformed, nothing is delivered."""
+    old = _open(opened, f"can://virtual/{channel}/node4?can_format=1")
+    raw = can.Bus(interface="virtual", channel=channel)
+    try:
+        body = bytes([0x40, 1, 7, 0xAA])
+        for can_id, data in TransferEncoder(4).datagram(
+            body + crc16(body).to_bytes(2, "little"), 0
+        ):
+            raw.send(can.Message(arbitration_id=can_id, data=data, is_extended_id=True))
+        assert wait_for(lambda: old.can_stats()["rx_malformed"] >= 1, 5)
+        assert old.read(4096, 0.3) == b""
+    finally:
+        raw.shutdown()

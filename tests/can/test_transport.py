@@ -16,6 +16,7 @@ from hwbridge.protocols.can.transport import (
     CLASSIC_MTU,
     FD_LENGTHS,
     FD_MTU,
+    FORMAT_1,
     ConflictMonitor,
     Kind,
     TransferDecoder,
@@ -74,7 +75,9 @@ def test_transfer_vectors(vector: dict) -> None:
 @pytest.mark.parametrize("vector", VECTORS["datagrams"], ids=lambda v: v["name"])
 def test_datagram_vectors(vector: dict) -> None:
     encoder = TransferEncoder(vector["source"], vector["mtu"])
-    frames = encoder.datagram(bytes.fromhex(vector["datagram_hex"]), vector["destination"])
+    frames = encoder.datagram(
+        bytes.fromhex(vector["datagram_hex"]), vector["destination"], format=FORMAT_1
+    )
     assert [(f"{i:08x}", d.hex()) for i, d in frames] == [
         (f["id"], f["data_hex"]) for f in vector["frames"]
     ]

@@ -49,6 +49,17 @@ def _wire(targets: Targets) -> Targets:
     return (float(np.float32(targets[0])), float(np.float32(targets[1])))
 
 
+def _commander(client: Graph, namespace: str) -> Callable[[float, float], None]:
+    """Publishes cmd_vel on the graph, as a teleop node would: the drive node gets it on the
+    graph's own thread."""
+    publisher = client.node("teleop").publisher(f"{namespace}/cmd_vel", "geometry_msgs/Twist")
+
+    def command(x: float, z: float = 0.0) -> None:
+        publisher.publish(_twist(x, z))
+
+    return command
+
+
 def _listen(client: Graph, namespace: str) -> list[Targets]:
     """Every wheel_targets message the board would receive, in order."""
     received: list[Targets] = []
@@ -119,11 +130,11 @@ def test_a_command_is_never_overtaken_by_what_the_drive_loop_decided_before_it(
             drive = DiffDriveNode(node, PARAMS, clock=clock)
         else:  # real time: the loop repeats the targets for 0.5 s after a command
             drive = DiffDriveNode(node, PARAMS)
-    command = threading.Thread(target=drive._on_cmd_vel, args=(_twist(0.3),), name="cmd_vel")
+    command = _commander(client, namespace)
     try:
 
-        def first_arrived() -> bool:  # also: the board's subscription is matched
-            drive._on_cmd_vel(_twist(0.1))
+        def first_arrived() -> bool:  # also: the board's and the node's subscriptions match
+            command(0.1)
             return _wire(first) in received
 
         assert wait_until(first_arrived, 10, step=0.05)
@@ -131,12 +142,11 @@ def test_a_command_is_never_overtaken_by_what_the_drive_loop_decided_before_it(
         if case == "watchdog stop":
             clock.now += 10.0  # cmd_vel went quiet: the next cycle sends the stop
         assert pause.paused.wait(5), "the drive loop never came to send the expected targets"
-        command.start()  # cmd_vel arrives (as on the graph's thread)
+        command(0.3)  # cmd_vel arrives, on the graph's thread
         # Without a lock its targets go out now, before the loop's; with one they wait for
         # the loop. Give them the time to go out before letting the loop publish.
         wait_until(lambda: _wire(newer) in received, 1.0)
         pause.release()
-        command.join(5)
         assert wait_until(lambda: received.count(_wire(newer)) >= 2, 5), received
     finally:
         pause.release()
@@ -156,20 +166,27 @@ def test_the_watchdog_stops_the_wheels_once_and_a_later_command_restarts_them(
     go = _wire(drive.odometry.wheel_targets(0.2, 0.0))
     turn = _wire(drive.odometry.wheel_targets(0.0, 1.0))
 
+    command = _commander(client, "/watchdog")
+
     def subscribed() -> bool:
-        drive._on_cmd_vel(_twist(0.05))
+        command(0.05)
         return marker in received
+
+    def handled(targets: Targets) -> Callable[[], bool]:  # the command went out to the board
+        return lambda: bool(received) and received[-1] == targets
 
     assert wait_until(subscribed, 10, step=0.05)
     clock.now = 10.0
-    drive._on_cmd_vel(_twist(0.2))
+    command(0.2)
+    assert wait_until(handled(go), 10)
     clock.now = 10.49
     drive.tick()  # within the timeout: the targets repeat
     clock.now = 10.5  # 0.5 s without cmd_vel: one stop
     drive.tick()
     clock.now = 10.6
     drive.tick()  # already stopped: nothing
-    drive._on_cmd_vel(_twist(0.0, 1.0))
+    command(0.0, 1.0)
+    assert wait_until(handled(turn), 10)
     clock.now = 10.7
     drive.tick()
     expected = [go, go, (0.0, 0.0), turn, turn]

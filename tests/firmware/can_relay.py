@@ -11,6 +11,8 @@ from typing import Any
 
 import can
 
+from hwbridge.protocols.can.transport import decode_id
+
 
 def parse_line(line: str) -> can.Message | None:
     """A frame of the driver's line format, or None for anything else."""
@@ -85,8 +87,9 @@ class CanRelay:
             message = self.bus.recv(0.05)
             if message is None or message.is_error_frame:
                 continue
-            if message.is_extended_id and message.arbitration_id & 0x7F == self.node:
-                continue  # our board's own frames, echoed
+            ident = decode_id(message.arbitration_id) if message.is_extended_id else None
+            if ident is not None and ident.source == self.node:
+                continue  # our board's own frames, echoed (either CAN.md format)
             with self._lock:
                 client = self._client
             if client is None:

@@ -1,16 +1,17 @@
 """The board side of CAN (``firmware/HwBridge/src/hwbridge/can/``).
 
-- The C++ transport against ``protocols/vectors/can_frames.json`` and ``CanHardware`` with a
-  scripted driver, plain and under ASan/UBSan with -Wall -Wextra -Werror; a seeded,
-  time-bounded fuzz of the C++ receiver; the MCP2515 driver against a register-level fake of
-  the chip (SPI transactions) (``firmware/tests/can/``).
+- The C++ transport against ``protocols/vectors/can_frames.json`` and ``can_frames_v2.json``
+  and ``CanHardware`` with a scripted driver, plain and under ASan/UBSan with -Wall -Wextra
+  -Werror; a seeded, time-bounded fuzz of the C++ receiver; the MCP2515 driver against a
+  register-level fake of the chip (SPI transactions) (``firmware/tests/can/``).
 - End to end: ``firmware/tests/can/CanE2E`` built as a host program runs as CAN node 5 through
   the host-native driver and a relay (:mod:`tests.firmware.can_relay`) onto a python-can
   ``udp_multicast`` bus; ``hwbridge connect can://udp_multicast/.../node5`` (a process of its
   own) bridges it and an emulated board (node 2, ``hwbridge.emulator.can_bus``) on the same bus:
   a topic each way, a service and a parameter work on the sketch, and the emulated board's
   service and topic keep working, its session never renegotiated; the sketch restarted is
-  taken back.
+  taken back. The same with one side of CAN.md version 1 (``HWBRIDGE_CAN_FORMAT=1`` for the
+  sketch, ``can_format=1`` for the bridge): both boards connect and answer.
 
 ``examples/CanNode`` (the MCP2515 driver and ``CanHardware`` on an AVR) is built for the Uno and
 the Mega by both tools in ``test_examples.py`` like every example.
@@ -214,6 +215,55 @@ def test_host_sketch_on_a_can_bus_with_an_emulated_board(
         call = bridge.cli("service", "call", ping)
         assert yaml.safe_load(call.stdout) == {"success": True, "message": "pong 1"}, call.stderr
         assert bridge.output().count("board 'node2' connected") == 1, bridge.output()
+    finally:
+        if board is not None:
+            board.kill()
+            board.wait(10)
+        bridge.stop()
+        log.close()
+
+
+@needs_gpp
+@pytest.mark.parametrize("old", ["board", "host"])
+def test_version_1_and_version_2_nodes_on_one_bus(
+    program: Path, bus: Bus, tmp_path: Path, old: str
+) -> None:
+    """CAN.md version 1 meets version 2 (CAN.md §11): the sketch as version-1 firmware
+    (HWBRIDGE_CAN_FORMAT=1) under a format-2 host, which says so and speaks format 1 to it; or
+    the sketch as format-2 firmware under a version-1 host (``can_format=1``, which drops
+    format-2 frames as malformed), whose claims turn the sketch and the emulated board to
+    format 1. Either way both boards connect and answer."""
+    query = "&can_format=1" if old == "host" else ""
+    bridge = BridgeProcess(
+        bus.url(NODE) + query, tmp_path, f"canv{free_port()}", bus.url(OTHER) + query
+    )
+    board: subprocess.Popen[bytes] | None = None
+    log = (tmp_path / "board.log").open("w")
+    try:
+        bridge.wait_ready()
+        env = {"HWBRIDGE_CAN": f"127.0.0.1:{bus.relay.port}", "HWBRIDGE_CAN_NODE": str(NODE)}
+        if old == "board":
+            env["HWBRIDGE_CAN_FORMAT"] = "1"
+        board = subprocess.Popen(
+            [str(program)], env={**bridge.env, **env}, stdout=log, stderr=subprocess.STDOUT
+        )
+        assert wait_until(lambda: "board 'canboard' connected" in bridge.output(), 30), (
+            bridge.output()
+        )
+        assert wait_until(lambda: "board 'node2' connected" in bridge.output(), 30), bridge.output()
+        services = bridge.cli("service", "list").stdout
+        ping = next(s for s in services.split() if s.endswith("ping"))
+        call = bridge.cli("service", "call", ping)
+        assert call.returncode == 0, call.stderr + bridge.output()
+        assert yaml.safe_load(call.stdout) == {"success": True, "message": "pong 1"}
+        who = bridge.cli("service", "call", f"/node{OTHER}/whoami")
+        assert who.returncode == 0, who.stderr + bridge.output()
+        output = bridge.output()
+        if old == "board":
+            assert f"node {NODE} claims in CAN.md format 1 (older firmware)" in output, output
+            assert f"node {OTHER} claims in CAN.md format 1" not in output, output
+        else:
+            assert "claims in CAN.md format" not in output, output
     finally:
         if board is not None:
             board.kill()

@@ -30,8 +30,11 @@ HEADERS = sorted(p.relative_to(INCLUDE).as_posix() for p in INCLUDE.rglob("*.h")
 HOST_SHIM = {h for h in HEADERS if h.startswith("hwbridge/host/")}
 """The Arduino stand-in of host builds (--board host), built by test_session_e2e.py."""
 HOST_ONLY = {"hwbridge/hardware_posix.h"} | HOST_SHIM
-ARDUINO_ONLY = {"hwbridge/hardware_arduino.h"}
-"""Needs the Arduino core: built by the sketch builds (tests/firmware/test_session_build.py)."""
+ARDUINO_ONLY = {"hwbridge/hardware_arduino.h", "hwbridge/hardware_udp.h"}
+"""Needs the Arduino core: built by the sketch builds (tests/firmware/test_session_build.py;
+hardware_udp.h by the host build of examples/UdpNode, tests/firmware/test_udp_board.py)."""
+ARM_ONLY = {"hwbridge/hardware_stm32f4.h", "hwbridge/hardware_nrf51.h"}
+"""32-bit register maps: built for their boards by the ARM sketch builds (tests/arm/)."""
 NODE_PARTS = {h for h in HEADERS if h.startswith("hwbridge/node/")}
 """Parts of node_impl.h, included by it only (each says so when included alone)."""
 
@@ -198,7 +201,7 @@ def test_each_header_compiles_alone(header: str, tmp_path: Path) -> None:
 
 @needs_avr
 @pytest.mark.parametrize(
-    "header", [h for h in HEADERS if h not in HOST_ONLY | ARDUINO_ONLY | NODE_PARTS]
+    "header", [h for h in HEADERS if h not in HOST_ONLY | ARDUINO_ONLY | ARM_ONLY | NODE_PARTS]
 )
 def test_each_header_compiles_for_avr(header: str, tmp_path: Path) -> None:
     source = tmp_path / "one.cpp"

@@ -34,6 +34,10 @@ from tests.netutil import free_port, wait_until
 ROOT = Path(__file__).resolve().parents[2]
 LIBRARY = ROOT / "firmware" / "HwBridge"
 EXAMPLES = sorted(p.name for p in (LIBRARY / "examples").iterdir() if p.is_dir())
+NETWORK = ("UdpNode",)
+"""Examples for boards on a network (a UDP class: ESP32's WiFiUDP, EthernetUDP): built for the
+host here (where WiFiUdp.h is a BSD-socket stand-in), not for the Uno and the Mega."""
+AVR_EXAMPLES = [e for e in EXAMPLES if e not in NETWORK]
 REQUIRED = (
     "HelloWorld",
     "Blink",
@@ -171,19 +175,19 @@ def builds(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[tuple[str,
     shutil.rmtree(sketchbook / "libraries" / "HwBridge", ignore_errors=True)
     (sketchbook / "libraries").mkdir(parents=True, exist_ok=True)
     shutil.copytree(LIBRARY, sketchbook / "libraries" / "HwBridge", ignore=_ignore_builds)
-    for sketch in EXAMPLES:  # the IDE builds a sketch from the sketchbook, not from a library
+    for sketch in AVR_EXAMPLES:  # the IDE builds a sketch from the sketchbook, not from a library
         shutil.rmtree(sketchbook / sketch, ignore_errors=True)
         shutil.copytree(LIBRARY / "examples" / sketch, sketchbook / sketch, ignore=_ignore_builds)
     jobs = {}
     with ThreadPoolExecutor(max_workers=2) as pool:
-        for sketch in EXAMPLES:
+        for sketch in AVR_EXAMPLES:
             for board in BOARDS:
                 out = base / "hwbridge" / f"{sketch}-{board}"
                 jobs[sketch, board, "hwbridge"] = pool.submit(_hwbridge_build, sketch, board, out)
                 jobs[sketch, board, "arduino-builder"] = pool.submit(
                     _arduino_builder, sketch, board, sketchbook
                 )
-        for sketch in WITH_DRIVERS:
+        for sketch in (*WITH_DRIVERS, *NETWORK):
             out = base / "hwbridge" / f"{sketch}-host"
             jobs[sketch, "host", "hwbridge"] = pool.submit(_host_build, sketch, out)
         results = {key: job.result() for key, job in jobs.items()}
@@ -209,7 +213,7 @@ def test_every_example_the_issue_asks_for_is_there() -> None:
 
 @pytest.mark.parametrize("tool", ["hwbridge", "arduino-builder"])
 @pytest.mark.parametrize("board", sorted(BOARDS))
-@pytest.mark.parametrize("sketch", EXAMPLES)
+@pytest.mark.parametrize("sketch", AVR_EXAMPLES)
 def test_example_builds_without_warnings(
     sketch: str,
     board: str,
@@ -233,13 +237,13 @@ def test_example_builds_without_warnings(
     record_property("sram", built.sram)
 
 
-@pytest.mark.parametrize("sketch", WITH_DRIVERS)
+@pytest.mark.parametrize("sketch", [*WITH_DRIVERS, *NETWORK])
 def test_example_builds_for_the_host(
     sketch: str, builds: dict[tuple[str, str, str], Built]
 ) -> None:
     """``hwbridge firmware build --board host``: the drivers and the sketch against the host's
-    Arduino shim, warnings as errors (the sketches with drivers; the others are the session's,
-    built for the host by its own tests)."""
+    Arduino shim, warnings as errors (the sketches with drivers, and the network ones; the
+    others are the session's, built for the host by its own tests)."""
     built = builds[sketch, "host", "hwbridge"]
     if built.skip:
         pytest.skip(built.skip)
@@ -253,7 +257,7 @@ def test_both_tools_build_the_same_image(builds: dict[tuple[str, str, str], Buil
     bundled libraries, Wire or SoftwareSerial). (On the Mega ``hwbridge firmware build`` comes
     out ~1.5 % larger; not compared.)"""
     compared = 0
-    for sketch in EXAMPLES:
+    for sketch in AVR_EXAMPLES:
         for board in ("uno",):
             ours, ide = builds[sketch, board, "hwbridge"], builds[sketch, board, "arduino-builder"]
             if ours.ok and ide.ok:

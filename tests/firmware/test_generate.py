@@ -637,6 +637,7 @@ def test_the_command_writes_the_headers(tmp_path: Path, capsys: pytest.CaptureFi
     assert written == [
         "hwbridge_control.h",
         "hwbridge_msg.h",
+        "hwbridge_msgdefs.h",
         "hwbridge_msgs/Bme280.h",
         "hwbridge_msgs/ImuRaw.h",
         "hwbridge_msgs/SonarEcho.h",
@@ -649,7 +650,7 @@ def test_the_command_writes_the_headers(tmp_path: Path, capsys: pytest.CaptureFi
         "std_msgs/Header.h",
         "std_msgs/String.h",
     ]
-    assert "13 headers written" in capsys.readouterr().out
+    assert "14 headers written" in capsys.readouterr().out
     assert (tmp_path / "a" / HEADER_NAME).read_text() == generate_control_header()
     pkg = tmp_path / "msgs" / "my_pkg" / "msg"
     pkg.mkdir(parents=True)

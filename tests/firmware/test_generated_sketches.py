@@ -117,10 +117,11 @@ def test_identity_macros_come_before_the_library() -> None:
     robot = load_robot(ROBOTS / "diffbot.yaml")
     sketch = generate_sketch(robot, data, pick_board(robot, None), "mega")
     digest = hashlib.sha256(data).hexdigest()[:12]
-    assert build_tag("diffbot", "mega", data) == f"diffbot/mega@{digest}"
+    assert build_tag("diffbot", "base", data) == f"diffbot/base@{digest}"
+    # BOARD is the robot file's board, as 'hwbridge up' expects it of the board
     lines = sketch.text.splitlines()
-    name = lines.index('#define HWBRIDGE_FIRMWARE_NAME "diffbot/mega"')
-    tag = lines.index(f'#define HWBRIDGE_BUILD_TAG "diffbot/mega@{digest}"')
+    name = lines.index('#define HWBRIDGE_FIRMWARE_NAME "diffbot/base"')
+    tag = lines.index(f'#define HWBRIDGE_BUILD_TAG "diffbot/base@{digest}"')
     assert name < tag < lines.index("#include <HwBridge.h>")
     # the settings the host reads are the ones compiled in
     assert 'ticks_pub("wheel_ticks")' in sketch.text and "20.0f" in sketch.text

@@ -24,7 +24,7 @@ def _committed() -> dict[str, Path]:
         for p in LIBRARY_SRC.glob("*/*.h")
         if p.parent.name != "hwbridge"
     }
-    for name in ("hwbridge_msg.h", "hwbridge_control.h", "hwbridge_wire.h"):
+    for name in ("hwbridge_msg.h", "hwbridge_control.h", "hwbridge_wire.h", "hwbridge_msgdefs.h"):
         found[name] = LIBRARY_SRC / name
     return found
 
@@ -40,6 +40,26 @@ def test_generated_headers_are_current(tmp_path: Path) -> None:
         name for name in sorted(fresh) if fresh[name].read_bytes() != committed[name].read_bytes()
     ]
     assert not stale, f"stale in firmware/HwBridge/src: {stale}; regenerate with: {REFRESH}"
+
+
+def test_the_library_types_are_the_committed_headers() -> None:
+    """LIBRARY_TYPES (what the host hashes to expect a board's messages hash) lists exactly the
+    library's headers, and the hash in hwbridge_msgdefs.h is the host's."""
+    from hwbridge.firmware.gen_msgs import LIBRARY_TYPES, library_messages_hash
+    from hwbridge.msg import registry
+
+    types = sorted(name[: -len(".h")] for name in _committed() if "/" in name)
+    assert sorted(LIBRARY_TYPES) == types
+    defs = (LIBRARY_SRC / "hwbridge_msgdefs.h").read_text()
+    assert f'#define HWBRIDGE_MSGS_HASH "{library_messages_hash(registry())}"' in defs
+
+
+def test_library_version_is_the_properties_version() -> None:
+    """HWBRIDGE_LIBRARY_VERSION (sent in BOARD_INFO) is library.properties' version."""
+    props = (LIBRARY_SRC.parent / "library.properties").read_text().splitlines()
+    (version,) = [line.split("=", 1)[1] for line in props if line.startswith("version=")]
+    identity = (LIBRARY_SRC / "hwbridge" / "identity.h").read_text()
+    assert f'#define HWBRIDGE_LIBRARY_VERSION "{version}"' in identity
 
 
 def test_library_covers_the_device_plugins_types() -> None:

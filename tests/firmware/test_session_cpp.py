@@ -75,7 +75,7 @@ def test_golden_transcript_and_session_rules(build: Builder) -> None:
 
 def test_a_wrong_transcript_byte_fails(build: Builder) -> None:
     """The replay can fail: one byte of the board's BOARD_INFO changed in the transcript."""
-    good = "T board_info d 0250011710020375"
+    good = "T board_info d 0250013f10020375"
     text = _transcript().replace(good, good[:-1] + "6")
     result = subprocess.run(
         [str(build("test_session"))], input=text, capture_output=True, text=True, check=False

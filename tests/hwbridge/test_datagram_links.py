@@ -103,3 +103,48 @@ def test_a_native_board_over_udp_reaches_the_graph_both_ways(
     for datagram in link.written:
         (frame,) = framing.decode(datagram)
         assert isinstance(frame, Frame) and not isinstance(frame, BadFrame), frame
+
+
+def test_a_listening_udp_link_keeps_to_one_board_until_it_falls_silent(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Two senders on one ``udp-listen://`` port: the first heard is the board; the other's
+    datagrams are dropped and counted while the board is heard, and it is taken once the board
+    has been silent for PEER_HOLD (a board that rebooted onto a new port)."""
+    import socket
+
+    from hwbridge.links import udp
+
+    monkeypatch.setattr(udp, "PEER_HOLD", 0.3)
+    port = free_port()
+    link = open_link(f"udp-listen://127.0.0.1:{port}")
+    first = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    second = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        first.bind(("127.0.0.1", 0))
+        second.bind(("127.0.0.1", 0))
+        first.sendto(b"one", ("127.0.0.1", port))
+        assert link.read(100, 5.0) == b"one"
+        second.sendto(b"two", ("127.0.0.1", port))
+        first.sendto(b"three", ("127.0.0.1", port))
+        assert link.read(100, 5.0) == b"three"  # "two" was dropped
+        assert link.transport_stats()["udp"] == {
+            "board": f"127.0.0.1:{first.getsockname()[1]}",
+            "foreign_datagrams": 1,
+        }
+        link.write(b"to the board")
+        assert first.recv(100) == b"to the board"
+
+        # the board falls silent: after PEER_HOLD the other sender is the board
+        def taken() -> bool:
+            second.sendto(b"four", ("127.0.0.1", port))
+            return link.read(100, 0.05) == b"four"
+
+        assert wait_until(taken, 10.0, 0.05)
+        link.write(b"to the new board")
+        second.settimeout(5.0)
+        assert second.recv(100) == b"to the new board"
+    finally:
+        first.close()
+        second.close()
+        link.close()

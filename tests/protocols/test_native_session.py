@@ -21,6 +21,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from hwbridge.protocols.base import FirmwareIdentity
 from hwbridge.protocols.errors import (
     HwBridgeError,
     HwBridgeTimeoutError,
@@ -46,6 +47,7 @@ from hwbridge.protocols.native.framing import (
     crc16,
     encode_frame,
 )
+from hwbridge.protocols.native.identity import format_identity
 from hwbridge.protocols.native.reliable import (
     BestEffortReceiver,
     BestEffortSender,
@@ -1410,7 +1412,7 @@ def build_transcript() -> list[dict[str, Any]]:
     host = HostSession(
         HostConfig(epoch_offset=1_700_000_000.0), session_id=HOST_ID, rng=_FixedRandom()
     )
-    board = BoardInfo("uno", bytes.fromhex("0102030405060708"), "0.1.0")
+    board = BoardInfo("uno", bytes.fromhex("0102030405060708"), format_identity(GOLDEN_IDENTITY))
     device = DeviceSession(
         board, VECTOR_TOPICS, DeviceConfig(), session_id=DEVICE_ID, rng=_FixedRandom()
     )
@@ -1536,6 +1538,31 @@ def _sack_vector() -> dict[str, Any]:
     }
 
 
+GOLDEN_IDENTITY = FirmwareIdentity(
+    version="0.1.0",
+    name="golden",
+    library_version="0.1.0",
+    schema_hash="5c0e1a2b",
+    messages_hash="7d3f9e46",
+)
+"""The golden board's identity: example values (firmware/tests/session_harness.h defines them in
+the C++ golden board), not this build's hashes."""
+
+
+def _old_board_info_vector() -> dict[str, Any]:
+    """BOARD_INFO as boards built before the firmware identity send it: the version text alone."""
+    payload = ctl.BoardInfoMsg(2, "uno", bytes.fromhex("0102030405060708"), "0.1.0").encode()
+    wire = encode_frame(Frame(FrameType.RELIABLE, 0, 0, payload))
+    return {
+        "name": "board_info_old",
+        "direction": "device->host",
+        "note": "the transcript's board_info as a board without identity sends it (unknown "
+        "identity: the host connects, shows and warns nothing)",
+        "hex": wire.hex(" "),
+        "frame": _describe(wire),
+    }
+
+
 def build_vectors() -> dict[str, Any]:
     return {
         "description": (
@@ -1550,7 +1577,7 @@ def build_vectors() -> dict[str, Any]:
         ),
         "protocol_version": ctl.PROTOCOL_VERSION,
         "transcript": build_transcript(),
-        "extra": [_sack_vector()],
+        "extra": [_sack_vector(), _old_board_info_vector()],
     }
 
 
@@ -1649,6 +1676,29 @@ def test_golden_transcript_is_accepted_by_fresh_sessions() -> None:
     assert len(messages(events, 1)) == 2
     assert of_type(events, Log) == [Log(LogLevel.WARN, "low battery")]
     assert [r.name for r in of_type(events, ParamRequest)] == ["rate", "missing"]
+    assert not errors(events)
+    assert connected.firmware == GOLDEN_IDENTITY
+    assert connected.board.identity == GOLDEN_IDENTITY
+
+
+def test_old_board_info_without_identity_connects() -> None:
+    """The transcript with its BOARD_INFO in the old form (no identity items): the host connects
+    as before and the identity is unknown."""
+    stored = json.loads(VECTORS.read_text())
+    (old,) = [v for v in stored["extra"] if v["name"] == "board_info_old"]
+    host = HostSession(
+        HostConfig(epoch_offset=1_700_000_000.0), session_id=HOST_ID, rng=_FixedRandom()
+    )
+    events: list[Event] = []
+    host.tick(0.0)
+    for vec in stored["transcript"]:
+        if vec["direction"] == "device->host":
+            wire = old["hex"] if vec["name"] == "board_info" else vec["hex"]
+            events += host.receive_data(bytes.fromhex(wire), 0.001)
+    (connected,) = of_type(events, Connected)
+    assert connected.firmware == FirmwareIdentity(version="0.1.0")
+    assert connected.firmware is not None and not connected.firmware.known
+    assert host.describe()["firmware_version"] == "0.1.0"
     assert not errors(events)
 
 

@@ -7,10 +7,14 @@ Run with no arguments; prints one JSON object per line, per message type (``std_
   worst-case stuffing (``hwbridge.links.can.frame_bits``: 29-bit id, interframe space included):
   messages per second (``hwbridge_per_s``/``peer_per_s``), the frames and bus bits one message
   takes, the frames/s ceiling for that mix (``*_frames_per_s``), and the payload efficiency
-  (payload bits / bus bits). hwbridge sends one native datagram per fragment at the board's MTU
-  (``--mtu``, 64 like the emulated boards) as one CAN transfer each (protocols/can/CAN.md);
-  pycyphal sends the message as one Cyphal/CAN transfer (7 bytes a frame, a 2-byte CRC past one
-  frame). The frame counts are checked against the frames both put on a python-can virtual bus.
+  (payload bits / bus bits). hwbridge sends one native datagram per fragment at the native MTU
+  (``--mtu``, 1024: the host's, which a format-2 board negotiates up to its largest message) as
+  one CAN transfer each (protocols/can/CAN.md), in format 2 (``format``: the native header in the
+  id and the tail byte, no native CRC-16); pycyphal sends the message as one Cyphal/CAN transfer
+  (7 bytes a frame, a 2-byte CRC past one frame). The frame counts are checked against the
+  frames both put on a python-can virtual bus. Two more ``can_ceiling`` lines per type, computed
+  in the same run, show what the board-default MTU of 64 costs: format 2 and format 1 (CAN.md
+  version 1, every datagram whole with its header and CRC-16) at ``mtu`` 64.
 - ``can_virtual_bus``: messages per second each moves through python-can's in-process
   ``virtual`` bus, sender to receiver in one process: hwbridge from one ``can://`` link to
   another (encoding, the links' threads, reassembly), pycyphal from an output session to an
@@ -42,7 +46,13 @@ import can  # noqa: E402
 
 from hwbridge import msg  # noqa: E402
 from hwbridge.links.can import CanLink, frame_bits  # noqa: E402
-from hwbridge.protocols.can.transport import CLASSIC_MTU, Kind, TransferEncoder  # noqa: E402
+from hwbridge.protocols.can.transport import (  # noqa: E402
+    CLASSIC_MTU,
+    FORMAT_1,
+    FORMAT_2,
+    Kind,
+    TransferEncoder,
+)
 from hwbridge.protocols.native.framing import (  # noqa: E402
     FrameType,
     encode_datagram,
@@ -78,9 +88,13 @@ def hwbridge_datagrams(payload: bytes, mtu: int) -> list[bytes]:
     return [encode_datagram(f) for f in fragment(FrameType.BEST_EFFORT, 1, 0, payload, mtu)]
 
 
-def hwbridge_frames(payload: bytes, mtu: int) -> list[bytes]:
+def hwbridge_frames(payload: bytes, mtu: int, fmt: int = FORMAT_2) -> list[bytes]:
     encoder = TransferEncoder(5, CLASSIC_MTU)
-    return [data for d in hwbridge_datagrams(payload, mtu) for _, data in encoder.datagram(d, 0)]
+    return [
+        data
+        for d in hwbridge_datagrams(payload, mtu)
+        for _, data in encoder.datagram(d, 0, format=fmt)
+    ]
 
 
 def cyphal_frame_lengths(size: int) -> list[int]:
@@ -207,7 +221,7 @@ def cyphal_rate(payload: bytes, count: int, channel: str | None = None) -> float
 
 def main() -> int:
     parser = argparse.ArgumentParser(description="CAN transfers: hwbridge against pycyphal")
-    parser.add_argument("--mtu", type=int, default=64, help="native frame payload MTU (64)")
+    parser.add_argument("--mtu", type=int, default=1024, help="native frame payload MTU (1024)")
     parser.add_argument("--frames", type=int, default=20000, help="frames per measurement")
     args = parser.parse_args()
     for type_name, payload in payloads().items():
@@ -236,7 +250,24 @@ def main() -> int:
             hwbridge_efficiency=round(8 * len(payload) / ours_bits, 3),
             peer_efficiency=round(8 * len(payload) / theirs_bits, 3),
             mtu=args.mtu,
+            format=FORMAT_2,
         )
+        for fmt, mtu in ((FORMAT_2, 64), (FORMAT_1, 64)):
+            lengths = [len(f) for f in hwbridge_frames(payload, mtu, fmt)]
+            bits = bus_bits(lengths)
+            emit(
+                "can_ceiling",
+                case,
+                BITRATE / bits,
+                PEER,
+                BITRATE / theirs_bits,
+                hwbridge_frames=len(lengths),
+                peer_frames=len(theirs_lengths),
+                hwbridge_bits=bits,
+                peer_bits=theirs_bits,
+                mtu=mtu,
+                format=fmt,
+            )
         messages = max(20, args.frames // len(ours))
         peer_messages = max(20, args.frames // len(theirs_lengths))
         ours_rate = hwbridge_rate(payload, args.mtu, messages)

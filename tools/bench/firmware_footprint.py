@@ -23,6 +23,24 @@ rosserial's ``.msg``/``.srv`` files and std_msgs' definitions, with md5 sums fro
 type registry. Nothing of rosserial is copied into this repository. Without the checkout the
 bench prints how to get it and exits 0.
 
+The same hello world and pub/sub/service sketches are built for the two ARM boards of
+``hwbridge firmware build`` (``stm32f405``: Cortex-M4F; ``microbit``: nRF51822, Cortex-M0;
+arm-none-eabi-gcc, newlib-nano, ``-Os``, sections garbage-collected, no LTO) and measured with
+arm-none-eabi-size (flash = .text + .data, RAM = .data + .bss): one line per board and case
+(``"board": ...``), with the Uno's figures of the same run beside them (``avr_flash``,
+``avr_sram``) and the ARM build of an empty sketch (``empty``: the start-up, the Arduino
+stand-in and newlib's share). Without the ARM toolchain those lines are skipped with a line
+saying so.
+
+micro-ROS is not built here; its line (``"peer": "micro-ROS"``) gives its published memory
+figures, from the micro-ROS benchmarking page of eProsima's documentation (Vulcanexus, "micro-ROS
+Benchmarking", Memory Profiling: measured on a Renesas EK-RA6M5, UDP transport, MTU 512 B,
+history 4): about 550 B per publisher, 600 B per subscriber, 500 B per service server, and the
+RMW history's static pools of MTU x history = 2048 B, on top of the XRCE-DDS session, the
+transport and the RTOS (not counted there). ``floor_pub_sub_service_ram`` adds the three entities
+and one history pool: a lower bound for the pub/sub/service case, compared with hwbridge's whole
+static RAM for that case on each ARM board.
+
 Output: one JSON line per case, e.g. ``{"bench": "firmware_footprint", "case":
 "hello_world", "hwbridge_flash": ..., "hwbridge_sram": ..., "peer": "rosserial",
 "peer_flash": ..., "peer_sram": ..., "flash_ratio": ..., "sram_ratio": ...}`` (ratio =
@@ -55,7 +73,13 @@ sys.path.insert(0, str(ROOT))
 
 from hwbridge import msg  # noqa: E402
 from hwbridge.errors import HwBridgeError  # noqa: E402
-from hwbridge.firmware.build import LIBRARY_DIR, build_sketch, firmware_size  # noqa: E402
+from hwbridge.firmware.build import (  # noqa: E402
+    ARM_BOARDS,
+    LIBRARY_DIR,
+    arm_firmware_size,
+    build_sketch,
+    firmware_size,
+)
 
 BENCH = "firmware_footprint"
 HOW_TO_GET = (
@@ -71,6 +95,14 @@ REFERENCE = {
 }
 FLOORS = {"hello_world": (7290, 700), "pub_sub_service": (None, 1000)}
 PROTOCOL_PREDICTED_HELLO_SRAM = 657  # PROTOCOL.md 2.13
+# micro-ROS's published memory figures (see the module docstring for the source).
+MICRO_ROS = {
+    "publisher_ram": 550,
+    "subscriber_ram": 600,
+    "service_ram": 500,
+    "rmw_history_static_ram": 2048,
+    "source": "micro-ROS benchmarking, Vulcanexus docs (EK-RA6M5, UDP, MTU 512, history 4)",
+}
 
 STD_MSGS = {"String": ["string data"], "Time": ["time data"], "Empty": []}
 
@@ -361,9 +393,58 @@ def main(argv: list[str] | None = None) -> int:
             if case == "hello_world":
                 line["protocol_predicted_sram"] = PROTOCOL_PREDICTED_HELLO_SRAM
             lines.append(line)
+        lines.extend(_arm_lines(work, pss, ours))
         for line in lines:
             sys.stdout.write(json.dumps(line) + "\n")
     return 0
+
+
+def _arm_lines(work: Path, pss: Path, avr: dict[str, dict[str, Any]]) -> list[dict[str, Any]]:
+    """The ARM boards' lines, and micro-ROS's published figures beside them."""
+    if shutil.which("arm-none-eabi-g++") is None:
+        return [{"bench": BENCH, "skipped": "arm", "why": "arm-none-eabi-g++ is not installed"}]
+    lines: list[dict[str, Any]] = []
+    pss_ram: dict[str, int] = {}
+    for board in ARM_BOARDS:
+        cases = {
+            "empty": _sketch(work / "plain_arm", "empty", EMPTY),
+            "hello_world": LIBRARY_DIR / "examples" / "HelloWorld",
+            "pub_sub_service": pss,
+        }
+        for case, sketch in cases.items():
+            elf = build_sketch(sketch, board, work / "build" / f"{board}_{case}")
+            size = arm_firmware_size(elf)
+            line: dict[str, Any] = {
+                "bench": BENCH,
+                "case": case,
+                "board": board,
+                "flash": size.flash,
+                "sram": size.sram,
+            }
+            if case in avr:
+                line |= {
+                    "avr_flash": avr[case]["flash"],
+                    "avr_sram": avr[case]["sram"],
+                    "flash_vs_avr": _ratio(size.flash, avr[case]["flash"]),
+                    "sram_vs_avr": _ratio(size.sram, avr[case]["sram"]),
+                }
+            if case == "pub_sub_service":
+                pss_ram[board] = size.sram
+            lines.append(line)
+    floor = (
+        MICRO_ROS["publisher_ram"]
+        + MICRO_ROS["subscriber_ram"]
+        + MICRO_ROS["service_ram"]
+        + MICRO_ROS["rmw_history_static_ram"]
+    )
+    lines.append(
+        {"bench": BENCH, "case": "pub_sub_service", "peer": "micro-ROS"}
+        | MICRO_ROS
+        | {"floor_pub_sub_service_ram": floor}
+        | {f"hwbridge_sram_{board}": ram for board, ram in pss_ram.items()}
+        | {f"ratio_{board}": _ratio(ram, floor) for board, ram in pss_ram.items()}
+    )
+    return lines
 
 
 if __name__ == "__main__":

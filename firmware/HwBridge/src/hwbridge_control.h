@@ -5,6 +5,19 @@
 #ifndef HWBRIDGE_CONTROL_H
 #define HWBRIDGE_CONTROL_H
 
+// The firmware identity (PROTOCOL.md 2.6.1): this schema's hash (a test build may
+// define another before including the library) and the key of each item.
+#ifndef HWBRIDGE_SCHEMA_HASH
+#define HWBRIDGE_SCHEMA_HASH "1fdd80cd"
+#endif
+#define HWBRIDGE_ID_KEY_SCHEMA_HASH "s"
+#define HWBRIDGE_ID_KEY_MESSAGES_HASH "m"
+#define HWBRIDGE_ID_KEY_BUILD_TAG "b"
+#define HWBRIDGE_ID_KEY_LIBRARY_VERSION "v"
+#define HWBRIDGE_ID_KEY_NAME "n"
+// The items in the order a board sends them (each defined in hwbridge/identity.h).
+#define HWBRIDGE_ID_ITEMS_ HWBRIDGE_ID_SCHEMA_HASH_ HWBRIDGE_ID_MESSAGES_HASH_ HWBRIDGE_ID_BUILD_TAG_ HWBRIDGE_ID_LIBRARY_VERSION_ HWBRIDGE_ID_NAME_
+
 // The fixed start of hwbridge_control.h (copied by `hwbridge firmware generate` from
 // hwbridge/firmware/templates/control_prelude.h): the control codec reads and writes with the
 // library's bounded Reader and Writer and checks frames with its CRC (hwbridge_wire.h).
@@ -642,7 +655,7 @@ inline bool decode(const uint8_t* buf, size_t len, HostTimeResponseMsg* m) {
 }
 
 /** BOARD_INFO (0x10, board->host, 
-    reliable): Who the board is and how many entries follow. */
+    reliable): Who the board is and how many entries follow; firmware_version carries the firmware identity (see 'identity'). */
 struct BoardInfoMsg {
   static const uint8_t OPCODE = Opcode::BOARD_INFO;
   uint8_t topic_count = 0;

@@ -1,11 +1,13 @@
-"""Writes protocols/vectors/can_frames.json as the lines test_can_vectors.cpp reads on stdin
-(standard library only; "-" stands for no bytes):
+"""Writes protocols/vectors/can_frames.json (format 1) and can_frames_v2.json (format 2) as the
+lines test_can_vectors.cpp reads on stdin (standard library only; "-" stands for no bytes):
 
     crc INPUT CRC
     id PRIORITY KIND CHANNEL DESTINATION SOURCE ID
     tx NAME MTU TID PAYLOAD N FRAME...
     dg NAME SOURCE DESTINATION MTU DATAGRAM N ID:DATA...
     bad NAME LOCAL EXPECT N ID:EXTENDED:DATA...
+    id2 PRIORITY KIND CHANNEL DESTINATION SOURCE SEQ FRAG ID
+    dg2 NAME SOURCE DESTINATION MTU DATAGRAM N ID:DATA...
 
     python3 firmware/tests/can/can_vectors.py | BUILD/test_can_vectors
 """
@@ -27,7 +29,42 @@ def _name(text: str) -> str:
     return text.replace(" ", "_")
 
 
-def lines(path: Path = ROOT / "protocols" / "vectors" / "can_frames.json") -> list[str]:
+VECTORS = ROOT / "protocols" / "vectors"
+
+
+def lines(path: Path = VECTORS / "can_frames.json") -> list[str]:
+    return format_1_lines(path) + format_2_lines(path.with_name("can_frames_v2.json"))
+
+
+def _bad(doc: dict) -> list[str]:
+    out = []
+    for v in doc["bad"]:
+        frames = " ".join(
+            f"{f['id']}:{int(f['extended'])}:{_hex(f['data_hex'])}" for f in v["frames"]
+        )
+        out.append(f"bad {_name(v['name'])} {v['local']} {v['expect']} {len(v['frames'])} {frames}")
+    return out
+
+
+def format_2_lines(path: Path) -> list[str]:
+    doc = json.loads(path.read_text())
+    out = []
+    for v in doc["ids"]:
+        f = v["fields"]
+        out.append(
+            f"id2 {f['priority']} {f['kind']} {f['channel']} {f['destination']} {f['source']} "
+            f"{f['seq']} {f['frag']} {v['id']}"
+        )
+    for v in doc["datagrams"]:
+        frames = " ".join(f"{f['id']}:{_hex(f['data_hex'])}" for f in v["frames"])
+        out.append(
+            f"dg2 {_name(v['name'])} {v['source']} {v['destination']} {v['mtu']} "
+            f"{_hex(v['datagram_hex'])} {len(v['frames'])} {frames}"
+        )
+    return out + _bad(doc)
+
+
+def format_1_lines(path: Path) -> list[str]:
     doc = json.loads(path.read_text())
     out = [f"crc {doc['crc_check']['input_hex']} {doc['crc_check']['crc16']}"]
     for v in doc["ids"]:
@@ -48,12 +85,7 @@ def lines(path: Path = ROOT / "protocols" / "vectors" / "can_frames.json") -> li
             f"dg {_name(v['name'])} {v['source']} {v['destination']} {v['mtu']} "
             f"{_hex(v['datagram_hex'])} {len(v['frames'])} {frames}"
         )
-    for v in doc["bad"]:
-        frames = " ".join(
-            f"{f['id']}:{int(f['extended'])}:{_hex(f['data_hex'])}" for f in v["frames"]
-        )
-        out.append(f"bad {_name(v['name'])} {v['local']} {v['expect']} {len(v['frames'])} {frames}")
-    return out
+    return out + _bad(doc)
 
 
 if __name__ == "__main__":

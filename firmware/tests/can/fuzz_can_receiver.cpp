@@ -46,13 +46,19 @@ void round(Rng& rng, bool clean, unsigned long* delivered_total) {
     const uint8_t channel = static_cast<uint8_t>(rng.below(3));
     const uint8_t kind = static_cast<uint8_t>(rng.below(3));
     const uint8_t dest = rng.below(8) == 0 ? 6 : 5;
-    const uint32_t id = encode_id(static_cast<uint8_t>(rng.below(8)), kind, channel, dest,
-                                  static_cast<uint8_t>(rng.below(2)));
+    const uint8_t seq = static_cast<uint8_t>(rng.next());
+    const bool format2 = rng.below(2) == 0;  // format 2: from the host, the tid is seq's bits
+    const uint32_t id =
+        format2 ? encode_id2(static_cast<uint8_t>(rng.below(8)), kind, channel, dest, 0, seq,
+                             static_cast<uint8_t>(rng.below(4)))
+                : encode_id(static_cast<uint8_t>(rng.below(8)), kind, channel, dest,
+                            static_cast<uint8_t>(rng.below(2)));
     Bytes p(rng.below(clean ? kMax + 1 : kMax + 20));
     for (size_t k = 0; k < p.size(); ++k) p[k] = static_cast<uint8_t>(rng.below(4) ? rng.next() : 0);
     std::vector<Frame> fs;
     Out o = {&fs};
-    send_transfer<kClassicMtu>(id, p.data(), p.size(), tids.next(id), kClassicMtu, o);
+    send_transfer<kClassicMtu>(id, p.data(), p.size(), format2 ? seq : tids.next(id), kClassicMtu,
+                               o);
     if (dest == 5 && p.size() <= kMax) sent[id].insert(p);
     per.push_back(fs);
   }
@@ -172,12 +178,19 @@ void hardware_round(Rng& rng) {
     for (size_t i = 0; i < p.size(); ++i) p[i] = static_cast<uint8_t>(rng.below(3) ? rng.next() : 0);
     const uint8_t src = rng.below(4) ? 0 : static_cast<uint8_t>(rng.below(128));
     const uint8_t dst = rng.below(4) ? node : static_cast<uint8_t>(rng.below(128));
-    const uint32_t id = encode_id(static_cast<uint8_t>(rng.below(8)),
-                                  static_cast<uint8_t>(rng.below(4)),
-                                  static_cast<uint8_t>(rng.below(4)), dst, src);
+    const uint8_t priority = static_cast<uint8_t>(rng.below(8));
+    const uint8_t kind = static_cast<uint8_t>(rng.below(4));
+    const uint8_t channel = static_cast<uint8_t>(rng.below(4));
+    const uint8_t seq = static_cast<uint8_t>(rng.next());
+    // format 2 (one end the host) or format 1, as they come
+    const bool format2 = (src == 0 || dst == 0) && rng.below(2) == 0;
+    const uint32_t id = format2 ? encode_id2(priority, kind, channel, dst, src, seq,
+                                             static_cast<uint8_t>(rng.below(4)))
+                                : encode_id(priority, kind, channel, dst, src);
     std::vector<Frame> fs;
     Out o = {&fs};
-    send_transfer<kClassicMtu>(id, p.data(), p.size(), tids.next(id), kClassicMtu, o);
+    send_transfer<kClassicMtu>(id, p.data(), p.size(), format2 ? seq : tids.next(id), kClassicMtu,
+                               o);
     for (size_t i = 0; i < fs.size(); ++i) {
       if (rng.below(30) == 0) fs[i].data[rng.below(8)] ^= 0x10;
       if (rng.below(40) != 0) d.inbox.push_back(fs[i]);

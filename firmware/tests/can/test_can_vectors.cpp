@@ -122,6 +122,53 @@ int vectors() {
       }
       CHECK(to_hex(t.payload, t.size) == dg_hex && t.id.source == src, "%s: received",
             name.c_str());
+    } else if (kind == "id2") {
+      unsigned p, k, c, d, src, seq, frag;
+      std::string id;
+      in >> p >> k >> c >> d >> src >> seq >> frag >> id;
+      const uint32_t want = static_cast<uint32_t>(strtoul(id.c_str(), nullptr, 16));
+      CHECK(encode_id2(p, k, c, d, src, seq, frag) == want, "encode2 %s", id.c_str());
+      CanId f;
+      CHECK(decode_id(want, &f) && f.format == kFormat2 && f.priority == p && f.kind == k &&
+                f.channel == c && f.destination == d && f.source == src &&
+                f.seq_high == (seq >> 5) && f.frag == frag,
+            "decode2 %s", id.c_str());
+    } else if (kind == "dg2") {
+      std::string name, dg_hex;
+      unsigned src, dst, mtu, count;
+      in >> name >> src >> dst >> mtu >> dg_hex >> count;
+      const Bytes dg = from_hex(dg_hex);
+      NativeHeader h;
+      CHECK(parse_datagram(dg.data(), dg.size(), &h), "%s: a valid datagram", name.c_str());
+      const uint32_t id =
+          encode_id2(priority_of(h.kind, h.channel), h.kind, h.channel, dst, src, h.seq, h.frag);
+      std::vector<std::pair<uint32_t, Bytes> > got;
+      Collect sink = {&got};
+      CHECK(send_transfer<kFdMtu>(id, dg.data() + 3, dg.size() - 5, h.seq, mtu, sink), "%s",
+            name.c_str());
+      CHECK(got.size() == count, "%s: %zu frames", name.c_str(), got.size());
+      Receiver rx(static_cast<uint8_t>(dst));
+      Transfer t;
+      std::vector<Bytes> keep;
+      for (unsigned i = 0; i < count; ++i) {
+        std::string frame;
+        in >> frame;
+        const size_t colon = frame.find(':');
+        const uint32_t want_id = static_cast<uint32_t>(strtoul(frame.substr(0, colon).c_str(),
+                                                               nullptr, 16));
+        CHECK(got[i].first == want_id, "%s id %08lx", name.c_str(),
+              static_cast<unsigned long>(got[i].first));
+        CHECK(to_hex(got[i].second) == frame.substr(colon + 1), "%s frame %u", name.c_str(), i);
+        keep.push_back(from_hex(frame.substr(colon + 1)));
+        const Bytes& data = keep.back();
+        const bool done = rx.feed(want_id, true, data.data(), data.size(), 5, &t);
+        CHECK(done == (i + 1 == count), "%s: completion", name.c_str());
+      }
+      uint8_t whole[300];
+      const size_t m = rebuild_datagram(t, whole, sizeof(whole));
+      CHECK(m == dg.size() && to_hex(whole, m) == dg_hex && t.id.source == src &&
+                t.id.format == kFormat2,
+            "%s: rebuilt %s", name.c_str(), to_hex(whole, m).c_str());
     } else if (kind == "bad") {
       std::string name, expect;
       unsigned local, count;
@@ -194,16 +241,25 @@ Bytes read_all(Hw& hw) {
   return out;
 }
 
+const uint8_t kHostUid[6] = {0xA0, 0xA1, 0xA2, 0xA3, 0xA4, 0xA5};
+
+/** A board under a host that claims in format 1 (older host software): it speaks format 1. */
 void hardware() {
   Hw hw;
   hw.setNode(5);
   CHECK(hw.init(115200), "init");
   CHECK(hw.read() == -1, "nothing yet");
-  // The first poll sent a claim: NODE kind, channel 1, priority 3, to 0, from 5.
+  // The first poll sent a claim in format 2: NODE kind, channel 1, priority 3, to 0, from 5.
   ScriptDriver& d = hw.driver();
-  CHECK(d.sent.size() == 1 && d.sent[0].id == encode_id(3, kNode, 1, 0, 5) && d.sent[0].len == 7,
+  CHECK(d.sent.size() == 1 && d.sent[0].id == encode_id2(3, kNode, 1, 0, 5, 0, 0) &&
+            d.sent[0].len == 7,
         "claim");
+  CHECK(hw.format() == kFormat2, "format 2 first");
   d.sent.clear();
+  // The host claims in format 1: the board speaks format 1 from now on.
+  queue_transfer(hw, encode_id(3, kNode, 1, 0, 0), Bytes(kHostUid, kHostUid + 6), 0);
+  CHECK(hw.read() == -1 && hw.format() == kFormat1 && hw.stats.format_changes == 1,
+        "format 1 after the host's claim");
 
   // The session writes a HEARTBEAT datagram, COBS-framed: one single-frame transfer.
   const Bytes hb = from_hex("400009028670");
@@ -281,12 +337,98 @@ void hardware() {
   CHECK(!got.empty() && got.back() == 0, "whole datagrams");
 }
 
+/** A board under a format-2 host: no native header or CRC-16 on the bus, datagrams rebuilt
+ * whole for the session, a resent reliable datagram delivered again, bad datagrams refused. */
+void hardware_format2() {
+  Hw hw;
+  hw.setNode(5);
+  CHECK(hw.init(115200), "init");
+  ScriptDriver& d = hw.driver();
+  queue_transfer(hw, encode_id2(3, kNode, 1, 0, 0, 0, 0), Bytes(kHostUid, kHostUid + 6), 0);
+  CHECK(hw.read() == -1 && hw.format() == kFormat2 && hw.stats.format_changes == 0, "format 2");
+  d.sent.clear();
+  // HEARTBEAT 40 00 09 | 02 | CRC: one frame of its payload byte and the tail byte (seq 9).
+  const Bytes hb = from_hex("400009028670");
+  uint8_t enc[80];
+  size_t n = hwbridge::cobs_encode(hb.data(), hb.size(), enc, sizeof(enc));
+  for (size_t i = 0; i < n; ++i) hw.put(enc[i]);
+  hw.put(0);
+  CHECK(d.sent.size() == 1 && d.sent[0].id == encode_id2(2, kBestEffort, 0, 0, 5, 9, 0),
+        "heartbeat id %08lx", static_cast<unsigned long>(d.sent[0].id));
+  CHECK(to_hex(d.sent[0].data, d.sent[0].len) == "02e9", "heartbeat frame %s",
+        to_hex(d.sent[0].data, d.sent[0].len).c_str());
+  // A reliable datagram, seq 0xc8: 4 payload bytes, one frame, the seq split id/tail.
+  const Bytes rel = from_hex("5003c82a000000c9bb");
+  n = hwbridge::cobs_encode(rel.data(), rel.size(), enc, sizeof(enc));
+  for (size_t i = 0; i < n; ++i) hw.put(enc[i]);
+  hw.put(0);
+  CHECK(d.sent.size() == 2 && d.sent[1].id == encode_id2(4, kReliable, 3, 0, 5, 0xC8, 0) &&
+            to_hex(d.sent[1].data, d.sent[1].len) == "2a000000e8",
+        "reliable frame %s", to_hex(d.sent[1].data, d.sent[1].len).c_str());
+  // A datagram with a wrong CRC-16 is not sent (format 2 would make it look right).
+  Bytes broken = rel;
+  broken.back() ^= 1;
+  n = hwbridge::cobs_encode(broken.data(), broken.size(), enc, sizeof(enc));
+  for (size_t i = 0; i < n; ++i) hw.put(enc[i]);
+  hw.put(0);
+  CHECK(d.sent.size() == 2 && hw.stats.tx_oversize == 1, "bad datagram refused");
+  // The host's reliable datagram to node 5, twice (a resend): rebuilt whole both times.
+  Bytes big = from_hex("500161");
+  for (uint8_t i = 0; i < 20; ++i) big.push_back(i);
+  const uint16_t crc = hwbridge::crc16(big.data(), big.size());
+  big.push_back(static_cast<uint8_t>(crc & 0xFF));
+  big.push_back(static_cast<uint8_t>(crc >> 8));
+  const uint32_t id = encode_id2(4, kReliable, 1, 5, 0, 0x61, 0);
+  const Bytes body(big.begin() + 3, big.end() - 2);
+  queue_transfer(hw, id, body, 0x61 & kTidMask);
+  queue_transfer(hw, id, body, 0x61 & kTidMask);
+  Bytes want;
+  for (int k = 0; k < 2; ++k) {
+    const size_t m = hwbridge::cobs_encode(big.data(), big.size(), enc, sizeof(enc));
+    want.insert(want.end(), enc, enc + m);
+    want.push_back(0);
+  }
+  Bytes got;
+  for (int spins = 0; spins < 10; ++spins) {
+    const Bytes part = read_all(hw);
+    got.insert(got.end(), part.begin(), part.end());
+  }
+  CHECK(to_hex(got) == to_hex(want), "read %s", to_hex(got).c_str());
+  CHECK(hw.rxStats().dropped() == 0 && hw.rxStats().transfers == 3, "no drops");
+  // A format-1 transfer from the host is still understood (the host's answer to old firmware).
+  const Bytes ack = from_hex("6000110000837c");
+  queue_transfer(hw, encode_id(1, kAck, 0, 5, 0), ack, 0);
+  got = read_all(hw);
+  const size_t m = hwbridge::cobs_encode(ack.data(), ack.size(), enc, sizeof(enc));
+  CHECK(to_hex(got) == to_hex(enc, m) + "00", "format-1 ack read");
+  CHECK(hw.format() == kFormat2, "still format 2 (only the host's claims choose)");
+}
+
+/** setFormat(kFormat1): a board as CAN.md version-1 firmware, whatever the host claims in. */
+void hardware_version1() {
+  Hw hw;
+  hw.setNode(5);
+  hw.setFormat(kFormat1);
+  CHECK(hw.init(115200), "init");
+  ScriptDriver& d = hw.driver();
+  CHECK(hw.read() == -1 && d.sent.size() == 1 && d.sent[0].id == encode_id(3, kNode, 1, 0, 5),
+        "a format-1 claim");
+  queue_transfer(hw, encode_id2(3, kNode, 1, 0, 0, 0, 0), Bytes(kHostUid, kHostUid + 6), 0);
+  const Bytes body = from_hex("2a000000");
+  queue_transfer(hw, encode_id2(4, kReliable, 3, 5, 0, 0xc8, 0), body, 0xc8 & kTidMask);
+  CHECK(hw.read() == -1 && hw.format() == kFormat1 && hw.rxStats().malformed == 2 &&
+            hw.rxStats().transfers == 0,
+        "format 2 refused: %u malformed", hw.rxStats().malformed);
+}
+
 }  // namespace
 
 int main() {
   const int n = vectors();
   CHECK(n >= 30, "only %d vector lines", n);
   hardware();
+  hardware_format2();
+  hardware_version1();
   printf("test_can_vectors: %d vector lines, %lu checks passed\n", n, g_checks);
   return 0;
 }

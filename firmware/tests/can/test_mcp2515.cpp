@@ -301,8 +301,9 @@ void frames() {
   CHECK(d.send(s, 5), "sends again");
 }
 
-/** A node's acceptance filters: transfers to it in RXB0 (rolling over into RXB1), NODE messages
- * to anyone in RXB1, everything else (other nodes' traffic, standard ids) never on SPI. */
+/** A node's acceptance filters (CAN.md 11): format-2 transfers to it and format-1 frames from
+ * the host in RXB0 (rolling over into RXB1); the host's format-2 claims and format-1 claims in
+ * RXB1; everything else (other nodes' format-2 traffic, standard ids) never on SPI. */
 void filters() {
   Driver d;
   d.configure(500000UL, 16000000UL);
@@ -311,28 +312,38 @@ void filters() {
   CHECK(chip.reg[0x60] == 0x04 && chip.reg[0x70] == 0x00, "filters on, rollover: %02x %02x",
         chip.reg[0x60], chip.reg[0x70]);
   const uint8_t a[8] = {1, 2, 3, 4, 5, 6, 7, 0xE0};
-  const uint32_t to_me = encode_id(4, kReliable, 3, 5, 0);
-  const uint32_t claim = encode_id(3, kNode, 1, 0, 9);
+  const uint32_t to_me = encode_id2(4, kReliable, 3, 5, 0, 0xE1, 3);
+  const uint32_t to_me_1 = encode_id(4, kReliable, 3, 5, 0);
+  const uint32_t host_claim = encode_id2(3, kNode, 1, 0, 0, 0, 0);
+  const uint32_t host_claim_1 = encode_id(3, kNode, 1, 0, 0);
+  const uint32_t twin_1 = encode_id(3, kNode, 1, 0, 5);  // a format-1 board with node id 5
   // other nodes' traffic and standard ids: filtered out by the chip (not overflow, not received)
-  CHECK(chip.deliver(encode_id(4, kReliable, 3, 6, 0), true, a, 8) == 0, "to node 6");
-  CHECK(chip.deliver(encode_id(5, kBestEffort, 1, 0, 7), true, a, 8) == 0, "node 7 to the host");
+  CHECK(chip.deliver(encode_id2(4, kReliable, 3, 6, 0, 0xE1, 0), true, a, 8) == 0, "to node 6");
+  CHECK(chip.deliver(encode_id2(5, kBestEffort, 1, 0, 7, 0x20, 0), true, a, 8) == 0,
+        "node 7 to the host");
+  CHECK(chip.deliver(encode_id2(3, kNode, 1, 0, 7, 0, 0), true, a, 7) == 0, "node 7's claim");
+  CHECK(chip.deliver(encode_id(4, kReliable, 3, 6, 7), true, a, 8) == 0, "format 1, 7 to 6");
   CHECK(chip.deliver(encode_id(2, kBestEffort, 0, 0x45, 5), true, a, 8) == 0, "another destination");
   CHECK(chip.deliver(5 << 7, false, a, 3) == 0, "a standard id");
+  CHECK(chip.deliver(kFormat2Bit | 5, false, a, 3) == 0, "a standard id, format-2 bits");
   Frame f;
   CHECK(!d.receive(&f) && d.stats.rx_frames == 0 && d.stats.rx_overflow == 0, "nothing came");
-  // every field but the destination may vary; claims to the host reach RXB1
+  // every field but the format, direction and node may vary in format 2
   CHECK(chip.deliver(to_me, true, a, 8) == 1, "to me: RXB0");
-  CHECK(chip.deliver(claim, true, a, 7) == 2, "a claim: RXB1");
+  CHECK(chip.deliver(host_claim, true, a, 7) == 2, "the host's claim: RXB1");
   CHECK(d.receive(&f) && f.id == to_me, "first");
-  CHECK(d.receive(&f) && f.id == claim && f.len == 7, "the claim");
-  const uint32_t node_msg = encode_id(3, kNode, 2, 0x33, 9);  // NODE messages: any destination
-  CHECK(chip.deliver(node_msg, true, a, 3) == 2 && d.receive(&f) && f.id == node_msg, "NODE to 0x33");
-  const uint32_t ack = encode_id(1, kAck, 0, 5, 0);
-  CHECK(chip.deliver(ack, true, a, 2) == 1 && chip.deliver(to_me | 0x7F, true, a, 1) == 2, "rollover");
-  CHECK(chip.deliver(claim, true, a, 7) == -1 && chip.deliver(to_me, true, a, 1) == -1, "both full");
-  CHECK(d.receive(&f) && f.id == ack && d.receive(&f) && f.id == (to_me | 0x7F) && !d.receive(&f),
+  CHECK(d.receive(&f) && f.id == host_claim && f.len == 7, "the claim");
+  CHECK(chip.deliver(twin_1, true, a, 7) == 2 && d.receive(&f) && f.id == twin_1, "a twin");
+  CHECK(chip.deliver(to_me_1, true, a, 8) == 1 && d.receive(&f) && f.id == to_me_1, "format 1");
+  CHECK(chip.deliver(host_claim_1, true, a, 7) == 1 && d.receive(&f) && f.id == host_claim_1,
+        "a format-1 host's claim");
+  const uint32_t ack = encode_id2(1, kAck, 0, 5, 0, 0x11, 0);
+  CHECK(chip.deliver(ack, true, a, 2) == 1 && chip.deliver(to_me, true, a, 1) == 2, "rollover");
+  CHECK(chip.deliver(host_claim, true, a, 7) == -1 && chip.deliver(to_me, true, a, 1) == -1,
+        "both full");
+  CHECK(d.receive(&f) && f.id == ack && d.receive(&f) && f.id == to_me && !d.receive(&f),
         "both read");
-  CHECK(d.stats.rx_overflow == 1 && d.stats.rx_frames == 5, "overflow %lu, frames %lu",
+  CHECK(d.stats.rx_overflow == 1 && d.stats.rx_frames == 7, "overflow %lu, frames %lu",
         (unsigned long)d.stats.rx_overflow, (unsigned long)d.stats.rx_frames);
   // begin() without a node: every frame, as before
   Driver any;
@@ -348,7 +359,8 @@ void over_can_hardware() {
   CHECK(hw.init(0), "init");
   CHECK(hw.read() == -1, "nothing");
   Chip& chip = hw.driver().port();
-  CHECK(chip.sent.size() == 1 && chip.sent[0].first.id == encode_id(3, kNode, 1, 0, 9) &&
+  CHECK(chip.sent.size() == 1 &&
+            chip.sent[0].first.id == encode_id2(3, kNode, 1, 0, 9, 0, 0) &&
             chip.sent[0].second == 1,
         "claim through TXB1");
   // A two-frame transfer from the host arrives as one COBS run.
@@ -357,6 +369,7 @@ void over_can_hardware() {
     Chip* chip;
     bool operator()(const Frame& f) { return chip->deliver(f.id, true, f.data, f.len) > 0; }
   } q = {&chip};
+  // (format 1: the host has not claimed yet, and every board understands both formats)
   send_transfer<kClassicMtu>(encode_id(4, kReliable, 3, 9, 0), dg, 9, 0, kClassicMtu, q);
   std::vector<uint8_t> got;
   for (int c = hw.read(); c >= 0; c = hw.read()) got.push_back(static_cast<uint8_t>(c));
@@ -364,17 +377,32 @@ void over_can_hardware() {
   const size_t n = hwbridge::cobs_encode(dg, 9, want, sizeof want);
   CHECK(got.size() == n + 1 && memcmp(got.data(), want, n) == 0 && got[n] == 0, "read %s",
         to_hex(got).c_str());
-  // And the same datagram written by the session leaves as two frames in TXB0.
+  // And the same datagram written by the session leaves in format 2 as one frame in TXB0:
+  // its 4 payload bytes and the tail byte (seq 0xc8: bits 7..5 in the id, 4..0 in the tail).
   for (size_t i = 0; i < n; ++i) hw.put(want[i]);
   hw.put(0);
-  CHECK(chip.sent.size() == 3 && chip.sent[1].second == 0 &&
-            chip.sent[1].first.id == encode_id(4, kReliable, 3, 0, 9) &&
-            to_hex(chip.sent[2].first.data, chip.sent[2].first.len) == "c9bb30ee40",
+  CHECK(chip.sent.size() == 2 && chip.sent[1].second == 0 &&
+            chip.sent[1].first.id == encode_id2(4, kReliable, 3, 0, 9, 0xc8, 0) &&
+            to_hex(chip.sent[1].first.data, chip.sent[1].first.len) == "2a000000e8",
         "sent %zu", chip.sent.size());
-  // The node's filters: a transfer to node 8 never arrives; a claim of node 9 by another
-  // unique id comes through them to the conflict count.
+  // A format-1 host claims: the board speaks format 1, the same datagram as two frames.
+  const uint8_t host_uid[6] = {9, 9, 9, 9, 9, 9};
+  send_transfer<kClassicMtu>(encode_id(3, kNode, 1, 0, 0), host_uid, 6, 0, kClassicMtu, q);
+  CHECK(hw.read() == -1 && hw.format() == kFormat1, "format 1 after the host's claim");
+  for (size_t i = 0; i < n; ++i) hw.put(want[i]);
+  hw.put(0);
+  CHECK(chip.sent.size() == 4 && chip.sent[2].first.id == encode_id(4, kReliable, 3, 0, 9) &&
+            to_hex(chip.sent[3].first.data, chip.sent[3].first.len) == "c9bb30ee40",
+        "sent %zu", chip.sent.size());
+  // The node's filters: a format-2 transfer to node 8 never arrives (a format-1 one from the
+  // host does, and the transport skips it); a format-1 claim of node 9 by another unique id
+  // comes through them to the conflict count.
+  send_transfer<kClassicMtu>(encode_id2(4, kReliable, 3, 8, 0, 0xc8, 0), dg + 3, 4, 8,
+                             kClassicMtu, q);
+  CHECK(hw.read() == -1 && hw.driver().stats.rx_frames == 3, "another node's transfer");
   send_transfer<kClassicMtu>(encode_id(4, kReliable, 3, 8, 0), dg, 9, 1, kClassicMtu, q);
-  CHECK(hw.read() == -1 && hw.driver().stats.rx_frames == 2, "another node's transfer");
+  CHECK(hw.read() == -1 && hw.driver().stats.rx_frames == 5 && hw.rxStats().foreign == 2,
+        "another node's format-1 transfer: skipped");
   const uint8_t other[6] = {1, 2, 3, 4, 5, 6};
   send_transfer<kClassicMtu>(encode_id(3, kNode, 1, 0, 9), other, 6, 0, kClassicMtu, q);
   CHECK(hw.read() == -1 && hw.ownConflicts() == 1, "claim of node 9: %lu conflicts",

@@ -303,7 +303,9 @@ class SimAvr:
         for line in process.stderr:
             text = line.rstrip()
             if text:
-                log.debug("simavr: %s", text)
+                # The runner's lag behind real time matters to whoever talks to the board.
+                level = logging.WARNING if "behind real time" in text else logging.DEBUG
+                log.log(level, "simavr: %s", text.removeprefix("hwbridge-simavr: "))
 
     @property
     def path(self) -> str:

@@ -2,8 +2,9 @@
 
 :func:`build_example` builds ``firmware/HwBridge/examples/NAME`` with
 :func:`hwbridge.firmware.build.build_sketch` for an Uno, a Nano or a Mega (which adds the core's own
-libraries, such as ``Wire``, that a sketch includes). Builds are cached under
-``~/.cache/hwbridge/sim-examples/`` by a hash of the sketch, the library and the board.
+libraries, such as ``Wire``, that a sketch includes), or for an ARM board run in QEMU. Builds
+are cached under ``~/.cache/hwbridge/sim-examples/`` by a hash of the sketch, the library and
+the board.
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ def cache_root() -> Path:
 
 def _digest(sketch: Path, board: str, defines: list[str]) -> str:
     digest = hashlib.sha256(f"{board}\0{' '.join(defines)}\0".encode())
-    for folder in (sketch, build.LIBRARY_DIR / "src"):
+    for folder in (sketch, build.LIBRARY_DIR / "src", build.ARM_CORE_DIR):
         for path in sorted(folder.rglob("*")):
             if path.is_file() and "build" not in path.relative_to(folder).parts:
                 digest.update(str(path.relative_to(folder)).encode() + b"\0" + path.read_bytes())
@@ -42,8 +43,9 @@ def build_sketch_for_sim(
     sketch: Path, board: str = "uno", *, defines: list[str] | None = None
 ) -> Path:
     """The ELF of ``sketch`` (a folder with NAME.ino) for ``board``, built once and cached."""
-    if board not in MCU_OF_BOARD:
-        raise HwBridgeError(f"unknown board {board!r}: {', '.join(MCU_OF_BOARD)}")
+    if board not in MCU_OF_BOARD and board not in build.ARM_BOARDS:
+        known = ", ".join([*MCU_OF_BOARD, *build.ARM_BOARDS])
+        raise HwBridgeError(f"unknown board {board!r}: {known}")
     sketch = sketch.resolve()
     flags = list(defines or [])
     out = cache_root() / f"{sketch.name}-{board}-{_digest(sketch, board, flags)}"

@@ -49,6 +49,7 @@
 #include <strings.h>
 #include <time.h>
 #include <poll.h>
+#include <pthread.h>
 #include <sys/inotify.h>
 #include <unistd.h>
 
@@ -137,6 +138,8 @@ static size_t inlen;
 static int want_reset, want_quit, want_go;
 static int boot_mode;        // --bootloader: resets set EXTRF, opens of the pty reset
 static int open_watch = -1;  // inotify on the pty's slave: IN_OPEN
+static int open_wake[2] = {-1, -1};  // the watcher's self-pipe: wait_for_reset polls it
+static volatile int open_seen;       // set by the watcher thread, taken by the main loop
 
 static void out_line(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
 static void out_line(const char *fmt, ...) {
@@ -619,19 +622,52 @@ static void read_commands(void) {
 }
 
 /* ------------------------------------------------------------------ bootloader mode */
-/* Whether the host opened the pty since the last look (the auto-reset of an Uno). */
-static int pty_opened(void) {
-  if (open_watch < 0) return 0;
-  int opened = 0;
+/* The auto-reset of an Uno: opening its port pulls DTR and resets the AVR at once, before the
+   host can send a byte. A pty has no DTR, so a thread waits on inotify for opens of the slave
+   and raises open_seen the moment one happens; the main loop looks at it after every
+   instruction. Looking only in the 1 ms tick was not enough on a busy machine: with the runner
+   descheduled for longer than avrdude's 300 ms pause after the open, its first bytes reached
+   the bootloader that was running before the reset, which then cut the exchange in the middle
+   ("protocol expects OK byte 0x10 but got 0x04"). */
+static void *watch_opens(void *arg) {
+  (void)arg;
   char events[4096] __attribute__((aligned(__alignof__(struct inotify_event))));
-  ssize_t n;
-  while ((n = read(open_watch, events, sizeof events)) > 0)
+  for (;;) {
+    ssize_t n = read(open_watch, events, sizeof events);
+    if (n < 0 && errno == EINTR) continue;
+    if (n <= 0) return NULL;
     for (char *at = events; at < events + n;) {
       const struct inotify_event *e = (const struct inotify_event *)at;
-      if (e->mask & IN_OPEN) opened = 1;
+      if (e->mask & IN_OPEN) {
+        __atomic_store_n(&open_seen, 1, __ATOMIC_RELEASE);
+        ssize_t w = write(open_wake[1], "o", 1);  // a full pipe has a wake-up pending already
+        (void)w;
+      }
       at += sizeof *e + e->len;
     }
-  return opened;
+  }
+}
+
+static void start_open_watch(const char *slave) {
+  pthread_t thread;
+  open_watch = inotify_init1(IN_CLOEXEC);
+  if (open_watch < 0 || inotify_add_watch(open_watch, slave, IN_OPEN) < 0 ||
+      pipe2(open_wake, O_NONBLOCK | O_CLOEXEC) < 0 ||
+      pthread_create(&thread, NULL, watch_opens, NULL) != 0) {
+    fprintf(stderr, "hwbridge-simavr: cannot watch %s for opens: %s\n", slave, strerror(errno));
+    return;
+  }
+  pthread_detach(thread);
+}
+
+/* Whether the host opened the pty since the last look. */
+static int pty_opened(void) {
+  if (!__atomic_load_n(&open_seen, __ATOMIC_RELAXED)) return 0;
+  __atomic_store_n(&open_seen, 0, __ATOMIC_RELAXED);
+  char drain[64];
+  while (read(open_wake[0], drain, sizeof drain) > 0) {
+  }
+  return 1;
 }
 
 /* Copy an Intel HEX file into flash; the lowest address loaded goes to *lowest. */
@@ -674,7 +710,7 @@ static void external_reset(void) {
    reset, an open of the pty (the next upload) or the "reset" command. */
 static void wait_for_reset(void) {
   while (!want_reset && !want_quit) {
-    struct pollfd fds[2] = {{.fd = 0, .events = POLLIN}, {.fd = open_watch, .events = POLLIN}};
+    struct pollfd fds[2] = {{.fd = 0, .events = POLLIN}, {.fd = open_wake[0], .events = POLLIN}};
     if (poll(fds, 2, -1) < 0 && errno != EINTR) {
       want_quit = 1;
       break;
@@ -735,8 +771,19 @@ static avr_cycle_count_t tick(avr_t *a, avr_cycle_count_t when, void *param) {
     sample_pins();
   if (speed > 0) {
     double sim = (double)(avr->cycle - cycle_start) / (double)avr->frequency / speed;
-    double ahead = sim - wall_seconds();
+    double wall = wall_seconds();
+    double ahead = sim - wall;
     if (ahead > 0.0002) usleep((useconds_t)(ahead * 1e6));
+    // A board that answers late looks broken to peers with wall-clock timeouts (avrdude
+    // drains for 250 ms between its sync attempts): say so when the machine holds us back.
+    static double warned_at = -10.0;
+    if (ahead < -0.25 && wall - warned_at > 5.0) {
+      warned_at = wall;
+      fprintf(stderr,
+              "hwbridge-simavr: the simulation runs %.2f s behind real time (the machine is "
+              "busy): peers with timeouts, such as avrdude, may see a slow board\n",
+              -ahead);
+    }
   }
   return when + avr_usec_to_cycles(avr, TICK_US);
 }
@@ -828,10 +875,7 @@ int main(int argc, char **argv) {
   dup2(saved, 1);
   close(saved);
   if (boot_mode) {
-    open_watch = inotify_init1(IN_NONBLOCK | IN_CLOEXEC);
-    if (open_watch < 0 || inotify_add_watch(open_watch, uart.port[0].slavename, IN_OPEN) < 0)
-      fprintf(stderr, "hwbridge-simavr: cannot watch %s for opens: %s\n", uart.port[0].slavename,
-              strerror(errno));
+    start_open_watch(uart.port[0].slavename);
   }
   out_line("serial://%s\n", uart.port[0].slavename);
 
@@ -868,6 +912,7 @@ int main(int argc, char **argv) {
   int state = cpu_Running;
   while (!want_quit) {
     state = avr_run(avr);
+    if (boot_mode && pty_opened()) want_reset = 1;
     if ((state == cpu_Done || state == cpu_Crashed) && boot_mode) {
       fprintf(stderr, "hwbridge-simavr: the AVR stopped (%s) at 0x%04x; it waits for a reset\n",
               state == cpu_Crashed ? "crashed" : "done", avr->pc);

@@ -19,6 +19,7 @@ Pure data: nothing here keeps state or knows about time.
 from __future__ import annotations
 
 import functools
+import hashlib
 import json
 import struct
 from collections.abc import Callable, Mapping
@@ -32,6 +33,7 @@ __all__ = [
     "SCALARS",
     "SCHEMA_PATH",
     "FieldSpec",
+    "IdentitySpec",
     "MessageCodec",
     "MessageSpec",
     "ParamValueSpec",
@@ -125,6 +127,33 @@ class ParamValueSpec:
 
 
 @dataclass(frozen=True)
+class IdentitySpec:
+    """The firmware identity items of BOARD_INFO's firmware_version text, in the order a board
+    sends them: attribute name -> one-letter key on the wire; and the hex digits of a hash."""
+
+    items: Mapping[str, str]
+    hash_hex: int
+
+
+def _strip_docs(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {k: _strip_docs(v) for k, v in value.items() if k != "doc"}
+    if isinstance(value, list):
+        return [_strip_docs(v) for v in value]
+    return value
+
+
+def schema_hash(raw: Mapping[str, Any], digits: int) -> str:
+    """The schema's hash (PROTOCOL.md 2.6.1): the first ``digits`` lowercase hex digits of
+    SHA-256 over its JSON without any ``doc`` member, keys sorted, no spaces, UTF-8. Prose
+    edits keep it; any change of what is on the wire changes it."""
+    canonical = json.dumps(
+        _strip_docs(raw), sort_keys=True, separators=(",", ":"), ensure_ascii=False
+    )
+    return hashlib.sha256(canonical.encode("utf-8")).hexdigest()[:digits]
+
+
+@dataclass(frozen=True)
 class Schema:
     """The parsed schema."""
 
@@ -138,6 +167,9 @@ class Schema:
     messages: tuple[MessageSpec, ...]
     frame: Mapping[str, Any]
     """The frame header as the schema gives it (``header``, ``crc``, ``length_prefix``)."""
+    identity: IdentitySpec
+    hash: str
+    """:func:`schema_hash` of the file: what boards built from it send as ``schema_hash``."""
 
     def message(self, name: str) -> MessageSpec:
         """The message called ``name`` (``HELLO``); KeyError if there is none."""
@@ -217,6 +249,11 @@ def _check(schema: Schema) -> None:
             if field.const is not None and field.const not in schema.constants:
                 raise ValueError(f"{where}: unknown constant {field.const}")
             names.add(field.name)
+    keys = list(schema.identity.items.values())
+    if len(set(keys)) != len(keys) or any(
+        len(k) != 1 or k in "\n=" or not k.isascii() for k in keys
+    ):
+        raise ValueError(f"schema: identity keys must be distinct ASCII letters, not {keys}")
 
 
 @functools.cache
@@ -251,6 +288,11 @@ def load_schema(path: Path = SCHEMA_PATH) -> Schema:
             for m in raw["messages"]
         ),
         frame=raw["frame"],
+        identity=IdentitySpec(
+            items={str(i["name"]): str(i["key"]) for i in raw["identity"]["items"]},
+            hash_hex=int(raw["identity"]["hash_hex"]),
+        ),
+        hash=schema_hash(raw, int(raw["identity"]["hash_hex"])),
     )
     _check(schema)
     return schema

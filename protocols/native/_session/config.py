@@ -7,7 +7,7 @@ from dataclasses import dataclass
 from enum import Enum
 from typing import Final, TypeAlias
 
-from hwbridge.protocols.base import Endpoint
+from hwbridge.protocols.base import Endpoint, FirmwareIdentity
 from hwbridge.protocols.errors import HwBridgeError, ProtocolMismatchError
 from hwbridge.protocols.native._control.common import (
     ALL_FEATURES,
@@ -18,6 +18,7 @@ from hwbridge.protocols.native._control.common import (
     Features,
 )
 from hwbridge.protocols.native._control.table import TopicMsg
+from hwbridge.protocols.native.identity import parse_identity
 
 _U32: Final = 1 << 32
 _MAX_TIME_SAMPLES: Final = 4
@@ -182,6 +183,11 @@ class BoardInfo:
     def __post_init__(self) -> None:
         if len(self.name.encode("utf-8")) > MAX_NAME_BYTES or len(self.unique_id) > MAX_NAME_BYTES:
             raise ValueError("board name and unique id are at most 255 bytes each")
+
+    @property
+    def identity(self) -> FirmwareIdentity:
+        """The firmware identity carried in ``firmware_version`` (PROTOCOL.md 2.6.1)."""
+        return parse_identity(self.firmware_version)
 
 
 @dataclass(frozen=True, slots=True)

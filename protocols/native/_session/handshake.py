@@ -195,6 +195,7 @@ class Handshake(SessionCore[Any]):
                 topics,
                 board.name,
                 resumed,
+                board.identity,
                 board=board,
                 link=self._link,
                 host_session=host_id,

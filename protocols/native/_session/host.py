@@ -84,7 +84,7 @@ class HostSession(
             "state": self._state.value,
             "board": board.name if board is not None else None,
             "unique_id": board.unique_id.hex() if board is not None else None,
-            "firmware_version": board.firmware_version if board is not None else None,
+            "firmware_version": board.identity.version if board is not None else None,
             "mtu": link.mtu if link is not None else None,
             "window": link.window if link is not None else None,
             "host_session": self._id,

@@ -198,7 +198,10 @@ class FrameDecoder {
 
   /** The counter of a result other than Text (frames for Ok). */
   Counter& counter(FrameError e) {
-    return *reinterpret_cast<Counter*>(reinterpret_cast<char*>(&stats_) + counter_offset(e));
+    // Indexed as Counters from the struct's start (its alignment is a Counter's), not as bytes:
+    // a char* cast back to Counter* would claim an alignment the compiler cannot see (-Wcast-align
+    // on ARM, where a misaligned 16-bit access faults on a Cortex-M0).
+    return reinterpret_cast<Counter*>(&stats_)[counter_offset(e) / sizeof(Counter)];
   }
 
   void clear_run() {

@@ -57,16 +57,44 @@ struct Body {
 };
 }  // namespace detail
 
+namespace detail {
+/** Whether a sink is a datagram link: it declares `static const bool kDatagram = true` (the
+ * UdpHardware does). Any other sink is a byte stream. */
+template <class Sink>
+struct IsDatagramSink {
+  template <class S> static char test(char (*)[S::kDatagram ? 1 : 2]);
+  template <class S> static long test(...);
+  static const bool value = sizeof(test<Sink>(nullptr)) == 1;
+};
+template <bool B, class T> struct EnableIf {};
+template <class T> struct EnableIf<true, T> { typedef T type; };
+}  // namespace detail
+
 /**
  * Writes one frame to sink.put(uint8_t): an optional leading 0x00, COBS(body), the 0x00
  * delimiter. The payload is p1 followed by p2 (either may be empty). Returns the bytes written.
  * The caller keeps the payload within the peer's MTU; nothing here is bounded by a buffer.
  */
 template <class Sink>
-size_t write_frame(Sink& sink, const FrameHeader& h, const uint8_t* p1, size_t n1,
-                   const uint8_t* p2 = nullptr, size_t n2 = 0, bool lead = false) {
+typename detail::EnableIf<!detail::IsDatagramSink<Sink>::value, size_t>::type write_frame(
+    Sink& sink, const FrameHeader& h, const uint8_t* p1, size_t n1, const uint8_t* p2 = nullptr,
+    size_t n2 = 0, bool lead = false) {
   const detail::Body body(h, p1, n1, p2, n2);
   return detail::cobs_write(body, sink, lead, true);
+}
+
+/**
+ * The same for a datagram sink (detail::IsDatagramSink; PROTOCOL.md 1.13): the body as it is
+ * (header, payload, CRC; no COBS, no delimiter, no lead), then sink.endDatagram() sends it.
+ */
+template <class Sink>
+typename detail::EnableIf<detail::IsDatagramSink<Sink>::value, size_t>::type write_frame(
+    Sink& sink, const FrameHeader& h, const uint8_t* p1, size_t n1, const uint8_t* p2 = nullptr,
+    size_t n2 = 0, bool = false) {
+  const detail::Body body(h, p1, n1, p2, n2);
+  for (size_t i = 0; i < body.size; ++i) sink.put(body.at(i));
+  sink.endDatagram();
+  return body.size;
 }
 
 /**

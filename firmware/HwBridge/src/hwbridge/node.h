@@ -31,6 +31,7 @@
 #include "progmem.h"
 #include "../hwbridge_msg.h"
 #include "../hwbridge_control.h"
+#include "identity.h"
 
 namespace hwbridge {
 
@@ -156,6 +157,12 @@ struct NodeStats {
 };
 
 class NodeBase;
+
+namespace detail {
+/** Tags of the two kinds of link the node reads (detail::IsDatagramSink tells them apart). */
+struct StreamLink {};
+struct DatagramLink {};
+}  // namespace detail
 
 /** Where a service server's response goes (the node's transmit buffer). */
 struct ServiceOut {
@@ -307,6 +314,9 @@ class ServiceClient : public Entry {
  *
  * Hardware concept: init(baud) (bool), int read() (a byte or -1), put(uint8_t) and flush()
  * (bytes out), uint32_t micros() (wrapping), uint32_t seed() (entropy for the session id).
+ * A datagram Hardware (`static const bool kDatagram = true`, hardware_udp.h) has instead of
+ * read() `const uint8_t* receive(size_t* n)` (the next datagram, or nullptr) and, after the
+ * put() of each frame's body, endDatagram() (PROTOCOL.md 1.13: no COBS, one frame a datagram).
  */
 template <class Hardware, class Profile = HelloWorldProfile>
 class NodeHandle_ : public NodeBase {
@@ -443,6 +453,8 @@ class NodeHandle_ : public NodeBase {
   static const uint16_t kReassembly = Profile::kMaxMessage > Profile::kMtu ? Profile::kMaxMessage : 0;
 
   bool add(Entry& e);
+  void readInput(detail::StreamLink*);
+  void readInput(detail::DatagramLink*);
   bool established() const { return state_ >= kConfiguring; }
   __attribute__((noinline)) void onFrame(const Frame& f);
   void onBestEffort(const Frame& f);
@@ -581,7 +593,19 @@ class NodeHandle_ : public NodeBase {
   void setFlag(uint8_t f, bool on) { flags_ = static_cast<uint8_t>(on ? flags_ | f : flags_ & ~f); }
 };
 
-#if defined(ARDUINO)
+#if defined(HWBRIDGE_BOARD_STM32F4)
+}  // namespace hwbridge
+#include "hardware_stm32f4.h"
+namespace hwbridge {
+/** The default node on a bare STM32F4 (hwbridge firmware build --board stm32f405): USART1. */
+typedef NodeHandle_<Stm32f4Hardware> NodeHandle;
+#elif defined(HWBRIDGE_BOARD_NRF51)
+}  // namespace hwbridge
+#include "hardware_nrf51.h"
+namespace hwbridge {
+/** The default node on a bare nRF51 (hwbridge firmware build --board microbit): UART0. */
+typedef NodeHandle_<Nrf51Hardware> NodeHandle;
+#elif defined(ARDUINO)
 }  // namespace hwbridge
 #include "hardware_arduino.h"
 namespace hwbridge {

@@ -39,6 +39,9 @@ unsigned long last_ms = 0;
 void setup() {
   const char* node = getenv("HWBRIDGE_CAN_NODE");
   nh.getHardware().setNode(static_cast<uint8_t>(node ? atoi(node) : 5));
+  // HWBRIDGE_CAN_FORMAT=1: behave as firmware that predates CAN.md format 2 (interop tests)
+  const char* format = getenv("HWBRIDGE_CAN_FORMAT");
+  if (format && atoi(format) == 1) nh.getHardware().setFormat(hwbridge::can::kFormat1);
   nh.initNode(0, "canboard", "1.0");
   nh.advertise(counter);
   nh.subscribe(cmd);

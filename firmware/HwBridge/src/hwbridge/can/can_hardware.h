@@ -44,6 +44,7 @@ struct CanHardwareStats {
   uint32_t rx_overflow;    ///< received datagrams dropped because the read buffer was full
   uint32_t rx_ignored;     ///< transfers for us that were not from the host, or NODE messages
   uint32_t claims_sent;    ///< node-id claims sent
+  uint32_t format_changes; ///< times the host's claims changed the format spoken (CAN.md 11)
 };
 
 /**
@@ -62,9 +63,10 @@ class CanHardware {
   // constexpr and all zero: a global node lies in .bss, with neither start-up code nor a copy of
   // initial values in flash (node 0 stands for "not set": node 1)
   constexpr CanHardware()
-      : stats(), driver_(), receiver_(0), tids_(), watch_(), node_(0), uid_(), out_(), out_len_(0),
-        out_overflow_(false), ring_(), head_(0), tail_(0), count_(0), last_claim_(0),
-        claimed_(false), started_(false) {}
+      : stats(), driver_(), receiver_(0), tids_(), watch_(), node_(0), speak1_(false),
+        fixed1_(false), uid_(),
+        out_(), out_len_(0), out_overflow_(false), ring_(), head_(0), tail_(0), count_(0),
+        last_claim_(0), claimed_(false), started_(false) {}
 
   /** This board's node id (1..127); the host names it in its link (can://.../nodeN). */
   void setNode(uint8_t node) {
@@ -156,8 +158,23 @@ class CanHardware {
     receiver_.expire(now);
   }
 
-  /** Sends one bare datagram to the host as a transfer; false when the driver refused it. */
+  /** Sends one bare datagram to the host as a transfer in the format the host claims in;
+   * false when the driver refused it (or, in format 2, it is not a valid native datagram:
+   * counted as tx_oversize). */
   bool sendDatagram(const uint8_t* datagram, size_t n) {
+    // The id carries the datagram's priority (arbitration between nodes); the driver is given
+    // its stream's place instead, so that a control datagram never overtakes data queued before
+    // it on the same stream (CAN.md 3: the receiver would drop that data as late).
+    if (!speak1_) {
+      NativeHeader h;
+      if (!parse_datagram(datagram, n, &h)) {
+        ++stats.tx_oversize;
+        return false;
+      }
+      const uint32_t id = encode_id2(priority_of(h.kind, h.channel), h.kind, h.channel, kHostNode,
+                                     node_, h.seq, h.frag);
+      return sendFrames(id, queue_class(h.kind), datagram + 3, n - 5, h.seq);
+    }
     uint8_t kind;
     uint8_t channel;
     kind_of(datagram, n, &kind, &channel);
@@ -167,6 +184,16 @@ class CanHardware {
     const uint8_t id_priority = priority_of(kind, channel);
     return sendTransfer(encode_id(id_priority, kind, channel, kHostNode, node_),
                         queue_class(kind), datagram, n);
+  }
+
+  /** The CAN.md format this board speaks: 2 until it hears the host claim in format 1. */
+  uint8_t format() const { return speak1_ ? kFormat1 : kFormat2; }
+  /** kFormat1: behave as CAN.md version-1 firmware (format 1 only, format-2 frames dropped as
+   * malformed), for buses whose other software predates format 2; kFormat2: the default. */
+  void setFormat(uint8_t format) {
+    fixed1_ = format == kFormat1;
+    speak1_ = fixed1_;
+    receiver_.setFormat2(!fixed1_);
   }
 
   /** The receiver's counters (CAN.md 5). */
@@ -189,8 +216,11 @@ class CanHardware {
   };
 
   bool sendTransfer(uint32_t id, uint8_t priority, const uint8_t* data, size_t n) {
+    return sendFrames(id, priority, data, n, tids_.next(id));
+  }
+
+  bool sendFrames(uint32_t id, uint8_t priority, const uint8_t* data, size_t n, uint8_t tid) {
     DriverSink sink = {&driver_, priority, &stats.tx_frames};
-    const uint8_t tid = tids_.next(id);
     if (!send_transfer<kClassicMtu>(id, data, n, tid, kClassicMtu, sink)) {
       ++stats.tx_errors;
       return false;
@@ -201,8 +231,10 @@ class CanHardware {
 
   void sendClaim() {
     ++stats.claims_sent;
-    sendTransfer(encode_id(kPriorityNode, kNode, kNodeClaim, kHostNode, node_), kPriorityNode,
-                 uid_, kUidSize);
+    const uint32_t id = !speak1_
+                            ? encode_id2(kPriorityNode, kNode, kNodeClaim, kHostNode, node_, 0, 0)
+                            : encode_id(kPriorityNode, kNode, kNodeClaim, kHostNode, node_);
+    sendTransfer(id, kPriorityNode, uid_, kUidSize);
   }
 
   struct RingSink {
@@ -218,6 +250,10 @@ class CanHardware {
     if (t.id.kind == kNode) {
       if (t.id.channel == kNodeClaim && t.size == kUidSize) {
         watch_.claim(t.id.source, node_, t.payload, uid_, now);
+        if (t.id.source == kHostNode && (t.id.format == kFormat1) != speak1_ && !fixed1_) {
+          speak1_ = t.id.format == kFormat1;  // speak what the host claims in (CAN.md 11)
+          ++stats.format_changes;
+        }
       }
       return;
     }
@@ -225,11 +261,21 @@ class CanHardware {
       ++stats.rx_ignored;
       return;
     }
-    if (cobs_max_encoded(t.size) + 1 > ReadBuffer - count_) {
+    uint8_t whole[MaxDatagram];
+    ByteSpan span = {t.payload, t.size};
+    if (t.id.format == kFormat2) {
+      // the header and CRC-16 put back must fit what the session takes
+      span.size = rebuild_datagram(t, whole, sizeof(whole));
+      if (span.size == 0) {
+        ++receiver_.stats.oversize;
+        return;
+      }
+      span.data = whole;
+    }
+    if (cobs_max_encoded(span.size) + 1 > ReadBuffer - count_) {
       ++stats.rx_overflow;
       return;
     }
-    ByteSpan span = {t.payload, t.size};
     RingSink sink = {this};
     cobs_encode_to(span, sink);
     sink.put(0);
@@ -240,6 +286,8 @@ class CanHardware {
   TidTable<6> tids_;
   OwnClaimWatch watch_;
   uint8_t node_;
+  bool speak1_;  // false: format 2 (members zero by default keep a global board in .bss)
+  bool fixed1_;
   uint8_t uid_[kUidSize];
   uint8_t out_[kOutCap];
   size_t out_len_;

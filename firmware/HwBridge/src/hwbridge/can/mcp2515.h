@@ -150,9 +150,15 @@ class Mcp2515T {
 
   /**
    * Resets the chip, sets the bit timing and receive buffers, enters normal mode. With a node id
-   * (1..127) the acceptance filters let through only extended frames to that node (RXB0,
-   * rolling over into RXB1) and NODE messages to anyone (RXB1: claims), so a busy bus's other
-   * traffic never reaches the SPI bus; with 0 every frame is received (the transport filters).
+   * (1..127) the acceptance filters let through only extended frames this node needs (CAN.md
+   * 11), so a busy bus's other traffic never reaches the SPI bus; with 0 every frame is received
+   * (the transport filters). RXB0 (RXM0: format bit, direction bit, node field), rolling over
+   * into RXB1: format 2 to this node (RXF0), format 1 from the host (RXF1: to this node, and to
+   * others, only while a format-1 host is on the bus). RXB1 (RXM1: id bits 15..7, the format-1
+   * destination field): format-2 frames from the host whose seq bits 7..5 and frag are 0 (RXF2:
+   * the host's claims, and an eighth or so of its traffic to other boards), format 1 to this
+   * node (RXF3, RXF5), format 1 to the host (RXF4: format-1 claims). A format-2 board claiming
+   * this node id is not let through: the host reports that conflict (CAN.md 2).
    */
   bool begin(uint8_t node = 0) {
     ok_ = false;
@@ -170,15 +176,16 @@ class Mcp2515T {
     writeReg(mcp::kCanIntE, 0);
     if (node != 0 && node < 128) {
       uint8_t r[12];
-      mcp2515_id_regs(encode_id(0, 0, 0, 0x7F, 0), false, r);  // RXM0: the destination field
-      mcp2515_id_regs(encode_id(0, 3, 0, 0, 0), false, r + 4);  // RXM1: the kind field
+      mcp2515_id_regs(kFormat2Bit | kToHostBit | 0x7F, false, r);  // RXM0
+      mcp2515_id_regs(0xFF80UL, false, r + 4);                    // RXM1: id bits 15..7
       writeRegs(mcp::kRxm0, r, 8);
-      mcp2515_id_regs(encode_id(0, 0, 0, node, 0), true, r);  // RXF0, RXF1: to this node
-      memcpy(r + 4, r, 4);
-      mcp2515_id_regs(encode_id(0, kNode, 0, 0, 0), true, r + 8);  // RXF2: NODE messages
+      mcp2515_id_regs(kFormat2Bit | node, true, r);           // RXF0: format 2 to us
+      mcp2515_id_regs(0, true, r + 4);                         // RXF1: format 1 from the host
+      mcp2515_id_regs(kFormat2Bit, true, r + 8);               // RXF2: the host's claims
       writeRegs(mcp::kRxf0, r, 12);
-      memcpy(r, r + 8, 4);  // RXF3..5: the same as RXF2
-      memcpy(r + 4, r + 8, 4);
+      mcp2515_id_regs(encode_id(0, 0, 0, node, 0), true, r);  // RXF3: format 1 to us
+      mcp2515_id_regs(0, true, r + 4);                         // RXF4: format 1 to the host
+      memcpy(r + 8, r, 4);                                     // RXF5: as RXF3
       writeRegs(mcp::kRxf3, r, 12);
       writeReg(mcp::kRxb0Ctrl, 0x04);  // filters on, roll over into RXB1
       writeReg(mcp::kRxb1Ctrl, 0x00);

@@ -1,7 +1,9 @@
 // The CAN transport of the native protocol (protocols/can/CAN.md) for boards: the 29-bit id,
 // tail bytes, single- and multi-frame transfers with their CRC, and the receiver's checks
-// (malformed, foreign, unexpected, duplicate, CRC, abandoned, timeout, oversize). Header-only
-// C++11, no heap: every buffer is a member sized by template arguments.
+// (malformed, foreign, unexpected, duplicate, CRC, abandoned, timeout, oversize), in both
+// formats: 1 (the whole native datagram in each transfer) and 2 (CAN.md version 2: the native
+// header in the id and the tail byte, no native CRC-16). Header-only C++11, no heap: every
+// buffer is a member sized by template arguments.
 #ifndef HWBRIDGE_CAN_TRANSPORT_H
 #define HWBRIDGE_CAN_TRANSPORT_H
 
@@ -35,6 +37,11 @@ static const uint8_t kEnd = 0x40;
 static const uint8_t kToggle = 0x20;
 static const uint8_t kTidMask = 0x1F;
 static const uint32_t kReservedMask = 0x3UL << 14;
+static const uint8_t kFormat1 = 1;
+static const uint8_t kFormat2 = 2;
+static const uint32_t kFormat2Bit = 1UL << 15;
+static const uint32_t kToHostBit = 1UL << 14;
+static const uint32_t kReserved2Mask = 0x3UL << 7;
 
 /** id = priority << 26 | kind << 24 | channel << 16 | destination << 7 | source. */
 inline uint32_t encode_id(uint8_t priority, uint8_t kind, uint8_t channel, uint8_t destination,
@@ -44,23 +51,79 @@ inline uint32_t encode_id(uint8_t priority, uint8_t kind, uint8_t channel, uint8
          (source & 0x7F);
 }
 
-/** The fields of a 29-bit id. */
+/**
+ * Format 2: id = priority << 26 | kind << 24 | channel << 16 | 1 << 15 | to_host << 14 |
+ * (seq >> 5) << 11 | frag << 9 | board node. One end is the host (node 0).
+ */
+inline uint32_t encode_id2(uint8_t priority, uint8_t kind, uint8_t channel, uint8_t destination,
+                           uint8_t source, uint8_t seq, uint8_t frag) {
+  const bool to_host = source != kHostNode;
+  const uint8_t node = to_host ? source : destination;
+  return (static_cast<uint32_t>(priority & 7) << 26) | (static_cast<uint32_t>(kind & 3) << 24) |
+         (static_cast<uint32_t>(channel) << 16) | kFormat2Bit | (to_host ? kToHostBit : 0) |
+         (static_cast<uint32_t>(seq >> 5) << 11) | (static_cast<uint32_t>(frag & 3) << 9) |
+         (node & 0x7F);
+}
+
+/** The fields of a 29-bit id (seq_high and frag: format 2 only). */
 struct CanId {
   uint8_t priority;
   uint8_t kind;
   uint8_t channel;
   uint8_t destination;
   uint8_t source;
+  uint8_t format;
+  uint8_t seq_high;  ///< format 2: bits 7..5 of the native sequence number
+  uint8_t frag;      ///< format 2: the native fragment position
 };
 
-/** Decodes id into out; false when it is not one of ours (over 29 bits or reserved bits set). */
+/** Decodes id (either format) into out; false when it is not one of ours (over 29 bits,
+ * reserved bits set, a format-2 id to the host from node 0). */
 inline bool decode_id(uint32_t id, CanId* out) {
-  if (id >= (1UL << 29) || (id & kReservedMask) != 0) return false;
+  if (id >= (1UL << 29)) return false;
   out->priority = static_cast<uint8_t>(id >> 26);
   out->kind = static_cast<uint8_t>((id >> 24) & 3);
   out->channel = static_cast<uint8_t>(id >> 16);
+  if (id & kFormat2Bit) {
+    const uint8_t node = static_cast<uint8_t>(id & 0x7F);
+    const bool to_host = (id & kToHostBit) != 0;
+    if ((id & kReserved2Mask) != 0 || (to_host && node == kHostNode)) return false;
+    out->destination = to_host ? kHostNode : node;
+    out->source = to_host ? node : kHostNode;
+    out->format = kFormat2;
+    out->seq_high = static_cast<uint8_t>((id >> 11) & 7);
+    out->frag = static_cast<uint8_t>((id >> 9) & 3);
+    return true;
+  }
+  if ((id & kReservedMask) != 0) return false;
   out->destination = static_cast<uint8_t>((id >> 7) & 0x7F);
   out->source = static_cast<uint8_t>(id & 0x7F);
+  out->format = kFormat1;
+  out->seq_high = 0;
+  out->frag = 0;
+  return true;
+}
+
+/** The header fields of a native datagram (PROTOCOL.md 1.4) for format 2. */
+struct NativeHeader {
+  uint8_t kind;
+  uint8_t channel;
+  uint8_t seq;
+  uint8_t frag;
+};
+
+/** Checks a bare native datagram (version 1, a known type, its CRC-16 right) and reads its
+ * header; false when it is not one (format 2 must not send it: the receiver rebuilds the CRC). */
+inline bool parse_datagram(const uint8_t* d, size_t n, NativeHeader* out) {
+  if (n < 5 || (d[0] & 0xC0) != 0x40 || ((d[0] >> 4) & 3) == 3) return false;
+  const uint16_t crc = hwbridge::crc16(d, n - 2);
+  if (d[n - 2] != static_cast<uint8_t>(crc & 0xFF) || d[n - 1] != static_cast<uint8_t>(crc >> 8)) {
+    return false;
+  }
+  out->kind = static_cast<uint8_t>((d[0] >> 4) & 3);
+  out->channel = d[1];
+  out->seq = d[2];
+  out->frag = static_cast<uint8_t>((d[0] >> 2) & 3);
   return true;
 }
 
@@ -219,12 +282,28 @@ struct CanStats {
   }
 };
 
-/** A transfer returned by TransferReceiver::feed (valid until the next feed). */
+/** A transfer returned by TransferReceiver::feed (valid until the next feed). In format 2 the
+ * payload is the native datagram's without header and CRC (rebuild_datagram puts them back). */
 struct Transfer {
   CanId id;
+  uint8_t tid;
   const uint8_t* payload;
   size_t size;
 };
+
+/** The native datagram a format-2 transfer carried (header, payload, CRC-16 little-endian)
+ * into out (cap bytes); its length, 0 when it does not fit. */
+inline size_t rebuild_datagram(const Transfer& t, uint8_t* out, size_t cap) {
+  if (t.size + 5 > cap) return 0;
+  out[0] = static_cast<uint8_t>(0x40 | (t.id.kind & 3) << 4 | (t.id.frag & 3) << 2);
+  out[1] = t.id.channel;
+  out[2] = static_cast<uint8_t>(t.id.seq_high << 5 | (t.tid & kTidMask));
+  if (t.size) memmove(out + 3, t.payload, t.size);
+  const uint16_t crc = hwbridge::crc16(out, t.size + 3);
+  out[t.size + 3] = static_cast<uint8_t>(crc & 0xFF);
+  out[t.size + 4] = static_cast<uint8_t>(crc >> 8);
+  return t.size + 5;
+}
 
 /**
  * Reassembles the transfers addressed to local (and NODE messages, whatever their destination)
@@ -240,8 +319,11 @@ class TransferReceiver {
 
   // constexpr: a global node holding one is initialized at compile time (in .bss), not by code
   constexpr explicit TransferReceiver(uint8_t local = 0)
-      : stats(), local_(local), done_next_(0), rx_(), done_() {}
+      : stats(), local_(local), refuse2_(false), done_next_(0), rx_(), done_() {}
   void setLocal(uint8_t local) { local_ = local; }
+  /** false: a CAN.md version-1 receiver (format-2 frames are malformed, as their id bit 15 was
+   * reserved). */
+  void setFormat2(bool on) { refuse2_ = !on; }
   uint8_t local() const { return local_; }
 
   /** An error frame seen by the controller. */
@@ -255,7 +337,8 @@ class TransferReceiver {
             Transfer* out) {
     ++stats.frames;
     CanId ident;
-    if (!extended || !decode_id(id, &ident) || len == 0 || len > kFdMtu || !valid_length(len)) {
+    if (!extended || !decode_id(id, &ident) || (ident.format == kFormat2 && refuse2_) ||
+        len == 0 || len > kFdMtu || !valid_length(len)) {
       ++stats.malformed;
       return false;
     }
@@ -401,7 +484,9 @@ class TransferReceiver {
               uint32_t now, Transfer* out) {
     const uint16_t check = hwbridge::crc16(payload, n);
     Done* d = findDone(id);
-    if (d != nullptr && d->tid == tid && d->check == check && now - d->when < kTidTimeoutUs) {
+    // Format 2 leaves repeats to the session (a resent reliable datagram must get through).
+    if (ident.format == kFormat1 && d != nullptr && d->tid == tid && d->check == check &&
+        now - d->when < kTidTimeoutUs) {
       ++stats.duplicate_transfers;
       return false;
     }
@@ -420,12 +505,14 @@ class TransferReceiver {
     d->check = check;
     ++stats.transfers;
     out->id = ident;
+    out->tid = tid;
     out->payload = payload;
     out->size = n;
     return true;
   }
 
   uint8_t local_;
+  bool refuse2_;  // all members zero by default: a global receiver stays in .bss
   uint8_t done_next_;
   Rx rx_[Slots];
   Done done_[2 * Slots];

@@ -19,14 +19,36 @@ HWB_NODE void HWB_SELF::processInput() {
   if (state_ == kOff || flag(kInInput)) return;
   setFlag(kInInput, true);
   clock();
+  readInput(static_cast<typename detail::Pick<detail::IsDatagramSink<Hardware>::value, detail::DatagramLink,
+                                              detail::StreamLink>::type*>(nullptr));
+  setFlag(kInInput, false);
+  flushOut();
+}
+
+/** A byte stream: COBS runs through the decoder. */
+HWB_NODE void HWB_SELF::readInput(detail::StreamLink*) {
   const size_t kBudget = 2 * FrameDecoder<Profile::kMtu, false>::kCapacity + 8;  // bytes read per call
   for (typename detail::Pick<(kBudget < 256), uint8_t, uint16_t>::type budget = kBudget; budget; --budget) {
     const int c = hw_.read();
     if (c < 0) break;
     if (dec_.push(static_cast<uint8_t>(c)) == Decoded::Frame) onFrame(dec_.frame());
   }
-  setFlag(kInInput, false);
-  flushOut();
+}
+
+/** A datagram link (PROTOCOL.md 1.13): each datagram is one frame's body. The hardware drops
+ * (and counts) datagrams that are no frame; one above the MTU is a dropped message here. */
+HWB_NODE void HWB_SELF::readInput(detail::DatagramLink*) {
+  for (uint8_t budget = 8; budget; --budget) {  // datagrams per call: a burst of 8, then the timers
+    size_t n = 0;
+    const uint8_t* body = hw_.receive(&n);
+    if (body == nullptr) break;
+    Frame f;
+    if (parse_body(body, n, Profile::kMtu, &f) == FrameError::Ok) {
+      onFrame(f);
+    } else {
+      ++stats_.dropped_messages;
+    }
+  }
 }
 
 HWB_NODE void HWB_SELF::runTimers() {
@@ -181,6 +203,7 @@ HWB_NODE bool HWB_SELF::queueTable() {
     if (ul) memcpy(p, uid_, ul);  // uid_ may be null when ul is 0
     p += ul;
     p = detail::put_str(p, firmware_, cap - static_cast<size_t>(p - tx_));
+    p = detail::put_str_P(p, detail::Identity<>::text, cap - static_cast<size_t>(p - tx_));
   } else if (table_pos_ <= entry_count_) {  // TOPIC
     Entry* e = entries_;
     for (uint8_t i = 1; i < table_pos_; ++i) e = e->next_;

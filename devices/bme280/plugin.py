@@ -12,8 +12,9 @@ bus."""
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any, ClassVar, Final
+from typing import TYPE_CHECKING, Any, ClassVar, Final
 
+from hwbridge.devices.bme280 import firmware as onboard
 from hwbridge.devices.bme280.chip import (
     ADDRESSES,
     CHIP_ID,
@@ -53,8 +54,14 @@ from hwbridge.robot.plugin import (
     HostContext,
     PinBoard,
     PinModel,
+    SketchContext,
+    SketchPart,
     TopicUse,
+    Wiring,
 )
+
+if TYPE_CHECKING:
+    from hwbridge.firmware.boards import McuBoard
 
 __all__ = ["OVERSAMPLING_CHOICES", "Bme280Plugin", "BoardDriver"]
 
@@ -188,6 +195,12 @@ class Bme280Plugin(DevicePlugin):
 
     def pin_model(self, settings: Mapping[str, Any], board: PinBoard) -> PinModel:
         return Bme280Pins(Bme280(lambda: board.world.air, address=settings["address"]))
+
+    def wiring(self, settings: Mapping[str, Any], board: McuBoard) -> Wiring:
+        return onboard.wiring(settings, board)
+
+    def sketch(self, settings: Mapping[str, Any], context: SketchContext) -> SketchPart:
+        return onboard.sketch(settings, context)
 
     def host_node(self, settings: Mapping[str, Any], context: HostContext) -> Closeable:
         return Bme280Node(

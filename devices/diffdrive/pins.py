@@ -8,30 +8,33 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from hwbridge.firmware.sim import arduino_pin
 from hwbridge.robot.plugin import PinBoard, PinModel
 
 if TYPE_CHECKING:
+    from hwbridge.firmware.boards import PinName
     from hwbridge.firmware.sim import Tick
 
 __all__ = ["DiffDrivePins"]
 
 
 class DiffDrivePins(PinModel):
-    def __init__(self, settings: Mapping[str, Any]) -> None:
-        self.settings = settings
+    def __init__(self, pins: Mapping[str, tuple[PinName, PinName]]) -> None:
+        self.pins = pins
+        """The device's pins (its ``pins`` setting over its defaults for the board)."""
         self.motors: list[tuple[str, str]] = []
 
     def setup(self, board: PinBoard) -> None:
-        pins, mcu = board.pins, board.mcu
-        for index, (a, b) in enumerate((pins.left_encoder, pins.right_encoder)):
+        pins, mcu = self.pins, board.mcu
+        for index, key in enumerate(("left_encoder", "right_encoder")):
+            a, b = (board.pins.number(pin) for pin in pins[key])
             board.command(f"enc {index} {arduino_pin(a, mcu)} {arduino_pin(b, mcu)}")
-        self.motors = [
-            (arduino_pin(pwm, mcu), arduino_pin(direction, mcu))
-            for pwm, direction in (pins.left_motor, pins.right_motor)
-        ]
+        self.motors = []
+        for key in ("left_motor", "right_motor"):
+            pwm, direction = (arduino_pin(board.pins.number(pin), mcu) for pin in pins[key])
+            self.motors.append((pwm, direction))
         for pwm, direction in self.motors:
             board.command(f"out {pwm}")
             board.command(f"out {direction}")

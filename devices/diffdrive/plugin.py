@@ -5,10 +5,11 @@
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 from hwbridge import msg
 from hwbridge.devices.common import RATE, encode
+from hwbridge.devices.diffdrive import firmware as onboard
 from hwbridge.devices.diffdrive.encoders import DiffDriveParams, wrap_counter
 from hwbridge.devices.diffdrive.node import DiffDriveNode
 from hwbridge.devices.diffdrive.pins import DiffDrivePins
@@ -20,8 +21,14 @@ from hwbridge.robot.plugin import (
     HostContext,
     PinBoard,
     PinModel,
+    SketchContext,
+    SketchPart,
     TopicUse,
+    Wiring,
 )
+
+if TYPE_CHECKING:
+    from hwbridge.firmware.boards import McuBoard
 
 __all__ = ["TARGET_TIMEOUT", "DiffDrivePlugin"]
 
@@ -51,6 +58,20 @@ class DiffDrivePlugin(DevicePlugin):
         Field("max_wheel_speed", float, 50.0, "rad/s; faster means a counter reset", minimum=0.1),
         Field("odom_frame_id", str, "odom", "frame odometry is given in"),
         Field("base_frame_id", str, "base_link", "the robot's frame (odom's child frame)"),
+        Field(
+            "pins",
+            dict,
+            {},
+            "{left_encoder: [A, B], right_encoder: [A, B], left_motor: [PWM, DIR], "
+            "right_motor: [PWM, DIR]}; default DiffDriveBase's wiring for the board",
+        ),
+        Field(
+            "motor_max_speed",
+            float,
+            20.0,
+            "rad/s of a wheel at full PWM (compiled into generated firmware)",
+            minimum=0.1,
+        ),
     )
 
     def emulate(self, settings: Mapping[str, Any], board: EmulatedBoard) -> None:
@@ -104,7 +125,13 @@ class DiffDrivePlugin(DevicePlugin):
         )
 
     def pin_model(self, settings: Mapping[str, Any], board: PinBoard) -> PinModel:
-        return DiffDrivePins(settings)
+        return DiffDrivePins(onboard.pins_of(settings, board.pins.name))
+
+    def wiring(self, settings: Mapping[str, Any], board: McuBoard) -> Wiring:
+        return onboard.wiring(settings, board)
+
+    def sketch(self, settings: Mapping[str, Any], context: SketchContext) -> SketchPart:
+        return onboard.sketch(settings, context)
 
     def host_node(self, settings: Mapping[str, Any], context: HostContext) -> Closeable:
         params = DiffDriveParams.from_dict(

@@ -17,14 +17,13 @@ __all__ = ["DynamixelPins"]
 class DynamixelPins(PinModel):
     """Servos on a bus UART: the firmware's packets answered by the emulated bus."""
 
-    def __init__(self, settings: Mapping[str, Any]) -> None:
+    def __init__(self, settings: Mapping[str, Any], uart: str) -> None:
         self.bus = EmulatedDynamixelBus.from_config(settings["bus"])
-        self.uart: str | None = None
+        self.uart = uart
+        """The simulator's number of the bus's UART (``2`` for Serial2)."""
 
     def setup(self, board: PinBoard) -> None:
-        self.uart = board.pins.dynamixel_uart
-        if self.uart is not None:
-            board.command(f"bus {self.uart}")
+        board.command(f"bus {self.uart}")
 
     def packet(self, board: PinBoard, uart: str, data: bytes) -> bytes | None:
         if uart != self.uart:

@@ -23,10 +23,11 @@ from __future__ import annotations
 
 import threading
 from collections.abc import Mapping
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 from hwbridge import msg
 from hwbridge.devices.common import encode
+from hwbridge.devices.dynamixel import firmware as onboard
 from hwbridge.devices.dynamixel import packets
 from hwbridge.devices.dynamixel.bus import DynamixelBus
 from hwbridge.devices.dynamixel.emulator import EmulatedDynamixelBus
@@ -42,8 +43,14 @@ from hwbridge.robot.plugin import (
     HostContext,
     PinBoard,
     PinModel,
+    SketchContext,
+    SketchPart,
     TopicUse,
+    Wiring,
 )
+
+if TYPE_CHECKING:
+    from hwbridge.firmware.boards import McuBoard
 
 __all__ = ["BoardServoPlugin", "DynamixelBusPlugin"]
 
@@ -61,6 +68,8 @@ class BoardServoPlugin(DevicePlugin):
         Field("rate", float, 20.0, "joint state readings per second", minimum=0.1),
         Field("state_topic", str, "joint_states", "board topic of sensor_msgs/JointState"),
         Field("bus", dict, doc="the board's bus: {protocol, baud, servos: [{id, model}]}"),
+        Field("serial", str, "Serial2", "the bus's UART (a Mega's Serial1..Serial3)"),
+        Field("direction_pin", (int, str), 22, "the half-duplex buffer's direction pin"),
     )
 
     def emulate(self, settings: Mapping[str, Any], board: EmulatedBoard) -> None:
@@ -117,9 +126,17 @@ class BoardServoPlugin(DevicePlugin):
         board.subscriber(f"{joint}/goal_position", "std_msgs/Float64", on_goal)
 
     def pin_model(self, settings: Mapping[str, Any], board: PinBoard) -> PinModel | None:
-        if board.pins.dynamixel_uart is None:
-            return None  # no second UART for the bus (an Uno)
-        return DynamixelPins(settings)
+        uart = board.pins.uart(str(settings["serial"]))
+        if uart is None or uart is board.pins.link:
+            return None  # no such UART for the bus on this board (an Uno has none)
+        number = onboard.uart_number(uart.name)
+        return DynamixelPins(settings, number) if number is not None else None
+
+    def wiring(self, settings: Mapping[str, Any], board: McuBoard) -> Wiring:
+        return onboard.wiring(settings, board)
+
+    def sketch(self, settings: Mapping[str, Any], context: SketchContext) -> SketchPart:
+        return onboard.sketch(settings, context)
 
     def topics(self, settings: Mapping[str, Any]) -> tuple[TopicUse, ...]:
         return (

@@ -1,7 +1,7 @@
 """``mpu6050`` / ``mpu9250`` on the pins of firmware in simavr: the chip's register file on the
-TWI bus at 0x68 (the register-level :class:`~hwbridge.devices.imu.mpu.MpuChip`: asleep at
-power-on, WHO_AM_I, ranges from its configuration registers, a 14-byte burst from 0x3B),
-sampling the world's motion."""
+TWI bus at its ``address`` setting (the register-level
+:class:`~hwbridge.devices.imu.mpu.MpuChip`: asleep at power-on, WHO_AM_I, ranges from its
+configuration registers, a 14-byte burst from 0x3B), sampling the world's motion."""
 
 from __future__ import annotations
 
@@ -12,12 +12,13 @@ __all__ = ["MpuPins"]
 
 
 class MpuPins(PinModel):
-    def __init__(self, chip: MpuChip) -> None:
+    def __init__(self, chip: MpuChip, address: int = 0x68) -> None:
         self.chip = chip
+        self.address = address
         self.data = b""
 
     def setup(self, board: PinBoard) -> None:
-        address = board.pins.imu_address
+        address = self.address
         self.chip.address = address
         self.chip.reset()  # power-on: asleep, registers at their reset values
         board.command(f"i2c {address:02x}")

@@ -5,10 +5,11 @@ model (:mod:`.pins`) and their host node (:mod:`.node`)."""
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 from hwbridge.devices.buses import I2CBus
 from hwbridge.devices.common import RATE, encode
+from hwbridge.devices.imu import firmware as onboard
 from hwbridge.devices.imu.host import configure_ak8963, decode_burst, decode_magnetometer
 from hwbridge.devices.imu.mpu import (
     ACCEL_CONFIG,
@@ -34,8 +35,14 @@ from hwbridge.robot.plugin import (
     HostContext,
     PinBoard,
     PinModel,
+    SketchContext,
+    SketchPart,
     TopicUse,
+    Wiring,
 )
+
+if TYPE_CHECKING:
+    from hwbridge.firmware.boards import McuBoard
 
 __all__ = ["Mpu6050Plugin", "Mpu9250Plugin"]
 
@@ -53,6 +60,9 @@ class _MpuPlugin(DevicePlugin):
         Field("accel_range_g", int, 2, "accelerometer full scale, g", ACCEL_RANGES_G),
         Field("gyro_range_dps", int, 250, "gyroscope full scale, deg/s", GYRO_RANGES_DPS),
         Field("frame_id", str, "imu_link"),
+        Field(
+            "address", int, onboard.ADDRESSES[0], "I2C address (0x69: AD0 high)", onboard.ADDRESSES
+        ),
     )
 
     def _chip(self, seed: int) -> MpuChip:
@@ -109,7 +119,13 @@ class _MpuPlugin(DevicePlugin):
         return uses
 
     def pin_model(self, settings: Mapping[str, Any], board: PinBoard) -> PinModel:
-        return MpuPins(self._chip(board.seed + 3))
+        return MpuPins(self._chip(board.seed + 3), int(settings.get("address", 0x68)))
+
+    def wiring(self, settings: Mapping[str, Any], board: McuBoard) -> Wiring:
+        return onboard.wiring(settings, board, self._magnetometer(settings))
+
+    def sketch(self, settings: Mapping[str, Any], context: SketchContext) -> SketchPart:
+        return onboard.sketch(settings, context, self.chip_value, self._magnetometer(settings))
 
     def host_node(self, settings: Mapping[str, Any], context: HostContext) -> Closeable:
         return ImuNode(

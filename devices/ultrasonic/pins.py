@@ -6,11 +6,14 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from typing import Any, Final
+from typing import TYPE_CHECKING, Any, Final
 
 from hwbridge.devices.ultrasonic.hcsr04 import HcSr04Model
 from hwbridge.firmware.sim import arduino_pin
 from hwbridge.robot.plugin import PinBoard, PinModel
+
+if TYPE_CHECKING:
+    from hwbridge.firmware.boards import PinName
 
 __all__ = ["SONAR_REFRESH", "STUCK_ECHO_US", "SonarPins"]
 
@@ -21,7 +24,8 @@ STUCK_ECHO_US: Final = 60_000_000
 
 
 class SonarPins(PinModel):
-    def __init__(self, settings: Mapping[str, Any], seed: int) -> None:
+    def __init__(self, settings: Mapping[str, Any], pins: Mapping[str, PinName], seed: int) -> None:
+        self.pins = pins
         self.model = HcSr04Model(
             temperature_c=settings["temperature"],
             noise_std=settings.get("noise_std", 0.0),
@@ -32,7 +36,7 @@ class SonarPins(PinModel):
 
     def setup(self, board: PinBoard) -> None:
         mcu = board.mcu
-        trigger, echo = board.pins.sonar
+        trigger, echo = (board.pins.number(self.pins[key]) for key in ("trigger", "echo"))
         board.command(f"sonar 0 {arduino_pin(trigger, mcu)} {arduino_pin(echo, mcu)}")
         self.next_refresh, self.echo_us = 0.0, -1
         self.after(board, 0.0)

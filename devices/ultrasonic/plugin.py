@@ -5,9 +5,10 @@
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 from hwbridge.devices.common import encode
+from hwbridge.devices.ultrasonic import firmware as onboard
 from hwbridge.devices.ultrasonic.hcsr04 import MAX_RANGE, MIN_RANGE, HcSr04Model, UltrasonicRanger
 from hwbridge.devices.ultrasonic.node import SonarNode
 from hwbridge.devices.ultrasonic.pins import SonarPins
@@ -19,8 +20,14 @@ from hwbridge.robot.plugin import (
     HostContext,
     PinBoard,
     PinModel,
+    SketchContext,
+    SketchPart,
     TopicUse,
+    Wiring,
 )
+
+if TYPE_CHECKING:
+    from hwbridge.firmware.boards import McuBoard
 
 __all__ = ["HcSr04Plugin"]
 
@@ -40,6 +47,7 @@ class HcSr04Plugin(DevicePlugin):
         Field("frame_id", str, "sonar_link"),
         Field("min_range", float, MIN_RANGE, "m", minimum=0.0),
         Field("max_range", float, MAX_RANGE, "m", minimum=0.01),
+        Field("pins", dict, {}, "{trigger: PIN, echo: PIN}; default {trigger: 8, echo: 12}"),
     )
 
     def emulate(self, settings: Mapping[str, Any], board: EmulatedBoard) -> None:
@@ -71,7 +79,13 @@ class HcSr04Plugin(DevicePlugin):
         )
 
     def pin_model(self, settings: Mapping[str, Any], board: PinBoard) -> PinModel:
-        return SonarPins(settings, board.seed)
+        return SonarPins(settings, onboard.pins_of(settings), board.seed)
+
+    def wiring(self, settings: Mapping[str, Any], board: McuBoard) -> Wiring:
+        return onboard.wiring(settings, board)
+
+    def sketch(self, settings: Mapping[str, Any], context: SketchContext) -> SketchPart:
+        return onboard.sketch(settings, context)
 
     def host_node(self, settings: Mapping[str, Any], context: HostContext) -> Closeable:
         ranger = UltrasonicRanger(

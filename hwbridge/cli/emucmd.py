@@ -119,6 +119,15 @@ def demo(
             "simavr instead of the Python board; needs gcc-avr, arduino-core-avr and simavr.",
         ),
     ] = False,
+    generated: Annotated[
+        bool,
+        typer.Option(
+            "--generated",
+            help="With --firmware: run the firmware generated from the robot file "
+            "(diffbot_uno.yaml, as 'hwbridge firmware generate' writes it) instead of "
+            "DiffDriveBase.",
+        ),
+    ] = False,
 ) -> None:
     """Drive an emulated diffbot through the real bridge and show what the graph sees."""
     options = ctx.find_root().obj
@@ -127,6 +136,8 @@ def demo(
         import tempfile
 
         plot = Path(tempfile.gettempdir()) / f"hwbridge-demo-{seed}.svg"
+    if generated and not firmware:
+        raise typer.BadParameter("--generated goes with --firmware")
     if firmware:
         from hwbridge.emulator.firmware_demo import run_firmware_demo
 
@@ -136,6 +147,7 @@ def demo(
             endpoint=endpoint,
             keep=keep,
             plot=None if no_plot else plot,
+            generated=generated,
         )
         return
     from hwbridge.emulator.demo import run_demo

@@ -1,4 +1,5 @@
-"""``hwbridge firmware``: build sketches for AVR boards, measure them, generate C++ headers."""
+"""``hwbridge firmware``: build sketches for AVR boards, measure them, generate C++ headers and
+sketches from robot files."""
 
 from __future__ import annotations
 
@@ -108,45 +109,51 @@ def size(
         sys.stdout.write(f"  {size_of:6} B  {owner:8}  {name}\n")
 
 
-@firmware_app.command("generate")
-def generate(
+_TYPES_HELP = (
+    "Message or service types (pkg/Type); default: hwbridge_msgs' types, std_msgs/String, Bool, "
+    "Float64 and sensor_msgs/JointState."
+)
+_MSG_PATH_HELP = "Directory of message packages (PKG/msg/*.msg, PKG/srv/*.srv); repeatable."
+_CAPACITY_HELP = (
+    "Elements of a variable-length array or bytes of a string field (default 8 and 32); "
+    "pkg/Type.field[]=N for each string of a string array. Repeatable."
+)
+
+
+@firmware_app.command("headers")
+def headers(
     ctx: typer.Context,
     outdir: Annotated[Path, typer.Argument(metavar="OUTDIR", help="Folder to write into.")],
     types: Annotated[
-        list[str] | None,
-        typer.Argument(
-            metavar="[TYPES]...",
-            help="Message or service types (pkg/Type); default: hwbridge_msgs' types, "
-            "std_msgs/String, Bool, Float64 and sensor_msgs/JointState.",
-        ),
+        list[str] | None, typer.Argument(metavar="[TYPES]...", help=_TYPES_HELP)
     ] = None,
     msg_path: Annotated[
-        list[Path] | None,
-        typer.Option(
-            "--msg-path",
-            help="Directory of message packages (PKG/msg/*.msg, PKG/srv/*.srv); repeatable.",
-            file_okay=False,
-        ),
+        list[Path] | None, typer.Option("--msg-path", help=_MSG_PATH_HELP, file_okay=False)
     ] = None,
     capacity: Annotated[
         list[str] | None,
-        typer.Option(
-            "--capacity",
-            metavar="pkg/Type.field=N",
-            help="Elements of a variable-length array or bytes of a string field (default "
-            "8 and 32); pkg/Type.field[]=N for each string of a string array. Repeatable.",
-        ),
+        typer.Option("--capacity", metavar="pkg/Type.field=N", help=_CAPACITY_HELP),
     ] = None,
 ) -> None:
     """Write C++ headers: hwbridge_control.h (control messages), one per message type, and the
     fixed hwbridge_msg.h and hwbridge_wire.h they include; hwbridge_msgdefs.h, the hash of
     their definitions that a board sends (PROTOCOL.md 2.6.1)."""
+    _write_headers(ctx, outdir, types, msg_path, capacity)
+
+
+def _write_headers(
+    ctx: typer.Context,
+    outdir: Path,
+    types: list[str] | None,
+    msg_path: list[Path] | None,
+    capacity: list[str] | None,
+) -> None:
     from hwbridge.cli.common import Context
     from hwbridge.firmware.gen_control import generate_control_files
     from hwbridge.firmware.gen_msgs import Capacities, MessageHeaders, parse_capacity
     from hwbridge.msg import registry
 
-    root = ctx.find_root().obj  # hwbridge --msg-path DIR firmware generate ...
+    root = ctx.find_root().obj  # hwbridge --msg-path DIR firmware headers ...
     reg = registry([*(msg_path or ()), *(root.msg_path if isinstance(root, Context) else ())])
     limits = Capacities()
     for text in capacity or ():
@@ -166,6 +173,115 @@ def generate(
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(text, encoding="utf-8")
     sys.stdout.write(f"{len(files)} headers written to {outdir}\n")
+
+
+def _is_robot_file(path: Path) -> bool:
+    return path.suffix in (".yaml", ".yml") or path.is_file()
+
+
+@firmware_app.command("generate")
+def generate(
+    ctx: typer.Context,
+    target: Annotated[
+        Path,
+        typer.Argument(
+            metavar="ROBOT.yaml|OUTDIR",
+            help="A robot file: write (and build) its board's sketch. A folder: write the C++ "
+            "message headers there, as 'firmware headers'.",
+        ),
+    ],
+    types: Annotated[
+        list[str] | None, typer.Argument(metavar="[TYPES]...", help=_TYPES_HELP)
+    ] = None,
+    board: Annotated[
+        str | None,
+        typer.Option(
+            "--board",
+            "-b",
+            help="The MCU board: uno, nano or mega (default: the robot file's mcu, else uno).",
+        ),
+    ] = None,
+    part: Annotated[
+        str | None,
+        typer.Option(
+            "--for", metavar="NAME", help="The robot file's board (default: its only one)."
+        ),
+    ] = None,
+    out: Annotated[
+        Path | None,
+        typer.Option(
+            "--out", "-o", help="Folder of the sketch (default: ROBOTDIR/firmware/ROBOT_BOARD)."
+        ),
+    ] = None,
+    no_build: Annotated[
+        bool, typer.Option("--no-build", help="Write the sketch only; do not build it.")
+    ] = False,
+    msg_path: Annotated[
+        list[Path] | None, typer.Option("--msg-path", help=_MSG_PATH_HELP, file_okay=False)
+    ] = None,
+    capacity: Annotated[
+        list[str] | None,
+        typer.Option("--capacity", metavar="pkg/Type.field=N", help=_CAPACITY_HELP),
+    ] = None,
+) -> None:
+    """Generate a board's firmware from a robot file: the sketch (printed path), then its build
+    for the MCU board (the .elf and .hex with their sizes). The pins are checked first, each
+    problem as FILE:LINE. Nobody writes C++: each device's plugin writes its part from the
+    settings the host reads too.
+
+    Given a folder instead, write the C++ message headers there ('firmware headers')."""
+    if not _is_robot_file(target):
+        if board or part or out or no_build:
+            raise typer.BadParameter(
+                f"{target} is no robot file (.yaml): --board, --for, --out and --no-build are "
+                "for a robot file's sketch"
+            )
+        _write_headers(ctx, target, types, msg_path, capacity)
+        return
+    if types:
+        raise typer.BadParameter("message types go with an OUTDIR, not with a robot file")
+    from hwbridge.firmware.build import BOARDS, build_sketch, firmware_size
+    from hwbridge.robot.config import load_robot
+    from hwbridge.sketchgen import (
+        DEFAULT_MCU,
+        default_out_dir,
+        generate_sketch,
+        pick_board,
+        write_sketch,
+    )
+
+    robot = load_robot(target)
+    chosen = pick_board(robot, part)
+    mcu = board or chosen.mcu
+    if mcu is None:
+        mcu = DEFAULT_MCU
+        sys.stderr.write(
+            f"hwbridge: {robot.path}: board {chosen.name} names no mcu: generating for "
+            f"{DEFAULT_MCU} (say 'mcu: uno|nano|mega' in the file, or --board)\n"
+        )
+    sketch = generate_sketch(robot, target.read_bytes(), chosen, mcu)
+    if sketch.left_out:
+        sys.stderr.write(
+            f"hwbridge: left out on the {sketch.mcu} (only_on): {', '.join(sketch.left_out)}\n"
+        )
+    ino = write_sketch(sketch, out if out is not None else default_out_dir(robot, sketch))
+    sys.stdout.write(f"{ino}\n")
+    sys.stdout.flush()
+    if no_build:
+        return
+
+    def progress(line: str) -> None:
+        sys.stderr.write(f"hwbridge: {line}\n")
+        sys.stderr.flush()
+
+    elf = build_sketch(ino, sketch.mcu, ino.parent / "build" / sketch.mcu, progress=progress)
+    size = firmware_size(elf)
+    limits = BOARDS[sketch.mcu]
+    sys.stdout.write(
+        f"{elf}: flash {size.flash} B of {limits.flash} ({100 * size.flash / limits.flash:.0f}%), "
+        f"SRAM {size.sram} B of {limits.sram} ({100 * size.sram / limits.sram:.0f}%)\n"
+        f"{elf.with_suffix('.hex')}: the image to upload (hwbridge firmware upload, or avrdude)\n"
+    )
 
 
 @firmware_app.command("library")

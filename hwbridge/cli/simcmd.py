@@ -5,7 +5,6 @@ pty."""
 from __future__ import annotations
 
 import contextlib
-import json
 import sys
 import threading
 import time
@@ -88,14 +87,6 @@ def sim(
     board: Annotated[
         str | None, typer.Option("--board", help="The robot file's board (default: the first).")
     ] = None,
-    pins: Annotated[
-        str | None,
-        typer.Option(
-            "--pins",
-            metavar="JSON",
-            help="Pins other than DiffDriveBase's, e.g. '{\"sonar\": [9, 10]}'.",
-        ),
-    ] = None,
     speed: Annotated[
         float, typer.Option("--speed", help="Simulated seconds per second (0: flat out).")
     ] = 1.0,
@@ -127,7 +118,7 @@ def sim(
     for a second before it starts the application in flash. Uploaded flash lasts until the
     simulator stops."""
     from hwbridge.emulator.board import load_board
-    from hwbridge.emulator.pins import PinMap, PinWorld
+    from hwbridge.emulator.pins import PinWorld
     from hwbridge.errors import HwBridgeError
     from hwbridge.firmware.sim import SimAvr
     from hwbridge.firmware.sim.bootloader import optiboot_hex
@@ -157,13 +148,8 @@ def sim(
     try:
         simulation.start(hold=True)
         if robot is not None:
-            pin_map = PinMap.for_board(board_name)
-            if pins is not None:
-                try:
-                    pin_map = pin_map.with_settings(json.loads(pins))
-                except (ValueError, TypeError) as exc:
-                    raise HwBridgeError(f"--pins: {exc}") from exc
-            PinWorld(simulation, load_board(robot, board), pins=pin_map, seed=seed).attach()
+            # each device's pins: its settings in the robot file (its defaults for the board)
+            PinWorld(simulation, load_board(robot, board), seed=seed).attach()
         simulation.go()
         sys.stdout.write(simulation.link_url + "\n")
         sys.stdout.flush()

@@ -89,7 +89,12 @@ def load_board(name_or_path: str, board: str | None = None) -> BoardConfig:
         world = WorldConfig.from_dict(dict(robot.world))
     except (KeyError, TypeError, ValueError) as exc:
         raise HwBridgeError(f"{path}: world: {exc}") from exc
-    return BoardConfig(robot.name, world, chosen.devices, str(path))
+    from hwbridge.robot.wiring import on_board
+
+    devices = tuple(  # a device that only_on keeps off the board's MCU board is not on it
+        d for d in chosen.devices if chosen.mcu is None or on_board(d, chosen.mcu)
+    )
+    return BoardConfig(robot.name, world, devices, str(path))
 
 
 class VirtualBoard:

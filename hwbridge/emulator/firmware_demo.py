@@ -10,32 +10,35 @@ simulator's pty, so the same host nodes make ``odom``, ``range`` and ``imu`` fro
 firmware publishes, the same driver steers, and the run ends with the same line: ``odometry
 error: E% of D m``. Its screen is a status line every 5 s.
 
-An Uno decodes its encoders x2 (one interrupt pin per wheel), so the host's ``counts_per_rev``
-is halved for this run, as the sketch's comment asks of a robot file for an Uno.
+The robot file is the Uno's (``diffbot_uno.yaml``: the same body and room as ``diffbot.yaml``,
+DiffDriveBase's Uno wiring, ``counts_per_rev`` for its x2 decoding, no pan servo); the devices'
+pin models read their pins from it. With ``generated`` (``hwbridge demo --firmware
+--generated``) the firmware is not DiffDriveBase but the sketch that ``hwbridge firmware
+generate`` writes from that same file (:func:`hwbridge.sketchgen.generated_elf`).
 """
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
 from rich.console import Console
 
-from hwbridge.emulator.board import load_board
-from hwbridge.emulator.demo import BOARD, ROBOT_FILE, BoardSide, Seen, Truth, drive
+from hwbridge.emulator.board import ROBOTS_DIR, load_board
+from hwbridge.emulator.demo import BOARD, BoardSide, Seen, Truth, drive
 from hwbridge.emulator.pins import PinWorld
 from hwbridge.emulator.world import WorldConfig
 from hwbridge.firmware.sim import SimAvr
 from hwbridge.firmware.sim.examples import build_example
 from hwbridge.graph import Graph
 from hwbridge.robot.config import load_robot
-from hwbridge.robot.model import Robot
 from hwbridge.robot.runtime import RobotRuntime
 
-__all__ = ["FirmwareDemoResult", "FirmwareSide", "run_firmware_demo", "uno_robot"]
+__all__ = ["UNO_ROBOT_FILE", "FirmwareDemoResult", "FirmwareSide", "run_firmware_demo"]
 
 SKETCH = "DiffDriveBase"
+UNO_ROBOT_FILE = ROBOTS_DIR / "diffbot_uno.yaml"
+"""The demo robot wired to an Uno (the robot the firmware in simavr is)."""
 
 
 @dataclass(frozen=True)
@@ -52,34 +55,10 @@ class FirmwareDemoResult:
         return 100.0 * self.error / self.distance if self.distance > 0 else 0.0
 
 
-def uno_robot(robot: Robot, board: str = BOARD, decoding: int = 2) -> Robot:
-    """``robot`` with the ``counts_per_rev`` of its board's devices (the diffdrive's) for a
-    board decoding ``decoding`` edges of the 4 per encoder line (an Uno: 2)."""
-    boards = []
-    for entry in robot.boards:
-        if entry.name == board:
-            devices = tuple(
-                dataclasses.replace(
-                    d,
-                    settings={
-                        **d.settings,
-                        "counts_per_rev": d.settings["counts_per_rev"] * decoding / 4,
-                    },
-                )
-                if "counts_per_rev" in d.settings
-                else d
-                for d in entry.devices
-            )
-            boards.append(dataclasses.replace(entry, devices=devices))
-        else:
-            boards.append(entry)
-    return dataclasses.replace(robot, boards=tuple(boards))
-
-
 class FirmwareSide(BoardSide[FirmwareDemoResult]):
-    """The demo robot's board as the DiffDriveBase firmware (or ``elf``) for an ATmega328P in
-    simavr, its pins driven by the emulator's world; ``reset_at`` (s) resets the AVR once
-    mid-run."""
+    """The demo robot's board as the DiffDriveBase firmware (``generated``: the sketch generated
+    from the robot file; or ``elf``) for an ATmega328P in simavr, its pins driven by the
+    emulator's world; ``reset_at`` (s) resets the AVR once mid-run."""
 
     label = "the firmware in simavr"
     connect_timeout = 30.0
@@ -92,12 +71,25 @@ class FirmwareSide(BoardSide[FirmwareDemoResult]):
     )
 
     def __init__(
-        self, seed: int = 0, *, reset_at: float | None = None, elf: Path | None = None
+        self,
+        seed: int = 0,
+        *,
+        reset_at: float | None = None,
+        elf: Path | None = None,
+        generated: bool = False,
     ) -> None:
         self.seed = seed
         self.reset_at = reset_at
-        self.firmware = elf or build_example(SKETCH, "uno")
-        self.robot = uno_robot(load_robot(ROBOT_FILE))
+        self.sketch = f"the sketch generated from {UNO_ROBOT_FILE.name}" if generated else SKETCH
+        if elf is None:
+            if generated:
+                from hwbridge.sketchgen import generated_elf
+
+                elf = generated_elf(UNO_ROBOT_FILE, "uno", BOARD)
+            else:
+                elf = build_example(SKETCH, "uno")
+        self.firmware = elf
+        self.robot = load_robot(UNO_ROBOT_FILE)
         self.plot_title = (
             f"hwbridge demo --firmware: {self.robot.name}, odometry against ground truth"
         )
@@ -106,7 +98,8 @@ class FirmwareSide(BoardSide[FirmwareDemoResult]):
 
     def open(self) -> str:
         self.sim.start(hold=True)
-        self.pins = PinWorld(self.sim, load_board(str(ROBOT_FILE), BOARD), seed=self.seed).attach()
+        board = load_board(str(UNO_ROBOT_FILE), BOARD)
+        self.pins = PinWorld(self.sim, board, board="uno", seed=self.seed).attach()
         self.sim.go()
         return self.sim.url
 
@@ -117,7 +110,7 @@ class FirmwareSide(BoardSide[FirmwareDemoResult]):
 
     def intro(self, graph: Graph, namespace: str) -> list[str]:
         lines = [
-            f"[bold]hwbridge demo --firmware[/]: {SKETCH} for the ATmega328P "
+            f"[bold]hwbridge demo --firmware[/]: {self.sketch} for the ATmega328P "
             f"({self.firmware.name}) in simavr on {self.sim.path}; robot {self.robot.name} up "
             f"with board {BOARD}; graph on {graph.config.describe()}; topics under {namespace}"
         ]
@@ -163,11 +156,13 @@ def run_firmware_demo(
     plot: Path | None = None,
     reset_at: float | None = None,
     elf: Path | None = None,
+    generated: bool = False,
 ) -> FirmwareDemoResult:
     """Run the demo on the firmware in simavr. ``reset_at`` (s) resets the AVR once mid-run
-    (the bridge has to recover on its own); ``elf`` replaces the DiffDriveBase build."""
+    (the bridge has to recover on its own); ``elf`` replaces the DiffDriveBase build;
+    ``generated`` runs the sketch generated from the robot file instead."""
     return drive(
-        FirmwareSide(seed, reset_at=reset_at, elf=elf),
+        FirmwareSide(seed, reset_at=reset_at, elf=elf, generated=generated),
         duration=duration,
         endpoint=endpoint,
         keep=keep,

@@ -6,80 +6,29 @@ itself it drives the pins of an AVR that runs the firmware a user flashes
 (:class:`~hwbridge.firmware.sim.SimAvr`). The world advances on the AVR's own clock: every
 report of the simulator (5 ms of simulated time) steps it by the time passed. Each device of the
 robot file's board is put on the pins by its plugin's pin-level model
-(:meth:`hwbridge.robot.plugin.DevicePlugin.pin_model`, in ``devices/<device>/pins.py``);
-devices without one (or without what they need on this board) are left out with one log line.
-:class:`PinMap` says where the devices sit; its defaults are the wiring of the DiffDriveBase
-example sketch (``firmware/HwBridge/examples/DiffDriveBase``).
+(:meth:`hwbridge.robot.plugin.DevicePlugin.pin_model`, in ``devices/<device>/pins.py``), which
+reads the device's pins from its own settings in the robot file (its defaults for the board
+where the file gives none) against the board's pin table (:mod:`hwbridge.firmware.boards`);
+devices without a pin model (or without what they need on this board, or whose ``only_on``
+leaves this board out) are left out with one log line.
 """
 
 from __future__ import annotations
 
 import logging
 import threading
-from collections.abc import Mapping
-from dataclasses import dataclass, fields, replace
-from typing import Any
 
 from hwbridge.emulator.board import BoardConfig
 from hwbridge.emulator.world import World
 from hwbridge.errors import HwBridgeError
+from hwbridge.firmware.boards import McuBoard, board_of_mcu, mcu_board
 from hwbridge.firmware.sim import SimAvr, Tick
 from hwbridge.robot.plugin import PinModel
 from hwbridge.robot.registry import get_device
 
-__all__ = ["PinMap", "PinWorld"]
+__all__ = ["PinWorld"]
 
 log = logging.getLogger("hwbridge.devices.pins")
-
-Pin = int | str
-
-
-@dataclass(frozen=True)
-class PinMap:
-    """Arduino pins (numbers, ``"A4"``, or port bits like ``"PD2"``) of the robot's devices.
-
-    The defaults are DiffDriveBase's Uno wiring; :meth:`for_board` gives the Mega's."""
-
-    left_encoder: tuple[Pin, Pin] = (2, 4)
-    """A, B."""
-    right_encoder: tuple[Pin, Pin] = (3, 5)
-    left_motor: tuple[Pin, Pin] = (6, 7)
-    """PWM, direction."""
-    right_motor: tuple[Pin, Pin] = (10, 11)
-    sonar: tuple[Pin, Pin] = (8, 12)
-    """Trigger, echo."""
-    imu_address: int = 0x68
-    dynamixel_uart: str | None = None
-    """The UART of the Dynamixel bus ("1".."3"; an Uno has none)."""
-
-    @classmethod
-    def for_board(cls, board: str) -> PinMap:
-        """DiffDriveBase's wiring on ``uno`` or ``mega``."""
-        if board == "uno":
-            return cls()
-        if board == "mega":
-            return cls(left_encoder=(2, 3), right_encoder=(18, 19), dynamixel_uart="2")
-        raise HwBridgeError(f"no DiffDriveBase wiring for board {board!r} (uno or mega)")
-
-    def with_settings(self, settings: Mapping[str, Any]) -> PinMap:
-        """This map with some pins replaced (``{"sonar": [9, 10]}``); unknown names refused."""
-        known = {f.name for f in fields(self)}
-        unknown = sorted(set(settings) - known)
-        if unknown:
-            raise HwBridgeError(
-                f"unknown pins {', '.join(unknown)}: use {', '.join(sorted(known))}"
-            )
-        values: dict[str, Any] = {
-            key: (
-                int(value)
-                if key == "imu_address"
-                else str(value)
-                if key == "dynamixel_uart"
-                else tuple(value)
-            )
-            for key, value in settings.items()
-        }
-        return replace(self, **values)
 
 
 class PinWorld:
@@ -92,12 +41,15 @@ class PinWorld:
         sim: SimAvr,
         config: BoardConfig,
         *,
-        pins: PinMap | None = None,
+        board: str | None = None,
         seed: int = 0,
     ) -> None:
         self.sim = sim
         self.config = config
-        self.pins = pins or PinMap.for_board("mega" if sim.mcu == "atmega2560" else "uno")
+        self.pins: McuBoard = mcu_board(board) if board is not None else board_of_mcu(sim.mcu)
+        """The MCU board's pin table (``board``, default the Uno or the Mega of the AVR)."""
+        if self.pins.mcu != sim.mcu:
+            raise HwBridgeError(f"a {self.pins.name} has an {self.pins.mcu}, not an {sim.mcu}")
         self.world = World(config.world, seed)
         self.lock = threading.Lock()
         """Held while the world steps (read the ground truth under it)."""
@@ -106,6 +58,12 @@ class PinWorld:
         self.models: list[PinModel] = []
         self.skipped: list[str] = []
         for device in config.devices:
+            if device.only_on and self.pins.name not in device.only_on:
+                self.skipped.append(device.type)
+                log.info(
+                    "%s: %s is only on %s", config.name, device.name, ", ".join(device.only_on)
+                )
+                continue
             model = get_device(device.type).pin_model(device.settings, self)
             if model is None:
                 self.skipped.append(device.type)

@@ -98,6 +98,7 @@ class Board:
 
 BOARDS: Final = {
     "uno": Board("uno", "atmega328p", "16000000L", "AVR_UNO", "standard", 32256, 2048),
+    "nano": Board("nano", "atmega328p", "16000000L", "AVR_NANO", "eightanaloginputs", 30720, 2048),
     "mega": Board("mega", "atmega2560", "16000000L", "AVR_MEGA2560", "mega", 253952, 8192),
 }
 

@@ -9,10 +9,13 @@
         link: /dev/ttyACM0             # a link URL (serial path, socket://, tcp-listen://, ...)
         protocol: auto                 # auto, native, rosserial or a plugin's protocol
         namespace: /diffbot            # where its topics (and its devices' nodes) appear
+        mcu: mega                      # optional: uno, nano or mega; its pins are then checked
         baud: 115200                   # optional; also start_delay, service_timeout
         devices:                       # devices on the board's pins (plugins with where: board)
           - type: hcsr04               # a device type (hwbridge.robot.registry)
             name: front_sonar          # optional: default the type (numbered when repeated)
+            pins: {trigger: 8, echo: 12}  # the device's pins (defaults: the plugin's wiring)
+            only_on: [mega]            # optional: the MCU boards it is on (default every one)
             topic: sonar_echo          # ...the plugin's settings
     host_devices:                      # devices on the host's own adapters (where: host)
       - type: dynamixel_bus
@@ -40,9 +43,15 @@ problem at once, each as ``FILE:LINE: what is wrong``, in file order, in one
   ``usb:VID:PID[:SERIAL]`` and ``auto`` name a USB board, resolved to its port by ``hwbridge up``,
   see :mod:`hwbridge.links.discovery`); ``protocol``
   (default ``auto``), ``namespace`` (default ``/``, a graph name), ``baud`` (a whole number above
-  0), ``service_timeout`` (default 5 s), ``start_delay`` (default 0 s), ``devices`` (a list).
+  0), ``service_timeout`` (default 5 s), ``start_delay`` (default 0 s), ``devices`` (a list),
+  ``mcu`` (``uno``, ``nano`` or ``mega``, :mod:`hwbridge.firmware.boards`): when given, every
+  device's wiring (:meth:`~hwbridge.robot.plugin.DevicePlugin.wiring`: its pins, I2C address,
+  UART) is checked against that board's pins by :mod:`hwbridge.robot.wiring`, each problem at
+  the line of the offending value.
 - a device: ``type`` (a registered device type) and an optional ``name``, unique on its board
-  (default the type; ``hcsr04_2``, ``hcsr04_3`` for repeats); every other key is a setting of the
+  (default the type; ``hcsr04_2``, ``hcsr04_3`` for repeats), an optional ``only_on`` (the MCU
+  boards the device is on, e.g. ``[mega]`` for a servo bus that needs a spare UART); every
+  other key is a setting of the
   plugin: unknown ones, missing required ones, values of the wrong type (a bool is not a number;
   an int is taken for a float), not among the choices or out of the minimum/maximum are errors.
   A ``host`` device under a board, or a ``board`` device under ``host_devices``, is an error that
@@ -70,7 +79,7 @@ import dataclasses
 import difflib
 import math
 import re
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import Any, Final, TypeVar
 
@@ -107,6 +116,7 @@ _BOARD_KEYS: Final = (
     "service_timeout",
     "start_delay",
     "devices",
+    "mcu",
 )
 _HOST_KEYS: Final = ("type", "name", "link", "namespace", "baud")
 _NAME: Final = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
@@ -263,11 +273,13 @@ def _settings(
     entry: yaml.Node,
     what: str,
     problems: _Problems,
+    extra: Iterable[str] = (),
 ) -> dict[str, Any]:
-    """The device's settings checked against its plugin's fields, defaults filled in."""
+    """The device's settings checked against its plugin's fields, defaults filled in (the keys
+    ``skip`` and ``extra`` are not settings: they are listed before and after the fields)."""
     fields = {f.name: f for f in plugin.fields}
-    given = {k: v for k, v in items.items() if k not in set(skip)}
-    _unknown_keys(given, [*skip, *fields], what, problems)
+    given = {k: v for k, v in items.items() if k not in {*skip, *extra}}
+    _unknown_keys(given, [*skip, *fields, *extra], what, problems)
     settings: dict[str, Any] = {}
     for name, field in fields.items():
         if name not in given:
@@ -381,6 +393,35 @@ def _check_timeout(value: Any) -> float:
     return check_service_timeout(value)
 
 
+def _check_only_on(value: Any) -> tuple[str, ...]:
+    from hwbridge.firmware.boards import mcu_board
+
+    names = [value] if isinstance(value, str) else value
+    if not isinstance(names, list) or not names or not all(isinstance(n, str) for n in names):
+        raise ValueError(f"expected MCU board names such as [mega], got {value!r}")
+    return tuple(mcu_board(name).name for name in names)
+
+
+def _check_mcu(value: Any) -> str:
+    from hwbridge.firmware.boards import mcu_board
+
+    if not isinstance(value, str):
+        raise ValueError(f"expected an MCU board name (uno, nano, mega), got {value!r}")
+    return mcu_board(value).name
+
+
+def _lines(path: str, node: yaml.Node) -> Iterator[tuple[str, int]]:
+    """(dotted path, line) of ``node`` and of every value inside it."""
+    yield path, node.start_mark.line + 1
+    if isinstance(node, yaml.MappingNode):
+        for key_node, value_node in node.value:
+            if isinstance(key_node, yaml.ScalarNode):
+                yield from _lines(f"{path}.{key_node.value}", value_node)
+    elif isinstance(node, yaml.SequenceNode):
+        for index, item in enumerate(node.value):
+            yield from _lines(f"{path}.{index}", item)
+
+
 def _plugin(type_node: yaml.Node, what: str, problems: _Problems) -> DevicePlugin | None:
     from hwbridge.robot.registry import get_device
 
@@ -435,8 +476,12 @@ def _devices(node: yaml.Node, board: str, problems: _Problems) -> tuple[DeviceCo
                 f"{what}: two devices named {name!r} on board {board}",
             )
         names.add(name)
-        settings = _settings(plugin, items, ("type", "name"), entry, what, problems)
-        devices.append(DeviceConfig(plugin.type, name, settings, problems.where(entry)))
+        settings = _settings(plugin, items, ("type", "name"), entry, what, problems, ("only_on",))
+        only_on = _checked(items, "only_on", _check_only_on, what, problems, ())
+        lines = {key: line for key, (_k, node) in items.items() for key, line in _lines(key, node)}
+        devices.append(
+            DeviceConfig(plugin.type, name, settings, problems.where(entry), only_on, lines)
+        )
     return tuple(devices)
 
 
@@ -469,6 +514,8 @@ def _board(entry: yaml.Node, index: int, problems: _Problems) -> RobotBoardConfi
         else (),
         source=problems.where(entry),
         baud_source=problems.where(items["baud"][0]) if "baud" in items else "",
+        mcu=_checked(items, "mcu", _check_mcu, what, problems, None),
+        mcu_line=items["mcu"][1].start_mark.line + 1 if "mcu" in items else 0,
     )
     return board if name and link else None
 
@@ -570,6 +617,13 @@ def _parse_robot(text: str, path: str) -> Robot:
         problems.at(root, "the robot has no boards and no host_devices")
     for line, clash in topic_clashes(boards, hosts):
         problems.at_line(line, clash)
+    if not problems.lines:  # the pins of boards that name their MCU board
+        from hwbridge.robot.wiring import board_problems
+
+        for board in boards:
+            if board.mcu is not None:
+                for line, problem in board_problems(board, board.mcu):
+                    problems.at_line(line, f"board {board.name} ({board.mcu}): {problem}")
     if problems.lines:
         raise RobotFileError(problems.lines)
     return Robot(name, Path(path), tuple(boards), tuple(hosts), world, **gateways)

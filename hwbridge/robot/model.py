@@ -36,6 +36,22 @@ class DeviceConfig:
     settings: Mapping[str, Any]
     source: str = ""
     """``FILE:LINE`` of the device's entry."""
+    only_on: tuple[str, ...] = ()
+    """``only_on: [mega]``: the MCU boards the device is on (empty: every one). On another
+    board the sketch generator and the simulation leave it out, and the pins are not checked
+    (as ``#if`` in a hand-written sketch)."""
+    lines: Mapping[str, int] = field(default_factory=dict)
+    """The line of each setting the file gives, by dotted path (``pins``,
+    ``pins.left_encoder``, ``pins.left_encoder.0``), for messages about its value."""
+
+    def line_of(self, setting: str) -> int | None:
+        """The line of ``setting`` (a dotted path) or of the nearest enclosing one given."""
+        path = setting
+        while path:
+            if path in self.lines:
+                return self.lines[path]
+            path = path.rpartition(".")[0]
+        return None
 
 
 @dataclass(frozen=True)
@@ -53,6 +69,11 @@ class RobotBoardConfig:
     source: str = ""
     baud_source: str = ""
     """``FILE:LINE`` of the ``baud`` key, where the file gives one."""
+    mcu: str | None = None
+    """``mcu: uno | nano | mega``: the MCU board (:mod:`hwbridge.firmware.boards`); its pins
+    are checked when given. None: not said (the sketch generator takes ``uno``)."""
+    mcu_line: int = 0
+    """The line of ``mcu``, where the file gives one."""
 
 
 @dataclass(frozen=True)

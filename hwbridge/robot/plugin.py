@@ -16,6 +16,12 @@ A robot file (:mod:`hwbridge.robot.config`) lists devices by ``type``; each type
   has one;
 * the **firmware driver** it pairs with (:attr:`DevicePlugin.firmware`, a name in the Arduino
   library; None until the firmware has one);
+* its **wiring** on an MCU board (:meth:`DevicePlugin.wiring`, a :class:`Wiring`): the pins,
+  I2C addresses and UARTs its settings give it (or its defaults for that board), checked by
+  ``hwbridge robot check`` against the board's pin table (:mod:`hwbridge.firmware.boards`);
+* its **part of a generated sketch** (:meth:`DevicePlugin.sketch`, a :class:`SketchPart`): the
+  C++ that ``hwbridge firmware generate`` puts together (:mod:`hwbridge.sketchgen`), rendered
+  from its settings, so that host and board read their shared settings from one file;
 * the **topics and services** it uses with given settings (:meth:`DevicePlugin.topics`, a
   tuple of :class:`TopicUse`), so a robot file in which two devices would publish one topic is
   refused with both lines. A plugin that does not say (returns None) is left out of that check.
@@ -37,6 +43,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, ClassVar, Final, Literal, Protocol
 
 if TYPE_CHECKING:
+    from hwbridge.firmware.boards import McuBoard, PinName
     from hwbridge.firmware.sim import Tick
 
 __all__ = [
@@ -48,8 +55,13 @@ __all__ = [
     "HostContext",
     "PinBoard",
     "PinModel",
+    "PinUse",
+    "SketchContext",
+    "SketchPart",
     "TopicUse",
     "Where",
+    "Wiring",
+    "WiringError",
 ]
 
 Where = Literal["board", "host"]
@@ -97,6 +109,76 @@ class TopicUse:
     """Who does it: the board's firmware (``board``) or the device's host node (``host``)."""
     shared: bool = False
     """Meant to have many publishers (``/tf``, ``/diagnostics``): never a clash."""
+
+
+@dataclass(frozen=True)
+class PinUse:
+    """One pin a device takes on its board."""
+
+    pin: PinName
+    """As the robot file (or the plugin's default) gives it: ``2`` or ``"A0"``."""
+    role: str
+    """What the device does with it (``left encoder A``), for messages."""
+    setting: str = ""
+    """Where in the device's settings it was given, a dotted path (``pins.left_encoder.0``);
+    empty for a default of the plugin."""
+    needs: tuple[Literal["interrupt", "pwm"], ...] = ()
+    """What the pin must have for the device's firmware driver."""
+
+
+@dataclass(frozen=True)
+class Wiring:
+    """What a device takes of a board: pins, I2C addresses (the bus's SDA and SCL with them)
+    and UARTs, each with the setting that gave it (a dotted path; empty for a default)."""
+
+    pins: tuple[PinUse, ...] = ()
+    i2c: tuple[tuple[int, str], ...] = ()
+    """(7-bit address, setting)."""
+    uarts: tuple[tuple[str, str], ...] = ()
+    """(Arduino serial object, ``Serial1``, setting)."""
+
+
+class WiringError(ValueError):
+    """A device's pin settings do not have the shape its plugin reads (``setting`` names the
+    offending one, a dotted path)."""
+
+    def __init__(self, setting: str, text: str) -> None:
+        super().__init__(text)
+        self.setting = setting
+
+
+@dataclass(frozen=True)
+class SketchContext:
+    """What a device's part of a generated sketch may use besides its settings."""
+
+    name: str
+    """The device's name on its board, made a C++ identifier (``front_sonar``): prefix its
+    globals with it so two devices of one type do not collide."""
+    board: McuBoard
+    """The MCU board the sketch is for."""
+    wiring: Wiring
+    """The device's wiring on it (checked)."""
+    node: str = "nh"
+    """The sketch's ``hwbridge::NodeHandle``."""
+
+
+@dataclass(frozen=True)
+class SketchPart:
+    """A device's C++ in a generated sketch, each piece a block of statements or declarations
+    (the generator indents them). The loop's pieces run in device order each ``loop()``; the
+    ``connect`` pieces once each time the host connects, ``disconnect`` each loop while no host
+    is connected."""
+
+    includes: tuple[str, ...] = ()
+    """Headers (``hwbridge/drivers/hcsr04.h``, ``Wire.h``), each included once."""
+    prelude: tuple[str, ...] = ()
+    """Setup statements that several devices may share (``Wire.begin();``): each written once,
+    in order, before the devices' setup."""
+    globals: str = ""
+    setup: str = ""
+    loop: str = ""
+    connect: str = ""
+    disconnect: str = ""
 
 
 class Closeable(Protocol):
@@ -160,8 +242,9 @@ class PinBoard(Protocol):
         ...
 
     @property
-    def pins(self) -> Any:
-        """Where the devices sit (:class:`hwbridge.emulator.pins.PinMap`)."""
+    def pins(self) -> McuBoard:
+        """The board's pin table (:mod:`hwbridge.firmware.boards`): a device's pin model takes
+        its own pins from its settings with :meth:`DevicePlugin.wiring` on it."""
         ...
 
     @property
@@ -253,6 +336,19 @@ class DevicePlugin(abc.ABC):
         """The device's model on the pins of ``board`` (board devices); None if it has none
         there, or none on this board (the board's pins lack what it needs): the device is then
         left out of the simulation."""
+        return None
+
+    def wiring(self, settings: Mapping[str, Any], board: McuBoard) -> Wiring | None:
+        """What the device takes of ``board`` with ``settings`` (its pins as given, or its
+        defaults for that board): checked by ``hwbridge robot check`` for a board with an
+        ``mcu``. None: the device takes nothing of the board's pins. :class:`WiringError` for
+        pin settings of the wrong shape."""
+        return None
+
+    def sketch(self, settings: Mapping[str, Any], context: SketchContext) -> SketchPart | None:
+        """The device's part of a sketch generated from a robot file (``hwbridge firmware
+        generate``); None if the plugin cannot generate firmware (the generator then refuses
+        the robot file, naming the device)."""
         return None
 
     def topics(self, settings: Mapping[str, Any]) -> tuple[TopicUse, ...] | None:

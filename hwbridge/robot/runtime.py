@@ -179,8 +179,12 @@ class RobotRuntime:
             raise RobotFileError(problems)
 
     def _start_devices(self) -> None:
+        from hwbridge.robot.wiring import on_board
+
         for board in self.robot.boards:
             for device in board.devices:
+                if board.mcu is not None and not on_board(device, board.mcu):
+                    continue  # only_on leaves it off this board's MCU board: not in its firmware
                 self._start(device, board.namespace, board.name, None, None)
         for host in self.robot.host_devices:
             self._start(host.device, host.namespace, None, host.link, host.baud)

@@ -617,6 +617,18 @@ def test_the_headers_compile_for_the_atmega328p(tmp_path: Path) -> None:
 # -- the command -----------------------------------------------------------------------------
 
 
+def test_headers_and_generate_with_a_folder_write_the_same(tmp_path: Path) -> None:
+    """``firmware headers DIR`` is the header generator; ``firmware generate DIR`` (not a robot
+    file) still is, for existing callers."""
+    assert main(["firmware", "headers", str(tmp_path / "h"), "std_msgs/String"]) == 0
+    assert main(["firmware", "generate", str(tmp_path / "g"), "std_msgs/String"]) == 0
+    headers = {p.relative_to(tmp_path / "h"): p.read_text() for p in (tmp_path / "h").rglob("*.h")}
+    generated = {
+        p.relative_to(tmp_path / "g"): p.read_text() for p in (tmp_path / "g").rglob("*.h")
+    }
+    assert headers == generated and Path("std_msgs/String.h") in headers
+
+
 def test_the_command_writes_the_headers(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["firmware", "generate", str(tmp_path / "a")]) == 0
     written = sorted(

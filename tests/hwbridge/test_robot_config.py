@@ -324,7 +324,8 @@ BOARD = "robot: fake\nboards:\n  - name: base\n    link: pty://\n    devices:\n"
         ("{type: fake_sensor, pin: 1, rate: !!float abc}", "rate: YAML cannot read this value"),
         (
             "{type: fake_sensor, pin: 1, rat: 3}",
-            "unknown key 'rat' (did you mean 'rate'?); known: type, name, pin, rate, mode",
+            "unknown key 'rat' (did you mean 'rate'?); known: type, name, pin, rate, mode, "
+            "frame_id, offsets, only_on",
         ),
         (
             "{type: fake_broken}",

@@ -1,6 +1,7 @@
 """``hwbridge demo --firmware`` (run_firmware_demo): DiffDriveBase for the ATmega328P in simavr
-behind RobotRuntime and the host nodes; odometry within 0.5 % of the distance driven; the
-``firmware sim`` command prints the UART's URL first."""
+behind RobotRuntime and the host nodes; odometry within 0.5 % of the distance driven; the same
+with ``--generated`` (the firmware generated from the robot file); the ``firmware sim`` command
+prints the UART's URL first."""
 
 from __future__ import annotations
 
@@ -15,10 +16,8 @@ from typing import Any
 
 import pytest
 
-from hwbridge.emulator.firmware_demo import (
-    ROBOT_FILE,
-    uno_robot,
-)
+from hwbridge.emulator.demo import ROBOT_FILE
+from hwbridge.emulator.firmware_demo import UNO_ROBOT_FILE
 from hwbridge.errors import HwBridgeError
 from hwbridge.firmware.sim import SimAvr
 from hwbridge.firmware.sim.examples import build_example
@@ -34,19 +33,50 @@ def diffdrive_elf(runner: Path) -> Path:
         pytest.skip(f"DiffDriveBase does not build here: {str(exc).splitlines()[0]}")
 
 
-def test_uno_robot_halves_counts_per_rev() -> None:
-    robot = load_robot(ROBOT_FILE)
+def test_uno_robot_is_the_demo_robot_decoding_x2() -> None:
+    """diffbot_uno.yaml: the same world as diffbot.yaml; the Uno decodes x2, so half the
+    counts per turn; no pan servo (an Uno has no spare UART)."""
+    robot, uno = load_robot(ROBOT_FILE), load_robot(UNO_ROBOT_FILE)
+    assert uno.world == robot.world
     (before,) = [d for d in robot.board("base").devices if d.type == "diffdrive"]
-    (after,) = [d for d in uno_robot(robot).board("base").devices if d.type == "diffdrive"]
+    (after,) = [d for d in uno.board("base").devices if d.type == "diffdrive"]
     assert after.settings["counts_per_rev"] == before.settings["counts_per_rev"] / 2
+    assert (robot.board("base").mcu, uno.board("base").mcu) == ("mega", "uno")
+    assert "dynamixel" not in [d.type for d in uno.board("base").devices]
 
 
 def test_firmware_demo(diffdrive_elf: Path, tmp_path: Path) -> None:
     """``hwbridge demo --firmware`` as a user runs it (the DiffDriveBase build is cached)."""
+    _run_demo(tmp_path, [])
+
+
+def test_generated_firmware_demo(runner: Path, tmp_path: Path) -> None:
+    """``hwbridge demo --firmware --generated``: the firmware generated from diffbot_uno.yaml
+    in simavr, the same world and host nodes, odometry within 0.5 %."""
+    from hwbridge.sketchgen import generated_elf
+
+    try:
+        generated_elf(UNO_ROBOT_FILE, "uno", "base")  # built (and cached) before the clock runs
+    except HwBridgeError as exc:
+        pytest.skip(f"the generated firmware does not build here: {str(exc).splitlines()[0]}")
+    output = _run_demo(tmp_path, ["--generated"])
+    assert "the sketch generated from diffbot_uno.yaml" in output
+
+
+def _run_demo(tmp_path: Path, extra: list[str]) -> str:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     hwbridge = [sys.executable, "-m", "hwbridge", "--endpoint", endpoint]
     demo = subprocess.Popen(
-        [*hwbridge, "demo", "--firmware", "--duration", "8", "--plot", str(tmp_path / "path.svg")],
+        [
+            *hwbridge,
+            "demo",
+            "--firmware",
+            *extra,
+            "--duration",
+            "8",
+            "--plot",
+            str(tmp_path / "path.svg"),
+        ],
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,
@@ -84,6 +114,7 @@ def test_firmware_demo(diffdrive_elf: Path, tmp_path: Path) -> None:
         seen = re.search(rf"{topic}: (\d+)", output)
         assert seen is not None and int(seen.group(1)) > 10, output
     assert (tmp_path / "path.svg").exists()
+    return output
 
 
 def test_sim_command_prints_the_url_first(probe_elf: Path) -> None:
@@ -102,19 +133,25 @@ def test_sim_command_prints_the_url_first(probe_elf: Path) -> None:
         assert process.wait(15) in (0, 130)  # 130: Ctrl-C before the command's loop
 
 
-def test_mega_pan_servo_on_serial2(runner: Path) -> None:
-    """DiffDriveBase for a Mega: the pan servo on Serial2 is the emulated Dynamixel bus;
-    a goal from the graph moves it and joint_states reports it; odometry comes too."""
+@pytest.mark.parametrize("firmware", ["DiffDriveBase", "generated"])
+def test_mega_pan_servo_on_serial2(runner: Path, firmware: str) -> None:
+    """DiffDriveBase for a Mega, and the firmware generated from diffbot.yaml for it: the pan
+    servo on Serial2 is the emulated Dynamixel bus; a goal from the graph moves it and
+    joint_states reports it; odometry comes too."""
     from hwbridge.emulator.board import load_board
     from hwbridge.emulator.pins import PinWorld
     from hwbridge.graph import Graph, GraphConfig
     from hwbridge.robot.runtime import RobotRuntime
+    from hwbridge.sketchgen import generated_elf
     from tests.netutil import wait_until
 
     try:
-        elf = build_example("DiffDriveBase", "mega")
+        if firmware == "generated":
+            elf = generated_elf(ROBOT_FILE, "mega")
+        else:
+            elf = build_example("DiffDriveBase", "mega")
     except HwBridgeError as exc:
-        pytest.skip(f"DiffDriveBase does not build here: {str(exc).splitlines()[0]}")
+        pytest.skip(f"{firmware} does not build here: {str(exc).splitlines()[0]}")
     sim = SimAvr(elf, mcu="atmega2560")
     packets: list[bytes] = []
     sim.on_uart.append(lambda _uart, data: packets.append(data))

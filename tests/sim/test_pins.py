@@ -4,43 +4,63 @@ says, and the MPU-6050's register file answers its I2C reads."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 
 import pytest
 
 from hwbridge.devices.ultrasonic.hcsr04 import echo_for_distance
-from hwbridge.emulator.board import load_board
-from hwbridge.emulator.pins import PinMap, PinWorld
+from hwbridge.emulator.board import BoardConfig, load_board
+from hwbridge.emulator.pins import PinWorld
 from hwbridge.errors import HwBridgeError
+from hwbridge.firmware.boards import mcu_board
 from hwbridge.firmware.sim import SimAvr
 from tests.sim.conftest import Terminal
 
 # probe.c's wiring: encoder A/B on 2/4, PWM on 5 (OC0B) with direction on 7, sonar 9/10; the
-# right-hand devices on analog pins the program leaves alone.
-PROBE_PINS = PinMap(
-    left_encoder=(2, 4),
-    right_encoder=("A0", "A1"),
-    left_motor=(5, 7),
-    right_motor=("A2", "A3"),
-    sonar=(9, 10),
-)
+# right-hand devices on analog pins the program leaves alone. Given as the devices' own pin
+# settings, as a robot file gives them.
+PROBE_PINS = {
+    "diffdrive": {
+        "left_encoder": [2, 4],
+        "right_encoder": ["A0", "A1"],
+        "left_motor": [5, 7],
+        "right_motor": ["A2", "A3"],
+    },
+    "hcsr04": {"trigger": 9, "echo": 10},
+}
 
 
-def test_pin_map() -> None:
-    assert PinMap.for_board("uno") == PinMap()
-    assert PinMap.for_board("mega").right_encoder == (18, 19)
-    assert PinMap().with_settings({"sonar": [9, 10]}).sonar == (9, 10)
-    with pytest.raises(HwBridgeError, match="unknown pins"):
-        PinMap().with_settings({"lidar": [1, 2]})
-    with pytest.raises(HwBridgeError):
-        PinMap.for_board("due")
+def _probe_board() -> BoardConfig:
+    """diffbot's board with probe.c's wiring in its devices' pin settings."""
+    config = load_board("diffbot")
+    devices = tuple(
+        dataclasses.replace(d, settings={**d.settings, "pins": PROBE_PINS[d.type]})
+        if d.type in PROBE_PINS
+        else d
+        for d in config.devices
+    )
+    return dataclasses.replace(config, devices=devices)
+
+
+def test_pin_table() -> None:
+    uno, mega = mcu_board("uno"), mcu_board("mega")
+    assert uno.number("A4") == uno.sda == 18
+    assert mega.number("A0") == 54
+    assert mcu_board("nano").number("A7") == 21
+    with pytest.raises(HwBridgeError, match="no pin 20"):
+        uno.number(20)
+    with pytest.raises(HwBridgeError, match="no pin A6"):
+        uno.number("A6")
+    with pytest.raises(HwBridgeError, match="unknown MCU board"):
+        mcu_board("due")
 
 
 def test_world_on_the_probe(probe_elf: Path, terminal_factory: type[Terminal]) -> None:
     with SimAvr(probe_elf) as sim:
         sim.start(hold=True)
-        world = PinWorld(sim, load_board("diffbot"), pins=PROBE_PINS, seed=3).attach()
+        world = PinWorld(sim, _probe_board(), seed=3).attach()
         assert world.skipped == ["dynamixel"]
         uart = terminal_factory(sim.path)
         sim.go()

@@ -1,7 +1,7 @@
 """The HwBridge library's example sketches built for simavr, kept in a cache.
 
 :func:`build_example` builds ``firmware/HwBridge/examples/NAME`` with
-:func:`hwbridge.firmware.build.build_sketch` for an Uno or a Mega (which adds the core's own
+:func:`hwbridge.firmware.build.build_sketch` for an Uno, a Nano or a Mega (which adds the core's own
 libraries, such as ``Wire``, that a sketch includes), or for an ARM board run in QEMU. Builds
 are cached under ``~/.cache/hwbridge/sim-examples/`` by a hash of the sketch, the library and
 the board.
@@ -18,13 +18,14 @@ from typing import Final
 from hwbridge.errors import HwBridgeError
 from hwbridge.firmware import build
 
-__all__ = ["EXAMPLES_DIR", "build_example", "build_sketch_for_sim"]
+__all__ = ["EXAMPLES_DIR", "build_example", "build_sketch_for_sim", "cache_root"]
 
 EXAMPLES_DIR: Final = build.LIBRARY_DIR / "examples"
-MCU_OF_BOARD: Final = {"uno": "atmega328p", "mega": "atmega2560"}
+MCU_OF_BOARD: Final = {"uno": "atmega328p", "nano": "atmega328p", "mega": "atmega2560"}
 
 
-def _cache_root() -> Path:
+def cache_root() -> Path:
+    """Where builds for the simulator are kept (``~/.cache/hwbridge/sim-examples``)."""
     base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
     return Path(base) / "hwbridge" / "sim-examples"
 
@@ -47,7 +48,7 @@ def build_sketch_for_sim(
         raise HwBridgeError(f"unknown board {board!r}: {known}")
     sketch = sketch.resolve()
     flags = list(defines or [])
-    out = _cache_root() / f"{sketch.name}-{board}-{_digest(sketch, board, flags)}"
+    out = cache_root() / f"{sketch.name}-{board}-{_digest(sketch, board, flags)}"
     elf = out / f"{sketch.name}.elf"
     if elf.exists():
         return elf

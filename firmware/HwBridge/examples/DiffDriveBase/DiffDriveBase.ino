@@ -1,6 +1,11 @@
-// DiffDriveBase: the firmware of the demo robot (hwbridge/emulator/robots/diffbot.yaml, also
-// examples/robots/diffbot.yaml): two motors with quadrature encoders, a front HC-SR04, an
-// MPU-6050 and, on a Mega, the Dynamixel pan servo. The same topics and types as the emulated
+// DiffDriveBase: the firmware of the demo robot, written by hand (examples/robots/diffbot.yaml is
+// the Mega's, examples/robots/diffbot_uno.yaml the Uno's). You need not write this: the robot
+// file names each device's pins, and
+//   hwbridge firmware generate examples/robots/diffbot_uno.yaml --board uno
+// writes and builds the equivalent sketch from it (the settings compiled in, so host and board
+// read them from one file; tools/bench/generated_firmware.py compares the two). This sketch
+// stays as the reference the generator is measured against. Two motors with quadrature
+// encoders, a front HC-SR04, an MPU-6050 and, on a Mega, the Dynamixel pan servo. The same topics and types as the emulated
 // board, so the same host nodes run against either:
 //
 //   wheel_ticks       hwbridge_msgs/WheelTicks    out, 50 Hz   (diffdrive -> odom, /tf)
@@ -11,7 +16,8 @@
 //   pan/goal_position std_msgs/Float64            in           (Mega: the pan servo)
 // and, beyond the emulated board:
 //   reset_counters    std_srvs/Trigger            service: both counters to zero, motors stopped
-//   max_wheel_speed   parameter (rad/s at full PWM, default 20), followed when it changes
+//   max_wheel_speed   parameter (rad/s at full PWM, default 20), followed when it changes (the
+//                     generated firmware compiles the robot file's motor_max_speed in instead)
 //   logs: the encoders' decoding at each connection, parameter changes
 //
 //   hwbridge up examples/robots/diffbot.yaml --link base=/dev/ttyACM0
@@ -25,7 +31,8 @@
 //   Dynamixel bus          - | Serial2 (16, 17) through a 74LS241, direction pin 22
 // Encoders: a Mega decodes every edge of both channels (x4: counts_per_rev 1320 for the demo's
 // 330 PPR encoders, as diffbot.yaml says). An Uno has two interrupt pins, one per wheel: it
-// decodes x2, so give the robot file counts_per_rev 660 there (the board logs which at connect).
+// decodes x2, so give the robot file counts_per_rev 660 there (as diffbot_uno.yaml does; the board
+// logs which at connect).
 // The counters are 16 bits and wrap, as `counter_bits: 16` says; motors stop 0.5 s after the
 // last wheel targets, as the emulated board does.
 #include <HwBridge.h>

@@ -49,7 +49,7 @@ def _wire(targets: Targets) -> Targets:
     return (float(np.float32(targets[0])), float(np.float32(targets[1])))
 
 
-def _commander(client: Graph, namespace: str) -> Callable[[float, float], None]:
+def _commander(client: Graph, namespace: str) -> Callable[..., None]:
     """Publishes cmd_vel on the graph, as a teleop node would: the drive node gets it on the
     graph's own thread."""
     publisher = client.node("teleop").publisher(f"{namespace}/cmd_vel", "geometry_msgs/Twist")

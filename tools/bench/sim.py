@@ -124,6 +124,8 @@ struct BenchCounters {
   uint32_t pubs;         // publish() calls counted
   uint32_t spin_cycles;  // cycles inside spinOnce() entered with received bytes waiting
   uint32_t spins;        // such spinOnce() calls
+  uint32_t idle_cycles;  // cycles inside spinOnce() entered with nothing received
+  uint32_t idles;        // such spinOnce() calls
   uint16_t check;        // cycles counted around __builtin_avr_delay_cycles(1000)
 };
 volatile BenchCounters bench;
@@ -203,11 +205,13 @@ void loop() {
 }
 """
 
-# Service servers for cycles_per_call: spinOnce() is counted when it is entered with received
+# Service servers for cycles_per_call: every spinOnce() runs with interrupts off, so that bytes
+# arrive only between two of them, and is counted as busy when it is entered with received
 # bytes waiting (a call's bytes, an ACK or the bridge's own traffic; an answer is shorter than
-# the transmit ring, so it does not wait for the line), and the counted cycles over a run of
-# calls are divided by the calls. Each answers "hello" (HwBridge: std_srvs/Trigger, ros_lib:
-# rosserial_arduino/Test with the request "x").
+# the transmit ring, so it does not wait for the line), idle otherwise. The busy cycles over a
+# run of calls are divided by the calls; idle_spin_cycles is what one spinOnce() with nothing
+# to read costs (a sketch pays it at every loop()). Each answers "hello" (HwBridge:
+# std_srvs/Trigger, ros_lib: rosserial_arduino/Test with the request "x").
 HWBRIDGE_CYCLES_SERVICE = """\
 #include <HwBridge.h>
 #include <std_srvs/Trigger.h>
@@ -224,7 +228,7 @@ void setup() {
 }
 void loop() {
   if (Serial.available() > 0) BENCH_COUNT(spin_cycles, spins, nh.spinOnce());
-  else nh.spinOnce();
+  else BENCH_COUNT(idle_cycles, idles, nh.spinOnce());
 }
 """
 
@@ -243,7 +247,7 @@ void setup() {
 }
 void loop() {
   if (Serial.available() > 0) BENCH_COUNT(spin_cycles, spins, nh.spinOnce());
-  else nh.spinOnce();
+  else BENCH_COUNT(idle_cycles, idles, nh.spinOnce());
 }
 """
 
@@ -593,16 +597,16 @@ def service_times(
     return times
 
 
-_COUNTERS = ("pub_cycles", "pubs", "spin_cycles", "spins")
+_COUNTERS = ("pub_cycles", "pubs", "spin_cycles", "spins", "idle_cycles", "idles")
 
 
 def bench_counters(running: Running, address: int) -> dict[str, int]:
     """The sketch's ``bench`` counters (see CYCLES_PRELUDE), read out of the AVR's SRAM."""
-    data = running.sim.peek(address, 18)
+    data = running.sim.peek(address, 4 * len(_COUNTERS) + 2)
     values = {
         name: int.from_bytes(data[4 * i : 4 * i + 4], "little") for i, name in enumerate(_COUNTERS)
     }
-    values["check"] = int.from_bytes(data[16:18], "little")
+    values["check"] = int.from_bytes(data[-2:], "little")
     return values
 
 
@@ -658,7 +662,9 @@ def cycles_per_call(
     return {
         "cycles": (last["spin_cycles"] - first["spin_cycles"]) / calls,
         "spins_per_call": (last["spins"] - first["spins"]) / calls,
-        "per_s": 1.0 / statistics.mean(times),
+        "idle_spin_cycles": (last["idle_cycles"] - first["idle_cycles"])
+        / max(1, last["idles"] - first["idles"]),
+        "calls_per_wall_s": 1.0 / statistics.mean(times),
     }
 
 

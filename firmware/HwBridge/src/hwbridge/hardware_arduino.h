@@ -8,14 +8,16 @@ namespace hwbridge {
 
 #if !defined(HWBRIDGE_SERIAL_RING) && defined(ARDUINO_ARCH_AVR) && defined(UDRIE0) && \
     defined(SERIAL_TX_BUFFER_SIZE) && SERIAL_TX_BUFFER_SIZE <= 256 && \
-    (SERIAL_TX_BUFFER_SIZE & (SERIAL_TX_BUFFER_SIZE - 1)) == 0
+    (SERIAL_TX_BUFFER_SIZE & (SERIAL_TX_BUFFER_SIZE - 1)) == 0 && \
+    defined(SERIAL_RX_BUFFER_SIZE) && SERIAL_RX_BUFFER_SIZE <= 256 && \
+    (SERIAL_RX_BUFFER_SIZE & (SERIAL_RX_BUFFER_SIZE - 1)) == 0
 #define HWBRIDGE_SERIAL_RING 1
 #endif
 
 #if HWBRIDGE_SERIAL_RING
 namespace detail {
 /**
- * The transmit ring of the AVR core's HardwareSerial, reached through pointers to its protected
+ * The rings of the AVR core's HardwareSerial, reached through pointers to its protected
  * members (formed in a derived class, as C++ allows): put() stores a run of bytes the way
  * HardwareSerial::write() stores one when the ring has room, and starts the transmission once
  * for all of them: no virtual call and no interrupt lock per byte (a few cycles a byte instead
@@ -45,6 +47,15 @@ struct SerialRing : HardwareSerial {
     SREG = sreg;
     return true;
   }
+  /** The next received byte, or -1: HardwareSerial::read() without its virtual call. */
+  static int get(HardwareSerial& s) {
+    const rx_buffer_index_t tail = s.*(&SerialRing::_rx_buffer_tail);
+    if (s.*(&SerialRing::_rx_buffer_head) == tail) return -1;
+    const uint8_t c = (s.*(&SerialRing::_rx_buffer))[tail];
+    s.*(&SerialRing::_rx_buffer_tail) =
+        static_cast<rx_buffer_index_t>((tail + 1) & (SERIAL_RX_BUFFER_SIZE - 1));
+    return c;
+  }
 };
 }  // namespace detail
 #endif
@@ -70,7 +81,13 @@ class ArduinoHardware {
     }
     return true;
   }
-  int read() { return stream_->read(); }
+  /** The next received byte, or -1 (never blocks). */
+  int read() {
+#if HWBRIDGE_SERIAL_RING
+    if (serial_ != nullptr) return detail::SerialRing::get(*serial_);
+#endif
+    return stream_->read();
+  }
   /** One byte out. */
   void put(uint8_t b) { put_block(&b, 1); }
   /** n (at least 1) bytes out: into HardwareSerial's ring directly when the port is one (see

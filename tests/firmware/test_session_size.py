@@ -28,7 +28,7 @@ pytestmark = pytest.mark.skipif(
 )
 
 # (flash, sram) measured, and the floor (None: none given)
-CEILING = {"SizeHello": (7082, 641), "SizePubSubSrv": (8624, 719)}
+CEILING = {"SizeHello": (7196, 641), "SizePubSubSrv": (8738, 719)}
 FLOOR = {"SizeHello": (7290, 700), "SizePubSubSrv": (None, 1000)}
 
 

@@ -134,7 +134,7 @@ def test_peek_reads_the_data_space(probe_elf: Path, terminal_factory: type[Termi
         assert sim.peek(0xB8, 1) == bytes([72])  # TWBR: 100 kHz
         with pytest.raises(SimError, match="outside"):
             sim.peek(0x8FF, 2)  # past RAMEND
-        with pytest.raises(SimError, match="1..64"):
+        with pytest.raises(SimError, match=r"1\.\.64"):
             sim.peek(0x100, 65)
 
 

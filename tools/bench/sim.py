@@ -21,6 +21,26 @@ subscriber or service caller in this process. For each library and baud rate (11
 ``ratio`` is hwbridge / rosserial: above 1, hwbridge delivers more messages per second; for the
 service lines the figure compared is calls per second (1 / mean round trip).
 
+At 1 Mbaud, the AVR's own count of the cycles of library work (``sim_cycles_*``; simulated
+cycles, deterministic but for the host's traffic, which the wall clock paces):
+
+- ``sim_cycles_publish``: ``*_cycles_per_msg``, the cycles inside ``publish()`` per message.
+- ``sim_cycles_service``: ``*_cycles_per_call``, the cycles inside the ``spinOnce()`` calls
+  entered with received bytes waiting, per service call over ``--calls`` calls one after
+  another (everything the call costs the board: reading and checking its frames, the
+  callback, the answer and the ACKs); ``idle_spin_cycles``, one ``spinOnce()`` with nothing to
+  read; ``spins_per_call``, the busy ``spinOnce()`` calls a call took.
+
+The sketches (CYCLES_PRELUDE and the ``*_CYCLES_*`` sources below) read Timer1, running at
+clk/1, just before and just after each library call, made with interrupts off: the count is the
+library's instructions (and the Arduino core's ``HardwareSerial`` code they call), no
+interrupt handler falls inside. A publish is made only when the UART's transmit ring is empty,
+so it never waits for the line; a service sketch runs every ``spinOnce()`` with interrupts off,
+so bytes arrive only between two of them. The bench reads the counters out of the AVR's SRAM
+(the runner's ``peek``) and refuses a counter that does not count 1000 cycles for
+``__builtin_avr_delay_cycles(1000)``. Here ``ratio`` is hwbridge / rosserial cycles: below 1,
+hwbridge spends fewer. ``calls_per_wall_s`` is wall clock (the simulation is held to real time).
+
 What simavr's UART model means for the figures: simavr moves a byte through the AVR's UART in
 the time the baud rate gives it (UBRR and U2X as the firmware sets them: 10 bit times a byte),
 in both directions, with the AVR's 64-byte receive FIFO; the pty side has no rate at all. The
@@ -38,7 +58,7 @@ headers it needs (std_msgs/String and Time, rosserial_msgs, rosserial_arduino/Te
 generated here from hwbridge's message definitions, into a temporary folder; nothing of it is
 kept. Without the sources the rosserial lines are skipped with a line saying so.
 
-Runs in about two minutes; prints one JSON object per line.
+Runs in about two minutes (``--only cycles``: under one); prints one JSON object per line.
 """
 
 from __future__ import annotations

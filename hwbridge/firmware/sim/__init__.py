@@ -457,9 +457,9 @@ class SimAvr:
             finally:  # the AVR is held until it has an answer
                 self.command(f"tx {name} {reply.hex() if reply else '-'}")
         elif kind == "mem" and len(words) == 3:
-            data = None if words[2] == "-" else bytes.fromhex(words[2])
+            memory = None if words[2] == "-" else bytes.fromhex(words[2])
             with self._ticked:
-                self._peeked[int(words[1], 16)] = data
+                self._peeked[int(words[1], 16)] = memory
                 self._ticked.notify_all()
         elif kind == "reset":
             self.resets += 1

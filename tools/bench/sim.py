@@ -64,7 +64,6 @@ Runs in about two minutes (``--only cycles``: under one); prints one JSON object
 from __future__ import annotations
 
 import argparse
-import contextlib
 import hashlib
 import json
 import os
@@ -74,9 +73,9 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Iterator
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
@@ -89,6 +88,9 @@ from hwbridge.firmware.sim import SimAvr
 ROSSERIAL_GIT = Path(os.environ.get("ROSSERIAL_GIT", "/work/.mirror/ros-drivers+rosserial/repo"))
 BAUDS = (115200, 1000000)
 CYCLES_BAUD = 1000000
+REQUEST_X = b"\x01\x00\x00\x00x"
+"""rosserial_arduino/Test's request with input "x", serialized."""
+T = TypeVar("T")
 DOMAIN = "bench_sim"
 HELLO = "hello world!"
 
@@ -730,19 +732,11 @@ def main() -> None:
             measure_cycles(tmp, ros_lib, args.seconds, args.calls)
         for baud in BAUDS if args.only != "cycles" else ():
             ours_elf = build_hwbridge_sketch("BenchHello", HWBRIDGE_PUBLISHER, baud, tmp)
-            running = Running(ours_elf, "native", baud)
-            try:
-                ours = throughput(running, args.seconds)
-            finally:
-                running.close()
+            ours = _measure(ours_elf, "native", baud, lambda r: throughput(r, args.seconds))
             theirs: dict[str, float] | None = None
             if ros_lib is not None:
                 elf = build_ros_lib_sketch(ros_lib, "RosHello", ROSSERIAL_PUBLISHER, baud, tmp)
-                running = Running(elf, "rosserial", baud)
-                try:
-                    theirs = throughput(running, args.seconds)
-                finally:
-                    running.close()
+                theirs = _measure(elf, "rosserial", baud, lambda r: throughput(r, args.seconds))
             emit(
                 "sim_throughput_hello",
                 {"baud": baud, "type": "std_msgs/String"},
@@ -756,27 +750,25 @@ def main() -> None:
             )
 
             ours_elf = build_hwbridge_sketch("ServiceServer", None, baud, tmp)
-            running = Running(ours_elf, "native", baud)
-            try:
-                ours_t = service_times(running, "/bench/count", "std_srvs/Trigger", b"", args.calls)
-            finally:
-                running.close()
+            ours_t = _measure(
+                ours_elf,
+                "native",
+                baud,
+                lambda r: service_times(r, "/bench/count", "std_srvs/Trigger", b"", args.calls),
+            )
             theirs_t: list[float] | None = None
             if ros_lib is not None:
                 elf = build_ros_lib_sketch(
                     ros_lib, "RosService", rosserial_service_source(), baud, tmp
                 )
-                running = Running(elf, "rosserial", baud)
-                try:
-                    theirs_t = service_times(
-                        running,
-                        "/bench/test_srv",
-                        "rosserial_arduino/Test",
-                        b"\x01\x00\x00\x00x",
-                        args.calls,
-                    )
-                finally:
-                    running.close()
+                theirs_t = _measure(
+                    elf,
+                    "rosserial",
+                    baud,
+                    lambda r: service_times(
+                        r, "/bench/test_srv", "rosserial_arduino/Test", REQUEST_X, args.calls
+                    ),
+                )
             emit(
                 "sim_service",
                 {"baud": baud},
@@ -818,46 +810,71 @@ def measure_cycles(tmp: Path, ros_lib: Path | None, seconds: float, calls: int) 
     elf = build_hwbridge_sketch(
         "CyclesHello", CYCLES_PRELUDE + HWBRIDGE_CYCLES_PUBLISHER, baud, tmp
     )
-    with _running(elf, "native", baud) as running:
-        ours = cycles_per_message(running, elf, seconds)
+    hello = elf
+    ours = _measure(elf, "native", baud, lambda r: cycles_per_message(r, hello, seconds))
     theirs = None
     if ros_lib is not None:
         elf = build_ros_lib_sketch(
             ros_lib, "RosCyclesHello", CYCLES_PRELUDE + ROSSERIAL_CYCLES_PUBLISHER, baud, tmp
         )
-        with _running(elf, "rosserial", baud) as running:
-            theirs = cycles_per_message(running, elf, seconds)
+        ros_hello = elf
+        theirs = _measure(
+            elf, "rosserial", baud, lambda r: cycles_per_message(r, ros_hello, seconds)
+        )
     _cycles_line("publish", "msg", ours, theirs)
 
     elf = build_hwbridge_sketch(
         "CyclesService", CYCLES_PRELUDE + HWBRIDGE_CYCLES_SERVICE, baud, tmp
     )
-    with _running(elf, "native", baud) as running:
-        ours = cycles_per_call(running, elf, "/bench/count", "std_srvs/Trigger", b"", calls)
+    server = elf
+    ours = _measure(
+        elf,
+        "native",
+        baud,
+        lambda r: cycles_per_call(r, server, "/bench/count", "std_srvs/Trigger", b"", calls),
+    )
     theirs = None
     if ros_lib is not None:
         elf = build_ros_lib_sketch(
             ros_lib, "RosCyclesService", CYCLES_PRELUDE + ROSSERIAL_CYCLES_SERVICE, baud, tmp
         )
-        with _running(elf, "rosserial", baud) as running:
-            theirs = cycles_per_call(
-                running,
-                elf,
-                "/bench/test_srv",
-                "rosserial_arduino/Test",
-                b"\x01\x00\x00\x00x",
-                calls,
-            )
+        ros_server = elf
+        theirs = _measure(
+            elf,
+            "rosserial",
+            baud,
+            lambda r: cycles_per_call(
+                r, ros_server, "/bench/test_srv", "rosserial_arduino/Test", REQUEST_X, calls
+            ),
+        )
     _cycles_line("service", "call", ours, theirs)
 
 
-@contextlib.contextmanager
-def _running(elf: Path, protocol: str, baud: int) -> Iterator[Running]:
-    running = Running(elf, protocol, baud)
-    try:
-        yield running
-    finally:
-        running.close()
+ATTEMPTS = 3
+"""Runs of one case before the bench gives up: on a loaded machine the simulation can fall
+behind the wall clock long enough for the bridge to lose the board (its 0.8 s link timeout) or
+a call to time out; the case is then run again from a fresh simulation, and said so on stderr."""
+
+
+def _measure(elf: Path, protocol: str, baud: int, measure: Callable[[Running], T]) -> T:
+    """``measure`` on ``elf`` running in simavr behind a bridge, retried ATTEMPTS times."""
+    for attempt in range(1, ATTEMPTS + 1):
+        try:
+            running = Running(elf, protocol, baud)
+        except Exception as exc:
+            if attempt == ATTEMPTS:
+                raise
+            print(f"{elf.name}: {exc}; running it again", file=sys.stderr, flush=True)
+            continue
+        try:
+            return measure(running)
+        except Exception as exc:
+            if attempt == ATTEMPTS:
+                raise
+            print(f"{elf.name}: {exc}; running it again", file=sys.stderr, flush=True)
+        finally:
+            running.close()
+    raise AssertionError("unreachable")
 
 
 if __name__ == "__main__":

@@ -349,6 +349,37 @@ Bytes ref_cobs(const Bytes& d) {
   return out;
 }
 
+/** A sink with put_block(), as ArduinoHardware has: write_frame() must hand it each frame in
+ * one call. */
+struct BlockSink {
+  Bytes bytes;
+  int blocks;
+  int puts;
+  BlockSink() : blocks(0), puts(0) {}
+  void put(uint8_t b) {
+    bytes.push_back(b);
+    ++puts;
+  }
+  void put_block(const uint8_t* p, size_t n) {
+    bytes.insert(bytes.end(), p, p + n);
+    ++blocks;
+  }
+};
+
+/** CRC-16/CCITT-FALSE a bit at a time, straight from its definition (poly 0x1021, init 0xFFFF,
+ * no reflection, no final XOR): the reference of crc16(). */
+uint16_t ref_crc(const Bytes& d) {
+  uint16_t crc = 0xFFFF;
+  for (size_t i = 0; i < d.size(); ++i) {
+    for (int bit = 7; bit >= 0; --bit) {
+      const bool top = ((crc >> 15) & 1) != ((d[i] >> bit) & 1);
+      crc = static_cast<uint16_t>(crc << 1);
+      if (top) crc ^= 0x1021;
+    }
+  }
+  return crc;
+}
+
 /** Random bytes: zeros at the given percentage (0: long runs of non-zero bytes). */
 Bytes random_bytes(check::Rng& rng, size_t n, uint32_t zeros) {
   Bytes b(n);
@@ -387,6 +418,8 @@ void unit_frame_encoder() {
     body.push_back(h.seq);
     body.insert(body.end(), data.begin(), data.end());
     const uint16_t crc = crc16(body.data(), body.size());
+    CHECK(crc == ref_crc(body), "crc16 of %zu bytes: %04x, the bitwise CRC %04x", body.size(), crc,
+          ref_crc(body));
     body.push_back(static_cast<uint8_t>(crc));
     body.push_back(static_cast<uint8_t>(crc >> 8));
     const bool lead = rng.chance(50);
@@ -400,6 +433,11 @@ void unit_frame_encoder() {
     CHECK(sink.bytes == wire && w == wire.size(),
           "write_frame of %zu payload bytes cut at %zu (lead %d): %s", n, cut, lead ? 1 : 0,
           hex(sink.bytes).c_str());
+    BlockSink block;
+    CHECK(write_frame(block, h, data.data(), cut, data.data() + cut, n - cut, lead) == wire.size() &&
+              block.bytes == wire && block.blocks == 1 && block.puts == 0,
+          "write_frame to a put_block sink: %d blocks, %d puts, %s", block.blocks, block.puts,
+          hex(block.bytes).c_str());
     Bytes out(wire.size());
     CHECK(encode_frame(h, data.data(), n, out.data(), out.size(), lead) == wire.size() && out == wire,
           "encode_frame of %zu payload bytes", n);

@@ -121,6 +121,23 @@ def test_uart_pins_twi_and_resets(probe_elf: Path, terminal_factory: type[Termin
     assert not sim.running
 
 
+def test_peek_reads_the_data_space(probe_elf: Path, terminal_factory: type[Terminal]) -> None:
+    """``peek`` reads the AVR's data space between instructions (the benches read counters a
+    sketch keeps in SRAM with it): here the UART and TWI registers probe.c set at boot."""
+    with SimAvr(probe_elf) as sim:
+        sim.start(hold=True)
+        uart = terminal_factory(sim.path)
+        sim.go()
+        assert uart.read_until(b"boot\n") == b"boot\n"
+        assert sim.peek(0xC4, 2) == bytes([16, 0])  # UBRR0: 115200 with U2X at 16 MHz
+        assert sim.peek(0xC1, 1)[0] & 0x18 == 0x18  # UCSR0B: RXEN0 | TXEN0
+        assert sim.peek(0xB8, 1) == bytes([72])  # TWBR: 100 kHz
+        with pytest.raises(SimError, match="outside"):
+            sim.peek(0x8FF, 2)  # past RAMEND
+        with pytest.raises(SimError, match=r"1\.\.64"):
+            sim.peek(0x100, 65)
+
+
 def test_missing_toolchain_is_one_line(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     import hwbridge.firmware.sim as sim_module
 

@@ -223,6 +223,8 @@ class SimAvr:
         self._stopping = False
         """Set when :meth:`close` begins: the runner may still report ticks it ran before."""
         self._ticked = threading.Condition()
+        self._peeked: dict[int, bytes | None] = {}
+        """Answers of the runner to ``peek``, by address, until :meth:`peek` takes them."""
 
     # ------------------------------------------------------------------ life
     def start(self, *, hold: bool = False) -> SimAvr:
@@ -336,6 +338,26 @@ class SimAvr:
         """Reset the AVR, as its reset pin does (the pty stays)."""
         self.command("reset")
 
+    def peek(self, address: int, size: int, timeout: float = 10.0) -> bytes:
+        """``size`` (1..64) bytes of the AVR's data space from ``address`` (an ELF symbol's
+        address less 0x800000), read by the runner between two instructions."""
+        if not 1 <= size <= 64:
+            raise SimError(f"peek: {size} bytes (1..64 at a time)")
+        with self._ticked:
+            self._peeked.pop(address, None)
+        self.command(f"peek {address:x} {size}")
+        deadline = time.monotonic() + timeout
+        with self._ticked:
+            while address not in self._peeked:
+                left = deadline - time.monotonic()
+                if left <= 0 or not self.running:
+                    raise SimError(f"the runner did not answer peek {address:#x}")
+                self._ticked.wait(min(left, 0.5))
+            data = self._peeked.pop(address)
+        if data is None:
+            raise SimError(f"peek {address:#x} {size}: outside the AVR's data space")
+        return data
+
     def wait_time(self, seconds: float, timeout: float = 30.0) -> float:
         """Block until the simulated clock reaches ``seconds``; returns it."""
         deadline = time.monotonic() + timeout
@@ -436,6 +458,11 @@ class SimAvr:
                         break
             finally:  # the AVR is held until it has an answer
                 self.command(f"tx {name} {reply.hex() if reply else '-'}")
+        elif kind == "mem" and len(words) == 3:
+            memory = None if words[2] == "-" else bytes.fromhex(words[2])
+            with self._ticked:
+                self._peeked[int(words[1], 16)] = memory
+                self._ticked.notify_all()
         elif kind == "reset":
             self.resets += 1
             log.info("simavr: the AVR was reset")

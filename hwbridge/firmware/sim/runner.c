@@ -20,6 +20,7 @@
  *                                 "tx N ..." (see bus)
  *   reset                         the AVR was reset (watchdog, or the "reset" command)
  *   exit STATE                    the AVR stopped (crashed, or slept with interrupts off)
+ *   mem ADDR HEX                  the answer to "peek": N bytes of data space from ADDR (hex)
  * stdin, one command per line (pins are port and bit: D2, B5):
  *   out PIN                       watch an output pin (its duty appears in the "t" lines)
  *   in PIN 0|1                    drive an input pin
@@ -34,6 +35,9 @@
  *   bus N                         a half-duplex bus on UART N (1..3): packets out, replies in
  *   tx N HEX|-                    the reply to the last packet on bus N (- for none)
  *   reset                         reset the AVR (as its reset pin does)
+ *   peek ADDR N                   read N (1..64) bytes of data space (SRAM, registers) from ADDR
+ *                                 (hex; an ELF symbol's address less 0x800000), between two
+ *                                 instructions: answered by a "mem" line
  *   quit                          exit
  * Time: the simulation is held to the wall clock times --speed (0: as fast as it goes).
  * simavr 1.6's uart_pty_stop() hangs, so the runner exits without it.
@@ -592,6 +596,17 @@ static void command(char *line) {
     want_go = 1;
   } else if (!strcmp(c, "reset")) {
     want_reset = 1;
+  } else if (!strcmp(c, "peek") && argc == 3) {
+    unsigned long addr = strtoul(argv[1], NULL, 16);
+    long n = strtol(argv[2], NULL, 10);
+    if (!avr || n < 1 || n > 64 || addr + (unsigned long)n > (unsigned long)avr->ramend + 1) {
+      fprintf(stderr, "hwbridge-simavr: peek %s %s: outside the data space\n", argv[1], argv[2]);
+      out_line("mem %lx -\n", addr);
+      return;
+    }
+    char hex[2 * 64 + 1];
+    for (long i = 0; i < n; i++) snprintf(hex + 2 * i, 3, "%02x", avr->data[addr + (unsigned long)i]);
+    out_line("mem %lx %s\n", addr, hex);
   } else if (!strcmp(c, "quit")) {
     want_quit = 1;
   } else {

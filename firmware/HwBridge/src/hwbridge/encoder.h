@@ -68,19 +68,88 @@ struct IsDatagramSink {
 };
 template <bool B, class T> struct EnableIf {};
 template <class T> struct EnableIf<true, T> { typedef T type; };
+
+/** n bytes to sink: its put_block(p, n) when it has one (ArduinoHardware: a run into the UART's
+ * ring), else put() for each. */
+template <class Sink>
+inline auto put_run(Sink& sink, const uint8_t* p, size_t n, int)
+    -> decltype(sink.put_block(p, n), void()) {
+  sink.put_block(p, n);
+}
+template <class Sink>
+inline void put_run(Sink& sink, const uint8_t* p, size_t n, long) {
+  for (; n != 0; --n) sink.put(*p++);
+}
+
+/** Room encode_wire() needs for a payload of n bytes: the lead, the body (n + 5) with a code
+ * byte for every 254 of its bytes and one more, and the delimiter; n >> 7 for n / 254 (no
+ * division on AVR), which leaves the copy of the body at least two bytes ahead of the writer. */
+inline constexpr size_t wire_room(size_t n) { return n + kEnvelope + ((n + kEnvelope) >> 7) + 3; }
+
+/**
+ * The wire bytes of one frame into out (wire_room(n1 + n2) bytes): an optional lead 0x00,
+ * COBS(header, p1, p2, CRC) and the delimiter. The body is first copied to the end of out (and
+ * its CRC computed there), then encoded forward from there to out's start, in place: the
+ * writer never catches up with the reader, as the encoding adds at most one byte for 254.
+ * Each data byte is copied, each zero becomes the code of the group before it (a group's code
+ * byte is kept open until its group ends: no look-ahead). The canonical encoding (that of
+ * cobs_write), byte for byte. Returns the wire length.
+ */
+inline size_t encode_wire(uint8_t* out, const FrameHeader& h, const uint8_t* p1, size_t n1,
+                          const uint8_t* p2, size_t n2, bool lead) {
+  const size_t n = kHeaderSize + n1 + n2;  // the body without its CRC
+  uint8_t* const body = out + wire_room(n1 + n2) - n - kCrcSize;
+  body[0] = header_byte0(h.type, h.frag);
+  body[1] = h.channel;
+  body[2] = h.seq;
+  if (n1 != 0) memcpy(body + kHeaderSize, p1, n1);
+  if (n2 != 0) memcpy(body + kHeaderSize + n1, p2, n2);
+  wire::put16(body + n, crc16(body, n));
+  const uint8_t* r = body;
+  const uint8_t* const end = body + n + kCrcSize;
+  uint8_t* w = out;
+  if (lead) *w++ = 0;
+  uint8_t* code = w++;  // the open group's code byte
+  uint8_t run = 1;      // its code so far: 1 + its data bytes
+  bool full = false;    // the group before the open one ended full (254 bytes, no zero)
+  do {
+    const uint8_t c = *r++;
+    full = false;
+    if (c != 0) {
+      *w++ = c;
+      if (++run != 0xFF) continue;
+      full = true;  // 254 data bytes: the group ends without a zero
+    }
+    *code = run;
+    code = w++;
+    run = 1;
+  } while (r != end);
+  if (run == 1 && full) {
+    --w;  // canonical: no empty group after a final full one
+  } else {
+    *code = run;
+  }
+  *w++ = 0;
+  return static_cast<size_t>(w - out);
+}
 }  // namespace detail
 
 /**
- * Writes one frame to sink.put(uint8_t): an optional leading 0x00, COBS(body), the 0x00
- * delimiter. The payload is p1 followed by p2 (either may be empty). Returns the bytes written.
- * The caller keeps the payload within the peer's MTU; nothing here is bounded by a buffer.
+ * Writes one frame to sink: an optional leading 0x00, COBS(body), the 0x00 delimiter. The
+ * payload is p1 followed by p2 (either may be empty). The frame is encoded into a buffer on
+ * the stack (wire_room(n1 + n2) bytes, some 70 for a 64-byte payload) and handed to the sink in
+ * one put_block() when it has one, else a put() a byte. Returns the bytes written. The caller
+ * keeps the payload within the peer's MTU.
  */
 template <class Sink>
+__attribute__((noinline))
 typename detail::EnableIf<!detail::IsDatagramSink<Sink>::value, size_t>::type write_frame(
     Sink& sink, const FrameHeader& h, const uint8_t* p1, size_t n1, const uint8_t* p2 = nullptr,
     size_t n2 = 0, bool lead = false) {
-  const detail::Body body(h, p1, n1, p2, n2);
-  return detail::cobs_write(body, sink, lead, true);
+  uint8_t* const out = static_cast<uint8_t*>(__builtin_alloca(detail::wire_room(n1 + n2)));
+  const size_t n = detail::encode_wire(out, h, p1, n1, p2, n2, lead);
+  detail::put_run(sink, out, n, 0);
+  return n;
 }
 
 /**

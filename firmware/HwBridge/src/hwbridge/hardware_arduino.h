@@ -6,6 +6,60 @@
 
 namespace hwbridge {
 
+#if !defined(HWBRIDGE_SERIAL_RING) && defined(ARDUINO_ARCH_AVR) && defined(UDRIE0) && \
+    defined(SERIAL_TX_BUFFER_SIZE) && SERIAL_TX_BUFFER_SIZE <= 256 && \
+    (SERIAL_TX_BUFFER_SIZE & (SERIAL_TX_BUFFER_SIZE - 1)) == 0 && \
+    defined(SERIAL_RX_BUFFER_SIZE) && SERIAL_RX_BUFFER_SIZE <= 256 && \
+    (SERIAL_RX_BUFFER_SIZE & (SERIAL_RX_BUFFER_SIZE - 1)) == 0
+#define HWBRIDGE_SERIAL_RING 1
+#endif
+
+#if HWBRIDGE_SERIAL_RING
+namespace detail {
+/**
+ * The rings of the AVR core's HardwareSerial, reached through pointers to its protected
+ * members (formed in a derived class, as C++ allows): put() stores a run of bytes the way
+ * HardwareSerial::write() stores one when the ring has room, and starts the transmission once
+ * for all of them: no virtual call and no interrupt lock per byte (a few cycles a byte instead
+ * of some 70). A run the ring has no room for goes through write() a byte at a time (it waits,
+ * or polls the UART with interrupts off), as for any other Stream. -DHWBRIDGE_SERIAL_RING=0
+ * turns this off (every byte through write()).
+ */
+struct SerialRing : HardwareSerial {
+  /** Stores n (at least 1) bytes in the ring; false (nothing stored) when they do not fit. */
+  static bool put(HardwareSerial& s, const uint8_t* p, size_t n) {
+    typedef tx_buffer_index_t Index;
+    const Index mask = SERIAL_TX_BUFFER_SIZE - 1;
+    Index head = s.*(&SerialRing::_tx_buffer_head);
+    const Index tail = s.*(&SerialRing::_tx_buffer_tail);  // the interrupt only frees more
+    if (n > static_cast<Index>((tail - head - 1) & mask)) return false;  // no room for all
+    unsigned char* const ring = s.*(&SerialRing::_tx_buffer);
+    do {
+      ring[head] = *p++;
+      head = static_cast<Index>((head + 1) & mask);
+    } while (--n != 0);
+    s.*(&SerialRing::_written) = true;
+    volatile uint8_t* const ucsrb = s.*(&SerialRing::_ucsrb);
+    const uint8_t sreg = SREG;
+    cli();  // as write(): the interrupt may clear UDRIE0 between our read and write of UCSRnB
+    s.*(&SerialRing::_tx_buffer_head) = head;
+    *ucsrb = static_cast<uint8_t>(*ucsrb | _BV(UDRIE0));
+    SREG = sreg;
+    return true;
+  }
+  /** The next received byte, or -1: HardwareSerial::read() without its virtual call. */
+  static int get(HardwareSerial& s) {
+    const rx_buffer_index_t tail = s.*(&SerialRing::_rx_buffer_tail);
+    if (s.*(&SerialRing::_rx_buffer_head) == tail) return -1;
+    const uint8_t c = (s.*(&SerialRing::_rx_buffer))[tail];
+    s.*(&SerialRing::_rx_buffer_tail) =
+        static_cast<rx_buffer_index_t>((tail + 1) & (SERIAL_RX_BUFFER_SIZE - 1));
+    return c;
+  }
+};
+}  // namespace detail
+#endif
+
 /**
  * The Hardware concept over Arduino: init(baud) opens Serial (or the HardwareSerial given to
  * setPort), or uses any already-open Stream given to setStream (SoftwareSerial, USB CDC...).
@@ -27,8 +81,23 @@ class ArduinoHardware {
     }
     return true;
   }
-  int read() { return stream_->read(); }
-  void put(uint8_t b) { stream_->write(b); }
+  /** The next received byte, or -1 (never blocks). */
+  int read() {
+#if HWBRIDGE_SERIAL_RING
+    if (serial_ != nullptr) return detail::SerialRing::get(*serial_);
+#endif
+    return stream_->read();
+  }
+  /** One byte out. */
+  void put(uint8_t b) { put_block(&b, 1); }
+  /** n (at least 1) bytes out: into HardwareSerial's ring directly when the port is one (see
+   * SerialRing), else one by one to the Stream. */
+  __attribute__((noinline)) void put_block(const uint8_t* p, size_t n) {
+#if HWBRIDGE_SERIAL_RING
+    if (serial_ != nullptr && detail::SerialRing::put(*serial_, p, n)) return;
+#endif
+    do stream_->write(*p++); while (--n != 0);  // a full ring: write() waits (or polls)
+  }
   void flush() {}
   uint32_t micros() { return ::micros(); }
   /** Entropy for the session id: the floating analog input 0 and the clock. */

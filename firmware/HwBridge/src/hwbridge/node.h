@@ -480,6 +480,7 @@ class NodeHandle_ : public NodeBase {
   void sendBe(uint8_t channel, const uint8_t* p, size_t n);
   void emit(const Frame& f);
   void clock();
+  void timers(bool alone);
   __attribute__((noinline)) bool markTx();
   void flushOut();
   void pump();

@@ -159,7 +159,9 @@ HWB_NODE void HWB_SELF::begin(const char* name, const char* firmware) {
 /** Reads the microsecond clock into now_, and the session's ticks of 1.024 ms from it. */
 HWB_NODE void HWB_SELF::clock() {
   now_ = hw_.micros();
-  tick_ = static_cast<Tick>(now_ >> 10);
+  // now_ >> 10 from byte moves and a 2-bit shift (a 32-bit shift by 10 is a loop on AVR)
+  tick_ = static_cast<Tick>(static_cast<uint16_t>(now_ >> 8) >> 2 |
+                            static_cast<uint16_t>(static_cast<uint8_t>(now_ >> 24)) << 14);
 }
 
 HWB_NODE bool HWB_SELF::add(Entry& e) {

@@ -12,7 +12,7 @@
 
 HWB_NODE void HWB_SELF::spinOnce() {
   processInput();
-  runTimers();
+  timers(false);  // processInput read the clock and pumped the reliable window just now
 }
 
 HWB_NODE void HWB_SELF::processInput() {
@@ -51,15 +51,19 @@ HWB_NODE void HWB_SELF::readInput(detail::DatagramLink*) {
   }
 }
 
-HWB_NODE void HWB_SELF::runTimers() {
+HWB_NODE void HWB_SELF::runTimers() { timers(true); }
+
+/** The timers; alone: not right after processInput(), so the clock is read and the reliable
+ * window pumped here (spinOnce, which has just done both, saves the second time). */
+HWB_NODE void HWB_SELF::timers(bool alone) {
   if (state_ == kOff || flag(kInInput)) return;
-  clock();
+  if (alone) clock();
   if (established()) {
     if (static_cast<Tick>(tick_ - last_rx_) >= kLinkTimeout ||
         (state_ == kConfiguring && static_cast<Tick>(tick_ - timer_) >= kHandshakeTimeout)) {
       ++stats_.link_losses;
       teardown();
-    } else {
+    } else if (alone) {
       pump();  // retransmissions (the retry limit may end the session)
     }
   }
@@ -97,7 +101,7 @@ HWB_NODE void HWB_SELF::runTimers() {
 HWB_NODE void HWB_SELF::spinFor() {
   setFlag(kInInput, false);
   processInput();
-  runTimers();
+  timers(false);
 }
 
 /** Waits (spinning) until the transmit buffer is free, for at most 250 ms. */

@@ -596,58 +596,15 @@ def build_host_sketch(
 _SECTION: Final = re.compile(r"^\.(text|data|bss)\s+(\d+)", re.M)
 
 
-def firmware_size(elf: Path) -> FirmwareSize:
-    """Flash and static RAM of an ELF (``avr-size -A``), and the library's share of the RAM."""
-    size, nm = _tool("avr-size"), _tool("avr-nm")
+def _measure(elf: Path, size: str, nm: str, owner_of: Callable[[str, str], str]) -> FirmwareSize:
+    """Flash (.text + .data) and static RAM (.data + .bss) of ``elf`` by ``size -A``, and its
+    data symbols by ``nm``, each given an owner ("hwbridge", "core" or "sketch") by
+    ``owner_of(name, nm_type)``."""
     if not elf.is_file():
         raise HwBridgeError(f"{elf}: no such ELF file")
     done = subprocess.run([size, "-A", str(elf)], capture_output=True, text=True, check=False)
     if done.returncode != 0:
-        raise HwBridgeError(f"{elf}: avr-size failed: {done.stderr.strip()}")
-    sections = {name: int(value) for name, value in _SECTION.findall(done.stdout)}
-    text, data, bss = (sections.get(k, 0) for k in ("text", "data", "bss"))
-    symbols = subprocess.run(
-        [nm, "-C", "--size-sort", "-S", str(elf)], capture_output=True, text=True, check=False
-    ).stdout
-    core_names = _core_symbols(shutil.which("avr-gcc-nm") or nm)
-    core_statics = _core_statics()
-    objects: list[tuple[str, int, str]] = []
-    for line in symbols.splitlines():
-        parts = line.split(None, 3)
-        if len(parts) == 4 and parts[2] in "bBdD":
-            name, size_of = parts[3], int(parts[1], 16)
-            if "hwbridge::" in name:
-                owner = "hwbridge"
-            elif (
-                name in core_names
-                or name.startswith("__")
-                or "HardwareSerial" in name
-                or (parts[2] in "bd" and name in core_statics)
-            ):
-                owner = "core"
-            else:
-                owner = "sketch"
-            objects.append((name, size_of, owner))
-    objects.sort(key=lambda item: (-item[1], item[0]))
-    return FirmwareSize(
-        flash=text + data,
-        sram=data + bss,
-        library_sram=sum(n for _, n, owner in objects if owner == "hwbridge"),
-        core_sram=sum(n for _, n, owner in objects if owner == "core"),
-        objects=tuple(objects),
-    )
-
-
-def arm_firmware_size(elf: Path) -> FirmwareSize:
-    """Flash and static RAM of an ELF built for an ARM board (``arm-none-eabi-size -A``): flash =
-    .text + .data (the vector table, code, constants, initial values), RAM = .data + .bss (the
-    stack comes on top); the library's share from the symbols in namespace hwbridge."""
-    size, nm = _arm_tool("arm-none-eabi-size"), _arm_tool("arm-none-eabi-nm")
-    if not elf.is_file():
-        raise HwBridgeError(f"{elf}: no such ELF file")
-    done = subprocess.run([size, "-A", str(elf)], capture_output=True, text=True, check=False)
-    if done.returncode != 0:
-        raise HwBridgeError(f"{elf}: arm-none-eabi-size failed: {done.stderr.strip()}")
+        raise HwBridgeError(f"{elf}: {Path(size).name} failed: {done.stderr.strip()}")
     sections = {name: int(value) for name, value in _SECTION.findall(done.stdout)}
     text, data, bss = (sections.get(k, 0) for k in ("text", "data", "bss"))
     listed = subprocess.run(
@@ -657,14 +614,9 @@ def arm_firmware_size(elf: Path) -> FirmwareSize:
     for line in listed.splitlines():
         parts = line.split(None, 3)
         if len(parts) == 4 and parts[2] in "bBdD":
-            name, size_of = parts[3], int(parts[1], 16)
-            if "hwbridge::" in name:
-                owner = "hwbridge"
-            elif name.startswith(("_", "(anonymous namespace)::")) or name in ("Serial", "errno"):
-                owner = "core"  # the C library, start-up and the Arduino stand-in
-            else:
-                owner = "sketch"
-            objects.append((name, size_of, owner))
+            name = parts[3]
+            owner = "hwbridge" if "hwbridge::" in name else owner_of(name, parts[2])
+            objects.append((name, int(parts[1], 16), owner))
     objects.sort(key=lambda item: (-item[1], item[0]))
     return FirmwareSize(
         flash=text + data,
@@ -673,6 +625,41 @@ def arm_firmware_size(elf: Path) -> FirmwareSize:
         core_sram=sum(n for _, n, owner in objects if owner == "core"),
         objects=tuple(objects),
     )
+
+
+def firmware_size(elf: Path) -> FirmwareSize:
+    """Flash and static RAM of an ELF (``avr-size -A``), and the library's share of the RAM."""
+    size, nm = _tool("avr-size"), _tool("avr-nm")
+    if not elf.is_file():
+        raise HwBridgeError(f"{elf}: no such ELF file")
+    core_names = _core_symbols(shutil.which("avr-gcc-nm") or nm)
+    core_statics = _core_statics()
+
+    def owner_of(name: str, kind: str) -> str:
+        if (
+            name in core_names
+            or name.startswith("__")
+            or "HardwareSerial" in name
+            or (kind in "bd" and name in core_statics)
+        ):
+            return "core"
+        return "sketch"
+
+    return _measure(elf, size, nm, owner_of)
+
+
+def arm_firmware_size(elf: Path) -> FirmwareSize:
+    """Flash and static RAM of an ELF built for an ARM board (``arm-none-eabi-size -A``): flash =
+    .text + .data (the vector table, code, constants, initial values), RAM = .data + .bss (the
+    stack comes on top); the library's share from the symbols in namespace hwbridge."""
+
+    def owner_of(name: str, kind: str) -> str:
+        del kind
+        if name.startswith(("_", "(anonymous namespace)::")) or name in ("Serial", "errno"):
+            return "core"  # the C library, start-up and the Arduino stand-in
+        return "sketch"
+
+    return _measure(elf, _arm_tool("arm-none-eabi-size"), _arm_tool("arm-none-eabi-nm"), owner_of)
 
 
 def _core_statics() -> frozenset[str]:

@@ -441,12 +441,15 @@ class CommandWatchdog:
         self.timeout = _positive("timeout", timeout)
         self.timeouts = 0
         """How many times the targets were zeroed because commands stopped."""
+        self.commands = 0
+        """How many commands arrived."""
         self._targets = (0.0, 0.0)
         self._last: float | None = None
         self._expired = True
 
     def command(self, targets: tuple[float, float], now: float) -> None:
         """A new command arrived at ``now``."""
+        self.commands += 1
         self._targets = (float(targets[0]), float(targets[1]))
         self._last = now
         self._expired = False

@@ -49,15 +49,20 @@ def _wire(targets: Targets) -> Targets:
     return (float(np.float32(targets[0])), float(np.float32(targets[1])))
 
 
-def _commander(client: Graph, namespace: str) -> Callable[..., None]:
+class _Teleop:
     """Publishes cmd_vel on the graph, as a teleop node would: the drive node gets it on the
-    graph's own thread."""
-    publisher = client.node("teleop").publisher(f"{namespace}/cmd_vel", "geometry_msgs/Twist")
+    graph's own thread. :attr:`sent` counts what it published, so that a test can wait until
+    the node has taken every command (its watchdog counts them) before moving its clock."""
 
-    def command(x: float, z: float = 0.0) -> None:
-        publisher.publish(_twist(x, z))
+    def __init__(self, client: Graph, namespace: str) -> None:
+        self._publisher = client.node("teleop").publisher(
+            f"{namespace}/cmd_vel", "geometry_msgs/Twist"
+        )
+        self.sent = 0
 
-    return command
+    def __call__(self, x: float, z: float = 0.0) -> None:
+        self.sent += 1
+        self._publisher.publish(_twist(x, z))
 
 
 def _listen(client: Graph, namespace: str) -> list[Targets]:
@@ -130,7 +135,7 @@ def test_a_command_is_never_overtaken_by_what_the_drive_loop_decided_before_it(
             drive = DiffDriveNode(node, PARAMS, clock=clock)
         else:  # real time: the loop repeats the targets for 0.5 s after a command
             drive = DiffDriveNode(node, PARAMS)
-    command = _commander(client, namespace)
+    command = _Teleop(client, namespace)
     try:
 
         def first_arrived() -> bool:  # also: the board's and the node's subscriptions match
@@ -138,6 +143,8 @@ def test_a_command_is_never_overtaken_by_what_the_drive_loop_decided_before_it(
             return _wire(first) in received
 
         assert wait_until(first_arrived, 10, step=0.05)
+        # warm-up commands still on their way would restart the watchdog after the clock moves
+        assert wait_until(lambda: drive.watchdog.commands == command.sent, 10)
         pause.armed.set()
         if case == "watchdog stop":
             clock.now += 10.0  # cmd_vel went quiet: the next cycle sends the stop
@@ -166,7 +173,7 @@ def test_the_watchdog_stops_the_wheels_once_and_a_later_command_restarts_them(
     go = _wire(drive.odometry.wheel_targets(0.2, 0.0))
     turn = _wire(drive.odometry.wheel_targets(0.0, 1.0))
 
-    command = _commander(client, "/watchdog")
+    command = _Teleop(client, "/watchdog")
 
     def subscribed() -> bool:
         command(0.05)
@@ -176,6 +183,7 @@ def test_the_watchdog_stops_the_wheels_once_and_a_later_command_restarts_them(
         return lambda: bool(received) and received[-1] == targets
 
     assert wait_until(subscribed, 10, step=0.05)
+    assert wait_until(lambda: drive.watchdog.commands == command.sent, 10)
     clock.now = 10.0
     command(0.2)
     assert wait_until(handled(go), 10)

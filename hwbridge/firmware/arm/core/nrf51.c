@@ -13,7 +13,6 @@
 #define TIMER_PRESCALER 0x510u
 #define TIMER_CC3 0x54Cu
 #define UART0 0x40002000u
-#define SCB_AIRCR 0xE000ED0Cu
 
 void hwbridge_board_setup(void) {
   REG(TIMER0 + TIMER_MODE) = 0;      /* timer */
@@ -26,23 +25,6 @@ void hwbridge_board_setup(void) {
 uint32_t hwbridge_board_micros(void) {
   REG(TIMER0 + TIMER_CAPTURE3) = 1;
   return REG(TIMER0 + TIMER_CC3);
-}
-
-/* Milliseconds since reset, wrapping at 2^32 like Arduino's millis() (the microsecond counter
- * wraps every 71 minutes: the elapsed microseconds are summed in 64 bits at each call). */
-uint32_t hwbridge_board_millis(void) {
-  static uint32_t last_us;
-  static uint64_t total_us;
-  const uint32_t now = hwbridge_board_micros();
-  total_us += (uint32_t)(now - last_us);
-  last_us = now;
-  return (uint32_t)(total_us / 1000u);
-}
-
-void hwbridge_board_reset(void) {
-  REG(SCB_AIRCR) = (0x05FAu << 16) | (1u << 2); /* SYSRESETREQ */
-  for (;;) {
-  }
 }
 
 void hwbridge_board_fault_puts(const char* text) {

@@ -17,6 +17,11 @@ void initialise_monitor_handles(void);
 #endif
 void hwbridge_board_setup(void);
 void hwbridge_board_fault_puts(const char* text);
+uint32_t hwbridge_board_micros(void);
+uint32_t hwbridge_board_millis(void);
+void hwbridge_board_reset(void);
+
+#define SCB_AIRCR (*(volatile uint32_t*)0xE000ED0Cu) /* the same on every Cortex-M */
 
 void Reset_Handler(void);
 void Default_Handler(void);
@@ -102,4 +107,23 @@ __attribute__((naked)) void HardFault_Handler(void) {
       "1:\n"
       "mrs r0, msp\n"
       "b hwbridge_fault_report\n");
+}
+
+/* Milliseconds since reset from the board's microsecond counter (its own timer), wrapping at 2^32
+ * like Arduino's millis(): the counter wraps every 71 minutes, so the elapsed microseconds are
+ * summed in 64 bits at each call. */
+uint32_t hwbridge_board_millis(void) {
+  static uint32_t last_us;
+  static uint64_t total_us;
+  const uint32_t now = hwbridge_board_micros();
+  total_us += (uint32_t)(now - last_us);
+  last_us = now;
+  return (uint32_t)(total_us / 1000u);
+}
+
+/* A system reset request (SYSRESETREQ), as a board's reset pin would. */
+void hwbridge_board_reset(void) {
+  SCB_AIRCR = (0x05FAu << 16) | (1u << 2);
+  for (;;) {
+  }
 }

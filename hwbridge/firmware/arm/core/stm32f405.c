@@ -15,7 +15,6 @@
 #define REG(address) (*(volatile uint32_t*)(address))
 #define SCB_CCR 0xE000ED14u
 #define SCB_CPACR 0xE000ED88u
-#define SCB_AIRCR 0xE000ED0Cu
 #define RCC_APB1ENR 0x40023840u
 #define TIM2 0x40000000u
 #define TIM_CR1 0x00u
@@ -48,23 +47,6 @@ void hwbridge_board_setup(void) {
 }
 
 uint32_t hwbridge_board_micros(void) { return REG(TIM2 + TIM_CNT); }
-
-/* Milliseconds since reset, wrapping at 2^32 like Arduino's millis() (the microsecond counter
- * wraps every 71 minutes: the elapsed microseconds are summed in 64 bits at each call). */
-uint32_t hwbridge_board_millis(void) {
-  static uint32_t last_us;
-  static uint64_t total_us;
-  const uint32_t now = hwbridge_board_micros();
-  total_us += (uint32_t)(now - last_us);
-  last_us = now;
-  return (uint32_t)(total_us / 1000u);
-}
-
-void hwbridge_board_reset(void) {
-  REG(SCB_AIRCR) = (0x05FAu << 16) | (1u << 2); /* SYSRESETREQ */
-  for (;;) {
-  }
-}
 
 void hwbridge_board_fault_puts(const char* text) {
   if ((REG(USART1_CR1) & (1u << 13)) == 0) {

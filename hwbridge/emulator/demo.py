@@ -112,7 +112,8 @@ class BoardSide(ABC, Generic[R]):
     """What the board is, in the error when it does not connect ('the virtual board')."""
     connect_timeout: float
     settle = 0.8
-    """Seconds between the stop command and the last measure: the last ticks arrive."""
+    """Seconds of the board's own time (:meth:`clock`) between the stop command and the last
+    measure: the robot stops and the last ticks arrive."""
     topics: ClassVar[Mapping[str, str]] = WATCHED
     """The topics the driver watches (at least WATCHED)."""
     sweep_pan = False
@@ -146,6 +147,11 @@ class BoardSide(ABC, Generic[R]):
 
     def during(self, elapsed: float, out: Console) -> None:
         """Called once per driver step, ``elapsed`` s into the drive (faults, resets)."""
+
+    def clock(self) -> float:
+        """Seconds of the board's own time: real time here; a simulator's time where the
+        board is simulated, which falls behind real time on a busy machine."""
+        return time.monotonic()
 
     @abstractmethod
     def result(self, distance: float, error: float) -> R:
@@ -215,7 +221,7 @@ def drive(
                     _sample(path_plot, truth, seen["odom"])
                     time.sleep(0.1)
                 cmd_vel.publish({})
-                time.sleep(side.settle)  # the robot stops; the last ticks arrive
+                _settle(side, seen)  # the robot stops; the last ticks arrive
                 truth = side.truth()
                 _sample(path_plot, truth, seen["odom"])
                 result = _result(side, truth, seen["odom"])
@@ -372,6 +378,26 @@ def _sample(plot: PathPlot, truth: Truth, odom: Any) -> None:
         (float(position.x), float(position.y)) if position is not None else None,
         (truth.x, truth.y),
     )
+
+
+SETTLE_DEADLINE = 30.0
+"""Most seconds of real time :func:`_settle` waits (a board's clock that stands still)."""
+
+
+def _settle(side: BoardSide[Any], seen: Seen) -> None:
+    """Wait until ``side.settle`` s of the board's own time have passed since the stop command
+    and an odometry message has come after that: measured on the board's clock, not the wall,
+    so a simulation that runs behind real time (a busy machine) still stops before the measure.
+    Gives up after :data:`SETTLE_DEADLINE` s of real time, measuring what is there."""
+    deadline = time.monotonic() + SETTLE_DEADLINE
+    stop_at = side.clock() + side.settle
+    while side.clock() < stop_at:
+        if time.monotonic() >= deadline:
+            return
+        time.sleep(0.02)
+    counted = seen.counts["odom"]
+    while seen.counts["odom"] == counted and time.monotonic() < deadline:
+        time.sleep(0.02)
 
 
 def _result(side: BoardSide[R], truth: Truth, odom: Any) -> R:

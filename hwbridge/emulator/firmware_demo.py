@@ -135,6 +135,9 @@ class FirmwareSide(BoardSide[FirmwareDemoResult]):
             out.print(f"{elapsed:5.1f} s: resetting the AVR")
             self.sim.reset()
 
+    def clock(self) -> float:
+        return self.sim.time
+
     def result(self, distance: float, error: float) -> FirmwareDemoResult:
         return FirmwareDemoResult(distance, error, self.sim.time, self.sim.resets)
 

@@ -121,7 +121,7 @@ def sim(
     from hwbridge.emulator.pins import PinWorld
     from hwbridge.errors import HwBridgeError
     from hwbridge.firmware.sim import SimAvr
-    from hwbridge.firmware.sim.bootloader import optiboot_hex
+    from hwbridge.firmware.sim.bootloader import bootloader_hex
     from hwbridge.firmware.sim.examples import EXAMPLES_DIR, build_sketch_for_sim
 
     if mcu in ARM_MCUS:
@@ -130,9 +130,7 @@ def sim(
     board_name = "mega" if mcu == "atmega2560" else "uno"
     boot: Path | None = None
     if bootloader:
-        if mcu != "atmega328p":
-            raise HwBridgeError("--bootloader: only the Uno's (atmega328p) Optiboot is supported")
-        boot = optiboot_hex()
+        boot = bootloader_hex(mcu)
     elif firmware is None:
         raise HwBridgeError("give the firmware to run (an ELF, a sketch, an example's name)")
     path: Path | None = None

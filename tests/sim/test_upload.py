@@ -5,6 +5,8 @@ firmware in flash keeps running) and a port that does not exist give their clear
 
 from __future__ import annotations
 
+import json
+import os
 import shutil
 import subprocess
 import sys
@@ -16,7 +18,7 @@ import pytest
 
 from hwbridge.errors import HwBridgeError
 from hwbridge.firmware.build import LIBRARY_DIR
-from hwbridge.firmware.sim.bootloader import optiboot_hex
+from hwbridge.firmware.sim.bootloader import bootloader_hex
 from hwbridge.firmware.upload import Upload
 from tests.bridgeproc import BridgeProcess
 from tests.netutil import wait_until
@@ -37,9 +39,9 @@ def _hwbridge(*argv: str, timeout: float = 300) -> subprocess.CompletedProcess[s
 class SimProcess:
     """``hwbridge firmware sim --bootloader`` in a subprocess; :attr:`path` is its pty."""
 
-    def __init__(self) -> None:
+    def __init__(self, *extra: str) -> None:
         self.process = subprocess.Popen(
-            [sys.executable, "-m", "hwbridge", "firmware", "sim", "--bootloader"],
+            [sys.executable, "-m", "hwbridge", "firmware", "sim", "--bootloader", *extra],
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
             text=True,
@@ -72,15 +74,19 @@ class SimProcess:
                 self.process.wait(5)
 
 
-@pytest.fixture
-def simulator(runner: Path) -> Iterator[SimProcess]:
-    del runner  # built (or skipped) first
+def _needs(mcu: str) -> None:
     if shutil.which("avrdude") is None:
         pytest.skip("avrdude is not installed (apt-get install avrdude)")
     try:
-        optiboot_hex()
+        bootloader_hex(mcu)
     except HwBridgeError as exc:
-        pytest.skip(f"no Optiboot here: {exc}")
+        pytest.skip(f"no bootloader for {mcu} here: {exc}")
+
+
+@pytest.fixture
+def simulator(runner: Path) -> Iterator[SimProcess]:
+    del runner  # built (or skipped) first
+    _needs("atmega328p")
     sim = SimProcess()
     yield sim
     sim.stop()
@@ -158,3 +164,80 @@ def test_replies_out_of_step_are_told_apart_from_silence(tmp_path: Path) -> None
     assert "out of step" in text and "expects OK byte 0x10 but got 0x04" in text, text
     upload.output = ["avrdude error: stk500_getsync() attempt 4 of 4: not in sync: resp=0x00"]
     assert upload.explain_failure(1).startswith("no bootloader answered"), upload.explain_failure(1)
+
+
+def _sketch(tmp_path: Path, name: str, topic: str, text: str) -> Path:
+    """HelloWorld copied to ``tmp_path/name``, publishing ``text`` on ``topic``."""
+    sketch = tmp_path / name
+    sketch.mkdir()
+    source = (HELLO / "HelloWorld.ino").read_text()
+    source = source.replace('chatter("chatter")', f'chatter("{topic}")')
+    source = source.replace('"hello world!"', f'"{text}"')
+    assert f'"{topic}"' in source and f'"{text}"' in source
+    (sketch / f"{name}.ino").write_text(source)
+    return sketch
+
+
+def _echo(bridge: BridgeProcess, topic: str) -> str:
+    done = bridge.cli("topic", "echo", topic, "-n", "1", "--timeout", "60", timeout=120)
+    assert done.returncode == 0, done.stderr + bridge.output()
+    return done.stdout
+
+
+def test_upload_pauses_the_bridge_that_holds_the_port(runner: Path, tmp_path: Path) -> None:
+    """A bridge runs sketch A from the simulated Uno's pty; an upload of sketch B through the same
+    pty pauses the bridge (asked on a terminal, or --pause-bridge), and the same bridge then
+    shows sketch B's topic."""
+    del runner
+    _needs("atmega328p")
+    sketch_a = _sketch(tmp_path, "SketchA", "chatter_a", "from sketch A")
+    sketch_b = _sketch(tmp_path, "SketchB", "chatter_b", "from sketch B")
+    sim = SimProcess(str(sketch_a))  # flashed with A, Optiboot in front
+    bridge: BridgeProcess | None = None
+    try:
+        port = sim.path
+        bridge = BridgeProcess(port, tmp_path, "upload_pause")
+        bridge.wait_ready()
+        assert "data: from sketch A" in _echo(bridge, "/chatter_a")
+
+        # on a terminal the user is asked; "n" leaves the bridge alone
+        master, slave = os.openpty()
+        try:
+            os.write(master, b"n\n")
+            declined = subprocess.run(
+                [sys.executable, "-m", "hwbridge", "firmware", "upload", str(sketch_b),
+                 "--port", port],
+                stdin=slave,
+                env=bridge.env,
+                capture_output=True,
+                text=True,
+                timeout=300,
+                check=False,
+            )  # fmt: skip
+        finally:
+            os.close(slave)
+            os.close(master)
+        assert declined.returncode == 1, declined.stderr
+        assert "pause it for the upload? [y/N]" in declined.stderr, declined.stderr
+        assert "busy" in declined.stderr and "pause:" not in declined.stderr
+        assert "released" not in bridge.output()
+
+        done = bridge.cli(
+            "firmware", "upload", str(sketch_b), "--port", port, "--pause-bridge", timeout=600
+        )
+        assert done.returncode == 0, done.stderr + "\nbridge:\n" + bridge.output()
+        for step in ("pause: asking board", "pause: the bridge released", "write: ", "verified",
+                     "resume: board"):  # fmt: skip
+            assert step in done.stderr, done.stderr
+        log = bridge.output()
+        assert "released " in log and "for an upload; holding off" in log, log
+        assert "resuming: reopening" in log, log
+        # the same bridge, the new firmware
+        assert "data: from sketch B" in _echo(bridge, "/chatter_b")
+        info = json.loads(bridge.cli("board", "info", "--json").stdout)
+        assert info["topics"]["publishes"] == ["/chatter_b"], info
+        assert bridge.process.poll() is None
+    finally:
+        if bridge is not None:
+            bridge.stop()
+        sim.stop()

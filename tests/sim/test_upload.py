@@ -241,3 +241,66 @@ def test_upload_pauses_the_bridge_that_holds_the_port(runner: Path, tmp_path: Pa
         if bridge is not None:
             bridge.stop()
         sim.stop()
+
+
+BOARDS_TXT = Path("/usr/share/arduino/hardware/arduino/avr/boards.txt")
+
+
+def _boards_txt() -> dict[str, str]:
+    if not BOARDS_TXT.is_file():
+        pytest.skip(f"no {BOARDS_TXT} (apt-get install arduino-core-avr)")
+    pairs = (line.split("=", 1) for line in BOARDS_TXT.read_text().splitlines() if "=" in line)
+    return {key.strip(): value.strip() for key, value in pairs if not key.startswith("#")}
+
+
+@pytest.mark.parametrize(
+    ("board", "prefix"), [("uno", "uno."), ("mega", "mega.menu.cpu.atmega2560.")]
+)
+def test_avrdude_arguments_match_arduinos_boards_txt(
+    board: str, prefix: str, tmp_path: Path
+) -> None:
+    """The programmer (-c), baud (-b) and part avrdude gets for each board are what Arduino's
+    boards.txt gives its upload (the Mega 2560: stk500v2 through avrdude's "wiring"); the flash
+    room checked before an upload is its maximum_size. avrdude's wiring programmer refuses
+    -x attempts=N (it exits at once), so only STK500 v1 gets it."""
+    from hwbridge.firmware import build
+
+    facts = _boards_txt()
+    build_mcu = facts.get(f"{prefix}build.mcu") or facts[f"{board}.build.mcu"]
+    command = Upload(tmp_path / "x.hex", tmp_path / "port", board).command("avrdude")
+    options = dict(zip(command[1::2], command[2::2], strict=False))
+    assert options["-c"] == facts[f"{prefix}upload.protocol"]
+    assert options["-b"] == facts[f"{prefix}upload.speed"]
+    assert options["-p"] == build_mcu
+    assert build.BOARDS[board].flash == int(facts[f"{prefix}upload.maximum_size"])
+    assert ("-x" in command) == (options["-c"] == "arduino")
+
+
+def test_mega_upload_through_the_stk500v2_bootloader(runner: Path, tmp_path: Path) -> None:
+    """The Mega path for real: the Mega 2560's stk500v2 bootloader (Debian's build) runs in the
+    simulated ATmega2560, avrdude's wiring programmer writes and verifies HelloWorld built for
+    the Mega through it, and the sketch then reaches the graph."""
+    del runner
+    _needs("atmega2560")
+    sim = SimProcess("--mcu", "atmega2560")
+    try:
+        port = sim.path
+        sketch = tmp_path / "HelloWorld"
+        shutil.copytree(HELLO, sketch, ignore=shutil.ignore_patterns("build"))
+        done = _hwbridge("firmware", "upload", str(sketch), "--port", port, "--board", "mega")
+        assert done.returncode == 0, done.stderr + "\nsimulator: " + "\n".join(sim.errors)
+        for step in ("built ", "reset: the bootloader answered", "write: ", "verify: ", "verified"):
+            assert step in done.stderr, done.stderr
+        assert str(sketch / "build" / "mega" / "HelloWorld.hex") in done.stderr
+        # The stk500v2 bootloader takes any byte within its first moments after a reset as the
+        # start of an upload, and each further byte keeps it waiting: the bridge lets the board
+        # speak first (--start-delay) rather than probe it at once.
+        bridge = BridgeProcess(port, tmp_path, "upload_mega", "--start-delay", "3")
+        try:
+            bridge.wait_ready()
+            assert "data: hello world!" in _chatter(bridge)
+        finally:
+            bridge.stop()
+        assert sim.process.poll() is None, sim.errors
+    finally:
+        sim.stop()

@@ -16,6 +16,7 @@ from hwbridge.errors import HwBridgeError
 
 if TYPE_CHECKING:
     from hwbridge.firmware.upload import PortBusyError
+    from hwbridge.graph import Graph
 
 __all__ = ["upload"]
 
@@ -103,12 +104,20 @@ def _pause_bridge(
 
     if busy.pid is None:
         raise busy
+    graph: Graph | None = None
+    held = None
     try:
         graph = stack.enter_context(open_graph(ctx))
         held = find_holding_board(graph, str(busy.path), busy.pid)
     except HwBridgeError:
-        held = None
-    if held is None:
+        pass  # no graph here: no bridge to pause
+    if graph is None or held is None:
+        if "hwbridge" in busy.holder:
+            raise UploadError(
+                f"{busy}; it looks like a hwbridge bridge, but no bridge on the graph this "
+                "command reaches has the port: give the bridge's graph (hwbridge --endpoint "
+                "ENDPOINT --domain DOMAIN firmware upload ...) to have it paused"
+            ) from None
         raise busy
     what = f"board {held.name} of a running hwbridge bridge (pid {busy.pid})"
     if not pause_bridge:

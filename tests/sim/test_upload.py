@@ -118,6 +118,8 @@ def test_upload_then_the_sketch_reaches_the_graph(simulator: SimProcess, tmp_pat
         busy = _hwbridge("firmware", "upload", str(hex_file), "--port", port)
         assert busy.returncode == 1
         assert "busy" in busy.stderr and "hwbridge connect" in busy.stderr, busy.stderr
+        # (this upload runs on another graph than the bridge's: it cannot offer to pause it)
+        assert "no bridge on the graph this command reaches" in busy.stderr, busy.stderr
     finally:
         bridge.stop()
 
@@ -199,6 +201,21 @@ def test_upload_pauses_the_bridge_that_holds_the_port(runner: Path, tmp_path: Pa
         bridge = BridgeProcess(port, tmp_path, "upload_pause")
         bridge.wait_ready()
         assert "data: from sketch A" in _echo(bridge, "/chatter_a")
+
+        # not on a terminal, and no --pause-bridge: refused, naming the bridge and the flag
+        refused = subprocess.run(
+            [sys.executable, "-m", "hwbridge", "firmware", "upload", str(sketch_b),
+             "--port", port],
+            stdin=subprocess.DEVNULL,
+            env=bridge.env,
+            capture_output=True,
+            text=True,
+            timeout=300,
+            check=False,
+        )  # fmt: skip
+        assert refused.returncode == 1, refused.stderr
+        assert "busy: board " in refused.stderr and "--pause-bridge" in refused.stderr
+        assert "hwbridge -v connect" in refused.stderr, refused.stderr
 
         # on a terminal the user is asked; "n" leaves the bridge alone
         master, slave = os.openpty()

@@ -89,6 +89,8 @@ class BridgePause:
         self._renewer: threading.Thread | None = None
 
     def request(self, request: dict[str, Any], timeout: float = 20.0) -> dict[str, Any]:
+        """Send one control request to the board; its reply (HwBridgeError: an error reply, or
+        none within ``timeout`` seconds)."""
         from hwbridge.bridge.board import control_key
 
         key = control_key(self.graph.prefix, self.board.name)

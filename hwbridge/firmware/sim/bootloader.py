@@ -1,4 +1,6 @@
-"""The Uno's bootloader for the simulator: Optiboot from Debian's ``arduino-core-avr``.
+"""The boards' bootloaders for the simulator, from Debian's ``arduino-core-avr``: the Uno's
+Optiboot, and the Mega 2560's stk500v2 bootloader (:func:`stk500v2_hex`, used as Debian ships it:
+it lies in the Mega's 8 KiB boot section).
 
 :func:`optiboot_hex` gives the Intel HEX the runner loads at the top of the ATmega328P's flash
 (``hwbridge firmware sim --bootloader``). Debian's ``optiboot_atmega328.hex`` is used as it is

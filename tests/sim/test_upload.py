@@ -11,7 +11,7 @@ import shutil
 import subprocess
 import sys
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
@@ -90,6 +90,21 @@ def simulator(runner: Path) -> Iterator[SimProcess]:
     sim = SimProcess()
     yield sim
     sim.stop()
+
+
+def _upload_on_a_busy_machine(
+    sim: SimProcess, upload: Callable[[], subprocess.CompletedProcess[str]]
+) -> subprocess.CompletedProcess[str]:
+    """``upload()``, once more if avrdude found no bootloader while the simulator said it ran
+    behind real time: avrdude's timeouts are wall-clock ones, and a machine too busy to run the
+    AVR in real time looks like a silent board to it (the retry is an upload from the start,
+    pause included; any other failure is not retried)."""
+    done = upload()
+    lagged = any("behind real time" in line for line in sim.errors)
+    if done.returncode != 0 and lagged and "no bootloader answered" in done.stderr:
+        sys.stderr.write(f"the simulator lagged; upload again:\n{done.stderr}\n")
+        done = upload()
+    return done
 
 
 def _chatter(bridge: BridgeProcess) -> str:
@@ -239,10 +254,15 @@ def test_upload_pauses_the_bridge_that_holds_the_port(runner: Path, tmp_path: Pa
         assert "busy" in declined.stderr and "pause:" not in declined.stderr
         assert "released" not in bridge.output()
 
-        done = bridge.cli(
-            "firmware", "upload", str(sketch_b), "--port", port, "--pause-bridge", timeout=600
+        done = _upload_on_a_busy_machine(
+            sim,
+            lambda: bridge.cli(
+                "firmware", "upload", str(sketch_b), "--port", port, "--pause-bridge", timeout=600
+            ),
         )
-        assert done.returncode == 0, done.stderr + "\nbridge:\n" + bridge.output()
+        assert done.returncode == 0, (
+            done.stderr + "\nbridge:\n" + bridge.output() + "\nsimulator:\n" + "\n".join(sim.errors)
+        )
         for step in ("pause: asking board", "pause: the bridge released", "write: ", "verified",
                      "resume: board"):  # fmt: skip
             assert step in done.stderr, done.stderr
@@ -304,7 +324,10 @@ def test_mega_upload_through_the_stk500v2_bootloader(runner: Path, tmp_path: Pat
         port = sim.path
         sketch = tmp_path / "HelloWorld"
         shutil.copytree(HELLO, sketch, ignore=shutil.ignore_patterns("build"))
-        done = _hwbridge("firmware", "upload", str(sketch), "--port", port, "--board", "mega")
+        done = _upload_on_a_busy_machine(
+            sim,
+            lambda: _hwbridge("firmware", "upload", str(sketch), "--port", port, "--board", "mega"),
+        )
         assert done.returncode == 0, done.stderr + "\nsimulator: " + "\n".join(sim.errors)
         for step in ("built ", "reset: the bootloader answered", "write: ", "verify: ", "verified"):
             assert step in done.stderr, done.stderr

@@ -30,6 +30,7 @@ from pathlib import PurePosixPath
 from typing import TYPE_CHECKING, Any, TypeVar
 
 from hwbridge.bridge.adapter import SessionAdapter
+from hwbridge.bridge.control import control_key
 from hwbridge.bridge.identity import FirmwareCheck
 from hwbridge.bridge.port import BoardPort
 from hwbridge.errors import HwBridgeError, LinkError
@@ -60,7 +61,6 @@ __all__ = [
     "BoardConnection",
     "BoardSpec",
     "check_service_timeout",
-    "control_key",
     "link_device",
 ]
 
@@ -688,11 +688,6 @@ def _is_datagram(link: Link) -> bool:
 def board_key(prefix: str, name: str) -> str:
     """Zenoh key of a board's info queryable."""
     return f"{prefix}/board/{encode_segment(name)}"
-
-
-def control_key(prefix: str, name: str) -> str:
-    """Zenoh key of a board's control queryable (pause and resume)."""
-    return f"{board_key(prefix, name)}/control"
 
 
 def link_device(url: str) -> str | None:

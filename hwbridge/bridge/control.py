@@ -1,7 +1,7 @@
 """Pausing a running bridge's board from another process (``hwbridge firmware upload``).
 
 Every board of a running bridge (``hwbridge connect``, ``hwbridge up``) serves a control
-queryable next to its info one (:func:`hwbridge.bridge.board.control_key`). A query with the
+queryable next to its info one (:func:`control_key`). A query with the
 JSON payload ``{"pause": SECONDS, "reason": TEXT}`` makes the board end its session (its
 endpoints leave the graph, a goodbye is written), close its link and hold off reopening it until
 ``{"resume": true}`` comes, or the SECONDS run out (logged); a later pause extends the hold.
@@ -23,16 +23,24 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Final
 
 from hwbridge.errors import HwBridgeError
+from hwbridge.graph.names import encode_segment
 
 if TYPE_CHECKING:
     from hwbridge.graph import Graph
 
-__all__ = ["LEASE", "BridgePause", "HeldBoard", "find_holding_board"]
+__all__ = ["LEASE", "BridgePause", "HeldBoard", "control_key", "find_holding_board"]
 
 log = logging.getLogger("hwbridge.bridge.control")
 
 LEASE: Final = 60.0
 """Seconds each pause request holds the board off; renewed every third of it."""
+
+
+def control_key(prefix: str, name: str) -> str:
+    """Zenoh key of a board's control queryable (pause and resume), beside its info one
+    (``PREFIX/board/NAME``); this module is what the board's connection and its clients share,
+    so it never imports the connection."""
+    return f"{prefix}/board/{encode_segment(name)}/control"
 
 
 @dataclass(frozen=True)
@@ -91,8 +99,6 @@ class BridgePause:
     def request(self, request: dict[str, Any], timeout: float = 20.0) -> dict[str, Any]:
         """Send one control request to the board; its reply (HwBridgeError: an error reply, or
         none within ``timeout`` seconds)."""
-        from hwbridge.bridge.board import control_key
-
         key = control_key(self.graph.prefix, self.board.name)
         try:
             answers = _replies(self.graph, key, request, timeout)

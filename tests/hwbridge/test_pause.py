@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import logging
 import os
+import shutil
+import signal
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -182,3 +184,37 @@ def _busy(port: Path) -> bool:
     except PortBusyError:
         return True
     return False
+
+
+def test_an_upload_stopped_with_ctrl_c_gives_the_port_back(
+    bridge: Bridge, board_path: Path, endpoint: str, tmp_path: Path
+) -> None:
+    """``firmware upload --pause-bridge`` into a port the bridge holds, whose board has no
+    bootloader (avrdude keeps trying to get in sync), stopped with SIGINT as Ctrl-C does: the
+    bridge is told to resume and the board comes back."""
+    board = bridge.boards["uno"]
+    assert wait_for(lambda: _connected(board), PROMPT), board.info()
+    if shutil.which("avrdude") is None:
+        pytest.skip("avrdude is not installed (apt-get install avrdude)")
+    image = tmp_path / "empty.hex"
+    image.write_text(":0400000000000000FC\n:00000001FF\n")
+    log = tmp_path / "upload.log"
+    with log.open("w") as out:
+        upload = subprocess.Popen(
+            [sys.executable, "-m", "hwbridge", "firmware", "upload", str(image),
+             "--port", str(board_path), "--pause-bridge"],
+            stdout=out,
+            stderr=subprocess.STDOUT,
+            env={**os.environ, "HWBRIDGE_ENDPOINT": endpoint, "HWBRIDGE_DOMAIN": "pause"},
+        )  # fmt: skip
+        try:
+            assert wait_for(lambda: "reset: " in log.read_text(), PROMPT), log.read_text()
+            assert board.state == "paused"
+            upload.send_signal(signal.SIGINT)
+            assert upload.wait(60) == 130, log.read_text()
+        finally:
+            if upload.poll() is None:
+                upload.kill()
+                upload.wait(10)
+    assert "resume: board uno" in log.read_text(), log.read_text()
+    assert wait_for(lambda: _connected(board), PROMPT), board.info()

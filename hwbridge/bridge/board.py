@@ -21,6 +21,7 @@ from __future__ import annotations
 import json
 import logging
 import math
+import os
 import random
 import threading
 import time
@@ -29,6 +30,7 @@ from pathlib import PurePosixPath
 from typing import TYPE_CHECKING, Any, TypeVar
 
 from hwbridge.bridge.adapter import SessionAdapter
+from hwbridge.bridge.control import control_key
 from hwbridge.bridge.identity import FirmwareCheck
 from hwbridge.bridge.port import BoardPort
 from hwbridge.errors import HwBridgeError, LinkError
@@ -54,10 +56,12 @@ if TYPE_CHECKING:
 __all__ = [
     "DEFAULT_SERVICE_TIMEOUT",
     "DETECT_BUFFER",
+    "MAX_PAUSE",
     "MAX_SERVICE_TIMEOUT",
     "BoardConnection",
     "BoardSpec",
     "check_service_timeout",
+    "link_device",
 ]
 
 DEFAULT_SERVICE_TIMEOUT = 5.0
@@ -72,6 +76,8 @@ _SHORT_LINK = 2.0
 _MAX_RECONNECT_DELAY = 10.0
 _PROBE_FIRST = 0.1
 _PROBE_MAX = 1.0
+MAX_PAUSE = 3600.0
+"""Longest pause a board takes at once (an hour); an uploader renews a shorter one."""
 """Seconds between probes of a silent board: the first gap, doubling up to the last."""
 
 T = TypeVar("T")
@@ -176,6 +182,19 @@ class BoardConnection:
                 board_key(bridge.graph.prefix, self.name), self._on_info
             )
         )
+        self._pause = threading.Event()
+        """Set while the board is paused (asked to release its link, e.g. for an upload)."""
+        self._resume = threading.Event()
+        self._released = threading.Event()
+        """Set while paused and the link is closed."""
+        self._pause_lock = threading.Lock()
+        self._pause_until = 0.0
+        self._pause_reason = ""
+        self._control = bridge.graph.keep(
+            bridge.graph.session.declare_queryable(
+                control_key(bridge.graph.prefix, self.name), self._on_control
+            )
+        )
 
     @property
     def pump(self) -> SessionPump:
@@ -221,6 +240,8 @@ class BoardConnection:
             "topics": adapter.topics() if adapter else {},
             "session": adapter.describe() if adapter else {},
             "stats": adapter.stats() if adapter else {},
+            "device": link_device(self.spec.url),
+            "pid": os.getpid(),
             "link": self.link.stats.as_dict() if self.link is not None else {},
             "transport": self.link.transport_stats() if self.link is not None else {},
             **self.state_detail,
@@ -232,12 +253,116 @@ class BoardConnection:
         except Exception as exc:  # noqa: BLE001 - the asker gets the failure, the bridge goes on
             query.reply_err(f"{type(exc).__name__}: {exc}")
 
+    # ------------------------------------------------------------------ pause
+    @property
+    def paused(self) -> bool:
+        """Whether the board is paused (its link released, or being released)."""
+        return self._pause.is_set()
+
+    def pause(self, seconds: float, reason: str = "an upload", wait: float = 15.0) -> bool:
+        """Release the board's link and hold it off until :meth:`resume`, or for ``seconds``
+        (a later call extends the hold). The session ends as on a stop: the board's endpoints
+        leave the graph and a goodbye is written. Returns once the link is closed (True), or
+        False if that did not happen within ``wait`` seconds."""
+        if not 0 < seconds <= MAX_PAUSE:
+            raise HwBridgeError(f"pause seconds must be above 0 and at most {MAX_PAUSE:g}")
+        with self._pause_lock:
+            self._pause_until = time.monotonic() + seconds
+            self._pause_reason = reason
+            self._resume.clear()
+            self._pause.set()
+        return self._released.wait(wait)
+
+    def resume(self) -> bool:
+        """End a pause: the board's link is opened again. False if it was not paused."""
+        with self._pause_lock:
+            was = self._pause.is_set()
+            self._resume.set()
+        return was
+
+    def _hold(self) -> None:
+        """While paused: the link is closed; wait for :meth:`resume`, the pause's end or a
+        stop, then let the connection loop open the link again."""
+        with self._pause_lock:
+            reason = self._pause_reason
+        self.log.warning(
+            "%s: released %s for %s; holding off until told to resume",
+            self.name,
+            self.spec.url,
+            reason,
+        )
+        self.set_state("paused", problem=f"released for {reason}")
+        self._released.set()
+        while not self._stop.is_set():
+            with self._pause_lock:
+                left = self._pause_until - time.monotonic()
+                if self._resume.is_set() or left <= 0:
+                    self._pause.clear()
+                    self._released.clear()
+                    self._resume.clear()
+                    break
+            self._resume.wait(min(left, 0.5))
+        else:
+            return
+        if left <= 0:
+            self.log.warning(
+                "%s: no resume came before the pause's deadline; reopening %s",
+                self.name,
+                self.spec.url,
+            )
+        else:
+            self.log.warning("%s: resuming: reopening %s", self.name, self.spec.url)
+        self.set_state("starting")
+
+    def _halted(self) -> bool:
+        """The connection loop must let go of the link: stopping or pausing."""
+        return self._stop.is_set() or self._pause.is_set()
+
+    def _nap(self, seconds: float) -> None:
+        """Wait ``seconds``, less if the board is stopped or paused."""
+        end = time.monotonic() + seconds
+        while not self._halted():
+            left = end - time.monotonic()
+            if left <= 0 or self._stop.wait(min(left, 0.1)):
+                return
+
+    def _on_control(self, query: zenoh.Query) -> None:
+        """``{"pause": SECONDS, "reason": TEXT}`` or ``{"resume": true}``; replies the board's
+        state with ``paused``, ``pid`` and ``device``."""
+        try:
+            payload = query.payload
+            request = json.loads(bytes(payload.to_bytes())) if payload is not None else {}
+            if not isinstance(request, dict):
+                raise HwBridgeError("a control request is a JSON object")
+            released = None
+            if "pause" in request:
+                seconds = request["pause"]
+                if isinstance(seconds, bool) or not isinstance(seconds, int | float):
+                    raise HwBridgeError("pause: a number of seconds")
+                released = self.pause(float(seconds), str(request.get("reason") or "an upload"))
+            elif request.get("resume"):
+                self.resume()
+            else:
+                raise HwBridgeError('give {"pause": SECONDS} or {"resume": true}')
+            answer = {
+                "board": self.name,
+                "paused": self.paused,
+                "released": released if released is not None else self._released.is_set(),
+                "state": self.state,
+                "pid": os.getpid(),
+                "device": link_device(self.spec.url),
+            }
+            query.reply(query.key_expr, json.dumps(answer).encode())
+        except Exception as exc:  # noqa: BLE001 - the asker gets the failure, the bridge goes on
+            query.reply_err(f"{type(exc).__name__}: {exc}")
+
     # ------------------------------------------------------------------ life
     def start(self) -> None:
         self._thread.start()
 
     def stop(self, timeout: float = 3.0) -> None:
         self._stop.set()
+        self._resume.set()
         pump, adapter, link = self._pump, self.adapter, self.link
         if adapter is not None and link is not None:
             try:
@@ -271,6 +396,9 @@ class BoardConnection:
         backoff = 0.2
         last_problem = ""
         while not self._stop.is_set():
+            if self._pause.is_set():
+                self._hold()
+                continue
             try:
                 link = create_link(self.spec.url, **self.spec.link_options())
                 link.open()
@@ -281,7 +409,7 @@ class BoardConnection:
                     last_problem = problem
                 self.set_state("waiting", problem=problem)
                 self._first_open(problem)
-                self._stop.wait(backoff)
+                self._nap(backoff)
                 backoff = min(backoff * 2, 2.0)
                 continue
             self._first_open(None)
@@ -291,22 +419,22 @@ class BoardConnection:
             try:
                 # A link that outlives its peers (tcp-listen://, pty://) stays open between
                 # them: closing it would refuse (or rename) the next board while it reopens.
-                while not self._stop.is_set():
+                while not self._halted():
                     self._serve(link)
                     if not link.is_open:
                         break
             except LinkError as exc:
-                if not self._stop.is_set():
+                if not self._halted():
                     self.log.warning("%s: link lost (%s); reconnecting", self.name, exc)
                     self.set_state("lost", problem=str(exc))
             except HwBridgeError as exc:  # e.g. a protocol that cannot start: say so, try again
                 self.log.error("%s: %s", self.name, exc)
                 self.set_state("failed", problem=str(exc))
-                self._stop.wait(2.0)
+                self._nap(2.0)
             except Exception as exc:  # a bug: log it where the user sees it, keep the board
                 self.log.exception("%s: board connection failed", self.name)
                 self.set_state("failed", problem=f"{type(exc).__name__}: {exc}")
-                self._stop.wait(2.0)
+                self._nap(2.0)
             finally:
                 link.close()
                 self.link = None
@@ -316,7 +444,7 @@ class BoardConnection:
         """After a link that closed soon after it opened, wait longer each time (with jitter)
         before opening it again: two clients of one TCP board that each kick the other off would
         otherwise reconnect thousands of times a second. Say so once, naming the likely cause."""
-        if lasted >= _SHORT_LINK or self._stop.is_set():
+        if lasted >= _SHORT_LINK or self._halted():
             self._short_links = 0
             return
         self._short_links += 1
@@ -330,7 +458,7 @@ class BoardConnection:
                 self.spec.url,
                 _MAX_RECONNECT_DELAY,
             )
-        self._stop.wait(delay * random.uniform(0.5, 1.5))
+        self._nap(delay * random.uniform(0.5, 1.5))
 
     def _serve(self, link: Link) -> None:
         early = self._wait_for_peer(link)
@@ -390,6 +518,9 @@ class BoardConnection:
         while not done.wait(0.2):
             if self._stop.is_set():
                 return
+            if self._pause.is_set():
+                self._end_for_pause(link, adapter, pump)
+                return
             try:
                 adapter.report_losses(time.monotonic())
             except HwBridgeError as exc:  # the session is going away: its pump reports why
@@ -410,13 +541,26 @@ class BoardConnection:
             self.log.warning("%s: link lost (%s); reconnecting", self.name, error)
             self.set_state("lost", problem=str(error))
 
+    def _end_for_pause(self, link: Link, adapter: SessionAdapter, pump: SessionPump) -> None:
+        """End the session because the board is paused: its endpoints leave the graph, the
+        goodbye is written, the pump stops (the caller closes the link)."""
+        try:
+            for chunk in pump.call(lambda _s: adapter.close(HwBridgeError("paused"))):
+                link.write(chunk)
+        except HwBridgeError as exc:
+            self.log.debug("%s: goodbye not sent: %s", self.name, exc)
+        pump.stop(3.0)
+        self.adapter = None
+        self._pump = None
+        self.log.info("%s: session ended for the pause", self.name)
+
     def _wait_for_peer(self, link: Link) -> list[bytes] | None:
         """Wait until a board is on the link (at once but on links that wait for peers, such as
         tcp-listen:// and pty://); returns what it sent meanwhile (one item per read), None if
         stopped first."""
         seen = _Received()
         said = False
-        while not self._stop.is_set():
+        while not self._halted():
             if link.connected:
                 return seen.chunks
             if not said:
@@ -453,7 +597,7 @@ class BoardConnection:
         gap = _PROBE_FIRST
         warned_at = started
         pending = list(early)
-        while not self._stop.is_set():
+        while not self._halted():
             for data in pending:
                 found = detector.feed(data)
                 if found is not None:
@@ -544,3 +688,17 @@ def _is_datagram(link: Link) -> bool:
 def board_key(prefix: str, name: str) -> str:
     """Zenoh key of a board's info queryable."""
     return f"{prefix}/board/{encode_segment(name)}"
+
+
+def link_device(url: str) -> str | None:
+    """The device file a serial link URL opens, symlinks resolved (``/dev/ttyACM0`` for
+    ``serial:///dev/serial/by-id/...?baud=57600``, ``spy+`` wrappers seen through); None for a
+    link that is not a device file (TCP, UDP, CAN, pty://)."""
+    base = url.split("?", 1)[0]
+    while base.startswith("spy+"):
+        base = base.removeprefix("spy+")
+    if base.startswith("serial://"):
+        base = base.removeprefix("serial://")
+    elif "://" in base or not base.startswith("/"):
+        return None
+    return os.path.realpath(base)

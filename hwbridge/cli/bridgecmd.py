@@ -14,7 +14,10 @@ from hwbridge.cli.common import Context, emit_json, get_registry, open_graph
 from hwbridge.errors import HwBridgeError, HwBridgeTimeoutError
 
 if TYPE_CHECKING:
+    from collections.abc import Callable, Sequence
+
     from hwbridge.graph import GraphConfig
+    from hwbridge.links.discovery import SerialPort
 
 __all__ = [
     "ListenOption",
@@ -86,6 +89,7 @@ def connect(
         typer.Argument(
             metavar="URL...",
             help="Board links: /dev/ttyACM0, serial:///dev/ttyUSB0?baud=57600, "
+            "usb:VID:PID[:SERIAL], auto (the one port with a known board), "
             "socket://host:port, tcp-listen://:11411, spy+URL ...",
         ),
     ],
@@ -125,7 +129,9 @@ def connect(
 ) -> None:
     """Connect boards to the graph and keep them connected until Ctrl-C.
 
-    The boards' log lines (INFO and above) show on stderr; --quiet hides the info ones."""
+    A usb:VID:PID[:SERIAL] or auto URL is resolved to its port when the bridge starts (as in
+    a robot file; 'hwbridge board scan' lists the ports). The boards' log lines (INFO and
+    above) show on stderr; --quiet hides the info ones."""
     from hwbridge.bridge import BoardSpec, Bridge, check_service_timeout
     from hwbridge.graph import Graph
     from hwbridge.protocols.registry import get_protocol
@@ -142,6 +148,7 @@ def connect(
     names = name or []
     if len(names) > len(urls):
         raise typer.BadParameter("more --name options than URLs", param_hint="--name")
+    links = resolve_connect_links(urls, names)
     initial = read_params(params)
     show_board_logs(quiet)
     config = owner_config(ctx, listen)
@@ -149,13 +156,13 @@ def connect(
     graph.registry = get_registry(ctx)
     bridge = Bridge(graph, params=initial)
     try:
-        for index, url in enumerate(urls):
+        for index, (url, default_name) in enumerate(links):
             spec = BoardSpec(
                 url,
                 protocol=protocol,
                 baud=baud,
                 namespace=namespace,
-                name=names[index] if index < len(names) else None,
+                name=names[index] if index < len(names) else default_name,
                 start_delay=start_delay,
                 service_timeout=service_timeout,
             )
@@ -168,6 +175,37 @@ def connect(
     finally:
         bridge.stop()
         graph.close()
+
+
+def resolve_connect_links(
+    urls: list[str],
+    names: list[str],
+    list_ports: Callable[[], Sequence[SerialPort]] | None = None,
+) -> list[tuple[str, str | None]]:
+    """``connect``'s URLs with the ``usb:`` and ``auto`` ones resolved to their ports (as
+    ``hwbridge up`` resolves a robot file's), each with the board name its port gives (the
+    device's, ``ttyACM0``, rather than a long by-id one; None for other URLs); HwBridgeError
+    naming every link that matches no port, several, or one another link has."""
+    from hwbridge.links.discovery import resolve_links
+
+    whats = [f"board {names[i]}" if i < len(names) else f"URL {i + 1}" for i in range(len(urls))]
+    results = resolve_links(list(zip(whats, urls, strict=True)), list_ports)
+    problems: list[str] = []
+    links: list[tuple[str, str | None]] = []
+    for what, url in zip(whats, urls, strict=True):
+        result = results.get(what)
+        if result is None:
+            links.append((url, None))
+        elif result.problem is not None or result.resolved is None:
+            problems.append(f"{what}: {result.problem}")
+        else:
+            port = result.port
+            device = port.device if port is not None else result.resolved
+            log.info("%s: link %s is %s", what, url, port.describe() if port else device)
+            links.append((result.resolved, Path(device).name or None))
+    if problems:
+        raise HwBridgeError("; ".join(problems))
+    return links
 
 
 def owner_config(ctx: typer.Context, listen: str | None) -> GraphConfig:

@@ -96,8 +96,9 @@ def sim(
         bool,
         typer.Option(
             "--bootloader",
-            help="Run an Uno's Optiboot: the AVR resets into it whenever the pty is opened, so "
-            "'hwbridge firmware upload SKETCH --port PTY' (avrdude) uploads to it (Uno only).",
+            help="Run the board's bootloader (an Uno's Optiboot; with --mcu atmega2560 the "
+            "Mega's stk500v2): the AVR resets into it whenever the pty is opened, so "
+            "'hwbridge firmware upload SKETCH --port PTY' (avrdude) uploads to it.",
         ),
     ] = False,
     symlink: Annotated[
@@ -113,15 +114,15 @@ def sim(
     until Ctrl-C. The first line printed is the URL of its UART (serial:///dev/pts/N): give it
     to 'hwbridge connect' or a robot file's --link.
 
-    With --bootloader the simulated Uno has Optiboot at 0x7E00 and starts there; opening the
-    pty resets it into the bootloader (as the Uno's DTR auto-reset does), which takes an upload
-    for a second before it starts the application in flash. Uploaded flash lasts until the
-    simulator stops."""
+    With --bootloader the simulated Uno has Optiboot at 0x7E00 (the Mega, --mcu atmega2560, its
+    stk500v2 bootloader at 0x3E000) and starts there; opening the pty resets it into the
+    bootloader (as the boards' DTR auto-reset does), which takes an upload for a moment before
+    it starts the application in flash. Uploaded flash lasts until the simulator stops."""
     from hwbridge.emulator.board import load_board
     from hwbridge.emulator.pins import PinWorld
     from hwbridge.errors import HwBridgeError
     from hwbridge.firmware.sim import SimAvr
-    from hwbridge.firmware.sim.bootloader import optiboot_hex
+    from hwbridge.firmware.sim.bootloader import bootloader_hex
     from hwbridge.firmware.sim.examples import EXAMPLES_DIR, build_sketch_for_sim
 
     if mcu in ARM_MCUS:
@@ -130,9 +131,7 @@ def sim(
     board_name = "mega" if mcu == "atmega2560" else "uno"
     boot: Path | None = None
     if bootloader:
-        if mcu != "atmega328p":
-            raise HwBridgeError("--bootloader: only the Uno's (atmega328p) Optiboot is supported")
-        boot = optiboot_hex()
+        boot = bootloader_hex(mcu)
     elif firmware is None:
         raise HwBridgeError("give the firmware to run (an ELF, a sketch, an example's name)")
     path: Path | None = None

@@ -30,6 +30,7 @@ from hwbridge.firmware.sim.bootloader import HexError, read_hex
 __all__ = [
     "AVRDUDE_PACKAGE",
     "PROGRAMMERS",
+    "PortBusyError",
     "Programmer",
     "Upload",
     "UploadError",
@@ -49,12 +50,18 @@ class Programmer:
 
     part: str
     programmer: str
+    """avrdude's ``-c``: the bootloader's protocol as Arduino's boards.txt names it
+    (``upload.protocol``)."""
     baud: int
+    """boards.txt's ``upload.speed``."""
+    sync_attempts: bool
+    """Whether avrdude's programmer takes ``-x attempts=N`` (STK500 v1's does; ``wiring``
+    refuses the option, and its stk500v2 sync retries by itself)."""
 
 
 PROGRAMMERS: Final = {
-    "uno": Programmer("atmega328p", "arduino", 115200),  # Optiboot (STK500 v1)
-    "mega": Programmer("atmega2560", "wiring", 115200),  # stk500v2 with the DTR reset
+    "uno": Programmer("atmega328p", "arduino", 115200, True),  # Optiboot (STK500 v1)
+    "mega": Programmer("atmega2560", "wiring", 115200, False),  # stk500v2 with the DTR reset
 }
 _ATTEMPTS: Final = 4
 """avrdude's tries to get in sync (each resets the board again; about 6 s each)."""
@@ -117,13 +124,25 @@ def _port_path(port: str) -> Path:
     return Path(port.removeprefix("serial://").split("?", 1)[0])
 
 
-def _lock_holder(path: Path) -> str:
-    """Who holds the flock on ``path``, from /proc/locks (``pid N (command)``), or ''."""
+class PortBusyError(UploadError):
+    """Another process holds the port; ``pid`` is the lock's holder (None: not known)."""
+
+    def __init__(self, message: str, path: Path, pid: int | None, holder: str = "") -> None:
+        super().__init__(message)
+        self.path = path
+        self.pid = pid
+        self.holder = holder
+        """``pid N: its command line`` ('' when not known)."""
+
+
+def _lock_holder(path: Path) -> tuple[int | None, str]:
+    """Who holds the flock on ``path``, from /proc/locks: the pid and ``pid N: command``, or
+    (None, '')."""
     try:
         inode = path.resolve().stat().st_ino
         rows = Path("/proc/locks").read_text().splitlines()
     except OSError:
-        return ""
+        return None, ""
     for row in rows:
         words = row.split()
         if len(words) > 5 and words[1] == "FLOCK" and words[5].endswith(f":{inode}"):
@@ -133,8 +152,9 @@ def _lock_holder(path: Path) -> str:
                 command = " ".join(raw.decode(errors="replace").split("\0")).strip()
             except OSError:
                 command = ""
-            return f"pid {pid}" + (f": {command[:120]}" if command else "")
-    return ""
+            number = int(pid) if pid.isdigit() else None
+            return number, f"pid {pid}" + (f": {command[:120]}" if command else "")
+    return None, ""
 
 
 def check_port(port: str) -> Path:
@@ -155,11 +175,14 @@ def check_port(port: str) -> Path:
     except OSError as exc:
         if exc.errno not in (errno.EWOULDBLOCK, errno.EAGAIN):
             raise UploadError(f"cannot lock port {path}: {exc.strerror}") from exc
-        holder = _lock_holder(path)
-        raise UploadError(
+        pid, holder = _lock_holder(path)
+        raise PortBusyError(
             f"port {path} is busy: another process has it open"
             + (f" ({holder})" if holder else "")
-            + " - a running bridge ('hwbridge connect') or a serial monitor? stop it first"
+            + " - a running bridge ('hwbridge connect') or a serial monitor? stop it first",
+            path,
+            pid,
+            holder,
         ) from None
     finally:
         os.close(fd)  # closing drops the lock
@@ -208,7 +231,7 @@ class Upload:
             "-P", str(self.port),
             "-b", str(p.baud),
             "-D",
-            "-x", f"attempts={_ATTEMPTS}",
+            *(["-x", f"attempts={_ATTEMPTS}"] if p.sync_attempts else []),
             "-U", f"flash:w:{self.image}:i",
         ]  # fmt: skip
 

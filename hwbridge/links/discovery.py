@@ -39,6 +39,7 @@ __all__ = [
     "KNOWN_USB_IDS",
     "PortRecord",
     "ProbeResult",
+    "Resolved",
     "SerialPort",
     "UsbSelector",
     "by_id_names",
@@ -48,6 +49,7 @@ __all__ = [
     "parse_usb_link",
     "probe_port",
     "resolve_link",
+    "resolve_links",
 ]
 
 AUTO: Final = "auto"
@@ -289,6 +291,56 @@ def resolve_link(
         f"{url}: no serial port has {what} (ports found: {seen}); is the board plugged in? "
         "'hwbridge board scan' lists the ports"
     )
+
+
+@dataclass(frozen=True)
+class Resolved:
+    """One link of :func:`resolve_links`: the URL to open and its port, or the problem."""
+
+    url: str
+    resolved: str | None
+    port: SerialPort | None
+    problem: str | None = None
+    """Why it did not resolve: ``link URL: ...`` (None: it did)."""
+    shared: bool = False
+    """The problem is that another link names the same port."""
+
+
+def resolve_links(
+    links: Sequence[tuple[str, str]],
+    list_ports: Callable[[], Sequence[SerialPort]] | None = None,
+) -> dict[str, Resolved]:
+    """The ``usb:`` and ``auto`` links among ``links`` (pairs of what the link is for, e.g.
+    ``board base``, and its URL) resolved against the ports there are now (listed once, by
+    ``list_ports``, default :func:`list_serial_ports`), by what they are for. A link that names
+    no port or several, or a port that an earlier link already names, gets its ``problem``
+    instead. ``hwbridge up`` and ``hwbridge connect`` resolve their links with this."""
+    wanted = [(what, url) for what, url in links if is_usb_link(url)]
+    if not wanted:
+        return {}
+    ports = (list_ports or list_serial_ports)()
+    taken: dict[str, str] = {}
+    results: dict[str, Resolved] = {}
+    for what, url in wanted:
+        try:
+            resolved, port = resolve_link(url, ports)
+        except HwBridgeError as exc:
+            results[what] = Resolved(url, None, None, f"link {exc}")
+            continue
+        device = port.device if port is not None else resolved
+        if device in taken:
+            results[what] = Resolved(
+                url,
+                None,
+                port,
+                f"link {url} is {device}, which {taken[device]} uses too; name the port of each "
+                "(usb:VID:PID:SERIAL or its path)",
+                shared=True,
+            )
+            continue
+        taken[device] = what
+        results[what] = Resolved(url, resolved, port)
+    return results
 
 
 # ----------------------------------------------------------------------------------- probing

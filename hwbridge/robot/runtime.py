@@ -101,37 +101,28 @@ class RobotRuntime:
         """Replace the ``usb:VID:PID`` and ``auto`` links with the ports they name now; a link
         that matches no port or several, or two links that name one port, is a RobotFileError
         naming the file and line."""
-        from hwbridge.links.discovery import is_usb_link, list_serial_ports, resolve_link
+        from hwbridge.links.discovery import resolve_links
 
         linked = [(b.name, b.link, b.source, f"board {b.name}") for b in self.robot.boards]
         linked += [
             (h.device.name, h.link, h.source, f"host device {h.device.name}")
             for h in self.robot.host_devices
         ]
-        wanted = [item for item in linked if is_usb_link(item[1])]
-        if not wanted:
-            return
-        ports = (self._list_ports or list_serial_ports)()
+        results = resolve_links([(what, url) for _n, url, _s, what in linked], self._list_ports)
         problems: list[str] = []
         links: dict[str, str] = {}
-        taken: dict[str, str] = {}
-        for name, url, source, what in wanted:
+        for name, url, source, what in linked:
+            result = results.get(what)
+            if result is None:
+                continue
             where = source or str(self.robot.path)
-            try:
-                resolved, port = resolve_link(url, ports)
-            except HwBridgeError as exc:
-                problems.append(f"{where}: {what}: link {exc} (--link {name}=URL gives another)")
+            if result.problem is not None or result.resolved is None:
+                hint = "" if result.shared else f" (--link {name}=URL gives another)"
+                problems.append(f"{where}: {what}: {result.problem}{hint}")
                 continue
-            device = port.device if port is not None else resolved
-            if device in taken:
-                problems.append(
-                    f"{where}: {what}: link {url} is {device}, which {taken[device]} uses "
-                    "too; name the port of each (usb:VID:PID:SERIAL or its path)"
-                )
-                continue
-            taken[device] = what
-            links[name] = resolved
-            log.info("%s: link %s is %s", what, url, port.describe() if port else resolved)
+            links[name] = result.resolved
+            port = result.port
+            log.info("%s: link %s is %s", what, url, port.describe() if port else result.resolved)
         if problems:
             raise RobotFileError(problems)
         self.robot = self.robot.with_links(links)

@@ -5,18 +5,20 @@ firmware in flash keeps running) and a port that does not exist give their clear
 
 from __future__ import annotations
 
+import json
+import os
 import shutil
 import subprocess
 import sys
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
 
 from hwbridge.errors import HwBridgeError
 from hwbridge.firmware.build import LIBRARY_DIR
-from hwbridge.firmware.sim.bootloader import optiboot_hex
+from hwbridge.firmware.sim.bootloader import bootloader_hex
 from hwbridge.firmware.upload import Upload
 from tests.bridgeproc import BridgeProcess
 from tests.netutil import wait_until
@@ -37,9 +39,9 @@ def _hwbridge(*argv: str, timeout: float = 300) -> subprocess.CompletedProcess[s
 class SimProcess:
     """``hwbridge firmware sim --bootloader`` in a subprocess; :attr:`path` is its pty."""
 
-    def __init__(self) -> None:
+    def __init__(self, *extra: str) -> None:
         self.process = subprocess.Popen(
-            [sys.executable, "-m", "hwbridge", "firmware", "sim", "--bootloader"],
+            [sys.executable, "-m", "hwbridge", "firmware", "sim", "--bootloader", *extra],
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
             text=True,
@@ -72,18 +74,37 @@ class SimProcess:
                 self.process.wait(5)
 
 
-@pytest.fixture
-def simulator(runner: Path) -> Iterator[SimProcess]:
-    del runner  # built (or skipped) first
+def _needs(mcu: str) -> None:
     if shutil.which("avrdude") is None:
         pytest.skip("avrdude is not installed (apt-get install avrdude)")
     try:
-        optiboot_hex()
+        bootloader_hex(mcu)
     except HwBridgeError as exc:
-        pytest.skip(f"no Optiboot here: {exc}")
+        pytest.skip(f"no bootloader for {mcu} here: {exc}")
+
+
+@pytest.fixture
+def simulator(runner: Path) -> Iterator[SimProcess]:
+    del runner  # built (or skipped) first
+    _needs("atmega328p")
     sim = SimProcess()
     yield sim
     sim.stop()
+
+
+def _upload_on_a_busy_machine(
+    sim: SimProcess, upload: Callable[[], subprocess.CompletedProcess[str]]
+) -> subprocess.CompletedProcess[str]:
+    """``upload()``, once more if avrdude found no bootloader while the simulator said it ran
+    behind real time: avrdude's timeouts are wall-clock ones, and a machine too busy to run the
+    AVR in real time looks like a silent board to it (the retry is an upload from the start,
+    pause included; any other failure is not retried)."""
+    done = upload()
+    lagged = any("behind real time" in line for line in sim.errors)
+    if done.returncode != 0 and lagged and "no bootloader answered" in done.stderr:
+        sys.stderr.write(f"the simulator lagged; upload again:\n{done.stderr}\n")
+        done = upload()
+    return done
 
 
 def _chatter(bridge: BridgeProcess) -> str:
@@ -112,6 +133,8 @@ def test_upload_then_the_sketch_reaches_the_graph(simulator: SimProcess, tmp_pat
         busy = _hwbridge("firmware", "upload", str(hex_file), "--port", port)
         assert busy.returncode == 1
         assert "busy" in busy.stderr and "hwbridge connect" in busy.stderr, busy.stderr
+        # (this upload runs on another graph than the bridge's: it cannot offer to pause it)
+        assert "no bridge on the graph this command reaches" in busy.stderr, busy.stderr
     finally:
         bridge.stop()
 
@@ -158,3 +181,166 @@ def test_replies_out_of_step_are_told_apart_from_silence(tmp_path: Path) -> None
     assert "out of step" in text and "expects OK byte 0x10 but got 0x04" in text, text
     upload.output = ["avrdude error: stk500_getsync() attempt 4 of 4: not in sync: resp=0x00"]
     assert upload.explain_failure(1).startswith("no bootloader answered"), upload.explain_failure(1)
+
+
+def _sketch(tmp_path: Path, name: str, topic: str, text: str) -> Path:
+    """HelloWorld copied to ``tmp_path/name``, publishing ``text`` on ``topic``."""
+    sketch = tmp_path / name
+    sketch.mkdir()
+    source = (HELLO / "HelloWorld.ino").read_text()
+    source = source.replace('chatter("chatter")', f'chatter("{topic}")')
+    source = source.replace('"hello world!"', f'"{text}"')
+    assert f'"{topic}"' in source and f'"{text}"' in source
+    (sketch / f"{name}.ino").write_text(source)
+    return sketch
+
+
+def _echo(bridge: BridgeProcess, topic: str) -> str:
+    done = bridge.cli("topic", "echo", topic, "-n", "1", "--timeout", "60", timeout=120)
+    assert done.returncode == 0, done.stderr + bridge.output()
+    return done.stdout
+
+
+def test_upload_pauses_the_bridge_that_holds_the_port(runner: Path, tmp_path: Path) -> None:
+    """A bridge runs sketch A from the simulated Uno's pty; an upload of sketch B through the same
+    pty pauses the bridge (asked on a terminal, or --pause-bridge), and the same bridge then
+    shows sketch B's topic."""
+    del runner
+    _needs("atmega328p")
+    sketch_a = _sketch(tmp_path, "SketchA", "chatter_a", "from sketch A")
+    sketch_b = _sketch(tmp_path, "SketchB", "chatter_b", "from sketch B")
+    sim = SimProcess(str(sketch_a))  # flashed with A, Optiboot in front
+    bridge: BridgeProcess | None = None
+    try:
+        port = sim.path
+        bridge = BridgeProcess(port, tmp_path, "upload_pause")
+        bridge.wait_ready()
+        assert "data: from sketch A" in _echo(bridge, "/chatter_a")
+
+        # not on a terminal, and no --pause-bridge: refused, naming the bridge and the flag
+        refused = subprocess.run(
+            [sys.executable, "-m", "hwbridge", "firmware", "upload", str(sketch_b),
+             "--port", port],
+            stdin=subprocess.DEVNULL,
+            env=bridge.env,
+            capture_output=True,
+            text=True,
+            timeout=300,
+            check=False,
+        )  # fmt: skip
+        assert refused.returncode == 1, refused.stderr
+        assert "busy: board " in refused.stderr and "--pause-bridge" in refused.stderr
+        assert "hwbridge -v connect" in refused.stderr, refused.stderr
+
+        # on a terminal the user is asked; "n" leaves the bridge alone
+        master, slave = os.openpty()
+        try:
+            os.write(master, b"n\n")
+            declined = subprocess.run(
+                [sys.executable, "-m", "hwbridge", "firmware", "upload", str(sketch_b),
+                 "--port", port],
+                stdin=slave,
+                env=bridge.env,
+                capture_output=True,
+                text=True,
+                timeout=300,
+                check=False,
+            )  # fmt: skip
+        finally:
+            os.close(slave)
+            os.close(master)
+        assert declined.returncode == 1, declined.stderr
+        assert "pause it for the upload? [y/N]" in declined.stderr, declined.stderr
+        assert "busy" in declined.stderr and "pause:" not in declined.stderr
+        assert "released" not in bridge.output()
+
+        done = _upload_on_a_busy_machine(
+            sim,
+            lambda: bridge.cli(
+                "firmware", "upload", str(sketch_b), "--port", port, "--pause-bridge", timeout=600
+            ),
+        )
+        assert done.returncode == 0, (
+            done.stderr + "\nbridge:\n" + bridge.output() + "\nsimulator:\n" + "\n".join(sim.errors)
+        )
+        for step in ("pause: asking board", "pause: the bridge released", "write: ", "verified",
+                     "resume: board"):  # fmt: skip
+            assert step in done.stderr, done.stderr
+        log = bridge.output()
+        assert "released " in log and "for an upload; holding off" in log, log
+        assert "resuming: reopening" in log, log
+        # the same bridge, the new firmware
+        assert "data: from sketch B" in _echo(bridge, "/chatter_b")
+        info = json.loads(bridge.cli("board", "info", "--json").stdout)
+        assert info["topics"]["publishes"] == ["/chatter_b"], info
+        assert bridge.process.poll() is None
+    finally:
+        if bridge is not None:
+            bridge.stop()
+        sim.stop()
+
+
+BOARDS_TXT = Path("/usr/share/arduino/hardware/arduino/avr/boards.txt")
+
+
+def _boards_txt() -> dict[str, str]:
+    if not BOARDS_TXT.is_file():
+        pytest.skip(f"no {BOARDS_TXT} (apt-get install arduino-core-avr)")
+    pairs = (line.split("=", 1) for line in BOARDS_TXT.read_text().splitlines() if "=" in line)
+    return {key.strip(): value.strip() for key, value in pairs if not key.startswith("#")}
+
+
+@pytest.mark.parametrize(
+    ("board", "prefix"), [("uno", "uno."), ("mega", "mega.menu.cpu.atmega2560.")]
+)
+def test_avrdude_arguments_match_arduinos_boards_txt(
+    board: str, prefix: str, tmp_path: Path
+) -> None:
+    """The programmer (-c), baud (-b) and part avrdude gets for each board are what Arduino's
+    boards.txt gives its upload (the Mega 2560: stk500v2 through avrdude's "wiring"); the flash
+    room checked before an upload is its maximum_size. avrdude's wiring programmer refuses
+    -x attempts=N (it exits at once), so only STK500 v1 gets it."""
+    from hwbridge.firmware import build
+
+    facts = _boards_txt()
+    build_mcu = facts.get(f"{prefix}build.mcu") or facts[f"{board}.build.mcu"]
+    command = Upload(tmp_path / "x.hex", tmp_path / "port", board).command("avrdude")
+    options = dict(zip(command[1::2], command[2::2], strict=False))
+    assert options["-c"] == facts[f"{prefix}upload.protocol"]
+    assert options["-b"] == facts[f"{prefix}upload.speed"]
+    assert options["-p"] == build_mcu
+    assert build.BOARDS[board].flash == int(facts[f"{prefix}upload.maximum_size"])
+    assert ("-x" in command) == (options["-c"] == "arduino")
+
+
+def test_mega_upload_through_the_stk500v2_bootloader(runner: Path, tmp_path: Path) -> None:
+    """The Mega path for real: the Mega 2560's stk500v2 bootloader (Debian's build) runs in the
+    simulated ATmega2560, avrdude's wiring programmer writes and verifies HelloWorld built for
+    the Mega through it, and the sketch then reaches the graph."""
+    del runner
+    _needs("atmega2560")
+    sim = SimProcess("--mcu", "atmega2560")
+    try:
+        port = sim.path
+        sketch = tmp_path / "HelloWorld"
+        shutil.copytree(HELLO, sketch, ignore=shutil.ignore_patterns("build"))
+        done = _upload_on_a_busy_machine(
+            sim,
+            lambda: _hwbridge("firmware", "upload", str(sketch), "--port", port, "--board", "mega"),
+        )
+        assert done.returncode == 0, done.stderr + "\nsimulator: " + "\n".join(sim.errors)
+        for step in ("built ", "reset: the bootloader answered", "write: ", "verify: ", "verified"):
+            assert step in done.stderr, done.stderr
+        assert str(sketch / "build" / "mega" / "HelloWorld.hex") in done.stderr
+        # The stk500v2 bootloader takes any byte within its first moments after a reset as the
+        # start of an upload, and each further byte keeps it waiting: the bridge lets the board
+        # speak first (--start-delay) rather than probe it at once.
+        bridge = BridgeProcess(port, tmp_path, "upload_mega", "--start-delay", "3")
+        try:
+            bridge.wait_ready()
+            assert "data: hello world!" in _chatter(bridge)
+        finally:
+            bridge.stop()
+        assert sim.process.poll() is None, sim.errors
+    finally:
+        sim.stop()

@@ -1,4 +1,6 @@
-"""The Uno's bootloader for the simulator: Optiboot from Debian's ``arduino-core-avr``.
+"""The boards' bootloaders for the simulator, from Debian's ``arduino-core-avr``: the Uno's
+Optiboot, and the Mega 2560's stk500v2 bootloader (:func:`stk500v2_hex`, used as Debian ships it:
+it lies in the Mega's 8 KiB boot section).
 
 :func:`optiboot_hex` gives the Intel HEX the runner loads at the top of the ATmega328P's flash
 (``hwbridge firmware sim --bootloader``). Debian's ``optiboot_atmega328.hex`` is used as it is
@@ -21,9 +23,22 @@ from typing import Final
 
 from hwbridge.errors import HwBridgeError
 
-__all__ = ["OPTIBOOT_DIR", "HexError", "optiboot_hex", "read_hex"]
+__all__ = [
+    "MEGA_BOOT_START",
+    "OPTIBOOT_DIR",
+    "STK500V2_HEX",
+    "HexError",
+    "bootloader_hex",
+    "optiboot_hex",
+    "read_hex",
+]
 
 OPTIBOOT_DIR: Final = Path("/usr/share/arduino/hardware/arduino/avr/bootloaders/optiboot")
+STK500V2_HEX: Final = OPTIBOOT_DIR.parent / "stk500v2" / "stk500boot_v2_mega2560.hex"
+"""The Mega 2560's bootloader (stk500v2, as boards.txt names it), Debian's build."""
+MEGA_BOOT_START: Final = 0x3E000
+"""Byte address of the Mega 2560's boot section: its fuses (high 0xD8) give it 4 K words."""
+MEGA_FLASH_END: Final = 0x40000  # ATmega2560: 256 KiB
 BOOT_START: Final = 0x7E00
 FLASH_END: Final = 0x8000  # ATmega328P: 32 KiB
 _SETTINGS: Final = (
@@ -164,3 +179,30 @@ def optiboot_hex(*, cache: Path | None = None) -> Path:
         raise HwBridgeError(f"Optiboot built from {source} does not fit 0x7E00..0x7FFF either")
     partial.replace(built)
     return built
+
+
+def stk500v2_hex() -> Path:
+    """The Mega 2560's stk500v2 bootloader from Debian's ``arduino-core-avr``, checked to lie in
+    the boot section (0x3E000..0x3FFFF)."""
+    if not STK500V2_HEX.is_file():
+        raise HwBridgeError(
+            f"no stk500v2 bootloader for the simulated Mega: {STK500V2_HEX} is missing "
+            "(apt-get install arduino-core-avr)"
+        )
+    memory = read_hex(STK500V2_HEX)
+    if min(memory) < MEGA_BOOT_START or max(memory) >= MEGA_FLASH_END:
+        raise HwBridgeError(
+            f"{STK500V2_HEX} does not lie in the Mega's boot section "
+            f"({MEGA_BOOT_START:#x}..{MEGA_FLASH_END - 1:#x})"
+        )
+    return STK500V2_HEX
+
+
+def bootloader_hex(mcu: str) -> Path:
+    """The bootloader ``hwbridge firmware sim --bootloader`` runs on ``mcu``: Optiboot on the
+    ATmega328P (Uno), stk500v2 on the ATmega2560 (Mega)."""
+    if mcu == "atmega328p":
+        return optiboot_hex()
+    if mcu == "atmega2560":
+        return stk500v2_hex()
+    raise HwBridgeError(f"--bootloader: no bootloader for {mcu} (atmega328p or atmega2560)")

@@ -5,8 +5,8 @@
  *   hwbridge-simavr --mcu atmega328p --freq 16000000 [--speed 1.0] [--report-us 5000] [--hold]
  *                   [--bootloader BOOT.hex] FIRMWARE.elf
  *
- * With --bootloader (an Intel HEX at the top of flash, Optiboot's 0x7E00) the CPU starts at the
- * bootloader, as the BOOTRST fuse makes it, and FIRMWARE (an ELF or an Intel HEX) is optional:
+ * With --bootloader (an Intel HEX at the top of flash: Optiboot's 0x7E00 on the ATmega328P, the
+ * stk500v2 bootloader's 0x3E000 on the ATmega2560) the CPU starts at the bootloader, as the BOOTRST fuse makes it, and FIRMWARE (an ELF or an Intel HEX) is optional:
  * the application already in flash. An open of the pty resets the AVR with EXTRF set in MCUSR,
  * as an Uno's auto-reset does when the host opens the port (DTR falls): a pty has no modem lines
  * avrdude could toggle, so the open is what the runner sees (inotify). Flash written by the
@@ -891,6 +891,15 @@ int main(int argc, char **argv) {
   close(saved);
   if (boot_mode) {
     start_open_watch(uart.port[0].slavename);
+    // simavr sleeps 1 us (a scheduler slice, really) at every read of UCSR0A while RXC and TXC
+    // are both clear. The Mega's stk500v2 bootloader clears TXC after each byte it sends and
+    // polls UCSR0A in its receive loop, so each poll cost tens of microseconds of wall time for
+    // a fraction of one of simulated time: the board fell minutes behind avrdude's timeouts.
+    // The runner paces the simulation to real time by itself (tick), so the sleep goes.
+    uint32_t flags = 0;
+    avr_ioctl(avr, AVR_IOCTL_UART_GET_FLAGS('0'), &flags);
+    flags &= ~(uint32_t)AVR_UART_FLAG_POLL_SLEEP;
+    avr_ioctl(avr, AVR_IOCTL_UART_SET_FLAGS('0'), &flags);
   }
   out_line("serial://%s\n", uart.port[0].slavename);
 

@@ -76,9 +76,9 @@ _SHORT_LINK = 2.0
 _MAX_RECONNECT_DELAY = 10.0
 _PROBE_FIRST = 0.1
 _PROBE_MAX = 1.0
+"""Seconds between probes of a silent board: the first gap, doubling up to the last."""
 MAX_PAUSE = 3600.0
 """Longest pause a board takes at once (an hour); an uploader renews a shorter one."""
-"""Seconds between probes of a silent board: the first gap, doubling up to the last."""
 
 T = TypeVar("T")
 

@@ -43,7 +43,8 @@ problem at once, each as ``FILE:LINE: what is wrong``, in file order, in one
   ``usb:VID:PID[:SERIAL]`` and ``auto`` name a USB board, resolved to its port by ``hwbridge up``,
   see :mod:`hwbridge.links.discovery`); ``protocol``
   (default ``auto``), ``namespace`` (default ``/``, a graph name), ``baud`` (a whole number above
-  0), ``service_timeout`` (default 5 s), ``start_delay`` (default 0 s), ``devices`` (a list),
+  0), ``service_timeout`` (default 5 s), ``start_delay`` (default 0 s; 2 s with ``mcu: mega``),
+  ``devices`` (a list),
   ``mcu`` (``uno``, ``nano`` or ``mega``, :mod:`hwbridge.firmware.boards`): when given, every
   device's wiring (:meth:`~hwbridge.robot.plugin.DevicePlugin.wiring`: its pins, I2C address,
   UART) is checked against that board's pins by :mod:`hwbridge.robot.wiring`, each problem at
@@ -501,6 +502,9 @@ def _board(entry: yaml.Node, index: int, problems: _Problems) -> RobotBoardConfi
     link = _checked(items, "link", lambda url: _check_link(url, baud), what, problems, None)
     if "link" not in items:
         problems.at(entry, f"{what}: missing 'link' (e.g. /dev/ttyACM0 or socket://HOST:PORT)")
+    mcu = _checked(items, "mcu", _check_mcu, what, problems, None)
+    # A Mega's stk500v2 bootloader stays in charge while bytes keep coming: the sketch speaks first.
+    delay = 2.0 if mcu == "mega" else 0.0
     board = RobotBoardConfig(
         name=name or "",
         link=link or "",
@@ -508,13 +512,13 @@ def _board(entry: yaml.Node, index: int, problems: _Problems) -> RobotBoardConfi
         namespace=_checked(items, "namespace", _check_namespace, what, problems, "/"),
         baud=baud,
         service_timeout=_checked(items, "service_timeout", _check_timeout, what, problems, 5.0),
-        start_delay=_checked(items, "start_delay", _check_seconds, what, problems, 0.0),
+        start_delay=_checked(items, "start_delay", _check_seconds, what, problems, delay),
         devices=_devices(items["devices"][1], name or str(index + 1), problems)
         if "devices" in items
         else (),
         source=problems.where(entry),
         baud_source=problems.where(items["baud"][0]) if "baud" in items else "",
-        mcu=_checked(items, "mcu", _check_mcu, what, problems, None),
+        mcu=mcu,
         mcu_line=items["mcu"][1].start_mark.line + 1 if "mcu" in items else 0,
     )
     return board if name and link else None

@@ -546,3 +546,22 @@ def test_robot_check_exit_status(tmp_path: Path, args: list[str], status: int, s
     assert "Traceback" not in done.stderr
     if status == 0:
         assert done.stdout == "good.yaml: robot r: 1 board (b: 0 devices), 0 host devices\n"
+
+
+@pytest.mark.parametrize(
+    ("extra", "delay"),
+    [
+        ("", 0.0),
+        ("    mcu: uno\n", 0.0),
+        ("    mcu: mega\n", 2.0),
+        ("    mcu: mega\n    start_delay: 0\n", 0.0),
+    ],
+)
+def test_a_mega_board_waits_before_probing_unless_the_file_says(
+    tmp_path: Path, extra: str, delay: float
+) -> None:
+    """A Mega's stk500v2 bootloader keeps the board while bytes come in after a reset, so a
+    board with ``mcu: mega`` lets the sketch speak first (2 s) unless ``start_delay`` is given."""
+    text = "robot: r\nboards:\n  - name: base\n    link: pty://\n" + extra
+    (board,) = load_robot(write(tmp_path, text)).boards
+    assert board.start_delay == delay

@@ -430,6 +430,67 @@ int reliable_frames(const Bytes& out) {
   return n;
 }
 
+/** A service request that arrives while the board's transmit buffer holds a message waiting
+ * for the reliable window (window 1: a frame in flight, the next message behind it) has no room
+ * for its answer: the board takes it back unacknowledged (the ACK it writes covers only the
+ * frames before it) and answers it when the host sends it again, once the window moved on. It
+ * is never acknowledged and then dropped (the host would learn only at its call timeout). */
+void busy_tx_request() {
+  StepBoard b;
+  harness::Node& node = b.node;
+  harness::FakeHardware& hw = b.hw();
+  Host& host = b.host;
+  const uint8_t text[] = {1, 0, 0, 0, 'a'};
+  harness::Raw m;
+  m.p = text;
+  m.n = sizeof(text);
+  CHECK(b.rel.publish(m), "first reliable publish refused");
+  std::vector<std::pair<hwbridge::Frame, Bytes> > fr = harness::frames_of(hw.take());
+  CHECK(fr.size() == 1 && fr[0].first.type == FrameType::Reliable, "first publish: %zu frames", fr.size());
+  const uint8_t first = fr[0].first.seq;
+  CHECK(b.rel.publish(m), "second reliable publish refused (it waits behind the first)");
+  CHECK(hw.take().empty() && !node.txReady(), "the second message did not wait for the window");
+
+  const uint8_t req_seq = host.rel_seq;
+  const Bytes request = host.rel(0, Bytes{0x20, 2, 7, 0});  // SERVICE_REQUEST /reset, id 7
+  const hwbridge::Counter refused = node.stats().tx_refused;
+  hw.feed(request);
+  node.spinOnce();
+  fr = harness::frames_of(hw.take());
+  for (size_t i = 0; i < fr.size(); ++i) {
+    CHECK(fr[i].first.type != FrameType::Reliable, "the board sent a reliable frame with its window full");
+    CHECK(fr[i].first.type != FrameType::Ack || fr[i].first.seq != req_seq,
+          "the board acknowledged a request it had no room to answer");
+  }
+  CHECK(node.stats().tx_refused == refused, "the request was counted as refused: %u", node.stats().tx_refused);
+
+  // the host acknowledges the first message: the second goes out, then is acknowledged
+  hw.feed(host.ack(first));
+  node.spinOnce();
+  fr = harness::frames_of(hw.take());
+  CHECK(fr.size() == 1 && fr[0].first.type == FrameType::Reliable && fr[0].second == Bytes(text, text + 5),
+        "the waiting message did not follow the ACK");
+  hw.feed(host.ack(fr[0].first.seq));
+  node.spinOnce();
+  hw.take();
+
+  // the host's retransmission (same frame, same seq) is answered
+  hw.clock += 300000;
+  hw.feed(request);
+  node.spinOnce();
+  fr = harness::frames_of(hw.take());
+  bool acked = false;
+  bool answered = false;
+  for (size_t i = 0; i < fr.size(); ++i) {
+    acked = acked || (fr[i].first.type == FrameType::Ack && fr[i].first.seq == req_seq);
+    answered = answered || (fr[i].first.type == FrameType::Reliable &&
+                            fr[i].second == (Bytes{0x21, 2, 7, 0, 0, 1, 2, 0, 0, 0, 'o', 'k'}));
+  }
+  CHECK(acked && answered, "the repeated request was not acknowledged and answered: %zu frames", fr.size());
+  CHECK(node.connected() && node.stats().tx_refused == refused, "session lost or request refused");
+  printf("busy transmit buffer: a service request is taken back unacknowledged and answered when repeated\n");
+}
+
 /** Time sync (2.8): of its last 4 answers the board follows the newest whose round trip is
  * within 25 % (or 0.1 ms) of the shortest kept; a new session forgets them. */
 void time_samples() {
@@ -621,6 +682,7 @@ int main() {
   service_client();
   early_frames();
   tx_ready();
+  busy_tx_request();
   small_mtu_host();
   time_samples();
   send_times();

@@ -238,6 +238,9 @@ void single_frame_receiver_run(uint64_t seed) {
             static_cast<int>(b), static_cast<int>(a), step);
       Frame pa, pb;
       CHECK(ref.pop(&pa) == rx.pop(&pb), "single-frame receiver: pop differs (step %d)", step);
+      if (a == Received::Deliver && rng.chance(20)) {  // taken back: expected again
+        CHECK(ref.refuse() && rx.refuse(), "single-frame receiver: refuse refused (step %d)", step);
+      }
     } else if (op < 80) {
       const bool lead = rng.chance(50);
       check::VecSink wa, wb;
@@ -267,6 +270,59 @@ void single_frame_receiver_run(uint64_t seed) {
          static_cast<unsigned>(rx.stats().frames_received));
 }
 
+/**
+ * refuse(): a frame receive() delivered is taken back (expected again, the ACK stops before it,
+ * the same frame is delivered when it comes again); a frame released by pop() is not (the peer
+ * may know it as held from a bitmap and would never send it again).
+ */
+void refuse_run() {
+  ReliableReceiver<4, 8, 3> rx(10);
+  uint8_t payload[1] = {0};
+  Frame f;
+  f.type = FrameType::Reliable;
+  f.frag = Frag::Whole;
+  f.channel = 0;
+  f.payload = payload;
+  f.size = 1;
+  f.seq = 10;
+  CHECK(rx.receive(f) == Received::Deliver && rx.refuse() && rx.expected() == 10, "refuse of a delivered frame");
+  uint8_t bitmap[kMaxSackBytes];
+  size_t n = 0;
+  CHECK(rx.make_ack(bitmap, &n) == 9 && n == 0, "the ACK after a refusal covers the refused frame");
+  CHECK(rx.receive(f) == Received::Deliver && rx.expected() == 11, "the repeated frame is not delivered again");
+  f.seq = 12;
+  CHECK(rx.receive(f) == Received::Held, "frame 12 not held");
+  f.seq = 11;
+  CHECK(rx.receive(f) == Received::Deliver, "frame 11 not delivered");
+  Frame h;
+  CHECK(rx.pop(&h) && h.seq == 12 && !rx.refuse() && rx.expected() == 13, "a popped frame was taken back");
+  SingleFrameReceiver<8> one(5);
+  f.seq = 5;
+  CHECK(one.receive(f) == Received::Deliver && one.refuse() && one.expected() == 5 &&
+            one.receive(f) == Received::Deliver && one.expected() == 6,
+        "single-frame refuse");
+  // reassembly: a WHOLE message is forgotten (its repeat is taken again, not dropped as a
+  // duplicate); one of fragments cannot be taken back
+  Reassembler<32> re;
+  Message m;
+  f.seq = 20;
+  CHECK(re.feed(f, &m) && re.unfeed() && re.feed(f, &m), "a WHOLE message not taken again after unfeed");
+  CHECK(!re.feed(f, &m) && re.stats().duplicates == 1, "a repeat without unfeed was not a duplicate");
+  const uint8_t first[6] = {3, 0, 0, 0, 'a', 'b'};
+  const uint8_t last[1] = {'c'};
+  f.frag = Frag::First;
+  f.seq = 21;
+  f.payload = first;
+  f.size = sizeof first;
+  CHECK(!re.feed(f, &m), "a FIRST completed a message");
+  f.frag = Frag::Last;
+  f.seq = 22;
+  f.payload = last;
+  f.size = 1;
+  CHECK(re.feed(f, &m) && m.size == 3 && !re.unfeed(), "a message of fragments was taken back");
+  printf("refuse: a delivered frame is expected again, a popped one is not taken back\n");
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -284,6 +340,7 @@ int main(int argc, char** argv) {
   reliable_run<4, 3, 32, 128>("harsh window 4", seed + 4, 200, 30, 10, 5, 40);
   best_effort_run(seed + 5);
   single_frame_receiver_run(seed + 7);
+  refuse_run();
   printf("ok: %lu checks\n", check::count());
   return 0;
 }

@@ -30,6 +30,7 @@ typedef Counter TrafficCounter;
  * refused or rejected is a real Counter always. */
 struct NullCounter {
   NullCounter& operator++() { return *this; }
+  NullCounter& operator--() { return *this; }
   NullCounter operator++(int) { return *this; }
   NullCounter& operator=(int) { return *this; }
   operator uint8_t() const { return 0; }

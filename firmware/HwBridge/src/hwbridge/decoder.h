@@ -76,6 +76,16 @@ struct TextCount<false> {
   void clear() {}
 };
 
+/** The type of a count up to N + 1: one byte when it fits (an 8-bit board's registers). */
+template <bool Small>
+struct RunIndex {
+  typedef uint8_t type;
+};
+template <>
+struct RunIndex<false> {
+  typedef size_t type;
+};
+
 }  // namespace detail
 
 /**
@@ -99,6 +109,8 @@ template <size_t MaxPayload, bool DetectText = true>
 class FrameDecoder {
  public:
   static const size_t kCapacity = max_frame(MaxPayload);
+  /** The type of the run's counts (kOverflow included): a byte when they fit in one. */
+  typedef typename detail::RunIndex<(kCapacity < 255)>::type Index;
 
   /** Every member zero (no slack: the full MTU): a global decoder is in .bss, with
    * no constructor code. */
@@ -121,7 +133,7 @@ class FrameDecoder {
     if (byte != 0) {
       text_.add(byte);
       if (run_ + run_slack() >= kCapacity) {  // the run outgrew max_frame
-        run_ = kOverflow;  // above any limit: stays so until the delimiter
+        run_ = static_cast<Index>(kOverflow);  // above any limit: stays so until the delimiter
       } else {
         ++run_;
         bool keep = true;
@@ -214,8 +226,8 @@ class FrameDecoder {
 
   Frame frame_;
   DecoderStats stats_;
-  size_t run_;    // encoded bytes of the run taken (at most the limit), or kOverflow
-  size_t len_;    // decoded bytes in buf_
+  Index run_;     // encoded bytes of the run taken (at most the limit), or kOverflow
+  Index len_;     // decoded bytes in buf_
   size_t slack_;  // MaxPayload - the payload MTU
   detail::TextCount<DetectText> text_;
   uint8_t group_;  // data bytes the current COBS group still expects

@@ -168,6 +168,19 @@ class Reassembler {
   const ReassemblyStats& stats() const { return stats_; }
   static size_t capacity() { return MaxMessage; }
 
+  /**
+   * Forgets the reliable message feed() returned last when it was one WHOLE frame, so that the
+   * same frame is taken again when its sender repeats it (the node took it back from the
+   * reliable receiver: it could not be handled now). False for a message of fragments, which
+   * cannot be taken back (its earlier frames were acknowledged already).
+   */
+  bool unfeed() {
+    Space& sp = spaces_[static_cast<uint8_t>(FrameType::Reliable)];
+    if (!sp.has_last || sp.last_frag != Frag::Whole) return false;
+    sp.has_last = false;
+    return true;
+  }
+
   /** Consumes one frame; true with *out when it completes a message. ACK frames are ignored. */
   bool feed(const Frame& f, Message* out) {
     if (f.type == FrameType::Ack) return false;
@@ -329,6 +342,8 @@ class Reassembler<0> {
   size_t buffered() const { return 0; }
   const ReassemblyStats& stats() const { return stats_; }
   static size_t capacity() { return 0; }
+  /** Every message here is one WHOLE frame, and no repeat is remembered: nothing to forget. */
+  bool unfeed() { return true; }
   bool feed(const Frame& f, Message* out) {
     if (f.type == FrameType::Ack) return false;
     if (f.frag != Frag::Whole) {

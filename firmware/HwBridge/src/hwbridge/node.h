@@ -150,7 +150,8 @@ struct NodeStats {
   Counter mismatches;        ///< TOPIC_ACK MISMATCH (the host expects another type or md5)
   Counter refused_entries;   ///< TOPIC_ACK INVALID
   Counter dropped_messages;  ///< data on unknown, refused, wrong-direction channels, or too large
-  Counter tx_refused;        ///< sends refused (not connected, window full, too large)
+  Counter tx_refused;        ///< sends refused (not connected, window full, too large), and service
+                             ///< requests that could not be answered (PROTOCOL.md 2.8)
   Counter ignored_frames;    ///< frames outside a session
   TrafficCounter hellos_sent;
   TrafficCounter heartbeats_sent;

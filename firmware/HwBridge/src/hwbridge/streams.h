@@ -575,7 +575,7 @@ class ReliableReceiver {
  public:
   constexpr explicit ReliableReceiver(uint8_t isn = 0)
       : held_(), stats_(), expected_(isn), window_(0), ack_every_(0), unacked_(0),
-        ack_needed_(false), ack_urgent_(false) {}
+        ack_needed_(false), ack_urgent_(false), popped_(false) {}
 
   /** A new session: expects the peer's isn first; window is the negotiated one (<= Window). */
   void reset(uint8_t isn, uint8_t window = static_cast<uint8_t>(Window)) {
@@ -593,6 +593,7 @@ class ReliableReceiver {
   /** Takes one RELIABLE frame. On Deliver, expected() has moved past it. */
   __attribute__((noinline)) Received receive(const Frame& f) {
     ack_needed_ = true;
+    popped_ = false;
     const uint8_t ahead = seq_diff(f.seq, expected_);
     if (ahead >= kSeqHalf || find(f.seq) >= 0) {
       ++stats_.duplicates;
@@ -638,6 +639,7 @@ class ReliableReceiver {
     if (i < 0) return false;
     Slot& s = held_[i];
     s.used = false;
+    popped_ = true;
     out->type = FrameType::Reliable;
     out->frag = s.frag;
     out->channel = s.channel;
@@ -649,6 +651,18 @@ class ReliableReceiver {
   }
 
   uint8_t expected() const { return expected_; }
+  /**
+   * Takes back the frame receive() delivered last, whose message cannot be handled now: it is
+   * expected again, the ACK that goes out does not cover it, and the peer sends it again after
+   * its RTO. False when the frame came from pop() instead (a held frame, which the peer may
+   * already know as received from a bitmap, and would never resend).
+   */
+  bool refuse() {
+    if (popped_) return false;
+    expected_ = static_cast<uint8_t>(expected_ - 1);
+    --stats_.frames_received;
+    return true;
+  }
   /** An ACK is due (every reliable frame received asks for one). */
   bool ack_needed() const { return ack_needed_; }
   /** The due ACK must not be held back (2.4, delayed ACKs). */
@@ -723,6 +737,7 @@ class ReliableReceiver {
   uint8_t unacked_;
   bool ack_needed_;
   bool ack_urgent_;
+  bool popped_;  // the frame delivered last came from pop()
 };
 
 /**
@@ -765,6 +780,13 @@ class SingleFrameReceiver {
   bool pop(Frame*) { return false; }
 
   uint8_t expected() const { return expected_; }
+  /** Takes back the frame receive() delivered last (ReliableReceiver::refuse; every frame
+   * delivered here came from receive()). */
+  bool refuse() {
+    --expected_;
+    --stats_.frames_received;
+    return true;
+  }
   /** An ACK is due (every reliable frame received asks for one). */
   bool ack_needed() const { return ack_needed_; }
   /** At window 1 every due ACK is urgent. */

@@ -152,9 +152,15 @@ HWB_NODE void HWB_SELF::onControl(const uint8_t* p, size_t n, bool reliable) {
       time_.schedule(tick_, 0);  // the first time request right after CONNECTED
       break;
     case board::ServiceRequest::kOpcode:
-      if (on_request_) {
+      if (!txFree()) {
+        // No room for the answer now (a message waits for the reliable window): the request is
+        // taken back unacknowledged, and the host sends it again after its RTO. Only a request
+        // of fragments (a board with reassembly) or one released from the held frames cannot
+        // be: counted, and the host's call times out.
+        if (!(reasm_.unfeed() && rel_rx_.refuse())) ++stats_.tx_refused;
+      } else if (on_request_) {
         on_request_(this, p, n);
-      } else if (txFree()) {  // this board serves nothing: NO_SERVICE
+      } else {  // this board serves nothing: NO_SERVICE
         board::ServiceResponse::put(tx_, board::ServiceRequest::channel(p), board::ServiceRequest::request_id(p),
                                     control::ServiceStatus::NO_SERVICE);
         pending_ch_ = kControlChannel;

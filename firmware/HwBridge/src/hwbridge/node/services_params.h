@@ -12,7 +12,7 @@
 HWB_NODE void HWB_SELF::onServiceRequest(const uint8_t* p, size_t n) {
   const uint8_t channel = board::ServiceRequest::channel(p);
   const uint16_t id = board::ServiceRequest::request_id(p);
-  if (!txFree() || peer_max_ < 5) {  // no room to answer (now, or ever): the host's call times out
+  if (peer_max_ < 5) {  // no room to answer, ever (onControl took back a request while tx_ is busy): the host's call times out
     ++stats_.tx_refused;
     return;
   }

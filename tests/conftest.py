@@ -5,9 +5,16 @@ from __future__ import annotations
 from collections.abc import Iterator
 
 import pytest
+from hypothesis import settings
 
 from hwbridge.graph import Graph
 from tests.netutil import free_port
+
+# No per-example deadline anywhere: a busy machine stretches one example's wall time many times
+# over (671 ms against the default 200 ms at load 30), which says nothing about the code. A test's
+# own @settings keeps what it sets and takes the rest from this profile.
+settings.register_profile("hwbridge", deadline=None)
+settings.load_profile("hwbridge")
 
 
 @pytest.fixture(scope="module")

@@ -181,12 +181,12 @@ class CanHardware {
         chain_.cancel();
         ++stats.chain_breaks;
       }
-      if (host_chains_ && chain_.begin(node_, h, datagram + 3, n - 5)) {
+      const uint32_t id = encode_id2(priority_of(h.kind, h.channel), h.kind, h.channel, kHostNode,
+                                     node_, h.seq, h.frag);
+      if (host_chains_ && chain_.begin(id, h, datagram + 3, n - 5)) {
         ++stats.tx_chains;
         return takeChain(datagram + 7, n - 9);
       }
-      const uint32_t id = encode_id2(priority_of(h.kind, h.channel), h.kind, h.channel, kHostNode,
-                                     node_, h.seq, h.frag);
       return sendFrames(id, queue_class(h.kind), datagram + 3, n - 5, h.seq);
     }
     uint8_t kind;

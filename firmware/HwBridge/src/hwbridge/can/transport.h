@@ -241,8 +241,8 @@ bool send_transfer(uint32_t id, const uint8_t* payload, size_t n, uint8_t tid, u
 class ChainSender {
  public:
   constexpr ChainSender()
-      : id_(0), left_(0), size_(0), crc_(0), used_(0), toggle_(0), tid_(0), next_seq_(0),
-        channel_(0), first_(false), active_(false), buf_() {}
+      : frame_(), left_(0), size_(0), crc_(0), toggle_(0), tid_(0), next_seq_(0), channel_(0),
+        first_(false), active_(false) {}
 
   bool active() const { return active_; }
   void cancel() { active_ = false; }
@@ -255,25 +255,24 @@ class ChainSender {
     return h.frag == 2 ? n == size_ && left_ > size_ : h.frag == 3 && n == left_ && n <= size_;
   }
 
-  /** Starts a chain from node to the host with a FIRST fragment (header h, payload p of n
-   * bytes: the length and the first chunk); false, nothing started, when it is not one a chain
-   * can carry. Then take() its chunk, p + 4. */
-  bool begin(uint8_t node, const NativeHeader& h, const uint8_t* p, size_t n) {
-    if (h.kind != kBestEffort || h.frag != 1 || n < kChainMinSize || (n & (n - 1)) != 0) {
+  /** Starts a chain with a FIRST fragment (header h, format-2 id id, payload p of n bytes: the
+   * length and the first chunk); false, nothing started, when it is not one a chain can carry.
+   * Then take() its chunk, p + 4. */
+  bool begin(uint32_t id, const NativeHeader& h, const uint8_t* p, size_t n) {
+    if (h.kind != kBestEffort || h.frag != 1 || p[2] != 0 || p[3] != 0) return false;
+    uint8_t code = 0;
+    while ((static_cast<size_t>(kChainMinSize) << code) < n && code < 7) ++code;
+    const size_t total = static_cast<size_t>(p[0] | p[1] << 8);
+    if ((static_cast<size_t>(kChainMinSize) << code) != n || total <= n - 4 || total > kChainMax) {
       return false;
     }
-    const uint32_t total = wire::get32(p);
-    if (total <= n - 4 || total > kChainMax) return false;
-    uint8_t code = 0;
-    while ((static_cast<size_t>(kChainMinSize) << code) < n) ++code;
-    if (code > 7) return false;
-    id_ = encode_id2(priority_of(kBestEffort, h.channel), kBestEffort, h.channel, kHostNode,
-                     node, h.seq, 0) |
-          (static_cast<uint32_t>(code) << 8) | kChainBit;
+    // the fragment's id (frag FIRST in bits 10..9) with the chain bit and the size code
+    frame_.id = (id & ~(3UL << 9)) | (static_cast<uint32_t>(code) << 8) | kChainBit;
+    frame_.extended = true;
+    frame_.len = 0;
     left_ = static_cast<uint16_t>(total);
     size_ = static_cast<uint16_t>(n);
-    crc_ = 0xFFFF;
-    used_ = 0;
+    crc_ = hwbridge::kCrcInit;
     toggle_ = kToggle;
     tid_ = static_cast<uint8_t>(h.seq & kTidMask);
     next_seq_ = h.seq;
@@ -291,56 +290,46 @@ class ChainSender {
   bool take(const uint8_t* d, size_t n, Sink& sink) {
     ++next_seq_;
     left_ = static_cast<uint16_t>(left_ - n);
-    for (size_t i = 0; i < n; ++i) {
-      crc_ = crc16_update(crc_, d[i]);
-      if (!push(d[i], sink)) return false;
-    }
+    crc_ = hwbridge::crc16(d, n, crc_);
+    if (!put(d, n, sink)) return false;
     if (left_ != 0) return true;
-    const uint16_t crc = crc_;
-    if (!push(static_cast<uint8_t>(crc >> 8), sink) || !push(static_cast<uint8_t>(crc), sink)) {
-      return false;
-    }
+    const uint8_t crc[2] = {static_cast<uint8_t>(crc_ >> 8), static_cast<uint8_t>(crc_)};
     active_ = false;
-    return emit(kEnd, sink);
+    return put(crc, 2, sink) && emit(kEnd, sink);
   }
 
  private:
+  // frame_.len counts the bytes waiting in frame_.data (the tail byte goes in at emit)
   template <class Sink>
-  bool push(uint8_t b, Sink& sink) {
-    if (used_ == kClassicMtu - 1 && !emit(0, sink)) return false;
-    buf_[used_++] = b;
+  bool put(const uint8_t* d, size_t n, Sink& sink) {
+    for (size_t i = 0; i < n; ++i) {
+      if (frame_.len == kClassicMtu - 1 && !emit(0, sink)) return false;
+      frame_.data[frame_.len++] = d[i];
+    }
     return true;
   }
   template <class Sink>
   bool emit(uint8_t end, Sink& sink) {
-    Frame f;
-    f.id = id_;
-    f.extended = true;
-    memcpy(f.data, buf_, used_);
-    f.data[used_] = static_cast<uint8_t>((first_ ? kStart : 0) | end | toggle_ | tid_);
-    f.len = static_cast<uint8_t>(used_ + 1);
-    used_ = 0;
+    frame_.data[frame_.len] = static_cast<uint8_t>((first_ ? kStart : 0) | end | toggle_ | tid_);
+    ++frame_.len;
+    const bool ok = sink(static_cast<const Frame&>(frame_));
+    frame_.len = 0;
     first_ = false;
     toggle_ ^= kToggle;
-    if (!sink(f)) {
-      active_ = false;
-      return false;
-    }
-    return true;
+    if (!ok) active_ = false;
+    return ok;
   }
 
-  uint32_t id_;
+  Frame frame_;    // the id, and the bytes waiting for the next frame
   uint16_t left_;  // message bytes still to come
   uint16_t size_;  // fragment size
   uint16_t crc_;
-  uint8_t used_;
   uint8_t toggle_;
   uint8_t tid_;
   uint8_t next_seq_;
   uint8_t channel_;
   bool first_;
   bool active_;
-  uint8_t buf_[kClassicMtu - 1];
 };
 
 /**

@@ -561,7 +561,14 @@ class CanLink(Link):
 
     def _key(self) -> tuple[Any, ...]:
         if self._given_bus is not None:
-            return ("bus", id(self._given_bus), self.local, self.fd, self.can_format, self.can_chain)
+            return (
+                "bus",
+                id(self._given_bus),
+                self.local,
+                self.fd,
+                self.can_format,
+                self.can_chain,
+            )
         return (
             self.interface,
             self.channel,

@@ -395,10 +395,23 @@ def split_transfer(payload: bytes | bytearray | memoryview, tid: int, mtu: int) 
 class _ChainTx:
     """A chain being sent (CAN.md §12): the fragments taken so far, streamed into frames."""
 
-    __slots__ = ("can_id", "channel", "crc", "index", "lengths", "left", "next_seq", "pending")
-    __slots__ += ("size", "tid", "toggle")
+    __slots__ = (
+        "can_id",
+        "channel",
+        "crc",
+        "index",
+        "left",
+        "lengths",
+        "next_seq",
+        "pending",
+        "size",
+        "tid",
+        "toggle",
+    )
 
-    def __init__(self, can_id: int, seq: int, channel: int, size: int, total: int, mtu: int):
+    def __init__(
+        self, can_id: int, seq: int, channel: int, size: int, total: int, mtu: int
+    ) -> None:
         self.can_id = can_id
         self.tid = seq & _TID_MASK
         self.next_seq = (seq + 1) & 0xFF
@@ -518,7 +531,12 @@ class TransferEncoder:
             self.chain_breaks += 1
         if priority is None:
             priority = priority_of(kind, channel)
-        if chain and kind is Kind.BEST_EFFORT and frag == 1 and chain_size_code(len(payload)) is not None:
+        if (
+            chain
+            and kind is Kind.BEST_EFFORT
+            and frag == 1
+            and chain_size_code(len(payload)) is not None
+        ):
             total = int.from_bytes(payload[:_LENGTH_PREFIX], "little")
             if len(payload) - _LENGTH_PREFIX < total <= CHAIN_MAX:
                 can_id = encode_chain_id(
@@ -528,9 +546,7 @@ class TransferEncoder:
                 self._chains[destination] = going
                 self.chains += 1
                 return [(can_id, frame) for frame in going.take(payload[_LENGTH_PREFIX:])]
-        can_id = encode_id2(
-            priority, kind, channel, destination, self.source, seq, frag
-        )
+        can_id = encode_id2(priority, kind, channel, destination, self.source, seq, frag)
         frames = split_transfer(payload, seq & _TID_MASK, self.mtu)
         return [(can_id, frame) for frame in frames]
 

@@ -69,7 +69,11 @@ def test_id_vectors(vector: dict) -> None:
         fields["channel"],
     )
     assert (decoded.destination, decoded.source) == (fields["destination"], fields["source"])
-    assert (decoded.seq_high, decoded.frag, decoded.chain) == (fields["seq"] >> 5, 1, fields["size"])
+    assert (decoded.seq_high, decoded.frag, decoded.chain) == (
+        fields["seq"] >> 5,
+        1,
+        fields["size"],
+    )
     assert decoded.encode() == can_id
 
 
@@ -127,10 +131,7 @@ def test_chains_need_a_peer_that_takes_them_and_sizes_that_code() -> None:
         (FrameType.RELIABLE, 64, 200),
         (FrameType.BEST_EFFORT, 64, CHAIN_MAX + 1),
     ):
-        datagrams = [
-            encode_datagram(f)
-            for f in fragment(frame_type, 1, 0, bytes(length), size)  # noqa: B023
-        ]
+        datagrams = [encode_datagram(f) for f in fragment(frame_type, 1, 0, bytes(length), size)]
         frames = [f for d in datagrams for f in encoder.datagram(d, 0, chain=True)]
         assert len(frames) == sum(len(frame_lengths(len(d) - 5, CLASSIC_MTU)) for d in datagrams)
         assert all(not decode_id(i).chain for i, _ in frames)  # type: ignore[union-attr]
@@ -255,7 +256,8 @@ def test_interleaved_nodes_with_faults(
         queue = rng.choice([q for q in queues if q])
         bus.append(queue.pop(0))
     damaged: list[tuple[int, bytes]] = []
-    for can_id, data in bus:
+    for can_id, sent_data in bus:
+        data = sent_data
         roll = rng.random()
         if fault == "loss" and roll < 0.2:
             continue

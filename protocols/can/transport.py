@@ -489,9 +489,9 @@ class TransferEncoder:
 
         ``chain`` (format 2, CAN.md §12): a best-effort FIRST fragment of a power-of-two size
         begins a chained transfer, and its MIDDLE and LAST fragments, given next, continue it:
-        each returns the frames it completes (possibly none). A chain in progress that the
-        datagram does not continue is broken off (``chain_breaks``) and the datagram sent as
-        usual."""
+        each returns the frames it completes (possibly none). A best-effort datagram that does
+        not continue the chain in progress to its destination breaks it off (``chain_breaks``)
+        and is sent as usual; reliable and ACK datagrams go beside it."""
         if format == FORMAT_1:
             kind, channel = kind_of(datagram)
             if priority is None:
@@ -513,10 +513,9 @@ class TransferEncoder:
         frag = (flags >> 2) & 3
         payload = data[3:-2]
         going = self._chains.get(destination)
-        if going is not None:
+        if going is not None and kind is Kind.BEST_EFFORT:  # other streams go on beside it
             if (
-                kind is Kind.BEST_EFFORT
-                and frag in (2, 3)
+                frag in (2, 3)
                 and channel == going.channel
                 and seq == going.next_seq
                 and len(payload) == (going.size if frag == 2 else going.left)

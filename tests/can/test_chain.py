@@ -28,6 +28,7 @@ from hwbridge.protocols.can.transport import (
     TransferDecoder,
     TransferEncoder,
     chain_size_code,
+    crc16,
     decode_id,
     encode_chain_id,
     frame_lengths,
@@ -136,6 +137,25 @@ def test_chains_need_a_peer_that_takes_them_and_sizes_that_code() -> None:
         assert len(frames) == sum(len(frame_lengths(len(d) - 5, CLASSIC_MTU)) for d in datagrams)
         assert all(not decode_id(i).chain for i, _ in frames)  # type: ignore[union-attr]
     assert encoder.chains == 0
+
+
+def test_reliable_and_ack_datagrams_go_beside_a_chain() -> None:
+    """An ACK and a reliable datagram written between two fragments are their own transfers on
+    other ids: the chain goes on, and the receiver gets all of it."""
+    encoder = TransferEncoder(5)
+    decoder = TransferDecoder(0)
+    chain = [encode_datagram(f) for f in fragment(FrameType.BEST_EFFORT, 1, 40, bytes(150), 64)]
+    ack_body = bytes((0x60, 0, 3, 7, 0))  # an ACK datagram's header and payload
+    ack = ack_body + crc16(ack_body).to_bytes(2, "little")
+    reliable = encode_datagram(fragment(FrameType.RELIABLE, 2, 9, b"abc", 64)[0])
+    got: list[bytes] = []
+    for d in [chain[0], ack, chain[1], reliable, chain[2]]:
+        for can_id, data in encoder.datagram(d, 0, chain=True):
+            transfer = decoder.feed(can_id, data, 0.0)
+            if transfer is not None:
+                got.extend(transfer.datagrams)
+    assert got == [ack, reliable, *chain]
+    assert encoder.chains == 1 and encoder.chain_breaks == 0 and decoder.stats.dropped == 0
 
 
 def test_a_broken_chain_is_dropped_and_the_next_message_goes() -> None:

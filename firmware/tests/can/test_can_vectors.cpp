@@ -415,9 +415,19 @@ void hardware_chains() {
   CHECK(hw.stats.tx_errors == 1, "refused: %lu", static_cast<unsigned long>(hw.stats.tx_errors));
   d.sent.clear();
   const std::vector<Bytes> fourth = fragments(1, 0x26, 320, 64);
-  for (size_t i = 0; i < fourth.size(); ++i) write_datagram(hw, fourth[i]);
-  CHECK(d.sent.size() == 46 && (d.sent[0].id & kChainBit) != 0, "chains again: %zu",
-        d.sent.size());
+  Bytes rel = from_hex("5003c82a000000");  // a reliable datagram between two fragments
+  const uint16_t rel_crc = hwbridge::crc16(rel.data(), rel.size());
+  rel.push_back(static_cast<uint8_t>(rel_crc & 0xFF));
+  rel.push_back(static_cast<uint8_t>(rel_crc >> 8));
+  const uint32_t breaks = hw.stats.chain_breaks;
+  for (size_t i = 0; i < fourth.size(); ++i) {
+    write_datagram(hw, fourth[i]);
+    if (i == 2) write_datagram(hw, rel);
+  }
+  size_t chained = 0;
+  for (size_t i = 0; i < d.sent.size(); ++i) chained += (d.sent[i].id & kChainBit) != 0;
+  CHECK(d.sent.size() == 47 && chained == 46 && hw.stats.chain_breaks == breaks,
+        "chains again, a reliable datagram beside: %zu", d.sent.size());
   // a chain sent to the board: its receiver drops the frames as malformed
   const uint32_t malformed = hw.rxStats().malformed;
   queue_transfer(hw, (encode_id2(5, 0, 1, 5, 0, 0x10, 0) | kChainBit | (1UL << 8)),

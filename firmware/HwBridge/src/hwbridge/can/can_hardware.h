@@ -176,7 +176,7 @@ class CanHardware {
         ++stats.tx_oversize;
         return false;
       }
-      if (chain_.active()) {
+      if (chain_.active() && h.kind == kBestEffort) {  // other streams go beside a chain
         if (chain_.continues(h, n - 5)) return takeChain(datagram + 3, n - 5);
         chain_.cancel();
         ++stats.chain_breaks;

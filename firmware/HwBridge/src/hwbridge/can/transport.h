@@ -247,9 +247,10 @@ class ChainSender {
   bool active() const { return active_; }
   void cancel() { active_ = false; }
 
-  /** True when a datagram with header h and n payload bytes is the chain's next fragment. */
+  /** True when a best-effort datagram with header h and n payload bytes is the chain's next
+   * fragment. */
   bool continues(const NativeHeader& h, size_t n) const {
-    if (!active_ || h.kind != kBestEffort || h.channel != channel_ || h.seq != next_seq_) {
+    if (!active_ || h.channel != channel_ || h.seq != next_seq_) {
       return false;
     }
     return h.frag == 2 ? n == size_ && left_ > size_ : h.frag == 3 && n == left_ && n <= size_;

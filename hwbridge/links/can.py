@@ -15,7 +15,9 @@ id carries priority, kind, channel and the node ids, the tail byte sequences the
 format 2 (CAN.md version 2, the default) the native header rides in the id and the tail byte and
 the native CRC-16 stays home (CAN's own CRC covers a frame, the transfer CRC a multi-frame
 transfer); each end speaks to a peer the format of the last claim it heard from that peer, so a
-board with format-1 firmware is spoken to in format 1 (logged once).
+board with format-1 firmware is spoken to in format 1 (logged once). The best-effort fragments
+of one message go as one chained transfer (CAN.md version 3, §12: one transfer CRC, frames
+filled end to end) to a peer whose claims say it takes chains.
 Frames go out by priority (first come, first served within one): ACKs and control traffic
 overtake topic data when the bus is saturated, and best-effort data past ``tx_queue`` frames is
 dropped (counted). Error frames, send failures (bus-off) and the recovery are counted and
@@ -29,7 +31,9 @@ bridge reopens them. Options:
 * ``tx_queue`` (frames waiting to be sent, 1024), ``rx_queue`` (datagrams per board, 256),
   ``transfer_timeout`` (seconds a transfer may take, 1.0);
 * ``can_format`` (2; 1 makes this end a CAN.md version-1 node: format 1 only, format-2 frames
-  dropped as malformed, as software that predates format 2 does).
+  dropped as malformed, as software that predates format 2 does);
+* ``can_chain`` (1; 0 makes this end a CAN.md version-2 node: it neither sends nor takes chained
+  transfers, and drops chained frames as malformed).
 """
 
 from __future__ import annotations
@@ -101,6 +105,7 @@ _OPTIONS: Final = {
     "rx_queue": opt_int,
     "transfer_timeout": opt_float,
     "can_format": opt_int,
+    "can_chain": opt_bool,
 }
 
 
@@ -149,6 +154,10 @@ class HubStats:
     """Datagrams dropped because their node id was claimed by two nodes."""
     format_changes: int = 0
     """Times a peer's claims changed the CAN.md format this end speaks to it."""
+    chains_out: int = 0
+    """Chained transfers begun (CAN.md §12: the fragments of one message as one transfer)."""
+    chain_breaks: int = 0
+    """Chains broken off by a datagram that did not continue them (the receiver drops them)."""
     tx_invalid: int = 0
     """Datagrams not sent because they were not valid native datagrams (format 2 needs the
     header and the CRC-16 right)."""
@@ -175,6 +184,7 @@ class CanHub:
         owns_bus: bool = True,
         uid: bytes | None = None,
         format: int = FORMAT_2,
+        chains: bool = True,
     ) -> None:
         self.key = key
         self.local = local
@@ -188,8 +198,14 @@ class CanHub:
         """The CAN.md format this end claims in and speaks to peers not heard yet."""
         self.peer_formats: dict[int, int] = {}
         """The format each peer (node id) claimed in last: the one it is spoken to in."""
+        self.chains = chains and format == FORMAT_2
+        """This end sends and takes chained transfers (CAN.md version 3, §12)."""
+        self.peer_chains: dict[int, bool] = {}
+        """Whether each peer's last claim said it takes chained transfers."""
         self.encoder = TransferEncoder(local, FD_MTU if fd else CLASSIC_MTU)
-        self.decoder = TransferDecoder(local, timeout=transfer_timeout, format_2=format == FORMAT_2)
+        self.decoder = TransferDecoder(
+            local, timeout=transfer_timeout, format_2=format == FORMAT_2, chains=self.chains
+        )
         self.monitor = ConflictMonitor(window=3 * CLAIM_INTERVAL)
         self.links: dict[int, CanLink] = {}
         self.users = 0
@@ -232,6 +248,8 @@ class CanHub:
             "claims": {node: uid.hex() for node, uid in self.monitor.claimed(now)},
             "format": self.format,
             "peer_formats": dict(self.peer_formats),
+            "chains": self.chains,
+            "peer_chains": dict(self.peer_chains),
         }
 
     # ------------------------------------------------------------------ sending
@@ -242,15 +260,21 @@ class CanHub:
             raise self.failed
         with self._lock:
             fmt = self.peer_formats.get(destination, self.format)
+            chain = self.chains and fmt == FORMAT_2 and self.peer_chains.get(destination, False)
+            encoder = self.encoder
             try:
-                frames = self.encoder.datagram(datagram, destination, format=fmt)
+                frames = encoder.datagram(datagram, destination, format=fmt, chain=chain)
             except ValueError as exc:
                 self.stats.tx_invalid += 1
                 log.warning("CAN bus %s: not sent to node %d: %s", self.key, destination, exc)
                 return
+            self.stats.chains_out = encoder.chains
+            self.stats.chain_breaks = encoder.chain_breaks
         self._queue(frames)
 
     def _queue(self, frames: list[tuple[int, bytes]]) -> None:
+        if not frames:
+            return  # a chain's fragment that completed no frame yet
         # Queued by stream, not by the id's priority, which still wins arbitration.
         priority = queue_class(Kind((frames[0][0] >> 24) & 0x3))
         with self._tx_ready:
@@ -313,7 +337,7 @@ class CanHub:
             if now >= next_claim:
                 next_claim = now + CLAIM_INTERVAL
                 with self._lock:
-                    frames = self.encoder.claim(self.uid, format=self.format)
+                    frames = self.encoder.claim(self.uid, format=self.format, chains=self.chains)
                 self._queue(frames)
                 self.decoder.expire(now)
             try:
@@ -349,6 +373,9 @@ class CanHub:
                     and HOST_NODE in (self.local, transfer.source)  # a board talks to the host
                 ):
                     self._learn_format(transfer.source, transfer.format)
+                    if self.chains:
+                        with self._lock:
+                            self.peer_chains[transfer.source] = transfer.takes_chains
                 continue
             with self._lock:
                 link = self.links.get(transfer.source)
@@ -356,8 +383,10 @@ class CanHub:
                 self.stats.unrouted += 1
             elif self.monitor.in_conflict(transfer.source, time.monotonic()):
                 self.stats.conflict_drops += 1
-            elif not link.deliver(transfer.payload):
-                self.stats.rx_overflow += 1
+            else:
+                for datagram in transfer.datagrams:
+                    if not link.deliver(datagram):
+                        self.stats.rx_overflow += 1
 
     def _on_node(self, source: int, opcode: int, payload: bytes) -> None:
         if opcode != NODE_CLAIM or len(payload) != UID_SIZE:
@@ -503,6 +532,7 @@ class CanLink(Link):
         self.can_format: int = opts.get("can_format", FORMAT_2)
         if self.can_format not in (FORMAT_1, FORMAT_2):
             raise LinkError(f"{url}: can_format must be 1 or 2, not {self.can_format}")
+        self.can_chain: bool = opts.get("can_chain", True)
         if self.pace < 0 or self.transfer_timeout <= 0:
             raise LinkError(f"{url}: pace must be >= 0 bits/s and transfer_timeout above 0 s")
         self._bus_options: dict[str, Any] = {
@@ -531,13 +561,21 @@ class CanLink(Link):
 
     def _key(self) -> tuple[Any, ...]:
         if self._given_bus is not None:
-            return ("bus", id(self._given_bus), self.local, self.fd, self.can_format)
+            return (
+                "bus",
+                id(self._given_bus),
+                self.local,
+                self.fd,
+                self.can_format,
+                self.can_chain,
+            )
         return (
             self.interface,
             self.channel,
             self.local,
             self.fd,
             self.can_format,
+            self.can_chain,
             tuple(sorted(self._bus_options.items())),
         )
 
@@ -574,6 +612,7 @@ class CanLink(Link):
                     transfer_timeout=self.transfer_timeout,
                     owns_bus=self._given_bus is None,
                     format=self.can_format,
+                    chains=self.can_chain,
                 )
                 _hubs[key] = hub
             hub.users += 1

@@ -24,6 +24,14 @@ the host and the board of bits 6..0::
 
 A receiver rebuilds the datagram (header and CRC-16) before handing it on, so nothing above the
 transfer changes.
+
+Chained transfers (CAN.md version 3, §12): the best-effort fragments of one native message,
+FIRST .. LAST at a fragment size of ``32 << code`` bytes, travel as one transfer of the message
+bytes alone (no 4-byte length, one transfer CRC, frames filled end to end); bit 7 of the id marks
+it and bits 10..8 hold ``code``. The receiver cuts the message into the same fragments again.
+A node sends chains only to a peer whose claim has bit 11 set (it takes chains)::
+
+    13..11 seq bits 7..5 of the FIRST fragment   10..8 size code   7 = 1 chained
 """
 
 from __future__ import annotations
@@ -35,6 +43,8 @@ from dataclasses import asdict, dataclass
 from typing import Final
 
 __all__ = [
+    "CHAIN_MAX",
+    "CLAIM_CHAINS",
     "CLASSIC_MTU",
     "CRC_INIT",
     "FD_LENGTHS",
@@ -60,6 +70,8 @@ __all__ = [
     "TransferDecoder",
     "TransferEncoder",
     "acceptance_filters",
+    "chain_datagrams",
+    "chain_size_code",
     "crc16",
     "decode_id",
     "encode_id",
@@ -104,7 +116,14 @@ _TID_MASK: Final = 0x1F
 _RESERVED_MASK: Final = 0x3 << 14
 _FORMAT_2_BIT: Final = 1 << 15
 _TO_HOST_BIT: Final = 1 << 14
-_RESERVED_2_MASK: Final = 0x3 << 7
+_CHAIN_BIT: Final = 1 << 7
+_CHAIN_RESERVED: Final = 1 << 8
+CLAIM_CHAINS: Final = 1 << 11
+"""Bit 11 of a format-2 claim's id: the claiming node takes chained transfers (CAN.md §12)."""
+CHAIN_MAX: Final = 4096
+"""The longest message a sender chains (a receiver's transfer limit, CAN.md §4)."""
+_CHAIN_MIN_SIZE: Final = 32
+_LENGTH_PREFIX: Final = 4
 
 FORMAT_1: Final = 1
 """CAN.md version 1: every transfer carries the whole native datagram (header and CRC-16)."""
@@ -143,8 +162,20 @@ class CanId:
     """Format 2: bits 7..5 of the native sequence number (its bits 4..0 are the transfer id)."""
     frag: int = 0
     """Format 2: the native fragment position (0 WHOLE, 1 FIRST, 2 MIDDLE, 3 LAST)."""
+    chain: int = 0
+    """Format 2: the fragment size of a chained transfer (0: not chained, CAN.md §12)."""
 
     def encode(self) -> int:
+        if self.format == FORMAT_2 and self.chain:
+            return encode_chain_id(
+                self.priority,
+                self.kind,
+                self.channel,
+                self.destination,
+                self.source,
+                self.seq_high << 5,
+                self.chain,
+            )
         if self.format == FORMAT_2:
             return encode_id2(
                 self.priority,
@@ -198,6 +229,32 @@ def encode_id2(
     return (base & ~0xFFFF) | _FORMAT_2_BIT | direction | (seq >> 5) << 11 | frag << 9 | node
 
 
+def chain_size_code(size: int) -> int | None:
+    """The id's code of a chain's fragment size (``size == 32 << code``), None when ``size`` is
+    not a power of two from 32 to 4096 (such fragments are not chained)."""
+    if size < _CHAIN_MIN_SIZE or size & (size - 1) or size > _CHAIN_MIN_SIZE << 7:
+        return None
+    return size.bit_length() - _CHAIN_MIN_SIZE.bit_length()
+
+
+def encode_chain_id(
+    priority: int,
+    kind: int,
+    channel: int,
+    destination: int,
+    source: int,
+    seq: int,
+    size: int,
+) -> int:
+    """The id of a chained transfer (CAN.md §12): format 2 with bit 7 set, bits 10..8 the code
+    of the fragment size ``size``, ``seq`` the FIRST fragment's sequence number."""
+    code = chain_size_code(size)
+    if code is None:
+        raise ValueError(f"a chain's fragment size is a power of two 32..4096, not {size}")
+    base = encode_id2(priority, kind, channel, destination, source, seq, 0)
+    return base | code << 8 | _CHAIN_BIT
+
+
 def acceptance_filters(node: int) -> list[tuple[int, int]]:
     """What node ``node`` needs to receive, as (id, mask) pairs of 29-bit ids (a frame is
     wanted when ``frame_id & mask == id & mask`` for one pair): transfers addressed to it in
@@ -219,13 +276,28 @@ def acceptance_filters(node: int) -> list[tuple[int, int]]:
 
 def decode_id(can_id: int) -> CanId | None:
     """The fields of a 29-bit id of either format, or None when it is not one of ours (reserved
-    bits set, or a format-2 id from the host to the host or from board 0)."""
+    bits set, or a format-2 id from the host to the host or from board 0). A chained id (bit 7)
+    decodes with ``frag`` FIRST and ``chain`` its fragment size."""
     if not 0 <= can_id < 1 << 29:
         return None
     if can_id & _FORMAT_2_BIT:
         node = can_id & 0x7F
         to_host = bool(can_id & _TO_HOST_BIT)
-        if can_id & _RESERVED_2_MASK or (to_host and node == HOST_NODE):
+        if to_host and node == HOST_NODE:
+            return None
+        if can_id & _CHAIN_BIT:
+            return CanId(
+                can_id >> 26,
+                Kind((can_id >> 24) & 3),
+                (can_id >> 16) & 0xFF,
+                HOST_NODE if to_host else node,
+                node if to_host else HOST_NODE,
+                FORMAT_2,
+                (can_id >> 11) & 7,
+                1,
+                _CHAIN_MIN_SIZE << ((can_id >> 8) & 7),
+            )
+        if can_id & _CHAIN_RESERVED:
             return None
         return CanId(
             can_id >> 26,
@@ -320,8 +392,65 @@ def split_transfer(payload: bytes | bytearray | memoryview, tid: int, mtu: int) 
     return frames
 
 
+class _ChainTx:
+    """A chain being sent (CAN.md §12): the fragments taken so far, streamed into frames."""
+
+    __slots__ = (
+        "can_id",
+        "channel",
+        "crc",
+        "index",
+        "left",
+        "lengths",
+        "next_seq",
+        "pending",
+        "size",
+        "tid",
+        "toggle",
+    )
+
+    def __init__(
+        self, can_id: int, seq: int, channel: int, size: int, total: int, mtu: int
+    ) -> None:
+        self.can_id = can_id
+        self.tid = seq & _TID_MASK
+        self.next_seq = (seq + 1) & 0xFF
+        self.channel = channel
+        self.size = size
+        self.left = total
+        self.lengths = frame_lengths(total, mtu)
+        self.index = 0
+        self.toggle = _TOGGLE
+        self.crc = CRC_INIT
+        self.pending = bytearray()
+
+    def take(self, chunk: bytes) -> list[bytes]:
+        """Frames completed by the next ``chunk`` of the message (the end frames with the
+        last chunk)."""
+        self.crc = crc16(chunk, self.crc)
+        self.left -= len(chunk)
+        self.pending += chunk
+        if self.left == 0 and len(self.lengths) > 1:
+            self.pending += self.crc.to_bytes(2, "big")
+        frames: list[bytes] = []
+        last = len(self.lengths) - 1
+        while self.index <= last and len(self.pending) >= self.lengths[self.index] - 1:
+            body = self.lengths[self.index] - 1
+            tail = self.toggle | self.tid
+            if self.index == 0:
+                tail |= _START
+            if self.index == last:
+                tail |= _END
+            frames.append(bytes(self.pending[:body]) + bytes([tail]))
+            del self.pending[:body]
+            self.toggle ^= _TOGGLE
+            self.index += 1
+        return frames
+
+
 class TransferEncoder:
-    """Frames for what one node sends: a transfer id per CAN id, counting 0..31."""
+    """Frames for what one node sends: a transfer id per CAN id, counting 0..31; the chains in
+    progress (CAN.md §12), one per destination."""
 
     def __init__(self, source: int, mtu: int = CLASSIC_MTU) -> None:
         if not 0 <= source <= MAX_NODE:
@@ -331,6 +460,12 @@ class TransferEncoder:
         self.source = source
         self.mtu = mtu
         self._tids: dict[int, int] = {}
+        self._chains: dict[int, _ChainTx] = {}
+        self.chains = 0
+        """Chained transfers begun."""
+        self.chain_breaks = 0
+        """Chains left unfinished: a datagram to their destination that did not continue them
+        (the receiver drops the part it got)."""
 
     def transfer(
         self, can_id: int, payload: bytes | bytearray | memoryview
@@ -347,9 +482,16 @@ class TransferEncoder:
         priority: int | None = None,
         *,
         format: int = FORMAT_2,
+        chain: bool = False,
     ) -> list[tuple[int, bytes]]:
         """The frames carrying one native datagram to ``destination`` in ``format`` (2: without
-        its header and CRC-16, which must be right: ValueError otherwise)."""
+        its header and CRC-16, which must be right: ValueError otherwise).
+
+        ``chain`` (format 2, CAN.md §12): a best-effort FIRST fragment of a power-of-two size
+        begins a chained transfer, and its MIDDLE and LAST fragments, given next, continue it:
+        each returns the frames it completes (possibly none). A best-effort datagram that does
+        not continue the chain in progress to its destination breaks it off (``chain_breaks``)
+        and is sent as usual; reliable and ACK datagrams go beside it."""
         if format == FORMAT_1:
             kind, channel = kind_of(datagram)
             if priority is None:
@@ -368,23 +510,59 @@ class TransferEncoder:
         if crc16(data[:-2]) != int.from_bytes(data[-2:], "little"):
             raise ValueError("the native datagram's CRC-16 is wrong")
         kind = Kind(frame_type)
+        frag = (flags >> 2) & 3
+        payload = data[3:-2]
+        going = self._chains.get(destination)
+        if going is not None and kind is Kind.BEST_EFFORT:  # other streams go on beside it
+            if (
+                frag in (2, 3)
+                and channel == going.channel
+                and seq == going.next_seq
+                and len(payload) == (going.size if frag == 2 else going.left)
+                and (going.left > going.size) == (frag == 2)
+            ):
+                going.next_seq = (seq + 1) & 0xFF
+                frames = going.take(payload)
+                if frag == 3:
+                    del self._chains[destination]
+                return [(going.can_id, frame) for frame in frames]
+            del self._chains[destination]
+            self.chain_breaks += 1
         if priority is None:
             priority = priority_of(kind, channel)
-        can_id = encode_id2(
-            priority, kind, channel, destination, self.source, seq, (flags >> 2) & 3
-        )
-        frames = split_transfer(data[3:-2], seq & _TID_MASK, self.mtu)
+        if (
+            chain
+            and kind is Kind.BEST_EFFORT
+            and frag == 1
+            and chain_size_code(len(payload)) is not None
+        ):
+            total = int.from_bytes(payload[:_LENGTH_PREFIX], "little")
+            if len(payload) - _LENGTH_PREFIX < total <= CHAIN_MAX:
+                can_id = encode_chain_id(
+                    priority, kind, channel, destination, self.source, seq, len(payload)
+                )
+                going = _ChainTx(can_id, seq, channel, len(payload), total, self.mtu)
+                self._chains[destination] = going
+                self.chains += 1
+                return [(can_id, frame) for frame in going.take(payload[_LENGTH_PREFIX:])]
+        can_id = encode_id2(priority, kind, channel, destination, self.source, seq, frag)
+        frames = split_transfer(payload, seq & _TID_MASK, self.mtu)
         return [(can_id, frame) for frame in frames]
 
-    def claim(self, uid: bytes, *, format: int = FORMAT_2) -> list[tuple[int, bytes]]:
+    def claim(
+        self, uid: bytes, *, format: int = FORMAT_2, chains: bool = False
+    ) -> list[tuple[int, bytes]]:
         """A node-id claim: this node's unique id, to every node (destination 0), in
-        ``format`` (the format this node speaks: receivers learn it from the claim)."""
+        ``format`` (the format this node speaks: receivers learn it from the claim); ``chains``
+        (format 2): this node takes chained transfers (bit 11 of the id, CAN.md §12)."""
         if len(uid) != UID_SIZE:
             raise ValueError(f"a unique id has {UID_SIZE} bytes, not {len(uid)}")
         if format == FORMAT_1:
             can_id = encode_id(PRIORITY_NODE, Kind.NODE, NODE_CLAIM, HOST_NODE, self.source)
         else:
             can_id = encode_id2(PRIORITY_NODE, Kind.NODE, NODE_CLAIM, HOST_NODE, self.source)
+            if chains:
+                can_id |= CLAIM_CHAINS
         return self.transfer(can_id, uid)
 
 
@@ -400,6 +578,16 @@ class Transfer:
     source: int
     payload: bytes
     format: int = FORMAT_1
+    chained: tuple[bytes, ...] = ()
+    """A chained transfer (CAN.md §12): the native datagrams (FIRST .. LAST) it carried, rebuilt;
+    ``payload`` is then the message."""
+    takes_chains: bool = False
+    """A format-2 claim: the claiming node takes chained transfers (bit 11 of its id)."""
+
+    @property
+    def datagrams(self) -> tuple[bytes, ...]:
+        """The native datagrams to hand on: the chain's, or the payload."""
+        return self.chained or (self.payload,)
 
 
 @dataclass
@@ -414,7 +602,8 @@ class CanStats:
     """Well-formed frames for another node (skipped, not an error)."""
     malformed: int = 0
     """Frames dropped as not ours: standard ids, reserved id bits set, no data, a length CAN FD
-    cannot have, a start frame whose toggle is 0."""
+    cannot have, a start frame whose toggle is 0; chained frames at a receiver that does not
+    take chains, and chains too short to be a fragmented message."""
     unexpected: int = 0
     """Frames out of sequence: a middle or end frame with no transfer started, or of another
     transfer id than the one in progress."""
@@ -472,7 +661,8 @@ class TransferDecoder:
     ``max_transfer`` the bytes of one transfer, ``max_pending`` the transfers in progress at once
     (the oldest is abandoned for a new one), so garbage costs bounded memory. ``format_2=False``
     makes a CAN.md version-1 receiver: format-2 frames are ``malformed`` (their id bit 15 was
-    reserved), as a node that predates format 2 counts them.
+    reserved), as a node that predates format 2 counts them; ``chains=False`` a version-2 one:
+    chained frames (CAN.md §12) are ``malformed`` (their id bit 7 was reserved).
     """
 
     def __init__(
@@ -484,9 +674,11 @@ class TransferDecoder:
         tid_timeout: float = 1.0,
         max_pending: int = 256,
         format_2: bool = True,
+        chains: bool = True,
     ) -> None:
         self.local = local
         self.format_2 = format_2
+        self.chains = chains and format_2
         self.max_transfer = max_transfer
         self.timeout = timeout
         self.tid_timeout = tid_timeout
@@ -509,6 +701,8 @@ class TransferDecoder:
         size = len(data)
         ident = decode_id(can_id) if extended else None
         if ident is not None and ident.format == FORMAT_2 and not self.format_2:
+            ident = None
+        if ident is not None and ident.chain and not self.chains:
             ident = None
         if ident is None or not size or size > FD_MTU or size not in _VALID_LENGTH:
             stats.malformed += 1
@@ -583,11 +777,17 @@ class TransferDecoder:
         if len(payload) > self.max_transfer:
             self.stats.oversize += 1
             return None
+        chained: tuple[bytes, ...] = ()
+        if ident.chain:
+            chained = chain_datagrams(ident, tid, payload)
+            if not chained:
+                self.stats.malformed += 1
+                return None
         if can_id not in self._done and len(self._done) >= 4 * self.max_pending:
             self._done.pop(next(iter(self._done)))
         self._done[can_id] = (tid, now, check)
         self.stats.transfers += 1
-        if ident.format == FORMAT_2 and ident.kind is not Kind.NODE:
+        if ident.format == FORMAT_2 and ident.kind is not Kind.NODE and not ident.chain:
             payload = rebuild_datagram(ident, tid, payload)
         return Transfer(
             ident.priority,
@@ -597,6 +797,10 @@ class TransferDecoder:
             ident.source,
             payload,
             ident.format,
+            chained,
+            ident.format == FORMAT_2
+            and ident.kind is Kind.NODE
+            and bool(ident.seq_high << 11 & CLAIM_CHAINS),
         )
 
     def _evict(self) -> None:
@@ -620,6 +824,32 @@ def rebuild_datagram(ident: CanId, tid: int, payload: bytes) -> bytes:
     body = bytes((_NATIVE_VERSION | int(ident.kind) << 4 | ident.frag << 2, ident.channel, seq))
     body += payload
     return body + crc16(body).to_bytes(2, "little")
+
+
+def chain_datagrams(ident: CanId, tid: int, message: bytes) -> tuple[bytes, ...]:
+    """The native datagrams a chained transfer of ``message`` carried (CAN.md §12): FIRST (the
+    4-byte length and ``size - 4`` bytes), MIDDLE (``size`` bytes each) and LAST fragments,
+    numbered from the id's and the tail byte's sequence number on; empty when the message is
+    too short to have been fragmented at that size."""
+    size = ident.chain
+    total = len(message)
+    if total <= size - _LENGTH_PREFIX:
+        return ()
+    seq = ident.seq_high << 5 | tid
+    head = total.to_bytes(_LENGTH_PREFIX, "little") + message[: size - _LENGTH_PREFIX]
+    chunks = [(1, head)]
+    offset = size - _LENGTH_PREFIX
+    while offset < total:
+        chunks.append((3 if total - offset <= size else 2, message[offset : offset + size]))
+        offset += size
+    out = []
+    for index, (frag, chunk) in enumerate(chunks):
+        number = (seq + index) & 0xFF
+        fragment = CanId(
+            ident.priority, ident.kind, ident.channel, 0, 0, FORMAT_2, number >> 5, frag
+        )
+        out.append(rebuild_datagram(fragment, number & _TID_MASK, chunk))
+    return tuple(out)
 
 
 class ConflictMonitor:

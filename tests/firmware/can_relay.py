@@ -46,6 +46,8 @@ class CanRelay:
         self.node = node
         self.to_bus = 0
         self.from_bus = 0
+        self.chained_to_bus = 0
+        """Frames of chained transfers (CAN.md §12) the board sent."""
         self._server = socket.create_server(("127.0.0.1", 0))
         self._server.settimeout(0.1)
         self.port: int = self._server.getsockname()[1]
@@ -79,6 +81,9 @@ class CanRelay:
                     if message is not None:
                         self.bus.send(message)
                         self.to_bus += 1
+                        ident = decode_id(message.arbitration_id)
+                        if ident is not None and ident.chain:
+                            self.chained_to_bus += 1
             except (OSError, ValueError):
                 pass
 

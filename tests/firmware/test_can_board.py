@@ -11,7 +11,10 @@
   a topic each way, a service and a parameter work on the sketch, and the emulated board's
   service and topic keep working, its session never renegotiated; the sketch restarted is
   taken back. The same with one side of CAN.md version 1 (``HWBRIDGE_CAN_FORMAT=1`` for the
-  sketch, ``can_format=1`` for the bridge): both boards connect and answer.
+  sketch, ``can_format=1`` for the bridge): both boards connect and answer. The sketch's
+  best-effort ``sensor_msgs/Imu`` (six native fragments) arrives intact through the bridge, as
+  chained transfers (CAN.md §12) to a version-3 host, and as one transfer per fragment when
+  either end is version 2 (``HWBRIDGE_CAN_CHAINS=0``, ``can_chain=0``).
 
 ``examples/CanNode`` (the MCP2515 driver and ``CanHardware`` on an AVR) is built for the Uno and
 the Mega by both tools in ``test_examples.py`` like every example.
@@ -264,6 +267,53 @@ def test_version_1_and_version_2_nodes_on_one_bus(
             assert f"node {OTHER} claims in CAN.md format 1" not in output, output
         else:
             assert "claims in CAN.md format" not in output, output
+    finally:
+        if board is not None:
+            board.kill()
+            board.wait(10)
+        bridge.stop()
+        log.close()
+
+
+@needs_gpp
+@pytest.mark.parametrize("version_2", ["none", "board", "host"])
+def test_chained_imu_through_the_bridge(
+    program: Path, bus: Bus, tmp_path: Path, version_2: str
+) -> None:
+    """The sketch publishes a 320-byte sensor_msgs/Imu best effort at the native MTU of 64: to a
+    version-3 host its six fragments go as one chained transfer (46 frames, Cyphal/CAN's count),
+    and the bridge delivers the message whole; with either end as version 2 they go as six
+    transfers, and the message still arrives."""
+    query = "&can_chain=0" if version_2 == "host" else ""
+    bridge = BridgeProcess(bus.url(NODE) + query, tmp_path, f"canc{free_port()}")
+    board: subprocess.Popen[bytes] | None = None
+    log = (tmp_path / "board.log").open("w")
+    try:
+        bridge.wait_ready()
+        env = {"HWBRIDGE_CAN": f"127.0.0.1:{bus.relay.port}", "HWBRIDGE_CAN_NODE": str(NODE)}
+        if version_2 == "board":
+            env["HWBRIDGE_CAN_CHAINS"] = "0"
+        board = subprocess.Popen(
+            [str(program)], env={**bridge.env, **env}, stdout=log, stderr=subprocess.STDOUT
+        )
+        assert wait_until(lambda: "board 'canboard' connected" in bridge.output(), 30), (
+            bridge.output()
+        )
+        topics = bridge.cli("topic", "list").stdout
+        imu = next(t for t in topics.split() if t.endswith("/imu"))
+        echo = bridge.cli("topic", "echo", imu, "-n", "4", "--timeout", "30")
+        assert echo.returncode == 0, echo.stderr + bridge.output()
+        docs = [yaml.safe_load(d) for d in echo.stdout.split("---") if d.strip()]
+        assert len(docs) == 4
+        for doc in docs:
+            assert doc["header"]["frame_id"] == "imu_link"
+            assert doc["linear_acceleration"]["z"] == pytest.approx(9.81)
+        counts = [d["orientation"]["w"] for d in docs]
+        assert counts == sorted(counts) and len(set(counts)) == 4, counts
+        if version_2 == "none":
+            assert bus.relay.chained_to_bus >= 4 * 46, bus.relay.chained_to_bus
+        else:
+            assert bus.relay.chained_to_bus == 0
     finally:
         if board is not None:
             board.kill()

@@ -11,10 +11,13 @@ Run with no arguments; prints one JSON object per line, per message type (``std_
   (``--mtu``, 1024: the host's, which a format-2 board negotiates up to its largest message) as
   one CAN transfer each (protocols/can/CAN.md), in format 2 (``format``: the native header in the
   id and the tail byte, no native CRC-16); pycyphal sends the message as one Cyphal/CAN transfer
-  (7 bytes a frame, a 2-byte CRC past one frame). The frame counts are checked against the
-  frames both put on a python-can virtual bus. Two more ``can_ceiling`` lines per type, computed
-  in the same run, show what the board-default MTU of 64 costs: format 2 and format 1 (CAN.md
-  version 1, every datagram whole with its header and CRC-16) at ``mtu`` 64.
+  (7 bytes a frame, a 2-byte CRC past one frame). A message fragmented at the native MTU goes
+  as one chained transfer (CAN.md version 3, §12, ``chained``: the fragments' bytes end to end,
+  one transfer CRC). The frame counts are checked against the frames both put on a python-can
+  virtual bus. Three more ``can_ceiling`` lines per type, computed in the same run, show the
+  board-default MTU of 64: chained (version 3), each fragment its own transfer (``chained``
+  false: CAN.md version 2) and format 1 (version 1, every datagram whole with its header and
+  CRC-16).
 - ``can_virtual_bus``: messages per second each moves through python-can's in-process
   ``virtual`` bus, sender to receiver in one process: hwbridge from one ``can://`` link to
   another (encoding, the links' threads, reassembly), pycyphal from an output session to an
@@ -88,12 +91,15 @@ def hwbridge_datagrams(payload: bytes, mtu: int) -> list[bytes]:
     return [encode_datagram(f) for f in fragment(FrameType.BEST_EFFORT, 1, 0, payload, mtu)]
 
 
-def hwbridge_frames(payload: bytes, mtu: int, fmt: int = FORMAT_2) -> list[bytes]:
+def hwbridge_frames(
+    payload: bytes, mtu: int, fmt: int = FORMAT_2, *, chain: bool = True
+) -> list[bytes]:
     encoder = TransferEncoder(5, CLASSIC_MTU)
+    chain = chain and fmt == FORMAT_2
     return [
         data
         for d in hwbridge_datagrams(payload, mtu)
-        for _, data in encoder.datagram(d, 0, format=fmt)
+        for _, data in encoder.datagram(d, 0, format=fmt, chain=chain)
     ]
 
 
@@ -142,6 +148,10 @@ def hwbridge_rate(payload: bytes, mtu: int, count: int, channel: str | None = No
     receiver = CanLink(f"can://virtual/{channel}/node5?rx_queue=10000000")
     sender.open()
     receiver.open()
+    # chains go to a peer once its claim said it takes them (the receiver's, at its start)
+    deadline = time.monotonic() + 10
+    while not (sender.hub and sender.hub.peer_chains.get(0)) and time.monotonic() < deadline:
+        time.sleep(0.01)
     expected = count * len(datagrams)
     done = threading.Event()
     got = [0]
@@ -251,9 +261,10 @@ def main() -> int:
             peer_efficiency=round(8 * len(payload) / theirs_bits, 3),
             mtu=args.mtu,
             format=FORMAT_2,
+            chained=True,
         )
-        for fmt, mtu in ((FORMAT_2, 64), (FORMAT_1, 64)):
-            lengths = [len(f) for f in hwbridge_frames(payload, mtu, fmt)]
+        for fmt, mtu, chain in ((FORMAT_2, 64, True), (FORMAT_2, 64, False), (FORMAT_1, 64, False)):
+            lengths = [len(f) for f in hwbridge_frames(payload, mtu, fmt, chain=chain)]
             bits = bus_bits(lengths)
             emit(
                 "can_ceiling",
@@ -267,6 +278,7 @@ def main() -> int:
                 peer_bits=theirs_bits,
                 mtu=mtu,
                 format=fmt,
+                chained=chain,
             )
         messages = max(20, args.frames // len(ours))
         peer_messages = max(20, args.frames // len(theirs_lengths))

@@ -1,5 +1,6 @@
-"""Writes protocols/vectors/can_frames.json (format 1) and can_frames_v2.json (format 2) as the
-lines test_can_vectors.cpp reads on stdin (standard library only; "-" stands for no bytes):
+"""Writes protocols/vectors/can_frames.json (format 1), can_frames_v2.json (format 2) and
+can_chains.json (chained transfers, CAN.md 12) as the lines test_can_vectors.cpp reads on stdin
+(standard library only; "-" stands for no bytes):
 
     crc INPUT CRC
     id PRIORITY KIND CHANNEL DESTINATION SOURCE ID
@@ -8,6 +9,8 @@ lines test_can_vectors.cpp reads on stdin (standard library only; "-" stands for
     bad NAME LOCAL EXPECT N ID:EXTENDED:DATA...
     id2 PRIORITY KIND CHANNEL DESTINATION SOURCE SEQ FRAG ID
     dg2 NAME SOURCE DESTINATION MTU DATAGRAM N ID:DATA...
+    claim SOURCE TAKES_CHAINS ID
+    ch NAME SOURCE DESTINATION MTU HOST_CLAIM_ID N DATAGRAM... N ID:DATA...
 
     python3 firmware/tests/can/can_vectors.py | BUILD/test_can_vectors
 """
@@ -33,7 +36,30 @@ VECTORS = ROOT / "protocols" / "vectors"
 
 
 def lines(path: Path = VECTORS / "can_frames.json") -> list[str]:
-    return format_1_lines(path) + format_2_lines(path.with_name("can_frames_v2.json"))
+    return (
+        format_1_lines(path)
+        + format_2_lines(path.with_name("can_frames_v2.json"))
+        + chain_lines(path.with_name("can_chains.json"))
+    )
+
+
+def chain_lines(path: Path) -> list[str]:
+    doc = json.loads(path.read_text())
+    out = []
+    host_claim = ""
+    for v in doc["claims"]:
+        claim_id = v["frames"][0]["id"]
+        out.append(f"claim {v['source']} {int(v['takes_chains'])} {claim_id}")
+        if v["source"] == 0 and v["takes_chains"]:
+            host_claim = claim_id
+    for v in doc["chains"]:
+        datagrams = " ".join(_hex(d) for d in v["datagrams_hex"])
+        frames = " ".join(f"{f['id']}:{_hex(f['data_hex'])}" for f in v["frames"])
+        out.append(
+            f"ch {_name(v['name'])} {v['source']} {v['destination']} {v['mtu']} {host_claim} "
+            f"{len(v['datagrams_hex'])} {datagrams} {len(v['frames'])} {frames}"
+        )
+    return out
 
 
 def _bad(doc: dict) -> list[str]:

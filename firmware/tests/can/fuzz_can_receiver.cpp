@@ -3,12 +3,14 @@
 // Checked: no crash or out-of-bounds access (run under ASan/UBSan), every delivered transfer is
 // one that was sent on its id and no larger than the receiver allows, the counters add up,
 // and a clean stream (no damage) delivers every transfer exactly once. CanHardware gets random
-// session bytes and bus frames too (hardware_round).
+// session bytes and bus frames too (hardware_round), and chained transfers to send among other
+// datagrams, some broken off, the bus refusing now and then (chain_round).
 //   fuzz_can_receiver SEED SECONDS
 #include <hwbridge/can/can_hardware.h>
 #include <hwbridge/can/transport.h>
 #include <time.h>
 
+#include <algorithm>
 #include <map>
 #include <set>
 
@@ -230,6 +232,98 @@ void hardware_round(Rng& rng) {
   }
 }
 
+// Chains (CAN.md 12): a board under a host that takes chains writes whole and broken-off
+// fragmented best-effort messages among other datagrams, the driver refusing now and then; every
+// chain that went out whole is the message's bytes with a right CRC (checked by a format-2
+// receiver given the chain's frames under a plain id), and nothing else is ever sent as a chain.
+unsigned long g_chains = 0;
+
+Bytes native(uint8_t flags, uint8_t channel, uint8_t seq, const Bytes& payload) {
+  Bytes d;
+  d.push_back(flags);
+  d.push_back(channel);
+  d.push_back(seq);
+  d.insert(d.end(), payload.begin(), payload.end());
+  const uint16_t crc = hwbridge::crc16(d.data(), d.size());
+  d.push_back(static_cast<uint8_t>(crc & 0xFF));
+  d.push_back(static_cast<uint8_t>(crc >> 8));
+  return d;
+}
+
+void chain_round(Rng& rng) {
+  typedef CanHardware<FuzzDriver, 72, 2, 160> Hw;
+  static Hw hw;
+  hw = Hw();
+  FuzzDriver& d = hw.driver();
+  d.rng = &rng;
+  d.next = 0;
+  d.now = rng.next();
+  hw.setNode(static_cast<uint8_t>(1 + rng.below(127)));
+  std::vector<Frame> claim;
+  Out o = {&claim};
+  const uint8_t uid[6] = {1, 2, 3, 4, 5, 6};
+  send_transfer<kClassicMtu>(encode_id2(3, kNode, 1, 0, 0, 0, 0) | kClaimChains, uid, 6, 0,
+                             kClassicMtu, o);
+  d.inbox = claim;
+  CHECK(hw.init(0) && hw.read() == -1 && hw.hostTakesChains(), "the host takes chains");
+  std::vector<Bytes> messages;  // each chain's message bytes, in the order begun
+  uint8_t seq = static_cast<uint8_t>(rng.next());
+  for (unsigned k = 0; k < 6; ++k) {
+    const size_t size = rng.below(2) ? 32 : 64;
+    Bytes msg(size - 3 + rng.below(400));
+    for (size_t i = 0; i < msg.size(); ++i) msg[i] = static_cast<uint8_t>(rng.next());
+    const uint8_t channel = static_cast<uint8_t>(1 + rng.below(3));
+    const bool cut = rng.below(4) == 0;  // broken off after its FIRST
+    for (size_t pos = 0; pos < msg.size();) {
+      Bytes chunk;
+      uint8_t frag;
+      if (pos == 0) {
+        frag = 1;
+        for (int b = 0; b < 4; ++b) chunk.push_back(static_cast<uint8_t>(msg.size() >> (8 * b)));
+      } else {
+        frag = msg.size() - pos <= size ? 3 : 2;
+      }
+      const size_t take = std::min(msg.size() - pos, size - chunk.size());
+      chunk.insert(chunk.end(), msg.begin() + static_cast<long>(pos),
+                   msg.begin() + static_cast<long>(pos + take));
+      pos += take;
+      const Bytes dg = native(static_cast<uint8_t>(0x40 | frag << 2), channel, seq++, chunk);
+      uint8_t enc[90];
+      const size_t n = hwbridge::cobs_encode(dg.data(), dg.size(), enc, sizeof(enc));
+      for (size_t i = 0; i < n; ++i) hw.put(enc[i]);
+      hw.put(0);
+      if (frag == 1) messages.push_back(msg);
+      if (cut) break;
+    }
+    if (rng.below(2)) {  // a reliable datagram or a HEARTBEAT in between
+      const Bytes other = native(rng.below(2) ? 0x50 : 0x40, 0, seq++, Bytes(rng.below(9), 7));
+      uint8_t enc[40];
+      const size_t n = hwbridge::cobs_encode(other.data(), other.size(), enc, sizeof(enc));
+      for (size_t i = 0; i < n; ++i) hw.put(enc[i]);
+      hw.put(0);
+    }
+  }
+  // The chains' frames under a plain format-2 id (bits 10..7 cleared): transfers of the bytes.
+  TransferReceiver<4096, 4> rx(0);
+  size_t next_message = 0;
+  for (size_t i = 0; i < d.sent.size(); ++i) {
+    const Frame& f = d.sent[i];
+    if ((f.id & kChainBit) == 0) continue;
+    CHECK(((f.id >> 24) & 3) == kBestEffort, "a chain of best-effort fragments");
+    Transfer t;
+    if (rx.feed(f.id & ~(0xFUL << 7), true, f.data, f.len, 0, &t)) {
+      bool found = false;
+      while (!found && next_message < messages.size()) {
+        found = messages[next_message].size() == t.size &&
+                memcmp(messages[next_message].data(), t.payload, t.size) == 0;
+        ++next_message;
+      }
+      CHECK(found, "a chain of %zu bytes that is no message sent", t.size);
+      ++g_chains;
+    }
+  }
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -242,11 +336,12 @@ int main(int argc, char** argv) {
   while (rounds < 200 || difftime(time(nullptr), start) < seconds) {
     round(rng, rounds % 3 == 0, &delivered);
     if (rounds % 8 == 0) hardware_round(rng);
+    if (rounds % 8 == 4) chain_round(rng);
     ++rounds;
     if (difftime(time(nullptr), start) >= seconds && rounds >= 200) break;
   }
   printf("fuzz_can_receiver: seed %u, %lu rounds, %lu transfers delivered, %lu checks; "
-         "CanHardware: %lu datagrams read, %lu transfers sent\n",
-         seed, rounds, delivered, g_checks, g_read_datagrams, g_sent_transfers);
+         "CanHardware: %lu datagrams read, %lu transfers sent, %lu chains\n",
+         seed, rounds, delivered, g_checks, g_read_datagrams, g_sent_transfers, g_chains);
   return 0;
 }

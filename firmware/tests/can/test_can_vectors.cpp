@@ -1,6 +1,7 @@
-// The CAN transport against protocols/vectors/can_frames.json (fed by can_vectors.py on stdin),
-// then CanHardware with a scripted driver: the session's COBS bytes out as transfers, the
-// host's transfers in as COBS bytes, claims, foreign and oversize traffic counted.
+// The CAN transport against protocols/vectors/can_frames.json, can_frames_v2.json and
+// can_chains.json (fed by can_vectors.py on stdin), then CanHardware with a scripted driver: the
+// session's COBS bytes out as transfers (chained ones too, CAN.md 12), the host's transfers in as
+// COBS bytes, claims, foreign and oversize traffic counted.
 #include <hwbridge/can/can_hardware.h>
 #include <hwbridge/can/posix_driver.h>  // compiled with the test's warnings
 #include <hwbridge/can/transport.h>
@@ -39,6 +40,10 @@ uint32_t counter(const CanStats& s, const std::string& name) {
   CHECK(false, "unknown counter %s", name.c_str());
   return 0;
 }
+
+void chain_vector(const std::string& name, unsigned src, uint32_t host_claim,
+                  const std::vector<Bytes>& datagrams,
+                  const std::vector<std::pair<uint32_t, Bytes> >& frames);
 
 int vectors() {
   std::string line;
@@ -169,6 +174,46 @@ int vectors() {
       CHECK(m == dg.size() && to_hex(whole, m) == dg_hex && t.id.source == src &&
                 t.id.format == kFormat2,
             "%s: rebuilt %s", name.c_str(), to_hex(whole, m).c_str());
+    } else if (kind == "claim") {
+      unsigned src, takes;
+      std::string id;
+      in >> src >> takes >> id;
+      const uint32_t want = static_cast<uint32_t>(strtoul(id.c_str(), nullptr, 16));
+      CanId f;
+      CHECK(decode_id(want, &f) && f.format == kFormat2 && f.kind == kNode &&
+                f.channel == kNodeClaim && f.source == src &&
+                ((want & kClaimChains) != 0) == (takes != 0),
+            "claim %s", id.c_str());
+      // a board's own claims never say it takes chains (it does not: CAN.md 12)
+      if (src != 0 && !takes) {
+        CHECK(want == encode_id2(kPriorityNode, kNode, kNodeClaim, kHostNode, src, 0, 0),
+              "a board's claim %s", id.c_str());
+      }
+    } else if (kind == "ch") {
+      std::string name, claim;
+      unsigned src, dst, mtu, ndg, count;
+      in >> name >> src >> dst >> mtu >> claim >> ndg;
+      std::vector<Bytes> datagrams;
+      for (unsigned i = 0; i < ndg; ++i) {
+        std::string hex;
+        in >> hex;
+        datagrams.push_back(from_hex(hex));
+      }
+      in >> count;
+      std::vector<std::pair<uint32_t, Bytes> > frames;
+      for (unsigned i = 0; i < count; ++i) {
+        std::string frame;
+        in >> frame;
+        const size_t colon = frame.find(':');
+        frames.push_back(std::make_pair(
+            static_cast<uint32_t>(strtoul(frame.substr(0, colon).c_str(), nullptr, 16)),
+            from_hex(frame.substr(colon + 1))));
+      }
+      // a board sends chains to the host in classic frames; it does not take chains
+      if (src != 0 && mtu == kClassicMtu) {
+        chain_vector(name, src, static_cast<uint32_t>(strtoul(claim.c_str(), nullptr, 16)),
+                     datagrams, frames);
+      }
     } else if (kind == "bad") {
       std::string name, expect;
       unsigned local, count;
@@ -242,6 +287,155 @@ Bytes read_all(Hw& hw) {
 }
 
 const uint8_t kHostUid[6] = {0xA0, 0xA1, 0xA2, 0xA3, 0xA4, 0xA5};
+
+void write_datagram(Hw& hw, const Bytes& datagram) {
+  uint8_t enc[600];
+  const size_t n = hwbridge::cobs_encode(datagram.data(), datagram.size(), enc, sizeof(enc));
+  for (size_t i = 0; i < n; ++i) hw.put(enc[i]);
+  hw.put(0);
+}
+
+std::string frames_hex(const std::vector<Frame>& frames) {
+  std::string out;
+  for (size_t i = 0; i < frames.size(); ++i) {
+    char id[12];
+    snprintf(id, sizeof(id), "%08lx:", static_cast<unsigned long>(frames[i].id));
+    out += id + to_hex(frames[i].data, frames[i].len) + " ";
+  }
+  return out;
+}
+
+/** A chain vector through CanHardware: the host claims with bit 11, the session writes the
+ * datagrams, the driver must get exactly the vector's frames. */
+void chain_vector(const std::string& name, unsigned src, uint32_t host_claim,
+                  const std::vector<Bytes>& datagrams,
+                  const std::vector<std::pair<uint32_t, Bytes> >& frames) {
+  Hw hw;
+  hw.setNode(static_cast<uint8_t>(src));
+  CHECK(hw.init(115200), "init");
+  queue_transfer(hw, host_claim, Bytes(kHostUid, kHostUid + 6), 0);
+  CHECK(hw.read() == -1 && hw.hostTakesChains(), "%s: the host takes chains", name.c_str());
+  ScriptDriver& d = hw.driver();
+  d.sent.clear();
+  for (size_t i = 0; i < datagrams.size(); ++i) write_datagram(hw, datagrams[i]);
+  std::string want;
+  for (size_t i = 0; i < frames.size(); ++i) {
+    char id[12];
+    snprintf(id, sizeof(id), "%08lx:", static_cast<unsigned long>(frames[i].first));
+    want += id + to_hex(frames[i].second) + " ";
+  }
+  CHECK(frames_hex(d.sent) == want, "%s: sent %s", name.c_str(), frames_hex(d.sent).c_str());
+  CHECK(hw.stats.chain_breaks == 0 && hw.stats.tx_errors == 0, "%s: no breaks", name.c_str());
+}
+
+/** Fragments of one best-effort message (PROTOCOL.md 1.9) as bare datagrams. */
+std::vector<Bytes> fragments(uint8_t channel, uint8_t seq, size_t len, size_t size) {
+  std::vector<Bytes> out;
+  size_t pos = 0;
+  while (pos < len || out.empty()) {
+    Bytes d;
+    uint8_t frag = 0;
+    size_t take = len;
+    if (len > size) {
+      frag = pos == 0 ? 1 : (len - pos <= size ? 3 : 2);
+      take = pos == 0 ? size - 4 : (len - pos < size ? len - pos : size);
+    }
+    d.push_back(static_cast<uint8_t>(0x40 | frag << 2));
+    d.push_back(channel);
+    d.push_back(static_cast<uint8_t>(seq + out.size()));
+    if (frag == 1) {
+      for (int k = 0; k < 4; ++k) d.push_back(static_cast<uint8_t>(len >> (8 * k)));
+    }
+    for (size_t i = 0; i < take; ++i) d.push_back(static_cast<uint8_t>(pos + i));
+    pos += take;
+    const uint16_t crc = hwbridge::crc16(d.data(), d.size());
+    d.push_back(static_cast<uint8_t>(crc & 0xFF));
+    d.push_back(static_cast<uint8_t>(crc >> 8));
+    out.push_back(d);
+  }
+  return out;
+}
+
+/** Chains (CAN.md 12) only to a host whose claims take them, not with setChains(false); a chain
+ * broken off by another datagram or by the driver is counted and the next message goes; chained
+ * frames sent to the board are malformed there (a board does not take chains). */
+void hardware_chains() {
+  const uint32_t claim2 = encode_id2(3, kNode, 1, 0, 0, 0, 0);
+  const uint32_t claim3 = claim2 | kClaimChains;
+  const std::vector<Bytes> msg = fragments(1, 0x10, 320, 64);  // an Imu: 6 fragments
+  CHECK(msg.size() == 6, "fragments");
+  for (int mode = 0; mode < 2; ++mode) {  // a version-2 host; setChains(false)
+    Hw hw;
+    hw.setNode(5);
+    if (mode == 1) hw.setChains(false);
+    CHECK(hw.init(115200), "init");
+    queue_transfer(hw, mode == 0 ? claim2 : claim3, Bytes(kHostUid, kHostUid + 6), 0);
+    CHECK(hw.read() == -1 && !hw.hostTakesChains(), "no chains (%d)", mode);
+    hw.driver().sent.clear();
+    for (size_t i = 0; i < msg.size(); ++i) write_datagram(hw, msg[i]);
+    CHECK(hw.driver().sent.size() == 51 && hw.stats.tx_chains == 0, "51 frames (%d): %zu", mode,
+          hw.driver().sent.size());
+  }
+  Hw hw;
+  hw.setNode(5);
+  CHECK(hw.init(115200), "init");
+  ScriptDriver& d = hw.driver();
+  queue_transfer(hw, claim3, Bytes(kHostUid, kHostUid + 6), 0);
+  CHECK(hw.read() == -1 && hw.hostTakesChains(), "chains");
+  d.sent.clear();
+  const uint32_t transfers = hw.stats.tx_transfers;
+  for (size_t i = 0; i < msg.size(); ++i) write_datagram(hw, msg[i]);
+  CHECK(d.sent.size() == 46 && hw.stats.tx_chains == 1 && hw.stats.tx_transfers == transfers + 1,
+        "46 frames: %zu", d.sent.size());
+  // broken off by a HEARTBEAT of the same stream after two fragments: it goes as usual
+  d.sent.clear();
+  const std::vector<Bytes> next = fragments(1, 0x16, 320, 64);
+  write_datagram(hw, next[0]);
+  write_datagram(hw, next[1]);
+  Bytes hb = from_hex("40001c02");
+  const uint16_t hb_crc = hwbridge::crc16(hb.data(), hb.size());
+  hb.push_back(static_cast<uint8_t>(hb_crc & 0xFF));
+  hb.push_back(static_cast<uint8_t>(hb_crc >> 8));
+  write_datagram(hw, hb);
+  CHECK(hw.stats.chain_breaks == 1 && d.sent.back().id == encode_id2(2, 0, 0, 0, 5, 0x1c, 0) &&
+            d.sent.back().len == 2,
+        "broken off: %s", frames_hex(d.sent).c_str());
+  // the rest of the broken message: ordinary transfers (the host drops them as orphans)
+  const size_t before = d.sent.size();
+  write_datagram(hw, next[2]);
+  CHECK(d.sent.size() == before + 10 && hw.stats.tx_chains == 2, "orphan fragment");
+  // the driver refuses a frame mid-chain: counted, the next message chains again
+  d.sent.clear();
+  const std::vector<Bytes> third = fragments(1, 0x20, 320, 64);
+  write_datagram(hw, third[0]);
+  d.refuse = true;
+  write_datagram(hw, third[1]);
+  d.refuse = false;
+  for (size_t i = 2; i < third.size(); ++i) write_datagram(hw, third[i]);
+  CHECK(hw.stats.tx_errors == 1, "refused: %lu", static_cast<unsigned long>(hw.stats.tx_errors));
+  d.sent.clear();
+  const std::vector<Bytes> fourth = fragments(1, 0x26, 320, 64);
+  Bytes rel = from_hex("5003c82a000000");  // a reliable datagram between two fragments
+  const uint16_t rel_crc = hwbridge::crc16(rel.data(), rel.size());
+  rel.push_back(static_cast<uint8_t>(rel_crc & 0xFF));
+  rel.push_back(static_cast<uint8_t>(rel_crc >> 8));
+  const uint32_t breaks = hw.stats.chain_breaks;
+  for (size_t i = 0; i < fourth.size(); ++i) {
+    write_datagram(hw, fourth[i]);
+    if (i == 2) write_datagram(hw, rel);
+  }
+  size_t chained = 0;
+  for (size_t i = 0; i < d.sent.size(); ++i) chained += (d.sent[i].id & kChainBit) != 0;
+  CHECK(d.sent.size() == 47 && chained == 46 && hw.stats.chain_breaks == breaks,
+        "chains again, a reliable datagram beside: %zu", d.sent.size());
+  // a chain sent to the board: its receiver drops the frames as malformed
+  const uint32_t malformed = hw.rxStats().malformed;
+  queue_transfer(hw, (encode_id2(5, 0, 1, 5, 0, 0x10, 0) | kChainBit | (1UL << 8)),
+                 Bytes(40, 7), 0x10);
+  CHECK(hw.read() == -1 && hw.rxStats().malformed == malformed + 6 &&
+            hw.rxStats().transfers == 1,
+        "a chain to the board: %u malformed", hw.rxStats().malformed - malformed);
+}
 
 /** A board under a host that claims in format 1 (older host software): it speaks format 1. */
 void hardware() {
@@ -429,6 +623,7 @@ int main() {
   hardware();
   hardware_format2();
   hardware_version1();
+  hardware_chains();
   printf("test_can_vectors: %d vector lines, %lu checks passed\n", n, g_checks);
   return 0;
 }

@@ -322,6 +322,8 @@ void filters() {
   CHECK(chip.deliver(encode_id2(5, kBestEffort, 1, 0, 7, 0x20, 0), true, a, 8) == 0,
         "node 7 to the host");
   CHECK(chip.deliver(encode_id2(3, kNode, 1, 0, 7, 0, 0), true, a, 7) == 0, "node 7's claim");
+  CHECK(chip.deliver(encode_id2(3, kNode, 1, 0, 7, 0, 0) | kClaimChains, true, a, 7) == 0,
+        "node 7's claim, taking chains");
   CHECK(chip.deliver(encode_id(4, kReliable, 3, 6, 7), true, a, 8) == 0, "format 1, 7 to 6");
   CHECK(chip.deliver(encode_id(2, kBestEffort, 0, 0x45, 5), true, a, 8) == 0, "another destination");
   CHECK(chip.deliver(5 << 7, false, a, 3) == 0, "a standard id");
@@ -337,13 +339,17 @@ void filters() {
   CHECK(chip.deliver(to_me_1, true, a, 8) == 1 && d.receive(&f) && f.id == to_me_1, "format 1");
   CHECK(chip.deliver(host_claim_1, true, a, 7) == 1 && d.receive(&f) && f.id == host_claim_1,
         "a format-1 host's claim");
+  // a host that takes chained transfers sets bit 11 of its claims (CAN.md 12): RXB1 too
+  CHECK(chip.deliver(host_claim | kClaimChains, true, a, 7) == 2 && d.receive(&f) &&
+            f.id == (host_claim | kClaimChains),
+        "the claim of a host taking chains");
   const uint32_t ack = encode_id2(1, kAck, 0, 5, 0, 0x11, 0);
   CHECK(chip.deliver(ack, true, a, 2) == 1 && chip.deliver(to_me, true, a, 1) == 2, "rollover");
   CHECK(chip.deliver(host_claim, true, a, 7) == -1 && chip.deliver(to_me, true, a, 1) == -1,
         "both full");
   CHECK(d.receive(&f) && f.id == ack && d.receive(&f) && f.id == to_me && !d.receive(&f),
         "both read");
-  CHECK(d.stats.rx_overflow == 1 && d.stats.rx_frames == 7, "overflow %lu, frames %lu",
+  CHECK(d.stats.rx_overflow == 1 && d.stats.rx_frames == 8, "overflow %lu, frames %lu",
         (unsigned long)d.stats.rx_overflow, (unsigned long)d.stats.rx_frames);
   // begin() without a node: every frame, as before
   Driver any;

@@ -2,17 +2,28 @@
 // is CAN node $HWBRIDGE_CAN_NODE (default 5) and reaches the bus through the test's relay at
 // $HWBRIDGE_CAN (HOST:PORT). A reliable counter (`counter`, std_msgs/Int32, every 50 ms while
 // connected), a subscriber `cmd` whose messages are logged back, a service `ping`
-// (std_srvs/Trigger: "pong N"), the parameter `rate` read after each connection.
+// (std_srvs/Trigger: "pong N"), the parameter `rate` read after each connection, and a
+// best-effort `imu` (sensor_msgs/Imu, 320 bytes: six fragments at the native MTU of 64, one
+// chained transfer to a host that takes chains, CAN.md 12) every 100 ms, orientation.w counting.
 #include <HwBridge.h>
 #include <hwbridge/can/can_hardware.h>
 #include <hwbridge/can/posix_driver.h>
+#include <sensor_msgs/Imu.h>
 #include <std_msgs/Int32.h>
 #include <std_msgs/String.h>
 #include <std_srvs/Trigger.h>
 #include <stdlib.h>
 
 typedef hwbridge::can::CanHardware<hwbridge::can::PosixCanDriver> CanLink;
-hwbridge::NodeHandle_<CanLink, hwbridge::ComfortableProfile> nh;
+// MTU 64 as the boards on CAN; messages up to 512 bytes (a host program has the RAM)
+struct E2EProfile : hwbridge::ComfortableProfile {
+  static const uint16_t kMaxMessage = 512;
+  static const uint16_t kTxBuffer = 512;
+};
+hwbridge::NodeHandle_<CanLink, E2EProfile> nh;
+sensor_msgs::Imu imu_msg;
+hwbridge::Publisher<sensor_msgs::Imu> imu("imu");
+unsigned long last_imu_ms = 0;
 std_msgs::Int32 count_msg;
 hwbridge::Publisher<std_msgs::Int32> counter("counter", true);
 
@@ -42,8 +53,14 @@ void setup() {
   // HWBRIDGE_CAN_FORMAT=1: behave as firmware that predates CAN.md format 2 (interop tests)
   const char* format = getenv("HWBRIDGE_CAN_FORMAT");
   if (format && atoi(format) == 1) nh.getHardware().setFormat(hwbridge::can::kFormat1);
+  // HWBRIDGE_CAN_CHAINS=0: behave as CAN.md version-2 firmware (no chained transfers)
+  const char* chains = getenv("HWBRIDGE_CAN_CHAINS");
+  if (chains && atoi(chains) == 0) nh.getHardware().setChains(false);
+  imu_msg.header.frame_id.assign("imu_link");
+  imu_msg.linear_acceleration.z = 9.81;
   nh.initNode(0, "canboard", "1.0");
   nh.advertise(counter);
+  nh.advertise(imu);
   nh.subscribe(cmd);
   nh.advertiseService(ping);
 }
@@ -70,6 +87,10 @@ void loop() {
   if (millis() - last_ms >= 50) {
     last_ms = millis();
     if (counter.publish(count_msg)) ++count_msg.data;
+  }
+  if (millis() - last_imu_ms >= 100) {
+    last_imu_ms = millis();
+    if (imu.publish(imu_msg)) imu_msg.orientation.w += 1.0;
   }
   delay(1);
 }

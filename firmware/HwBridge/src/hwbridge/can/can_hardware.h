@@ -7,6 +7,8 @@
 // Each transfer received from the host for this node is COBS-encoded, with its delimiter, into
 // the bytes read() returns. Node-id claims go out at start and every second; a claim of our node
 // id by another unique id is counted (ownConflicts()). Buffers are bounded; drops are counted.
+// To a host whose claims say it takes chains (CAN.md 12), the best-effort fragments of one
+// message go as one chained transfer, streamed (ChainSender in transport.h).
 //
 // Driver concept:
 //   bool begin(uint8_t node)                       opens the controller (bit rate set before);
@@ -45,6 +47,8 @@ struct CanHardwareStats {
   uint32_t rx_ignored;     ///< transfers for us that were not from the host, or NODE messages
   uint32_t claims_sent;    ///< node-id claims sent
   uint32_t format_changes; ///< times the host's claims changed the format spoken (CAN.md 11)
+  uint32_t tx_chains;      ///< chained transfers begun (CAN.md 12)
+  uint32_t chain_breaks;   ///< chains left unfinished by a datagram that did not continue them
 };
 
 /**
@@ -64,7 +68,7 @@ class CanHardware {
   // initial values in flash (node 0 stands for "not set": node 1)
   constexpr CanHardware()
       : stats(), driver_(), receiver_(0), tids_(), watch_(), node_(0), speak1_(false),
-        fixed1_(false), uid_(),
+        fixed1_(false), host_chains_(false), no_chains_(false), chain_(), uid_(),
         out_(), out_len_(0), out_overflow_(false), ring_(), head_(0), tail_(0), count_(0),
         last_claim_(0), claimed_(false), started_(false) {}
 
@@ -96,6 +100,7 @@ class CanHardware {
     }
     started_ = driver_.begin(node_);
     claimed_ = false;
+    chain_.cancel();
     return started_;
   }
 
@@ -171,8 +176,17 @@ class CanHardware {
         ++stats.tx_oversize;
         return false;
       }
+      if (chain_.active() && h.kind == kBestEffort) {  // other streams go beside a chain
+        if (chain_.continues(h, n - 5)) return takeChain(datagram + 3, n - 5);
+        chain_.cancel();
+        ++stats.chain_breaks;
+      }
       const uint32_t id = encode_id2(priority_of(h.kind, h.channel), h.kind, h.channel, kHostNode,
                                      node_, h.seq, h.frag);
+      if (host_chains_ && chain_.begin(id, h, datagram + 3, n - 5)) {
+        ++stats.tx_chains;
+        return takeChain(datagram + 7, n - 9);
+      }
       return sendFrames(id, queue_class(h.kind), datagram + 3, n - 5, h.seq);
     }
     uint8_t kind;
@@ -196,6 +210,12 @@ class CanHardware {
     receiver_.setFormat2(!fixed1_);
   }
 
+  /** false: behave as CAN.md version-2 firmware, never sending chained transfers (CAN.md 12);
+   * true (the default): chain to a host whose claims say it takes chains. */
+  void setChains(bool on) { no_chains_ = !on; }
+  /** True while the host's claims say it takes chained transfers (and chains are on). */
+  bool hostTakesChains() const { return host_chains_; }
+
   /** The receiver's counters (CAN.md 5). */
   const CanStats& rxStats() const { return receiver_.stats; }
   /** Claims of this node id by another unique id (two boards configured with one node id). */
@@ -214,6 +234,16 @@ class CanHardware {
       return true;
     }
   };
+
+  bool takeChain(const uint8_t* data, size_t n) {
+    DriverSink sink = {&driver_, kPriorityBestEffort, &stats.tx_frames};
+    if (!chain_.take(data, n, sink)) {
+      ++stats.tx_errors;
+      return false;
+    }
+    if (!chain_.active()) ++stats.tx_transfers;
+    return true;
+  }
 
   bool sendTransfer(uint32_t id, uint8_t priority, const uint8_t* data, size_t n) {
     return sendFrames(id, priority, data, n, tids_.next(id));
@@ -254,6 +284,9 @@ class CanHardware {
           speak1_ = t.id.format == kFormat1;  // speak what the host claims in (CAN.md 11)
           ++stats.format_changes;
         }
+        if (t.id.source == kHostNode) {  // claim bit 11: the host takes chains (CAN.md 12)
+          host_chains_ = !no_chains_ && t.id.format == kFormat2 && (t.id.seq_high & 1) != 0;
+        }
       }
       return;
     }
@@ -288,6 +321,9 @@ class CanHardware {
   uint8_t node_;
   bool speak1_;  // false: format 2 (members zero by default keep a global board in .bss)
   bool fixed1_;
+  bool host_chains_;
+  bool no_chains_;
+  ChainSender chain_;
   uint8_t uid_[kUidSize];
   uint8_t out_[kOutCap];
   size_t out_len_;

@@ -155,9 +155,10 @@ class Mcp2515T {
    * (the transport filters). RXB0 (RXM0: format bit, direction bit, node field), rolling over
    * into RXB1: format 2 to this node (RXF0), format 1 from the host (RXF1: to this node, and to
    * others, only while a format-1 host is on the bus). RXB1 (RXM1: id bits 15..7, the format-1
-   * destination field): format-2 frames from the host whose seq bits 7..5 and frag are 0 (RXF2:
-   * the host's claims, and an eighth or so of its traffic to other boards), format 1 to this
-   * node (RXF3, RXF5), format 1 to the host (RXF4: format-1 claims). A format-2 board claiming
+   * destination field): format-2 frames from the host whose frag is 0 and seq bits 7..5 are 001
+   * (RXF2: the claims of a host that takes chains, CAN.md 12, bit 11 set) or 000 (RXF5: a
+   * version-2 host's claims), with a quarter or so of its traffic to other boards, format 1 to
+   * this node (RXF3), format 1 to the host (RXF4: format-1 claims). A format-2 board claiming
    * this node id is not let through: the host reports that conflict (CAN.md 2).
    */
   bool begin(uint8_t node = 0) {
@@ -181,11 +182,11 @@ class Mcp2515T {
       writeRegs(mcp::kRxm0, r, 8);
       mcp2515_id_regs(kFormat2Bit | node, true, r);           // RXF0: format 2 to us
       mcp2515_id_regs(0, true, r + 4);                         // RXF1: format 1 from the host
-      mcp2515_id_regs(kFormat2Bit, true, r + 8);               // RXF2: the host's claims
+      mcp2515_id_regs(kFormat2Bit | kClaimChains, true, r + 8);  // RXF2: claims, chains
       writeRegs(mcp::kRxf0, r, 12);
       mcp2515_id_regs(encode_id(0, 0, 0, node, 0), true, r);  // RXF3: format 1 to us
       mcp2515_id_regs(0, true, r + 4);                         // RXF4: format 1 to the host
-      memcpy(r + 8, r, 4);                                     // RXF5: as RXF3
+      mcp2515_id_regs(kFormat2Bit, true, r + 8);               // RXF5: version-2 claims
       writeRegs(mcp::kRxf3, r, 12);
       writeReg(mcp::kRxb0Ctrl, 0x04);  // filters on, roll over into RXB1
       writeReg(mcp::kRxb1Ctrl, 0x00);

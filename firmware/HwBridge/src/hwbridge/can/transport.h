@@ -2,8 +2,10 @@
 // tail bytes, single- and multi-frame transfers with their CRC, and the receiver's checks
 // (malformed, foreign, unexpected, duplicate, CRC, abandoned, timeout, oversize), in both
 // formats: 1 (the whole native datagram in each transfer) and 2 (CAN.md version 2: the native
-// header in the id and the tail byte, no native CRC-16). Header-only C++11, no heap: every
-// buffer is a member sized by template arguments.
+// header in the id and the tail byte, no native CRC-16), and the sending side of chained
+// transfers (CAN.md version 3, section 12: a message's best-effort fragments as one transfer;
+// a board does not take chains, its receiver drops them as malformed). Header-only C++11, no
+// heap: every buffer is a member sized by template arguments.
 #ifndef HWBRIDGE_CAN_TRANSPORT_H
 #define HWBRIDGE_CAN_TRANSPORT_H
 
@@ -42,6 +44,10 @@ static const uint8_t kFormat2 = 2;
 static const uint32_t kFormat2Bit = 1UL << 15;
 static const uint32_t kToHostBit = 1UL << 14;
 static const uint32_t kReserved2Mask = 0x3UL << 7;
+static const uint32_t kChainBit = 1UL << 7;
+static const uint32_t kClaimChains = 1UL << 11;  ///< in a format-2 claim: takes chains
+static const uint16_t kChainMax = 4096;          ///< the longest message chained
+static const uint16_t kChainMinSize = 32;        ///< fragment sizes 32 << code, code 0..7
 
 /** id = priority << 26 | kind << 24 | channel << 16 | destination << 7 | source. */
 inline uint32_t encode_id(uint8_t priority, uint8_t kind, uint8_t channel, uint8_t destination,
@@ -224,6 +230,108 @@ bool send_transfer(uint32_t id, const uint8_t* payload, size_t n, uint8_t tid, u
   }
   return true;
 }
+
+/**
+ * The chained transfer a board sends (CAN.md 12): the best-effort fragments of one message,
+ * FIRST .. LAST, at a power-of-two size, carried as one transfer of the message bytes alone (no
+ * length), one transfer CRC, classic frames filled end to end. It streams: each fragment's bytes
+ * go out in frames of 7 as they come, at most 7 bytes wait for the next fragment, so a board
+ * needs no buffer for the message. Members all zero: a global one is in .bss.
+ */
+class ChainSender {
+ public:
+  constexpr ChainSender()
+      : frame_(), left_(0), size_(0), crc_(0), toggle_(0), tid_(0), next_seq_(0), channel_(0),
+        first_(false), active_(false) {}
+
+  bool active() const { return active_; }
+  void cancel() { active_ = false; }
+
+  /** True when a best-effort datagram with header h and n payload bytes is the chain's next
+   * fragment. */
+  bool continues(const NativeHeader& h, size_t n) const {
+    if (!active_ || h.channel != channel_ || h.seq != next_seq_) {
+      return false;
+    }
+    return h.frag == 2 ? n == size_ && left_ > size_ : h.frag == 3 && n == left_ && n <= size_;
+  }
+
+  /** Starts a chain with a FIRST fragment (header h, format-2 id id, payload p of n bytes: the
+   * length and the first chunk); false, nothing started, when it is not one a chain can carry.
+   * Then take() its chunk, p + 4. */
+  bool begin(uint32_t id, const NativeHeader& h, const uint8_t* p, size_t n) {
+    if (h.kind != kBestEffort || h.frag != 1 || p[2] != 0 || p[3] != 0) return false;
+    uint8_t code = 0;
+    while ((static_cast<size_t>(kChainMinSize) << code) < n && code < 7) ++code;
+    const size_t total = static_cast<size_t>(p[0] | p[1] << 8);
+    if ((static_cast<size_t>(kChainMinSize) << code) != n || total <= n - 4 || total > kChainMax) {
+      return false;
+    }
+    // the fragment's id (frag FIRST in bits 10..9) with the chain bit and the size code
+    frame_.id = (id & ~(3UL << 9)) | (static_cast<uint32_t>(code) << 8) | kChainBit;
+    frame_.extended = true;
+    frame_.len = 0;
+    left_ = static_cast<uint16_t>(total);
+    size_ = static_cast<uint16_t>(n);
+    crc_ = hwbridge::kCrcInit;
+    toggle_ = kToggle;
+    tid_ = static_cast<uint8_t>(h.seq & kTidMask);
+    next_seq_ = h.seq;
+    channel_ = h.channel;
+    first_ = true;
+    active_ = true;
+    return true;
+  }
+
+  /** Takes the next chunk of the message (the FIRST's after its length, then each MIDDLE's
+   * and the LAST's payload), giving every frame it completes to sink(const Frame&); with the
+   * last chunk the CRC and the end frame. False when the sink refused a frame (the chain is
+   * dropped: the receiver's CRC or toggles refuse what it got). */
+  template <class Sink>
+  bool take(const uint8_t* d, size_t n, Sink& sink) {
+    ++next_seq_;
+    left_ = static_cast<uint16_t>(left_ - n);
+    crc_ = hwbridge::crc16(d, n, crc_);
+    if (!put(d, n, sink)) return false;
+    if (left_ != 0) return true;
+    const uint8_t crc[2] = {static_cast<uint8_t>(crc_ >> 8), static_cast<uint8_t>(crc_)};
+    active_ = false;
+    return put(crc, 2, sink) && emit(kEnd, sink);
+  }
+
+ private:
+  // frame_.len counts the bytes waiting in frame_.data (the tail byte goes in at emit)
+  template <class Sink>
+  bool put(const uint8_t* d, size_t n, Sink& sink) {
+    for (size_t i = 0; i < n; ++i) {
+      if (frame_.len == kClassicMtu - 1 && !emit(0, sink)) return false;
+      frame_.data[frame_.len++] = d[i];
+    }
+    return true;
+  }
+  template <class Sink>
+  bool emit(uint8_t end, Sink& sink) {
+    frame_.data[frame_.len] = static_cast<uint8_t>((first_ ? kStart : 0) | end | toggle_ | tid_);
+    ++frame_.len;
+    const bool ok = sink(static_cast<const Frame&>(frame_));
+    frame_.len = 0;
+    first_ = false;
+    toggle_ ^= kToggle;
+    if (!ok) active_ = false;
+    return ok;
+  }
+
+  Frame frame_;    // the id, and the bytes waiting for the next frame
+  uint16_t left_;  // message bytes still to come
+  uint16_t size_;  // fragment size
+  uint16_t crc_;
+  uint8_t toggle_;
+  uint8_t tid_;
+  uint8_t next_seq_;
+  uint8_t channel_;
+  bool first_;
+  bool active_;
+};
 
 /**
  * A sender's transfer ids: one counter per CAN id, 0..31, for up to Ids ids at once (the ids a

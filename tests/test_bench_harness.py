@@ -98,6 +98,17 @@ def test_bridge_bench_runs_small_and_prints_the_documented_fields() -> None:
             ):
                 assert isinstance(line[field], float), field
             assert line["rtt_p50_us"] > line["board_us"] > 0
+            # The floor is the sum of its named parts, the ratio is the round trip over it.
+            parts = line["floor_parts_us"]
+            assert set(parts) == {"zenoh_rtt", "pty_rtt_idle", "board"}
+            assert parts["zenoh_rtt"] == line["zenoh_rtt_p50_us"]
+            assert parts["board"] == line["board_us"]
+            assert line["floor_p50_us"] == pytest.approx(sum(parts.values()), abs=0.2)
+            assert line["rtt_over_floor"] == pytest.approx(
+                line["rtt_p50_us"] / line["floor_p50_us"], rel=1e-2
+            )
+            # A call's request and answer are whole frames: a few bytes each, never zero.
+            assert line["frame_bytes"]["request"] > 4 and line["frame_bytes"]["reply"] > 4
 
 
 def test_hotpath_bench_prints_each_trick_against_its_plain_code() -> None:

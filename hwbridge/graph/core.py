@@ -772,15 +772,19 @@ class ServiceServer:
 class DeferredReply:
     """The answer to one call of a deferred service, given later from any thread (once)."""
 
+    __slots__ = ("_query", "_server")
+
     def __init__(self, query: zenoh.Query, server: ServiceServer) -> None:
-        self._query: zenoh.Query | None = query
+        self._query = [query]
+        """The query until it is answered: ``list.pop`` hands it to exactly one answer, from
+        any thread, without a lock per call (one is built for every call of the service)."""
         self._server = server
-        self._lock = threading.Lock()
 
     def _finish(self) -> zenoh.Query | None:
-        with self._lock:
-            query, self._query = self._query, None
-        return query
+        try:
+            return self._query.pop()
+        except IndexError:  # answered already
+            return None
 
     def ok(self, payload: bytes) -> None:
         """Send the response bytes (ignored if an answer was already given)."""

@@ -259,17 +259,22 @@ class SerialLink(Link):
     def _write(self, data: memoryview) -> None:
         import serial
 
-        if self._fd is not None and self._waker is not None:
-            fd = self._fd
+        fd = self._fd
+        if fd is not None and self._waker is not None:
             try:
-                write_all(
-                    lambda view: os.write(fd, view),
-                    fd,
-                    data,
-                    self._waker,
-                    self.write_timeout,
-                    self.url,
-                )
+                try:
+                    sent = os.write(fd, data)  # the common case: the port's buffer has room
+                except (BlockingIOError, InterruptedError):
+                    sent = 0
+                if sent < len(data):
+                    write_all(
+                        lambda view: os.write(fd, view),
+                        fd,
+                        data[sent:],
+                        self._waker,
+                        self.write_timeout,
+                        self.url,
+                    )
             except OSError as exc:
                 raise self._gone(exc, "writing") from exc
             return

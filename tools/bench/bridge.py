@@ -33,7 +33,18 @@ cost a caller that keeps calling does not pay.) ``p50_us`` minus ``graph_rtt_p50
 what the bridge itself adds; ``graph_rtt_p50_us`` minus ``zenoh_rtt_p50_us`` is what the graph
 layer adds to Zenoh.
 
-Runs with no arguments in about a minute; prints one JSON object per line.
+The floor of a bridged call, ``floor_p50_us``, is what any bridge pays with this board and
+these processes, summed from parts measured in the same run (``floor_parts_us``): a Zenoh round
+trip (``zenoh_rtt_p50_us``), a round trip on the board's link with the board idle between
+rounds (a raw echo process on the board's end of the same transport, ``pty://`` or
+``tcp-listen://``, answering the request's bytes with as many bytes as the board's answer,
+``frame_bytes``, paused as in a call) and the board's own handling (``board_us``, which a
+Python board makes far longer than a C++ one). ``rtt_over_floor`` is ``rtt_p50_us /
+floor_p50_us``: what the bridge costs beyond the floor, as a ratio. ``rtt_over_zenoh_plus_link``
+leaves the board's handling out of the floor (it charges the board's time to the bridge).
+
+Runs with no arguments in about a minute; prints one JSON object per line. ``--cases latency``
+runs only the service calls.
 """
 
 from __future__ import annotations
@@ -173,7 +184,8 @@ def board_main(protocol: str, url: str) -> None:
             send_all(to_send)
             print("sent", flush=True)
         elif command == "handling":
-            print(json.dumps(handling), flush=True)
+            sizes = {"request_bytes": timer.request_bytes, "reply_bytes": timer.reply_bytes}
+            print(json.dumps({"seconds": handling, **sizes}), flush=True)
         elif command == "quit":
             break
     pump.stop()
@@ -247,14 +259,20 @@ class _BoardTimer:
     def __init__(self, inner: Any, samples: list[float]) -> None:
         self.inner = inner
         self.samples = samples
+        self.request_bytes: list[int] = []
+        """Per answered call: bytes of the link read that brought the request."""
+        self.reply_bytes: list[int] = []
+        """Per answered call: bytes written with the answer (a held ACK rides along)."""
         self.answered = False
         self._received_at: float | None = None
+        self._read_size = 0
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self.inner, name)
 
     def receive_data(self, data: bytes, now: float) -> list[Any]:
         self._received_at = time.perf_counter()
+        self._read_size = len(data)
         result: list[Any] = self.inner.receive_data(data, now)
         return result
 
@@ -266,24 +284,32 @@ class _BoardTimer:
         chunks: list[bytes] = self.inner.chunks_to_send()
         if chunks and self.answered and self._received_at is not None:
             self.samples.append(time.perf_counter() - self._received_at)
+            self.request_bytes.append(self._read_size)
+            self.reply_bytes.append(sum(map(len, chunks)))
             self.answered = False
             self._received_at = None
         return chunks
 
 
-def echo_main(symlink: str) -> None:
-    """A raw echo on a pty: the round trip a link costs without any protocol."""
+def echo_main(url: str, request_size: int = 16, reply_size: int = 16) -> None:
+    """A raw echo on a link (the board's end: ``pty://`` or ``tcp-listen://``): the round trip a
+    link costs without any protocol. Each ``request_size`` bytes read are answered with
+    ``reply_size`` bytes (a service call's frames are not the same size both ways)."""
     from hwbridge.links import LinkClosedError, open_link
 
-    link = open_link(f"pty://?symlink={symlink}")
+    link = open_link(url)
+    reply = b"\x00" * reply_size
     print("ready", flush=True)
+    pending = 0
     while True:
         try:
             data = link.read(4096, timeout=1.0)
         except LinkClosedError:
             break
-        if data:
-            link.write(data)
+        pending += len(data)
+        while pending >= request_size:
+            pending -= request_size
+            link.write(reply)
 
 
 # ---------------------------------------------------------------------------------- the client
@@ -378,17 +404,22 @@ def _graph_call(node: Any, service: str) -> Callable[[], None]:
     return lambda: node.call_raw(service, "std_srvs/Trigger", b"", timeout=2.0)
 
 
-def echo_client_main(path: str, rounds: int, pause: float = 0.0) -> None:
+def echo_client_main(
+    url: str, rounds: int, pause: float = 0.0, request_size: int = 16, reply_size: int = 16
+) -> None:
+    """Time ``rounds`` round trips to :func:`echo_main` over the link at ``url`` (the bridge's
+    end: ``serial://`` or ``socket://``), ``pause`` seconds apart; prints [seconds]."""
     from hwbridge.links import open_link
 
-    link = open_link(f"serial://{path}")
+    link = open_link(url)
+    request = b"\x00" * request_size
     times = []
     for _ in range(rounds):
         started = time.perf_counter()
-        link.write(b"\x00" * 16)
-        got = b""
-        while len(got) < 16:
-            got += link.read(64, timeout=1.0)
+        link.write(request)
+        got = 0
+        while got < reply_size:
+            got += len(link.read(4096, timeout=1.0))
         times.append(time.perf_counter() - started)
         if pause:
             time.sleep(pause)
@@ -459,81 +490,127 @@ def run_protocol(
             if time.monotonic() > deadline:
                 raise RuntimeError(f"{protocol} board did not connect")
             time.sleep(0.05)
-        sub = _spawn("--subscriber", endpoint, "/bench/data", str(messages))
-        time.sleep(1.0)  # let the subscription reach the bridge
-        _ask(board, f"prepare {messages}")
-        cpu0, wall0 = time.process_time(), time.perf_counter()
-        _ask(board, "go")
-        assert sub.stdout is not None
-        result = json.loads(sub.stdout.readline())
-        cpu = (time.process_time() - cpu0) / max(time.perf_counter() - wall0, 1e-9)
-        sub.wait(10)
-        rate = result["count"] / result["seconds"] if result["seconds"] > 0 else 0.0
-        stats = bridge.boards[name].info()
-        counted = {
-            key: value
-            for key, value in {**stats["stats"], **stats["link"]}.items()
-            if key in _DROP_COUNTERS and value
-        }
-        raw = zenoh_raw_rate(graph, endpoint, messages)
-        emit(
-            f"bridge_throughput_{protocol}_{transport}",
-            {"payload": 16},
-            rate,
-            "zenoh_raw",
-            raw,
-            received=result["count"],
-            sent=messages,
-            bridge_cpu_fraction=round(cpu, 3),
-            bridge_drop_counters=counted,
-        )
-
-        answer = _trigger_ok()
-        graph.node("bench_graph").service(
-            "/bench/graph_trigger", "std_srvs/Trigger", lambda _request: answer, raw=True
-        )
-        raw_server = graph.session.declare_queryable(
-            RAW_KEY, lambda query: query.reply(RAW_KEY, answer, express=True)
-        )
-        floors = f"@{GRAPH_PAUSE!r}"
-        targets = ["/bench/trigger", "/bench/graph_trigger" + floors, f"zenoh:{RAW_KEY}" + floors]
-        try:
-            measured = _call_times(endpoint, calls, targets)
-        finally:
-            raw_server.undeclare()
-        times, graph_times, zenoh_times = (measured[target] for target in targets)
-        handling = json.loads(_ask(board, "handling") or "[]")
-        board_time = statistics.median(handling) if handling else 0.0
-        host = [t - echo_rtt - board_time for t in times]
-        # The same echo with each side idle between rounds as long as the board is in a bridged
-        # call (the rest of the round trip): the pty round trip as the call meets it.
-        idle = max(_percentile(times, 0.5) - board_time - echo_rtt, 0.0)
-        echo_idle = pty_echo_rtt(tmp, 500, pause=idle)
-        emit(
-            f"bridge_latency_{protocol}_{transport}",
-            {"payload": 0},
-            1.0 / statistics.mean(times),
-            "pty_echo",
-            1.0 / echo_rtt,
-            p50_us=round(_percentile(host, 0.5) * 1e6, 1),
-            p99_us=round(_percentile(host, 0.99) * 1e6, 1),
-            rtt_p50_us=round(_percentile(times, 0.5) * 1e6, 1),
-            rtt_p99_us=round(_percentile(times, 0.99) * 1e6, 1),
-            board_us=round(board_time * 1e6, 1),
-            pty_echo_us=round(echo_rtt * 1e6, 1),
-            pty_echo_idle_us=round(echo_idle * 1e6, 1),
-            p50_idle_echo_us=round(
-                _percentile([t + echo_rtt - echo_idle for t in host], 0.5) * 1e6, 1
-            ),
-            graph_rtt_p50_us=round(_percentile(graph_times, 0.5) * 1e6, 1),
-            zenoh_rtt_p50_us=round(_percentile(zenoh_times, 0.5) * 1e6, 1),
-            calls=len(times),
-        )
+        if messages:
+            _throughput(bridge, board, graph, endpoint, name, protocol, transport, messages)
+        if calls:
+            _latency(board, graph, endpoint, protocol, transport, tmp, calls, echo_rtt)
     finally:
         _ask(board, "quit")
         board.wait(10)
         bridge.stop()
         graph.close()
+
+
+def _throughput(
+    bridge: Any,
+    board: subprocess.Popen[str],
+    graph: Any,
+    endpoint: str,
+    name: str,
+    protocol: str,
+    transport: str,
+    messages: int,
+) -> None:
+    """Board -> bridge -> subscriber process, against Zenoh alone (one JSON line)."""
+    sub = _spawn("--subscriber", endpoint, "/bench/data", str(messages))
+    time.sleep(1.0)  # let the subscription reach the bridge
+    _ask(board, f"prepare {messages}")
+    cpu0, wall0 = time.process_time(), time.perf_counter()
+    _ask(board, "go")
+    assert sub.stdout is not None
+    result = json.loads(sub.stdout.readline())
+    cpu = (time.process_time() - cpu0) / max(time.perf_counter() - wall0, 1e-9)
+    sub.wait(10)
+    rate = result["count"] / result["seconds"] if result["seconds"] > 0 else 0.0
+    stats = bridge.boards[name].info()
+    counted = {
+        key: value
+        for key, value in {**stats["stats"], **stats["link"]}.items()
+        if key in _DROP_COUNTERS and value
+    }
+    raw = zenoh_raw_rate(graph, endpoint, messages)
+    emit(
+        f"bridge_throughput_{protocol}_{transport}",
+        {"payload": 16},
+        rate,
+        "zenoh_raw",
+        raw,
+        received=result["count"],
+        sent=messages,
+        bridge_cpu_fraction=round(cpu, 3),
+        bridge_drop_counters=counted,
+    )
+
+
+def _latency(
+    board: subprocess.Popen[str],
+    graph: Any,
+    endpoint: str,
+    protocol: str,
+    transport: str,
+    tmp: Path,
+    calls: int,
+    echo_rtt: float,
+) -> None:
+    """Service calls through the bridge, against their floor (one JSON line)."""
+    answer = _trigger_ok()
+    graph.node("bench_graph").service(
+        "/bench/graph_trigger", "std_srvs/Trigger", lambda _request: answer, raw=True
+    )
+    raw_server = graph.session.declare_queryable(
+        RAW_KEY, lambda query: query.reply(RAW_KEY, answer, express=True)
+    )
+    floors = f"@{GRAPH_PAUSE!r}"
+    targets = ["/bench/trigger", "/bench/graph_trigger" + floors, f"zenoh:{RAW_KEY}" + floors]
+    try:
+        measured = _call_times(endpoint, calls, targets)
+    finally:
+        raw_server.undeclare()
+    times, graph_times, zenoh_times = (measured[target] for target in targets)
+    handling = json.loads(_ask(board, "handling"))
+    board_time = statistics.median(handling["seconds"]) if handling["seconds"] else 0.0
+    sizes = (
+        int(statistics.median(handling["request_bytes"] or [16])),
+        int(statistics.median(handling["reply_bytes"] or [16])),
+    )
+    host = [t - echo_rtt - board_time for t in times]
+    # The same echo with each side idle between rounds as long as the board is in a bridged
+    # call (the rest of the round trip): the pty round trip as the call meets it.
+    idle = max(_percentile(times, 0.5) - board_time - echo_rtt, 0.0)
+    echo_idle = pty_echo_rtt(tmp, 500, pause=idle)
+    # The floor's link part: that idle echo on this run's transport, with the call's own
+    # frame sizes each way.
+    link_idle = pty_echo_rtt(tmp, 500, pause=idle, transport=transport, sizes=sizes)
+    rtt_p50 = _percentile(times, 0.5)
+    zenoh_p50 = _percentile(zenoh_times, 0.5)
+    floor = zenoh_p50 + link_idle + board_time
+    emit(
+        f"bridge_latency_{protocol}_{transport}",
+        {"payload": 0},
+        1.0 / statistics.mean(times),
+        "pty_echo",
+        1.0 / echo_rtt,
+        p50_us=round(_percentile(host, 0.5) * 1e6, 1),
+        p99_us=round(_percentile(host, 0.99) * 1e6, 1),
+        rtt_p50_us=round(_percentile(times, 0.5) * 1e6, 1),
+        rtt_p99_us=round(_percentile(times, 0.99) * 1e6, 1),
+        board_us=round(board_time * 1e6, 1),
+        pty_echo_us=round(echo_rtt * 1e6, 1),
+        pty_echo_idle_us=round(echo_idle * 1e6, 1),
+        p50_idle_echo_us=round(_percentile([t + echo_rtt - echo_idle for t in host], 0.5) * 1e6, 1),
+        graph_rtt_p50_us=round(_percentile(graph_times, 0.5) * 1e6, 1),
+        zenoh_rtt_p50_us=round(zenoh_p50 * 1e6, 1),
+        floor_p50_us=round(floor * 1e6, 1),
+        floor_parts_us={
+            "zenoh_rtt": round(zenoh_p50 * 1e6, 1),
+            f"{transport}_rtt_idle": round(link_idle * 1e6, 1),
+            "board": round(board_time * 1e6, 1),
+        },
+        frame_bytes={"request": sizes[0], "reply": sizes[1]},
+        rtt_over_floor=round(rtt_p50 / floor, 3),
+        rtt_over_zenoh_plus_link=round(rtt_p50 / (zenoh_p50 + link_idle), 3),
+        calls=len(times),
+    )
 
 
 def _call_times(endpoint: str, calls: int, targets: list[str]) -> dict[str, list[float]]:
@@ -564,13 +641,33 @@ def zenoh_raw_rate(graph: Any, endpoint: str, messages: int) -> float:
     return float(result["count"] / result["seconds"]) if result["seconds"] > 0 else 0.0
 
 
-def pty_echo_rtt(tmp: Path, rounds: int, pause: float = 0.0) -> float:
-    """Median round trip of 16 bytes through a pty echo; ``pause`` seconds between rounds."""
-    path = tmp / "tty-echo"
-    echo = _spawn("--echo", str(path))
+def pty_echo_rtt(
+    tmp: Path,
+    rounds: int,
+    pause: float = 0.0,
+    transport: str = "pty",
+    sizes: tuple[int, int] = (16, 16),
+) -> float:
+    """Median round trip through a raw echo on the ``transport`` a board uses (``pty`` or
+    ``tcp``): ``sizes`` bytes out and back, ``pause`` seconds between rounds."""
+    if transport == "pty":
+        path = tmp / "tty-echo"
+        board_end, bridge_end = f"pty://?symlink={path}", f"serial://{path}"
+    else:
+        port = _free_port()
+        board_end, bridge_end = f"tcp-listen://127.0.0.1:{port}", f"socket://127.0.0.1:{port}"
+    echo = _spawn("--echo", board_end, *map(str, sizes))
     try:
         done = subprocess.run(
-            [sys.executable, __file__, "--echo-client", str(path), str(rounds), f"--pause={pause}"],
+            [
+                sys.executable,
+                __file__,
+                "--echo-client",
+                bridge_end,
+                str(rounds),
+                *map(str, sizes),
+                f"--pause={pause}",
+            ],
             capture_output=True,
             text=True,
             timeout=120,
@@ -585,14 +682,23 @@ def pty_echo_rtt(tmp: Path, rounds: int, pause: float = 0.0) -> float:
 def main() -> None:
     parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     parser.add_argument("--board", nargs=2, metavar=("PROTOCOL", "PATH"))
-    parser.add_argument("--echo", metavar="PATH")
-    parser.add_argument("--echo-client", nargs=2, metavar=("PATH", "ROUNDS"))
+    parser.add_argument("--echo", nargs=3, metavar=("URL", "REQUEST_BYTES", "REPLY_BYTES"))
+    parser.add_argument(
+        "--echo-client", nargs=4, metavar=("URL", "ROUNDS", "REQUEST_BYTES", "REPLY_BYTES")
+    )
     parser.add_argument("--pause", type=float, default=0.0, help=argparse.SUPPRESS)
     parser.add_argument("--subscriber", nargs=3, metavar=("ENDPOINT", "TOPIC", "N"))
     parser.add_argument("--caller", nargs="+", metavar="ENDPOINT N TARGET")
     parser.add_argument("--messages", type=int, default=N_MESSAGES)
     parser.add_argument("--calls", type=int, default=N_CALLS)
     parser.add_argument("--protocol", choices=["native", "rosserial", "both"], default="both")
+    parser.add_argument(
+        "--cases",
+        nargs="+",
+        choices=["throughput", "latency"],
+        default=["throughput", "latency"],
+        help="which measurements to run (default: both)",
+    )
     parser.add_argument(
         "--transport",
         nargs="+",
@@ -604,9 +710,10 @@ def main() -> None:
     if args.board:
         board_main(*args.board)
     elif args.echo:
-        echo_main(args.echo)
+        echo_main(args.echo[0], int(args.echo[1]), int(args.echo[2]))
     elif args.echo_client:
-        echo_client_main(args.echo_client[0], int(args.echo_client[1]), args.pause)
+        url, rounds, request_size, reply_size = args.echo_client
+        echo_client_main(url, int(rounds), args.pause, int(request_size), int(reply_size))
     elif args.subscriber:
         subscriber_main(args.subscriber[0], args.subscriber[1], int(args.subscriber[2]))
     elif args.caller:
@@ -618,7 +725,14 @@ def main() -> None:
             protocols = ["native", "rosserial"] if args.protocol == "both" else [args.protocol]
             for protocol in protocols:
                 for transport in args.transport:
-                    run_protocol(protocol, transport, Path(tmp), args.messages, args.calls, echo)
+                    run_protocol(
+                        protocol,
+                        transport,
+                        Path(tmp),
+                        args.messages if "throughput" in args.cases else 0,
+                        args.calls if "latency" in args.cases else 0,
+                        echo,
+                    )
 
 
 if __name__ == "__main__":

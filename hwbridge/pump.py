@@ -17,6 +17,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from typing import Any, Protocol, TypeVar, cast
 
@@ -31,6 +32,14 @@ T = TypeVar("T")
 _IDLE_TICK = 0.05  # seconds between ticks of a session that announces no deadline
 _LOCK_WAIT = 0.01
 """Seconds of waiting for the lock after a read past which the link is read again before a tick."""
+_SERVICE_EVERY = 0.05
+"""While the pump hands a burst of events on (a graph publish that blocks behind a slow
+subscriber, say), it reads the link and runs the session's timers at least this often (half the
+native protocol's heartbeat interval): the peer keeps hearing ACKs and heartbeats, however long
+the burst takes."""
+_BACKLOG = 4096
+"""Events waiting to be handed on past which the pump stops reading the link during a burst
+(memory stays bounded; the link's own flow control holds the peer back)."""
 
 
 class SansIOSession(Protocol):
@@ -79,6 +88,8 @@ class SessionPump:
         self.error: BaseException | None = None
         self.dropped_bytes = 0
         """Bytes written while a listening link had no peer (lost, as on an open wire)."""
+        self.services = 0
+        """How often the link was serviced in the middle of a long burst of events."""
 
     # ------------------------------------------------------------------ control
     def start(self) -> SessionPump:
@@ -148,6 +159,33 @@ class SessionPump:
         except Exception:
             log.exception("%s: handling %s failed", self.name, type(event).__name__)
 
+    def _service(self, deadline_of: Callable[[], float | None] | None) -> list[Any]:
+        """Between two events of a long burst: what arrived meanwhile, the timers if due, and
+        the bytes they produced."""
+        session, clock = self.session, self._clock
+        with self._lock:
+            data = self._read(0)
+            now = clock()
+            events: list[Any] = session.receive_data(data, now) if data else []
+            deadline = deadline_of() if deadline_of is not None else None
+            if deadline is None or now >= deadline:
+                events += session.tick(now)
+            self._flush()
+        return events
+
+    def _hand_on(self, events: list[Any], deadline_of: Callable[[], float | None] | None) -> None:
+        """Dispatch ``events``, servicing the link every :data:`_SERVICE_EVERY` seconds
+        meanwhile (what that reads is dispatched too, in order)."""
+        clock = self._clock
+        waiting = deque(events)
+        serviced = clock()
+        while waiting:
+            self._dispatch(waiting.popleft())
+            if waiting and len(waiting) < _BACKLOG and clock() - serviced >= _SERVICE_EVERY:
+                waiting.extend(self._service(deadline_of))
+                self.services += 1
+                serviced = clock()
+
     def _run(self) -> None:
         error: BaseException | None = None
         session, lock, clock = self.session, self._lock, self._clock
@@ -181,8 +219,8 @@ class SessionPump:
                                 events += session.receive_data(late, now)
                         events += session.tick(now)
                     self._flush()
-                for event in events:
-                    self._dispatch(event)
+                if events:
+                    self._hand_on(events, deadline_of)
         except LinkClosedError as exc:
             if not self._stop.is_set():
                 error = exc

@@ -104,3 +104,60 @@ def test_a_long_hold_of_the_lock_is_not_taken_for_a_silent_peer(
     ended = [e for e in device_events + host_events if isinstance(e, ns.Disconnected)]
     assert ended == []
     assert cast(ns.DeviceSession, device_pump.session).connected
+
+
+BURST = 60
+"""Messages the board sends at once in the burst test."""
+PER_EVENT = 0.05
+"""Seconds the host's handler takes for each (a graph publish blocked behind a slow subscriber):
+the burst takes BURST * PER_EVENT = 3 s to hand on, almost four times the device's link timeout."""
+
+
+def test_a_slow_handler_does_not_silence_the_link() -> None:
+    """The host's handler takes PER_EVENT for each message of a burst (as a Zenoh publish does
+    when a subscriber lags). Handing the burst on takes 3 s, but the host pump keeps reading the
+    link and running its timers meanwhile: the device (default link timeout, 0.8 s) keeps hearing
+    heartbeats and ACKs and never declares the link lost, and every message arrives in order.
+    Without the servicing between events the device hears nothing for 3 s and ends the session."""
+    from hwbridge.protocols import base
+
+    host_link, device_link = open_link("memory://pump-burst"), open_link("memory://pump-burst")
+    host = ns.HostSession(ns.HostConfig(time_sync_interval=0))
+    sketch = native_sketch()
+    device = ns.DeviceSession(
+        sketch.board, list(sketch.topics.values()), ns.DeviceConfig(time_sync_interval=0)
+    )
+    received: list[bytes] = []
+    host_events: list[Any] = []
+
+    def on_host_event(event: Any) -> None:
+        host_events.append(event)
+        if isinstance(event, base.Message):
+            time.sleep(PER_EVENT)
+            received.append(bytes(event.payload))
+
+    host_pump = SessionPump(host_link, host, on_host_event, name="host").start()
+    device_pump = SessionPump(device_link, device, lambda _e: None, name="device").start()
+    try:
+        assert wait_for(lambda: any(isinstance(e, ns.Connected) for e in host_events), 10)
+        payloads = [
+            len(text).to_bytes(4, "little") + text
+            for text in (f"m{i}".encode() for i in range(BURST))
+        ]
+
+        def burst(session: ns.DeviceSession) -> list[bool]:
+            return [session.publish(1, payload) for payload in payloads]
+
+        assert all(device_pump.call(burst))
+        assert wait_for(lambda: len(received) == BURST, 60)
+        assert received == payloads
+        device_stats = device_pump.call(lambda s: s.stats)
+        assert (device_stats.link_losses, device_stats.peer_resets) == (0, 0)
+        assert not [e for e in host_events if isinstance(e, ns.Disconnected)]
+        assert device_pump.call(lambda s: s.connected)
+        assert host_pump.services > 0
+    finally:
+        host_pump.stop()
+        device_pump.stop()
+        host_link.close()
+        device_link.close()

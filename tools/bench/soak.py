@@ -684,6 +684,7 @@ def _summary(
             key: sum(counts[board_name(index)][key] for index in range(boards))
             for key in ("link_losses", "peer_resets")
         },
+        **_loss_account(counts, boards),
         "out_of_order": sum(final["out_of_order"].values()),
         "published": published,
         "refused_by_board": refused,
@@ -708,6 +709,33 @@ def _summary(
             "below_one_core": bridge_cpu < 1.0,
             "rss_growth_below_5_pct": rss_growth < 5.0,
             "no_reliable_lost": reliable_lost == 0,
+        },
+    }
+
+
+def _loss_account(counts: dict[str, Any], boards: int) -> dict[str, Any]:
+    """What the firmware boards say of the link losses they declared (the Python emulators say
+    nothing of this): each loss's gap since the board last read a byte from the bridge, how long
+    the board's own loop had not run just before (starved of the CPU), and the bytes left unread
+    in its socket; the boards' own stalls (loop gaps above 200 ms) and the longest gap."""
+    notes: list[dict[str, int]] = []
+    stalls = longest = 0
+    for index in range(boards):
+        board = counts[board_name(index)]
+        notes += board.get("losses", [])
+        stalls += board.get("own_stalls", 0)
+        longest = max(longest, board.get("max_loop_gap_ms", 0))
+    starved = [n for n in notes if n["loop_gap_ms"] >= 200]
+    return {
+        "board_own_stalls": stalls,
+        "board_max_loop_gap_ms": longest,
+        "loss_account": {
+            "noted": len(notes),
+            "board_starved": len(starved),
+            "bridge_silent": len(notes) - len(starved),
+            "since_byte_ms": sorted(n["since_byte_ms"] for n in notes)[-10:],
+            "loop_gap_ms": sorted(n["loop_gap_ms"] for n in notes)[-10:],
+            "pending_bytes": sorted(n["pending"] for n in notes)[-10:],
         },
     }
 
@@ -738,6 +766,10 @@ def main() -> None:
     parser.add_argument(
         "--per-emulator", type=int, default=4, help="boards per Python emulator process"
     )
+    parser.add_argument(
+        "--log-dir",
+        help="keep the bridge's log (bridge-N.log, one per stage) in this folder",
+    )
     parser.add_argument("--emulator", nargs=5, help=argparse.SUPPRESS)
     parser.add_argument("--client", nargs=3, help=argparse.SUPPRESS)
     args = parser.parse_args()
@@ -760,8 +792,10 @@ def main() -> None:
         args.board_program = None
         if args.boards_kind == "firmware":
             args.board_program = build_board(Path(tmp) / "board")
+        logs = Path(args.log_dir) if args.log_dir else Path(tmp)
+        logs.mkdir(parents=True, exist_ok=True)
         for boards, stage_minutes in zip(counts, minutes, strict=True):
-            run_stage(args, boards, stage_minutes, Path(tmp))
+            run_stage(args, boards, stage_minutes, logs)
 
 
 if __name__ == "__main__":

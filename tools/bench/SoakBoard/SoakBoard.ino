@@ -153,8 +153,9 @@ void print_counts() {
   printf("], \"served\": %lu, \"link_losses\": %u, \"peer_resets\": %u, \"sessions\": %u,",
          static_cast<unsigned long>(served), static_cast<unsigned>(stats.link_losses),
          static_cast<unsigned>(stats.peer_resets), static_cast<unsigned>(stats.sessions));
-  printf(" \"own_stalls\": %lu, \"max_loop_gap_ms\": %lu, \"losses\": [",
-         static_cast<unsigned long>(own_stalls), static_cast<unsigned long>(max_loop_gap_ms));
+  printf(" \"stalls\": %u, \"own_stalls\": %lu, \"max_loop_gap_ms\": %lu, \"losses\": [",
+         static_cast<unsigned>(stats.stalls), static_cast<unsigned long>(own_stalls),
+         static_cast<unsigned long>(max_loop_gap_ms));
   for (int i = 0; i < loss_count && i < kMaxLossNotes; ++i) {
     printf("%s{\"since_byte_ms\": %lu, \"loop_gap_ms\": %lu, \"pending\": %d}", i ? ", " : "",
            static_cast<unsigned long>(loss_notes[i].since_byte_ms),

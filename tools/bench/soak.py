@@ -264,8 +264,9 @@ class _Histogram:
 
 
 def client_main(endpoint: str, boards: int, topics: int) -> None:
-    """Client process: subscribe to every topic, call every service each second; commands
-    on stdin: ``stats`` (this interval's figures), ``final`` (every topic's counts)."""
+    """Client process (``endpoint``: the bridges' Zenoh endpoints, comma-separated): subscribe
+    to every topic, call every service each second (once told ``call``); commands on stdin:
+    ``stats`` (this interval's figures), ``final`` (every topic's counts)."""
     from hwbridge.graph import ANY_TYPE, Graph
 
     lock = threading.Lock()
@@ -297,7 +298,7 @@ def client_main(endpoint: str, boards: int, topics: int) -> None:
 
     stop = threading.Event()
 
-    with Graph.attached(connect=[endpoint], domain=DOMAIN) as graph:
+    with Graph.attached(connect=endpoint.split(","), domain=DOMAIN) as graph:
         node = graph.node("soak_client")
         for index in range(boards):
             for j in range(topics):
@@ -486,43 +487,87 @@ def cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def run_stage(args: argparse.Namespace, boards: int, minutes: float, tmp: Path) -> None:
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
+def shard_ranges(boards: int, shards: int) -> list[range]:
+    """Board indices split into ``shards`` contiguous groups as even as can be (one bridge
+    process each)."""
+    shards = max(1, min(shards, boards))
+    cuts = [boards * k // shards for k in range(shards + 1)]
+    return [range(cuts[k], cuts[k + 1]) for k in range(shards)]
+
+
+def _bridge_samples(pids: list[int]) -> dict[str, int]:
+    """RSS, threads and descriptors of the bridge processes, added up."""
+    total = {"rss_kb": 0, "threads": 0, "fds": 0}
+    for pid in pids:
+        for key, value in proc_sample(pid).items():
+            total[key] += value
+    return total
+
+
+_SHARD_CONFIG: dict[str, Any] = {
+    "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": False}},
+}
+"""The Zenoh settings of a bridge process other than the first (plus its connect endpoint)."""
+
+
+def run_stage(args: argparse.Namespace, boards: int, minutes: float, tmp: Path) -> dict[str, Any]:
+    """One stage: ``boards`` boards for ``minutes``; prints a ``soak_sample`` line every
+    ``--sample`` seconds (unless ``args.quiet_samples``) and returns the stage's summary.
+    ``args.bridges`` (1) bridge processes share the boards (contiguous groups; each process is a
+    Zenoh router on its own endpoint, the others connected to the first, whose endpoint the
+    client connects to: one graph); ``args.calls`` (True): the client
+    calls every board's service once a second."""
+    shards = getattr(args, "bridges", 1)
+    groups = shard_ranges(boards, shards)
+    endpoints = [f"tcp/127.0.0.1:{free_port()}" for _ in groups]
     ports = [free_port() for _ in range(boards)]
     emulators: list[_Child] = []
     client: _Child | None = None
-    bridge: subprocess.Popen[bytes] | None = None
-    log = (tmp / f"bridge-{boards}.log").open("w+")
+    bridges: list[subprocess.Popen[bytes]] = []
+    logs = [(tmp / f"bridge-{boards}-{k}.log").open("w+") for k in range(len(groups))]
     try:
         start_boards(args, ports, emulators)
-        command = [*hwbridge_command(), "connect", "--listen", endpoint, "--quiet"]
-        command += ["--protocol", "native"]
-        for index in range(boards):
-            command += ["--name", board_name(index)]
-        command += [f"socket://127.0.0.1:{port}" for port in ports]
         env = dict(os.environ, HWBRIDGE_DOMAIN=DOMAIN)
         env.pop("HWBRIDGE_ENDPOINT", None)
         env.pop("HWBRIDGE_ZENOH_CONFIG", None)
-        bridge = proc = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=log, env=env)
-        deadline = time.monotonic() + 60
+        for shard, (group, endpoint, log) in enumerate(zip(groups, endpoints, logs, strict=True)):
+            shard_env = env
+            if shard:  # the other bridges' routers join the first's: one graph
+                config = tmp / f"bridge-{boards}-{shard}.json5"
+                config.write_text(
+                    json.dumps(_SHARD_CONFIG | {"connect": {"endpoints": endpoints[:1]}})
+                )
+                shard_env = dict(env, HWBRIDGE_ZENOH_CONFIG=str(config))
+            command = [*hwbridge_command(), "connect", "--listen", endpoint, "--quiet"]
+            command += ["--protocol", "native"]
+            for index in group:
+                command += ["--name", board_name(index)]
+            command += [f"socket://127.0.0.1:{ports[index]}" for index in group]
+            bridges.append(
+                subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=log, env=shard_env)
+            )
+        deadline = time.monotonic() + 60 + boards
         while sum(int(e.ask("status")) for e in emulators) < boards:
-            if time.monotonic() > deadline or proc.poll() is not None:
-                log.seek(0)
-                raise RuntimeError(f"{boards} boards did not all connect: {log.read()[-2000:]}")
+            if time.monotonic() > deadline or any(b.poll() is not None for b in bridges):
+                logs[0].seek(0)
+                text = logs[0].read()[-2000:]
+                raise RuntimeError(f"{boards} boards did not all connect: {text}")
             time.sleep(0.2)
-        client = _Child.script("--client", endpoint, str(boards), str(args.topics))
+        client = _Child.script("--client", endpoints[0], str(boards), str(args.topics))
         time.sleep(2.0)  # the subscriptions reach the bridge
-        client.ask("call")
-        pids = {"bridge": proc.pid, "client": client.process.pid}
+        if getattr(args, "calls", True):
+            client.ask("call")
+        bridge_pids = [b.pid for b in bridges]
+        client_pid = client.process.pid
         emulator_pids = [e.process.pid for e in emulators]
         for emulator in emulators:
             if emulator.ask("go") != "going":
                 raise RuntimeError("an emulator did not start publishing")
         started = time.monotonic()
         last_t = started
-        last_cpu = {name: cpu_seconds(pid) for name, pid in pids.items()}
+        last_bridge = first_cpu = sum(cpu_seconds(pid) for pid in bridge_pids)
+        last_client = cpu_seconds(client_pid)
         last_emu = [cpu_seconds(pid) for pid in emulator_pids]
-        first_cpu = last_cpu["bridge"]
         samples: list[dict[str, Any]] = []
         duration = minutes * 60.0
         while True:
@@ -533,20 +578,22 @@ def run_stage(args: argparse.Namespace, boards: int, minutes: float, tmp: Path) 
             time.sleep(min(args.sample, remaining))
             now = time.monotonic()
             dt = now - last_t
-            cpu = {name: cpu_seconds(pid) for name, pid in pids.items()}
+            bridge_cpu_s = sum(cpu_seconds(pid) for pid in bridge_pids)
+            client_cpu_s = cpu_seconds(client_pid)
             emu = [cpu_seconds(pid) for pid in emulator_pids]
             stats = json.loads(client.ask("stats"))
             sample = {
                 "bench": "soak_sample",
                 "boards": boards,
+                "bridges": len(bridges),
                 "t_s": round(now - started, 1),
-                "bridge_cpu_cores": round((cpu["bridge"] - last_cpu["bridge"]) / dt, 3),
-                **proc_sample(proc.pid),
+                "bridge_cpu_cores": round((bridge_cpu_s - last_bridge) / dt, 3),
+                **_bridge_samples(bridge_pids),
                 "emulator_cpu_cores": round((sum(emu) - sum(last_emu)) / dt, 3),
                 "emulator_max_cpu_cores": round(
                     max(b - a for a, b in zip(last_emu, emu, strict=True)) / dt, 3
                 ),
-                "client_cpu_cores": round((cpu["client"] - last_cpu["client"]) / dt, 3),
+                "client_cpu_cores": round((client_cpu_s - last_client) / dt, 3),
                 "messages_per_s": round(stats["messages"] / dt, 1),
                 "p50_ms": stats["p50_ms"],
                 "p99_ms": stats["p99_ms"],
@@ -555,13 +602,15 @@ def run_stage(args: argparse.Namespace, boards: int, minutes: float, tmp: Path) 
                 "loadavg": [round(x, 2) for x in os.getloadavg()],
             }
             samples.append(sample)
-            sys.stdout.write(json.dumps(sample) + "\n")
-            sys.stdout.flush()
-            last_t, last_cpu, last_emu = now, cpu, emu
-            if proc.poll() is not None:
-                raise RuntimeError(f"the bridge exited ({proc.returncode})")
+            if not getattr(args, "quiet_samples", False):
+                sys.stdout.write(json.dumps(sample) + "\n")
+                sys.stdout.flush()
+            last_t, last_bridge, last_client, last_emu = now, bridge_cpu_s, client_cpu_s, emu
+            for bridge in bridges:
+                if bridge.poll() is not None:
+                    raise RuntimeError(f"a bridge exited ({bridge.returncode})")
         elapsed = time.monotonic() - started
-        bridge_cpu = (cpu_seconds(proc.pid) - first_cpu) / elapsed
+        bridge_cpu = (sum(cpu_seconds(pid) for pid in bridge_pids) - first_cpu) / elapsed
         counts: dict[str, Any] = {}
         late = 0
         for emulator in emulators:
@@ -570,21 +619,25 @@ def run_stage(args: argparse.Namespace, boards: int, minutes: float, tmp: Path) 
             late += answer["late_ticks"]
         final, drain_s = _drained(client, counts, boards, args.reliable)
         summary = _summary(args, boards, minutes, samples, counts, final, bridge_cpu, late)
+        summary["bridges"] = len(bridges)
         summary["emulators"] = len(emulators)
         summary["drain_s"] = drain_s
-        log.seek(0)
-        lines = log.read().splitlines()
+        lines: list[str] = []
+        for log in logs:
+            log.seek(0)
+            lines += log.read().splitlines()
         summary["bridge_errors"] = [line for line in lines if "ERROR" in line][:5]
         warnings = [line for line in lines if "WARNING" in line]
         summary["bridge_warnings"] = len(warnings)
         summary["bridge_warnings_first"] = warnings[:5]
-        sys.stdout.write(json.dumps(summary) + "\n")
-        sys.stdout.flush()
+        return summary
     finally:
         if client is not None:
             client.close()
-        if bridge is not None and bridge.poll() is None:
-            bridge.send_signal(signal.SIGINT)
+        for bridge in bridges:
+            if bridge.poll() is None:
+                bridge.send_signal(signal.SIGINT)
+        for bridge in bridges:
             try:
                 bridge.wait(15)
             except subprocess.TimeoutExpired:
@@ -592,7 +645,8 @@ def run_stage(args: argparse.Namespace, boards: int, minutes: float, tmp: Path) 
                 bridge.wait()
         for emulator in emulators:
             emulator.close()
-        log.close()
+        for log in logs:
+            log.close()
 
 
 DRAIN_IDLE_S = 5.0
@@ -767,6 +821,12 @@ def main() -> None:
         "--per-emulator", type=int, default=4, help="boards per Python emulator process"
     )
     parser.add_argument(
+        "--bridges",
+        type=int,
+        default=1,
+        help="bridge processes sharing the boards (contiguous groups, one Zenoh graph)",
+    )
+    parser.add_argument(
         "--log-dir",
         help="keep the bridge's log (bridge-N.log, one per stage) in this folder",
     )
@@ -795,7 +855,9 @@ def main() -> None:
         logs = Path(args.log_dir) if args.log_dir else Path(tmp)
         logs.mkdir(parents=True, exist_ok=True)
         for boards, stage_minutes in zip(counts, minutes, strict=True):
-            run_stage(args, boards, stage_minutes, logs)
+            summary = run_stage(args, boards, stage_minutes, logs)
+            sys.stdout.write(json.dumps(summary) + "\n")
+            sys.stdout.flush()
 
 
 if __name__ == "__main__":

@@ -17,7 +17,6 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections import deque
 from collections.abc import Callable
 from typing import Any, Protocol, TypeVar, cast
 
@@ -33,13 +32,11 @@ _IDLE_TICK = 0.05  # seconds between ticks of a session that announces no deadli
 _LOCK_WAIT = 0.01
 """Seconds of waiting for the lock after a read past which the link is read again before a tick."""
 _SERVICE_EVERY = 0.05
-"""While the pump hands a burst of events on (a graph publish that blocks behind a slow
-subscriber, say), it reads the link and runs the session's timers at least this often (half the
-native protocol's heartbeat interval): the peer keeps hearing ACKs and heartbeats, however long
-the burst takes."""
-_BACKLOG = 4096
-"""Events waiting to be handed on past which the pump stops reading the link during a burst
-(memory stays bounded; the link's own flow control holds the peer back)."""
+"""While the pump thread hands events on (a graph publish blocked behind a slow subscriber can
+take seconds), the keeper runs the session's timers at least this often (half the native
+protocol's heartbeat interval), so that the peer keeps hearing heartbeats, held ACKs and
+retransmissions. The link is not read meanwhile: the peer is held back by its own flow control
+(a full reliable window, a full socket), not queued for without bound."""
 
 
 class SansIOSession(Protocol):
@@ -89,13 +86,22 @@ class SessionPump:
         self.dropped_bytes = 0
         """Bytes written while a listening link had no peer (lost, as on an open wire)."""
         self.services = 0
-        """How often the link was serviced in the middle of a long burst of events."""
+        """How often the keeper ran the session's timers while the pump thread handed events on."""
+        found = getattr(session, "keepalive", None)
+        self._keepalive = cast(
+            "Callable[[float], list[Any]] | None", found if callable(found) else None
+        )
+        self._handing_since: float | None = None
+        self._kept_at = 0.0
+        self._kept_events: list[Any] = []
 
     # ------------------------------------------------------------------ control
     def start(self) -> SessionPump:
         """Start the pump thread (the link must be open)."""
         self._thread = threading.Thread(target=self._run, name=self.name, daemon=True)
         self._thread.start()
+        if self._keepalive is not None:
+            _KEEPER.add(self)
         return self
 
     def stop(self, timeout: float = 2.0) -> None:
@@ -159,32 +165,43 @@ class SessionPump:
         except Exception:
             log.exception("%s: handling %s failed", self.name, type(event).__name__)
 
-    def _service(self, deadline_of: Callable[[], float | None] | None) -> list[Any]:
-        """Between two events of a long burst: what arrived meanwhile, the timers if due, and
-        the bytes they produced."""
-        session, clock = self.session, self._clock
-        with self._lock:
-            data = self._read(0)
-            now = clock()
-            events: list[Any] = session.receive_data(data, now) if data else []
-            deadline = deadline_of() if deadline_of is not None else None
-            if deadline is None or now >= deadline:
-                events += session.tick(now)
-            self._flush()
-        return events
+    def _hand_on(self, events: list[Any]) -> None:
+        """Dispatch ``events``, then what the keeper's timers produced meanwhile."""
+        self._handing_since = self._clock()
+        try:
+            while True:
+                for event in events:
+                    self._dispatch(event)
+                with self._lock:  # the keeper adds under the lock: none is left behind
+                    events, self._kept_events = self._kept_events, []
+                    if not events:
+                        self._handing_since = None
+                        return
+        finally:
+            self._handing_since = None
 
-    def _hand_on(self, events: list[Any], deadline_of: Callable[[], float | None] | None) -> None:
-        """Dispatch ``events``, servicing the link every :data:`_SERVICE_EVERY` seconds
-        meanwhile (what that reads is dispatched too, in order)."""
-        clock = self._clock
-        waiting = deque(events)
-        serviced = clock()
-        while waiting:
-            self._dispatch(waiting.popleft())
-            if waiting and len(waiting) < _BACKLOG and clock() - serviced >= _SERVICE_EVERY:
-                waiting.extend(self._service(deadline_of))
-                self.services += 1
-                serviced = clock()
+    def _keep(self) -> None:
+        """The keeper's call: when the pump thread has been handing events on for longer than
+        :data:`_SERVICE_EVERY` since the session's timers last ran, run them now (the session's
+        ``keepalive``, which does not take the unread link for a silent peer) and write what
+        they produced; their events wait for the pump thread."""
+        keepalive = self._keepalive
+        since = self._handing_since
+        if keepalive is None or since is None:
+            return
+        now = self._clock()
+        if now - max(since, self._kept_at) < _SERVICE_EVERY:
+            return
+        with self._lock:
+            if self._handing_since is None:
+                return
+            try:
+                self._kept_events += keepalive(now)
+                self._flush()
+            except (HwBridgeError, OSError):  # the link failed: the pump thread finds out itself
+                return
+            self.services += 1
+        self._kept_at = now
 
     def _run(self) -> None:
         error: BaseException | None = None
@@ -220,7 +237,7 @@ class SessionPump:
                         events += session.tick(now)
                     self._flush()
                 if events:
-                    self._hand_on(events, deadline_of)
+                    self._hand_on(events)
         except LinkClosedError as exc:
             if not self._stop.is_set():
                 error = exc
@@ -230,8 +247,49 @@ class SessionPump:
             log.exception("%s: pump failed", self.name)
             error = exc
         self.error = error
+        _KEEPER.remove(self)
         if self._on_exit is not None:
             try:
                 self._on_exit(error)
             except Exception:
                 log.exception("%s: exit handler failed", self.name)
+
+
+class _Keeper:
+    """One thread for every pump whose session has a ``keepalive``: every half
+    :data:`_SERVICE_EVERY` it lets each pump run its session's timers if its thread is busy
+    handing events on (:meth:`SessionPump._keep`). It runs while there are pumps."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._pumps: list[SessionPump] = []
+        self._thread: threading.Thread | None = None
+
+    def add(self, pump: SessionPump) -> None:
+        with self._lock:
+            self._pumps.append(pump)
+            if self._thread is None:
+                self._thread = threading.Thread(target=self._run, name="pump-keeper", daemon=True)
+                self._thread.start()
+
+    def remove(self, pump: SessionPump) -> None:
+        with self._lock:
+            if pump in self._pumps:
+                self._pumps.remove(pump)
+
+    def _run(self) -> None:
+        while True:
+            time.sleep(_SERVICE_EVERY / 2)
+            with self._lock:
+                pumps = list(self._pumps)
+                if not pumps:
+                    self._thread = None
+                    return
+            for pump in pumps:
+                try:
+                    pump._keep()
+                except Exception:
+                    log.exception("%s: keeping the session's timers failed", pump.name)
+
+
+_KEEPER = _Keeper()

@@ -50,6 +50,29 @@ board processes and ``boards_kind`` says which kind ran;
 ``bridge_warnings`` counts the bridge's WARNING lines (a session it lost is one) and
 ``bridge_warnings_first`` shows the first five.
 
+Where a reliable message is lost, a session ended (ending one discards its reliable stream,
+PROTOCOL.md 2.10): ``board_session_ends`` says which end ended it (``link_losses``: the board
+declared the link lost; ``peer_resets``: the bridge did, or the board followed its new
+session). The firmware boards also account for every link loss they declare
+(``loss_account``): the time since the board last read a byte from the bridge
+(``since_byte_ms``), how long its own loop had not run just before (``loop_gap_ms``: 200 ms or
+more and the board itself was starved, ``board_starved``; else the bridge was silent,
+``bridge_silent``) and the bytes left unread in its socket; ``board_own_stalls`` counts the
+boards' loop gaps above 200 ms and ``board_max_loop_gap_ms`` is the longest. Host builds apply
+the stall rule of PROTOCOL.md 2.9 (only 200 ms of a gap in which the board did not run counts
+towards the link timeout; the board's ``stats().stalls``), so a board that was descheduled does
+not report the bridge silent for its own absence; losses are never hidden, only attributed.
+``--log-dir`` keeps the bridges' logs (``bridge-N-0.log``; sharded: ``bridge-NxB-K.log``);
+``--bridges N`` shares the boards out over N bridge processes (Zenoh routers joined into one
+graph; the figures add up all of them).
+
+What the losses at 32 boards were: before the bridge's pump serviced the link between the
+events of a long burst (hwbridge/pump.py), a pump handing one read's 80 messages to graph
+publishers that blocked behind this client (Zenoh congestion control BLOCK, the client sharing
+the 2 cores) went 300-750 ms, at times more than 0.8 s, without sending the board anything: 39
+link losses and 38 reliable messages lost in 10 minutes, each declared by a board that was
+running (its loop gaps at most about 230 ms).
+
 Why the boards are firmware by default: 32 boards x 10 topics x 50 Hz is 16,000 messages/s, and
 built in Python (the emulators) that saturated this 2-core machine (load about 24). Starved
 emulator processes then went silent for longer than the native protocol's 0.8 s link timeout,
@@ -524,7 +547,8 @@ def run_stage(args: argparse.Namespace, boards: int, minutes: float, tmp: Path) 
     emulators: list[_Child] = []
     client: _Child | None = None
     bridges: list[subprocess.Popen[bytes]] = []
-    logs = [(tmp / f"bridge-{boards}-{k}.log").open("w+") for k in range(len(groups))]
+    name = f"bridge-{boards}" if len(groups) == 1 else f"bridge-{boards}x{len(groups)}"
+    logs = [(tmp / f"{name}-{k}.log").open("w+") for k in range(len(groups))]
     try:
         start_boards(args, ports, emulators)
         env = dict(os.environ, HWBRIDGE_DOMAIN=DOMAIN)
@@ -533,7 +557,7 @@ def run_stage(args: argparse.Namespace, boards: int, minutes: float, tmp: Path) 
         for shard, (group, endpoint, log) in enumerate(zip(groups, endpoints, logs, strict=True)):
             shard_env = env
             if shard:  # the other bridges' routers join the first's: one graph
-                config = tmp / f"bridge-{boards}-{shard}.json5"
+                config = tmp / f"{name}-{shard}.json5"
                 config.write_text(
                     json.dumps(_SHARD_CONFIG | {"connect": {"endpoints": endpoints[:1]}})
                 )

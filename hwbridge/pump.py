@@ -8,6 +8,9 @@ the pump hands each read to the session whole and writes each item of ``chunks_t
 write.
 Other threads act on the session through :meth:`SessionPump.call`, which takes the lock, runs the
 action and flushes the bytes it produced, so the session is never used by two threads at once.
+While a pump's thread hands events on (its callback may block: a graph publish behind a lagging
+subscriber), one keeper thread for all pumps runs the session's timers through its
+``keepalive`` (sessions that have one: native), so that the peer keeps hearing from this end.
 
 The bridge uses it on the host side, the emulator on the device side.
 """

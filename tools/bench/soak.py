@@ -66,12 +66,14 @@ not report the bridge silent for its own absence; losses are never hidden, only 
 ``--bridges N`` shares the boards out over N bridge processes (Zenoh routers joined into one
 graph; the figures add up all of them).
 
-What the losses at 32 boards were: before the bridge's pump serviced the link between the
-events of a long burst (hwbridge/pump.py), a pump handing one read's 80 messages to graph
-publishers that blocked behind this client (Zenoh congestion control BLOCK, the client sharing
-the 2 cores) went 300-750 ms, at times more than 0.8 s, without sending the board anything: 39
-link losses and 38 reliable messages lost in 10 minutes, each declared by a board that was
-running (its loop gaps at most about 230 ms).
+What the losses at 32 boards were: before the pump keeper (hwbridge/pump.py: the session's
+timers run while the pump thread hands events on), a pump handing one read's 80 messages to
+graph publishers that blocked behind this client (Zenoh congestion control BLOCK, the client
+sharing the 2 cores) went 300-750 ms, at times more than 0.8 s, without sending the board
+anything: 39 link losses and 38 reliable messages lost in 10 minutes, each declared by a board
+that was running (its loop gaps at most about 230 ms). With the keeper the bridge holds the
+boards back instead (their ``refused`` sends: a full reliable window) when the client cannot
+take all 16,000 messages/s.
 
 Why the boards are firmware by default: 32 boards x 10 topics x 50 Hz is 16,000 messages/s, and
 built in Python (the emulators) that saturated this 2-core machine (load about 24). Starved

@@ -33,6 +33,14 @@ asked) are more than the machine has: ``offered_per_s`` below ``asked_per_s`` (t
 ``late_ticks``) and ``client_cpu_cores`` near a core say when the bench, not the bridge, is the
 limit; the cost per message stays comparable because it is the bridge's CPU over what it
 carried.
+
+What it found (2-core machine shared with other work, load average 19-30): the cost per message
+falls with the boards on one bridge process up to 32 (101, 76, 53 µs at 1, 8, 32 boards), but
+at 64 one process is overwhelmed (213 µs a message, 936 link losses declared by boards that
+were running: the bridge silent past the 0.8 s link timeout, 3,300 of 32,000 messages/s
+carried), while 4 processes of 16 boards carried 14,000/s at 63 µs (ratio 0.63) with 28 link
+losses. Past 32 boards a bridge should be several processes; ``hwbridge up`` does not shard
+(yet): the recommendation is one ``connect`` process per 16 boards, on one graph.
 """
 
 from __future__ import annotations

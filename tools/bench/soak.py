@@ -24,7 +24,8 @@ Three kinds of processes, as in real use:
   descriptors and threads;
 - a *client* (``--client``): a graph node that subscribes to every topic, counts each topic's
   messages, measures latency (arrival minus the stamp) and calls each board's service once a
-  second.
+  second, from a thread per board (a call still running at the next second skips that second's
+  call: ``calls_skipped``; ``calls_asked_per_s`` is the board count).
 
 Output, one JSON object per line: a ``soak_sample`` line every ``--sample`` seconds (10) with
 the bridge's figures, the emulators' and the client's CPU, the messages and latency of that
@@ -304,6 +305,7 @@ def client_main(endpoint: str, boards: int, topics: int) -> None:
     window, total = _Histogram(), _Histogram()
     calls, call_total = _Histogram(), _Histogram()
     failed = [0]
+    skipped = [0]
     clock = time.monotonic_ns
 
     def on_message(message: Any) -> None:
@@ -331,33 +333,41 @@ def client_main(endpoint: str, boards: int, topics: int) -> None:
             for j in range(topics):
                 node.subscriber(topic_name(index, j), ANY_TYPE, on_message, raw=True)
 
-        def caller() -> None:
-            next_round = time.monotonic()
-            while not stop.is_set():
-                for index in range(boards):
-                    started = time.monotonic()
-                    try:
-                        node.call_raw(
-                            f"/soak/{board_name(index)}/trigger", "std_srvs/Trigger", b"", 5.0
-                        )
-                    except Exception:  # noqa: BLE001 - counted: a call that failed
-                        with lock:
-                            failed[0] += 1
-                        continue
+        def caller(index: int) -> None:
+            """Board ``index``'s service once a second (a call still running at the next
+            second: that second's call is skipped, and counted)."""
+            service = f"/soak/{board_name(index)}/trigger"
+            next_round = time.monotonic() + index / max(boards, 1)  # spread over the second
+            while not stop.wait(max(0.0, next_round - time.monotonic())):
+                started = time.monotonic()
+                try:
+                    node.call_raw(service, "std_srvs/Trigger", b"", 5.0)
+                except Exception:  # noqa: BLE001 - counted: a call that failed
+                    with lock:
+                        failed[0] += 1
+                else:
                     elapsed = time.monotonic() - started
                     with lock:
                         calls.add(elapsed)
                         call_total.add(elapsed)
                 next_round += 1.0
-                stop.wait(max(0.0, next_round - time.monotonic()))
+                behind = int((time.monotonic() - next_round) // 1.0) + 1
+                if behind > 0:
+                    with lock:
+                        skipped[0] += behind
+                    next_round += behind
 
         print("ready", flush=True)
-        calling: threading.Thread | None = None
+        calling: list[threading.Thread] = []
         for line in sys.stdin:
             command = line.strip()
             if command == "call":
-                calling = threading.Thread(target=caller, daemon=True)
-                calling.start()
+                calling = [
+                    threading.Thread(target=caller, args=(index,), daemon=True)
+                    for index in range(boards)
+                ]
+                for thread in calling:
+                    thread.start()
                 print("calling", flush=True)
             elif command == "stats":
                 with lock:
@@ -374,8 +384,8 @@ def client_main(endpoint: str, boards: int, topics: int) -> None:
                 print(json.dumps(stats), flush=True)
             elif command == "final":
                 stop.set()
-                if calling is not None:
-                    calling.join(10)
+                for thread in calling:
+                    thread.join(10)
                 with lock:
                     final = {
                         "received": received,
@@ -389,6 +399,7 @@ def client_main(endpoint: str, boards: int, topics: int) -> None:
                         "call_p50_ms": call_total.percentile(0.5),
                         "call_p99_ms": call_total.percentile(0.99),
                         "calls_failed": failed[0],
+                        "calls_skipped": skipped[0],
                     }
                 print(json.dumps(final), flush=True)
             elif command == "quit":
@@ -776,6 +787,8 @@ def _summary(
         "late_ticks": late,
         "calls": final["calls"],
         "calls_failed": final["calls_failed"],
+        "calls_skipped": final["calls_skipped"],
+        "calls_asked_per_s": float(boards) if getattr(args, "calls", True) else 0.0,
         "call_p50_ms": final["call_p50_ms"],
         "call_p99_ms": final["call_p99_ms"],
         "emulator_cpu_cores": round(

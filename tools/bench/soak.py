@@ -74,9 +74,9 @@ sharing the 2 cores) went 300-750 ms, at times more than 0.8 s, without sending 
 anything: 39 link losses and 38 reliable messages lost in 10 minutes, each declared by a board
 that was running (its loop gaps at most about 230 ms). With the keeper the bridge holds the
 boards back instead (their ``refused`` sends: a full reliable window) when the client cannot
-take all 16,000 messages/s, and short runs lose nothing; a 10-minute run at a load average of
-20-52 still had 59 link losses, each declared by a running board while the bridge process
-itself did not get to send for 0.87-0.95 s (``loss_account``).
+take all 16,000 messages/s; the last 10-minute run (load average up to 34) lost nothing, but
+one at a load average of 20-52 still had 59 link losses, each declared by a running board while
+the bridge process itself did not get to send for 0.87-0.95 s (``loss_account``).
 
 Why the boards are firmware by default: 32 boards x 10 topics x 50 Hz is 16,000 messages/s, and
 built in Python (the emulators) that saturated this 2-core machine (load about 24). Starved

@@ -8,6 +8,9 @@ the pump hands each read to the session whole and writes each item of ``chunks_t
 write.
 Other threads act on the session through :meth:`SessionPump.call`, which takes the lock, runs the
 action and flushes the bytes it produced, so the session is never used by two threads at once.
+While a pump's thread hands events on (its callback may block: a graph publish behind a lagging
+subscriber), one keeper thread for all pumps runs the session's timers through its
+``keepalive`` (sessions that have one: native), so that the peer keeps hearing from this end.
 
 The bridge uses it on the host side, the emulator on the device side.
 """
@@ -31,6 +34,12 @@ T = TypeVar("T")
 _IDLE_TICK = 0.05  # seconds between ticks of a session that announces no deadline
 _LOCK_WAIT = 0.01
 """Seconds of waiting for the lock after a read past which the link is read again before a tick."""
+_SERVICE_EVERY = 0.05
+"""While the pump thread hands events on (a graph publish blocked behind a slow subscriber can
+take seconds), the keeper runs the session's timers at least this often (half the native
+protocol's heartbeat interval), so that the peer keeps hearing heartbeats, held ACKs and
+retransmissions. The link is not read meanwhile: the peer is held back by its own flow control
+(a full reliable window, a full socket), not queued for without bound."""
 
 
 class SansIOSession(Protocol):
@@ -79,12 +88,23 @@ class SessionPump:
         self.error: BaseException | None = None
         self.dropped_bytes = 0
         """Bytes written while a listening link had no peer (lost, as on an open wire)."""
+        self.services = 0
+        """How often the keeper ran the session's timers while the pump thread handed events on."""
+        found = getattr(session, "keepalive", None)
+        self._keepalive = cast(
+            "Callable[[float], list[Any]] | None", found if callable(found) else None
+        )
+        self._handing_since: float | None = None
+        self._kept_at = 0.0
+        self._kept_events: list[Any] = []
 
     # ------------------------------------------------------------------ control
     def start(self) -> SessionPump:
         """Start the pump thread (the link must be open)."""
         self._thread = threading.Thread(target=self._run, name=self.name, daemon=True)
         self._thread.start()
+        if self._keepalive is not None:
+            _KEEPER.add(self)
         return self
 
     def stop(self, timeout: float = 2.0) -> None:
@@ -148,6 +168,44 @@ class SessionPump:
         except Exception:
             log.exception("%s: handling %s failed", self.name, type(event).__name__)
 
+    def _hand_on(self, events: list[Any]) -> None:
+        """Dispatch ``events``, then what the keeper's timers produced meanwhile."""
+        self._handing_since = self._clock()
+        try:
+            while True:
+                for event in events:
+                    self._dispatch(event)
+                with self._lock:  # the keeper adds under the lock: none is left behind
+                    events, self._kept_events = self._kept_events, []
+                    if not events:
+                        self._handing_since = None
+                        return
+        finally:
+            self._handing_since = None
+
+    def _keep(self) -> None:
+        """The keeper's call: when the pump thread has been handing events on for longer than
+        :data:`_SERVICE_EVERY` since the session's timers last ran, run them now (the session's
+        ``keepalive``, which does not take the unread link for a silent peer) and write what
+        they produced; their events wait for the pump thread."""
+        keepalive = self._keepalive
+        since = self._handing_since
+        if keepalive is None or since is None:
+            return
+        now = self._clock()
+        if now - max(since, self._kept_at) < _SERVICE_EVERY:
+            return
+        with self._lock:
+            if self._handing_since is None:
+                return
+            try:
+                self._kept_events += keepalive(now)
+                self._flush()
+            except (HwBridgeError, OSError):  # the link failed: the pump thread finds out itself
+                return
+            self.services += 1
+        self._kept_at = now
+
     def _run(self) -> None:
         error: BaseException | None = None
         session, lock, clock = self.session, self._lock, self._clock
@@ -181,8 +239,8 @@ class SessionPump:
                                 events += session.receive_data(late, now)
                         events += session.tick(now)
                     self._flush()
-                for event in events:
-                    self._dispatch(event)
+                if events:
+                    self._hand_on(events)
         except LinkClosedError as exc:
             if not self._stop.is_set():
                 error = exc
@@ -192,8 +250,49 @@ class SessionPump:
             log.exception("%s: pump failed", self.name)
             error = exc
         self.error = error
+        _KEEPER.remove(self)
         if self._on_exit is not None:
             try:
                 self._on_exit(error)
             except Exception:
                 log.exception("%s: exit handler failed", self.name)
+
+
+class _Keeper:
+    """One thread for every pump whose session has a ``keepalive``: every half
+    :data:`_SERVICE_EVERY` it lets each pump run its session's timers if its thread is busy
+    handing events on (:meth:`SessionPump._keep`). It runs while there are pumps."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._pumps: list[SessionPump] = []
+        self._thread: threading.Thread | None = None
+
+    def add(self, pump: SessionPump) -> None:
+        with self._lock:
+            self._pumps.append(pump)
+            if self._thread is None:
+                self._thread = threading.Thread(target=self._run, name="pump-keeper", daemon=True)
+                self._thread.start()
+
+    def remove(self, pump: SessionPump) -> None:
+        with self._lock:
+            if pump in self._pumps:
+                self._pumps.remove(pump)
+
+    def _run(self) -> None:
+        while True:
+            time.sleep(_SERVICE_EVERY / 2)
+            with self._lock:
+                pumps = list(self._pumps)
+                if not pumps:
+                    self._thread = None
+                    return
+            for pump in pumps:
+                try:
+                    pump._keep()
+                except Exception:
+                    log.exception("%s: keeping the session's timers failed", pump.name)
+
+
+_KEEPER = _Keeper()

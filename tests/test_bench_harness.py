@@ -219,3 +219,53 @@ def test_soak_bench_counts_every_message_and_prints_samples_and_a_summary(kind: 
         "rss_growth_below_5_pct",
         "no_reliable_lost",
     }
+
+
+def test_boards_bench_prints_one_line_a_run_with_ratios_to_its_one_board_baseline() -> None:
+    """``tools/bench/boards.py`` small: 1 and 2 firmware boards of three topics, the 2-board
+    count also sharded over 2 bridge processes (one Zenoh graph). Each run's line has the
+    documented fields; its counts are real (every message the boards published reached the
+    client when no session ended, whichever bridge carried it) and its ratios are against the
+    1-board run of the same invocation. No timing checks."""
+    lines = _run_json(
+        "boards.py",
+        *("--boards", "1,2", "--minutes", "0.1", "--sample", "2", "--topics", "3"),
+        *("--rate", "20", "--shard-at", "2", "--per-bridge", "1"),
+        timeout=300,
+    )
+    *runs, summary = lines
+    assert [(r["bench"], r["boards"], r["bridges"]) for r in runs] == [
+        ("boards", 1, 1),
+        ("boards", 2, 1),
+        ("boards", 2, 2),
+    ]
+    base = runs[0]
+    for run in runs:
+        assert run["published"] > 0 and run["topics"] == 3
+        assert run["asked_per_s"] == run["boards"] * 3 * 20.0
+        for key in ("bridge_cpu_cores", "cpu_cores_per_board", "cpu_us_per_message"):
+            assert isinstance(run[key], float) and run[key] > 0, key
+        assert run["rss_kb"] > 0 and run["rss_kb_per_board"] == round(
+            run["rss_kb"] / run["boards"], 1
+        )
+        assert run["cpu_us_per_message"] == pytest.approx(
+            run["bridge_cpu_cores"] * 6e7 * 0.1 / run["published"], rel=0.01
+        )
+        assert isinstance(run["p50_ms"], float) and isinstance(run["p99_ms"], float)
+        assert run["baseline"] == {"boards": 1, "bridges": 1}
+        assert run["cost_per_message_ratio"] == round(
+            run["cpu_us_per_message"] / base["cpu_us_per_message"], 3
+        )
+        assert run["acceptance"]["cost_per_message_within_20_pct"] == (
+            run["cost_per_message_ratio"] <= 1.2
+        )
+        if not any(run["board_session_ends"].values()):
+            assert run["reliable_lost"] == 0 and run["best_effort_lost"] == 0
+            # what the client received is what the boards published (exact counts)
+            assert run["messages_per_s"] == pytest.approx(run["offered_per_s"], abs=0.11)
+    assert base["cost_per_message_ratio"] == 1.0 and base["rss_kb_per_extra_board"] is None
+    sharded = runs[2]
+    assert sharded["rss_kb_per_extra_board"] is not None
+    assert summary["bench"] == "boards_summary"
+    assert set(summary["shapes"]) == {"one_bridge", "sharded"}
+    assert summary["shapes"]["sharded"]["bridges"] == 2

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from typing import Any, cast
 
 import pytest
@@ -104,3 +104,123 @@ def test_a_long_hold_of_the_lock_is_not_taken_for_a_silent_peer(
     ended = [e for e in device_events + host_events if isinstance(e, ns.Disconnected)]
     assert ended == []
     assert cast(ns.DeviceSession, device_pump.session).connected
+
+
+def _burst_pair(
+    on_host_event: Any, name: str
+) -> tuple[SessionPump, SessionPump, list[Any], Callable[[], None]]:
+    """A host and a device pump (native sessions, default timers) over ``memory://name``,
+    connected; the host's events go to ``on_host_event``; returns the pumps, the host's events
+    and a function that stops both."""
+    host_link, device_link = open_link(f"memory://{name}"), open_link(f"memory://{name}")
+    host = ns.HostSession(ns.HostConfig(time_sync_interval=0))
+    sketch = native_sketch()
+    device = ns.DeviceSession(
+        sketch.board, list(sketch.topics.values()), ns.DeviceConfig(time_sync_interval=0)
+    )
+    host_events: list[Any] = []
+
+    def on_event(event: Any) -> None:
+        host_events.append(event)
+        on_host_event(event)
+
+    host_pump = SessionPump(host_link, host, on_event, name="host").start()
+    device_pump = SessionPump(device_link, device, lambda _e: None, name="device").start()
+
+    def stop() -> None:
+        host_pump.stop()
+        device_pump.stop()
+        host_link.close()
+        device_link.close()
+
+    assert wait_for(lambda: any(isinstance(e, ns.Connected) for e in host_events), 10)
+    return host_pump, device_pump, host_events, stop
+
+
+def _string(text: str) -> bytes:
+    data = text.encode()
+    return len(data).to_bytes(4, "little") + data
+
+
+BURST = 60
+"""Messages the board sends at once in the burst test."""
+PER_EVENT = 0.05
+"""Seconds the host's handler takes for each (a graph publish blocked behind a slow subscriber):
+the burst takes BURST * PER_EVENT = 3 s to hand on, almost four times the device's link timeout."""
+BLOCKED = 3.0
+"""Seconds the host's handler takes for one message in the single-event tests (Zenoh's BLOCK
+congestion control waits up to 5 s for a lagging subscriber)."""
+
+
+def test_a_slow_handler_does_not_silence_the_link() -> None:
+    """The host's handler takes PER_EVENT for each message of a burst (as a Zenoh publish does
+    when a subscriber lags). Handing the burst on takes 3 s, but the session's timers keep
+    running meanwhile (the pump keeper): the device (default link timeout, 0.8 s) keeps hearing
+    heartbeats and never declares the link lost, and every message arrives in order. Without
+    them the device hears nothing for 3 s and ends the session."""
+    from hwbridge.protocols import base
+
+    received: list[bytes] = []
+
+    def on_host_event(event: Any) -> None:
+        if isinstance(event, base.Message):
+            time.sleep(PER_EVENT)
+            received.append(bytes(event.payload))
+
+    host_pump, device_pump, host_events, stop = _burst_pair(on_host_event, "pump-burst")
+    try:
+        payloads = [_string(f"m{i}") for i in range(BURST)]
+
+        def burst(session: ns.DeviceSession) -> list[bool]:
+            return [session.publish(1, payload) for payload in payloads]
+
+        assert all(device_pump.call(burst))
+        assert wait_for(lambda: len(received) == BURST, 60)
+        assert received == payloads
+        device_stats = device_pump.call(lambda s: s.stats)
+        assert (device_stats.link_losses, device_stats.peer_resets) == (0, 0)
+        assert not [e for e in host_events if isinstance(e, ns.Disconnected)]
+        assert device_pump.call(lambda s: s.connected)
+        assert host_pump.services > 0
+    finally:
+        stop()
+
+
+def test_one_long_event_does_not_silence_the_link_nor_hide_a_dead_peer() -> None:
+    """The host's handler blocks BLOCKED seconds on one message. The device keeps hearing the
+    host's heartbeats (no link loss, no reset), and the host does not take the link it was not
+    reading for a silent device. Then the same again, but the device stops for good while the
+    handler blocks: once the host reads again it declares the link lost (the keeper hides no
+    dead peer)."""
+    from hwbridge.protocols import base
+
+    blocking = threading.Event()
+
+    def on_host_event(event: Any) -> None:
+        if isinstance(event, base.Message):
+            blocking.set()
+            time.sleep(BLOCKED)
+
+    host_pump, device_pump, host_events, stop = _burst_pair(on_host_event, "pump-long")
+    try:
+        assert device_pump.call(lambda s: s.publish(1, _string("slow")))
+        assert blocking.wait(10)
+        assert wait_for(lambda: host_pump.services >= 3, 20)  # the keeper ran meanwhile
+        time.sleep(BLOCKED)  # the handler returns; room for a (wrong) loss to show
+        device_stats = device_pump.call(lambda s: s.stats)
+        assert (device_stats.link_losses, device_stats.peer_resets) == (0, 0)
+        assert not [e for e in host_events if isinstance(e, ns.Disconnected)]
+
+        blocking.clear()
+        assert device_pump.call(lambda s: s.publish(1, _string("last")))
+        assert blocking.wait(10)
+        device_pump.stop()  # the device falls silent for good while the host's handler blocks
+        assert wait_for(
+            lambda: any(
+                isinstance(e, ns.Disconnected) and e.reason.startswith("link lost")
+                for e in host_events
+            ),
+            30,
+        ), host_events
+    finally:
+        stop()

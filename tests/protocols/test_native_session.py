@@ -1704,3 +1704,37 @@ def test_old_board_info_without_identity_connects() -> None:
 
 if __name__ == "__main__":  # regenerate the vectors: python -m tests.protocols.test_native_session
     VECTORS.write_text(json.dumps(build_vectors(), indent=1, ensure_ascii=False) + "\n")
+
+
+@SETTINGS
+@given(steps=st.lists(st.floats(min_value=0.001, max_value=0.6), min_size=1, max_size=40))
+def test_keepalive_sends_heartbeats_and_never_takes_unread_time_for_silence(
+    steps: list[float],
+) -> None:
+    """``keepalive`` (the pump's timers while its thread is busy and does not read): whatever
+    its spacing, the host never declares the link lost during it, and it keeps sending (a
+    frame, a heartbeat if nothing else, whenever a heartbeat interval has passed). Once the host
+    only ticks again (reading, and nothing comes: the board is cut off), the link is lost within
+    the link timeout."""
+    link = make_link(17)
+    connect(link)
+    host = link.host
+    link.d2h.faults = Faults(cut=True)  # the board's bytes would sit unread anyway
+    now = link.now
+    for step in steps:
+        now += step
+        sent_before = host.stats.frames_sent
+        events = host.keepalive(now)
+        assert not of_type(events, Disconnected), events
+        assert host.connected
+        if step >= host.config.heartbeat_interval:  # a heartbeat, unless another frame went
+            assert host.stats.frames_sent > sent_before
+        host.chunks_to_send()
+    resumed = now
+    lost_at = None
+    while lost_at is None and now < resumed + 5.0:
+        now += 0.01
+        if of_type(host.tick(now), Disconnected):
+            lost_at = now
+    assert lost_at is not None
+    assert lost_at - resumed <= host.config.link_timeout + 0.02

@@ -24,7 +24,8 @@ Three kinds of processes, as in real use:
   descriptors and threads;
 - a *client* (``--client``): a graph node that subscribes to every topic, counts each topic's
   messages, measures latency (arrival minus the stamp) and calls each board's service once a
-  second.
+  second, from a thread per board (a call still running at the next second skips that second's
+  call: ``calls_skipped``; ``calls_asked_per_s`` is the board count).
 
 Output, one JSON object per line: a ``soak_sample`` line every ``--sample`` seconds (10) with
 the bridge's figures, the emulators' and the client's CPU, the messages and latency of that
@@ -49,6 +50,33 @@ of a run; the part of ``reliable_lost`` not lost in the steady state). ``emulato
 board processes and ``boards_kind`` says which kind ran;
 ``bridge_warnings`` counts the bridge's WARNING lines (a session it lost is one) and
 ``bridge_warnings_first`` shows the first five.
+
+Where a reliable message is lost, a session ended (ending one discards its reliable stream,
+PROTOCOL.md 2.10): ``board_session_ends`` says which end ended it (``link_losses``: the board
+declared the link lost; ``peer_resets``: the bridge did, or the board followed its new
+session). The firmware boards also account for every link loss they declare
+(``loss_account``): the time since the board last read a byte from the bridge
+(``since_byte_ms``), how long its own loop had not run just before (``loop_gap_ms``: 200 ms or
+more and the board itself was starved, ``board_starved``; else the bridge was silent,
+``bridge_silent``) and the bytes left unread in its socket; ``board_own_stalls`` counts the
+boards' loop gaps above 200 ms and ``board_max_loop_gap_ms`` is the longest. Host builds apply
+the stall rule of PROTOCOL.md 2.9 (only 200 ms of a gap in which the board did not run counts
+towards the link timeout; the board's ``stats().stalls``), so a board that was descheduled does
+not report the bridge silent for its own absence; losses are never hidden, only attributed.
+``--log-dir`` keeps the bridges' logs (``bridge-N-0.log``; sharded: ``bridge-NxB-K.log``);
+``--bridges N`` shares the boards out over N bridge processes (Zenoh routers joined into one
+graph; the figures add up all of them).
+
+What the losses at 32 boards were: before the pump keeper (hwbridge/pump.py: the session's
+timers run while the pump thread hands events on), a pump handing one read's 80 messages to
+graph publishers that blocked behind this client (Zenoh congestion control BLOCK, the client
+sharing the 2 cores) went 300-750 ms, at times more than 0.8 s, without sending the board
+anything: 39 link losses and 38 reliable messages lost in 10 minutes, each declared by a board
+that was running (its loop gaps at most about 230 ms). With the keeper the bridge holds the
+boards back instead (their ``refused`` sends: a full reliable window) when the client cannot
+take all 16,000 messages/s; the last 10-minute run (load average up to 34) lost nothing, but
+one at a load average of 20-52 still had 59 link losses, each declared by a running board while
+the bridge process itself did not get to send for 0.87-0.95 s (``loss_account``).
 
 Why the boards are firmware by default: 32 boards x 10 topics x 50 Hz is 16,000 messages/s, and
 built in Python (the emulators) that saturated this 2-core machine (load about 24). Starved
@@ -264,8 +292,9 @@ class _Histogram:
 
 
 def client_main(endpoint: str, boards: int, topics: int) -> None:
-    """Client process: subscribe to every topic, call every service each second; commands
-    on stdin: ``stats`` (this interval's figures), ``final`` (every topic's counts)."""
+    """Client process (``endpoint``: the bridges' Zenoh endpoints, comma-separated): subscribe
+    to every topic, call every service each second (once told ``call``); commands on stdin:
+    ``stats`` (this interval's figures), ``final`` (every topic's counts)."""
     from hwbridge.graph import ANY_TYPE, Graph
 
     lock = threading.Lock()
@@ -276,6 +305,7 @@ def client_main(endpoint: str, boards: int, topics: int) -> None:
     window, total = _Histogram(), _Histogram()
     calls, call_total = _Histogram(), _Histogram()
     failed = [0]
+    skipped = [0]
     clock = time.monotonic_ns
 
     def on_message(message: Any) -> None:
@@ -297,39 +327,47 @@ def client_main(endpoint: str, boards: int, topics: int) -> None:
 
     stop = threading.Event()
 
-    with Graph.attached(connect=[endpoint], domain=DOMAIN) as graph:
+    with Graph.attached(connect=endpoint.split(","), domain=DOMAIN) as graph:
         node = graph.node("soak_client")
         for index in range(boards):
             for j in range(topics):
                 node.subscriber(topic_name(index, j), ANY_TYPE, on_message, raw=True)
 
-        def caller() -> None:
-            next_round = time.monotonic()
-            while not stop.is_set():
-                for index in range(boards):
-                    started = time.monotonic()
-                    try:
-                        node.call_raw(
-                            f"/soak/{board_name(index)}/trigger", "std_srvs/Trigger", b"", 5.0
-                        )
-                    except Exception:  # noqa: BLE001 - counted: a call that failed
-                        with lock:
-                            failed[0] += 1
-                        continue
+        def caller(index: int) -> None:
+            """Board ``index``'s service once a second (a call still running at the next
+            second: that second's call is skipped, and counted)."""
+            service = f"/soak/{board_name(index)}/trigger"
+            next_round = time.monotonic() + index / max(boards, 1)  # spread over the second
+            while not stop.wait(max(0.0, next_round - time.monotonic())):
+                started = time.monotonic()
+                try:
+                    node.call_raw(service, "std_srvs/Trigger", b"", 5.0)
+                except Exception:  # noqa: BLE001 - counted: a call that failed
+                    with lock:
+                        failed[0] += 1
+                else:
                     elapsed = time.monotonic() - started
                     with lock:
                         calls.add(elapsed)
                         call_total.add(elapsed)
                 next_round += 1.0
-                stop.wait(max(0.0, next_round - time.monotonic()))
+                behind = int((time.monotonic() - next_round) // 1.0) + 1
+                if behind > 0:
+                    with lock:
+                        skipped[0] += behind
+                    next_round += behind
 
         print("ready", flush=True)
-        calling: threading.Thread | None = None
+        calling: list[threading.Thread] = []
         for line in sys.stdin:
             command = line.strip()
             if command == "call":
-                calling = threading.Thread(target=caller, daemon=True)
-                calling.start()
+                calling = [
+                    threading.Thread(target=caller, args=(index,), daemon=True)
+                    for index in range(boards)
+                ]
+                for thread in calling:
+                    thread.start()
                 print("calling", flush=True)
             elif command == "stats":
                 with lock:
@@ -346,8 +384,8 @@ def client_main(endpoint: str, boards: int, topics: int) -> None:
                 print(json.dumps(stats), flush=True)
             elif command == "final":
                 stop.set()
-                if calling is not None:
-                    calling.join(10)
+                for thread in calling:
+                    thread.join(10)
                 with lock:
                     final = {
                         "received": received,
@@ -361,6 +399,7 @@ def client_main(endpoint: str, boards: int, topics: int) -> None:
                         "call_p50_ms": call_total.percentile(0.5),
                         "call_p99_ms": call_total.percentile(0.99),
                         "calls_failed": failed[0],
+                        "calls_skipped": skipped[0],
                     }
                 print(json.dumps(final), flush=True)
             elif command == "quit":
@@ -486,43 +525,88 @@ def cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def run_stage(args: argparse.Namespace, boards: int, minutes: float, tmp: Path) -> None:
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
+def shard_ranges(boards: int, shards: int) -> list[range]:
+    """Board indices split into ``shards`` contiguous groups as even as can be (one bridge
+    process each)."""
+    shards = max(1, min(shards, boards))
+    cuts = [boards * k // shards for k in range(shards + 1)]
+    return [range(cuts[k], cuts[k + 1]) for k in range(shards)]
+
+
+def _bridge_samples(pids: list[int]) -> dict[str, int]:
+    """RSS, threads and descriptors of the bridge processes, added up."""
+    total = {"rss_kb": 0, "threads": 0, "fds": 0}
+    for pid in pids:
+        for key, value in proc_sample(pid).items():
+            total[key] += value
+    return total
+
+
+_SHARD_CONFIG: dict[str, Any] = {
+    "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": False}},
+}
+"""The Zenoh settings of a bridge process other than the first (plus its connect endpoint)."""
+
+
+def run_stage(args: argparse.Namespace, boards: int, minutes: float, tmp: Path) -> dict[str, Any]:
+    """One stage: ``boards`` boards for ``minutes``; prints a ``soak_sample`` line every
+    ``--sample`` seconds (unless ``args.quiet_samples``) and returns the stage's summary.
+    ``args.bridges`` (1) bridge processes share the boards (contiguous groups; each process is a
+    Zenoh router on its own endpoint, the others connected to the first, whose endpoint the
+    client connects to: one graph); ``args.calls`` (True): the client
+    calls every board's service once a second."""
+    shards = getattr(args, "bridges", 1)
+    groups = shard_ranges(boards, shards)
+    endpoints = [f"tcp/127.0.0.1:{free_port()}" for _ in groups]
     ports = [free_port() for _ in range(boards)]
     emulators: list[_Child] = []
     client: _Child | None = None
-    bridge: subprocess.Popen[bytes] | None = None
-    log = (tmp / f"bridge-{boards}.log").open("w+")
+    bridges: list[subprocess.Popen[bytes]] = []
+    name = f"bridge-{boards}" if len(groups) == 1 else f"bridge-{boards}x{len(groups)}"
+    logs = [(tmp / f"{name}-{k}.log").open("w+") for k in range(len(groups))]
     try:
         start_boards(args, ports, emulators)
-        command = [*hwbridge_command(), "connect", "--listen", endpoint, "--quiet"]
-        command += ["--protocol", "native"]
-        for index in range(boards):
-            command += ["--name", board_name(index)]
-        command += [f"socket://127.0.0.1:{port}" for port in ports]
         env = dict(os.environ, HWBRIDGE_DOMAIN=DOMAIN)
         env.pop("HWBRIDGE_ENDPOINT", None)
         env.pop("HWBRIDGE_ZENOH_CONFIG", None)
-        bridge = proc = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=log, env=env)
-        deadline = time.monotonic() + 60
+        for shard, (group, endpoint, log) in enumerate(zip(groups, endpoints, logs, strict=True)):
+            shard_env = env
+            if shard:  # the other bridges' routers join the first's: one graph
+                config = tmp / f"{name}-{shard}.json5"
+                config.write_text(
+                    json.dumps(_SHARD_CONFIG | {"connect": {"endpoints": endpoints[:1]}})
+                )
+                shard_env = dict(env, HWBRIDGE_ZENOH_CONFIG=str(config))
+            command = [*hwbridge_command(), "connect", "--listen", endpoint, "--quiet"]
+            command += ["--protocol", "native"]
+            for index in group:
+                command += ["--name", board_name(index)]
+            command += [f"socket://127.0.0.1:{ports[index]}" for index in group]
+            bridges.append(
+                subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=log, env=shard_env)
+            )
+        deadline = time.monotonic() + 60 + boards
         while sum(int(e.ask("status")) for e in emulators) < boards:
-            if time.monotonic() > deadline or proc.poll() is not None:
-                log.seek(0)
-                raise RuntimeError(f"{boards} boards did not all connect: {log.read()[-2000:]}")
+            if time.monotonic() > deadline or any(b.poll() is not None for b in bridges):
+                logs[0].seek(0)
+                text = logs[0].read()[-2000:]
+                raise RuntimeError(f"{boards} boards did not all connect: {text}")
             time.sleep(0.2)
-        client = _Child.script("--client", endpoint, str(boards), str(args.topics))
+        client = _Child.script("--client", endpoints[0], str(boards), str(args.topics))
         time.sleep(2.0)  # the subscriptions reach the bridge
-        client.ask("call")
-        pids = {"bridge": proc.pid, "client": client.process.pid}
+        if getattr(args, "calls", True):
+            client.ask("call")
+        bridge_pids = [b.pid for b in bridges]
+        client_pid = client.process.pid
         emulator_pids = [e.process.pid for e in emulators]
         for emulator in emulators:
             if emulator.ask("go") != "going":
                 raise RuntimeError("an emulator did not start publishing")
         started = time.monotonic()
         last_t = started
-        last_cpu = {name: cpu_seconds(pid) for name, pid in pids.items()}
+        last_bridge = first_cpu = sum(cpu_seconds(pid) for pid in bridge_pids)
+        last_client = cpu_seconds(client_pid)
         last_emu = [cpu_seconds(pid) for pid in emulator_pids]
-        first_cpu = last_cpu["bridge"]
         samples: list[dict[str, Any]] = []
         duration = minutes * 60.0
         while True:
@@ -533,20 +617,22 @@ def run_stage(args: argparse.Namespace, boards: int, minutes: float, tmp: Path) 
             time.sleep(min(args.sample, remaining))
             now = time.monotonic()
             dt = now - last_t
-            cpu = {name: cpu_seconds(pid) for name, pid in pids.items()}
+            bridge_cpu_s = sum(cpu_seconds(pid) for pid in bridge_pids)
+            client_cpu_s = cpu_seconds(client_pid)
             emu = [cpu_seconds(pid) for pid in emulator_pids]
             stats = json.loads(client.ask("stats"))
             sample = {
                 "bench": "soak_sample",
                 "boards": boards,
+                "bridges": len(bridges),
                 "t_s": round(now - started, 1),
-                "bridge_cpu_cores": round((cpu["bridge"] - last_cpu["bridge"]) / dt, 3),
-                **proc_sample(proc.pid),
+                "bridge_cpu_cores": round((bridge_cpu_s - last_bridge) / dt, 3),
+                **_bridge_samples(bridge_pids),
                 "emulator_cpu_cores": round((sum(emu) - sum(last_emu)) / dt, 3),
                 "emulator_max_cpu_cores": round(
                     max(b - a for a, b in zip(last_emu, emu, strict=True)) / dt, 3
                 ),
-                "client_cpu_cores": round((cpu["client"] - last_cpu["client"]) / dt, 3),
+                "client_cpu_cores": round((client_cpu_s - last_client) / dt, 3),
                 "messages_per_s": round(stats["messages"] / dt, 1),
                 "p50_ms": stats["p50_ms"],
                 "p99_ms": stats["p99_ms"],
@@ -555,13 +641,15 @@ def run_stage(args: argparse.Namespace, boards: int, minutes: float, tmp: Path) 
                 "loadavg": [round(x, 2) for x in os.getloadavg()],
             }
             samples.append(sample)
-            sys.stdout.write(json.dumps(sample) + "\n")
-            sys.stdout.flush()
-            last_t, last_cpu, last_emu = now, cpu, emu
-            if proc.poll() is not None:
-                raise RuntimeError(f"the bridge exited ({proc.returncode})")
+            if not getattr(args, "quiet_samples", False):
+                sys.stdout.write(json.dumps(sample) + "\n")
+                sys.stdout.flush()
+            last_t, last_bridge, last_client, last_emu = now, bridge_cpu_s, client_cpu_s, emu
+            for bridge in bridges:
+                if bridge.poll() is not None:
+                    raise RuntimeError(f"a bridge exited ({bridge.returncode})")
         elapsed = time.monotonic() - started
-        bridge_cpu = (cpu_seconds(proc.pid) - first_cpu) / elapsed
+        bridge_cpu = (sum(cpu_seconds(pid) for pid in bridge_pids) - first_cpu) / elapsed
         counts: dict[str, Any] = {}
         late = 0
         for emulator in emulators:
@@ -570,21 +658,25 @@ def run_stage(args: argparse.Namespace, boards: int, minutes: float, tmp: Path) 
             late += answer["late_ticks"]
         final, drain_s = _drained(client, counts, boards, args.reliable)
         summary = _summary(args, boards, minutes, samples, counts, final, bridge_cpu, late)
+        summary["bridges"] = len(bridges)
         summary["emulators"] = len(emulators)
         summary["drain_s"] = drain_s
-        log.seek(0)
-        lines = log.read().splitlines()
+        lines: list[str] = []
+        for log in logs:
+            log.seek(0)
+            lines += log.read().splitlines()
         summary["bridge_errors"] = [line for line in lines if "ERROR" in line][:5]
         warnings = [line for line in lines if "WARNING" in line]
         summary["bridge_warnings"] = len(warnings)
         summary["bridge_warnings_first"] = warnings[:5]
-        sys.stdout.write(json.dumps(summary) + "\n")
-        sys.stdout.flush()
+        return summary
     finally:
         if client is not None:
             client.close()
-        if bridge is not None and bridge.poll() is None:
-            bridge.send_signal(signal.SIGINT)
+        for bridge in bridges:
+            if bridge.poll() is None:
+                bridge.send_signal(signal.SIGINT)
+        for bridge in bridges:
             try:
                 bridge.wait(15)
             except subprocess.TimeoutExpired:
@@ -592,7 +684,8 @@ def run_stage(args: argparse.Namespace, boards: int, minutes: float, tmp: Path) 
                 bridge.wait()
         for emulator in emulators:
             emulator.close()
-        log.close()
+        for log in logs:
+            log.close()
 
 
 DRAIN_IDLE_S = 5.0
@@ -684,6 +777,7 @@ def _summary(
             key: sum(counts[board_name(index)][key] for index in range(boards))
             for key in ("link_losses", "peer_resets")
         },
+        **_loss_account(counts, boards),
         "out_of_order": sum(final["out_of_order"].values()),
         "published": published,
         "refused_by_board": refused,
@@ -693,6 +787,8 @@ def _summary(
         "late_ticks": late,
         "calls": final["calls"],
         "calls_failed": final["calls_failed"],
+        "calls_skipped": final["calls_skipped"],
+        "calls_asked_per_s": float(boards) if getattr(args, "calls", True) else 0.0,
         "call_p50_ms": final["call_p50_ms"],
         "call_p99_ms": final["call_p99_ms"],
         "emulator_cpu_cores": round(
@@ -708,6 +804,33 @@ def _summary(
             "below_one_core": bridge_cpu < 1.0,
             "rss_growth_below_5_pct": rss_growth < 5.0,
             "no_reliable_lost": reliable_lost == 0,
+        },
+    }
+
+
+def _loss_account(counts: dict[str, Any], boards: int) -> dict[str, Any]:
+    """What the firmware boards say of the link losses they declared (the Python emulators say
+    nothing of this): each loss's gap since the board last read a byte from the bridge, how long
+    the board's own loop had not run just before (starved of the CPU), and the bytes left unread
+    in its socket; the boards' own stalls (loop gaps above 200 ms) and the longest gap."""
+    notes: list[dict[str, int]] = []
+    stalls = longest = 0
+    for index in range(boards):
+        board = counts[board_name(index)]
+        notes += board.get("losses", [])
+        stalls += board.get("own_stalls", 0)
+        longest = max(longest, board.get("max_loop_gap_ms", 0))
+    starved = [n for n in notes if n["loop_gap_ms"] >= 200]
+    return {
+        "board_own_stalls": stalls,
+        "board_max_loop_gap_ms": longest,
+        "loss_account": {
+            "noted": len(notes),
+            "board_starved": len(starved),
+            "bridge_silent": len(notes) - len(starved),
+            "since_byte_ms": sorted(n["since_byte_ms"] for n in notes)[-10:],
+            "loop_gap_ms": sorted(n["loop_gap_ms"] for n in notes)[-10:],
+            "pending_bytes": sorted(n["pending"] for n in notes)[-10:],
         },
     }
 
@@ -738,6 +861,16 @@ def main() -> None:
     parser.add_argument(
         "--per-emulator", type=int, default=4, help="boards per Python emulator process"
     )
+    parser.add_argument(
+        "--bridges",
+        type=int,
+        default=1,
+        help="bridge processes sharing the boards (contiguous groups, one Zenoh graph)",
+    )
+    parser.add_argument(
+        "--log-dir",
+        help="keep the bridge's log (bridge-N.log, one per stage) in this folder",
+    )
     parser.add_argument("--emulator", nargs=5, help=argparse.SUPPRESS)
     parser.add_argument("--client", nargs=3, help=argparse.SUPPRESS)
     args = parser.parse_args()
@@ -760,8 +893,12 @@ def main() -> None:
         args.board_program = None
         if args.boards_kind == "firmware":
             args.board_program = build_board(Path(tmp) / "board")
+        logs = Path(args.log_dir) if args.log_dir else Path(tmp)
+        logs.mkdir(parents=True, exist_ok=True)
         for boards, stage_minutes in zip(counts, minutes, strict=True):
-            run_stage(args, boards, stage_minutes, Path(tmp))
+            summary = run_stage(args, boards, stage_minutes, logs)
+            sys.stdout.write(json.dumps(summary) + "\n")
+            sys.stdout.flush()
 
 
 if __name__ == "__main__":

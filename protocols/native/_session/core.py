@@ -276,6 +276,17 @@ class SessionCore(Generic[_E]):
         self._events = []
         return events
 
+    def keepalive(self, now: float, /) -> list[_E]:
+        """The timers at ``now`` for a caller that is not reading the link meanwhile (its pump
+        busy handing events on, say): heartbeats, held ACKs and retransmissions go out, but the
+        time the link was not read is not the peer's silence (PROTOCOL.md 2.9: only silence an
+        end was there to see counts), so at most the awake step of it counts. A peer that really
+        went silent is declared lost a link timeout after reading resumes."""
+        self._advance(now)  # (its own stall rule first: it moves _last_rx too)
+        if self._established:
+            self._last_rx = max(self._last_rx, now - self._awake_step)
+        return self.tick(now)
+
     def chunks_to_send(self) -> list[bytes]:
         """What to write to the link, one write per item (one chunk on a stream framing, one
         datagram per frame on a datagram framing); the buffer is emptied."""

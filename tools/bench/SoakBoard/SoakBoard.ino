@@ -27,6 +27,7 @@
 #include <errno.h>
 #include <new>
 #include <poll.h>
+#include <sys/ioctl.h>
 
 namespace {
 
@@ -51,7 +52,31 @@ const uint32_t kMaxNapUs = 10000;  // the longest poll() between two spinOnce() 
 
 typedef hwbridge::Publisher<std_msgs::String> StringPublisher;
 
-hwbridge::NodeHandle_<hwbridge::PosixHardware, SoakProfile> nh;
+uint64_t now_ns() {
+  struct timespec ts;
+  clock_gettime(CLOCK_MONOTONIC, &ts);
+  return static_cast<uint64_t>(ts.tv_sec) * 1000000000u + static_cast<uint64_t>(ts.tv_nsec);
+}
+
+/** The POSIX link, noting when the board last read a byte from the bridge (for the account of
+ * each link loss below). */
+class TracingHardware : public hwbridge::PosixHardware {
+ public:
+  int read() {
+    const int c = hwbridge::PosixHardware::read();
+    if (c >= 0) last_byte_ns = now_ns();
+    return c;
+  }
+  /** Bytes waiting in the kernel's socket buffer, not read yet. */
+  int pending() {
+    int n = 0;
+    if (fd() < 0 || ioctl(fd(), FIONREAD, &n) != 0) return -1;
+    return n;
+  }
+  uint64_t last_byte_ns = 0;
+};
+
+hwbridge::NodeHandle_<TracingHardware, SoakProfile> nh;
 std_msgs::String message;
 char board[8];
 uint8_t uid[4];
@@ -71,11 +96,21 @@ uint64_t next_tick_us = 0;
 char command[64];
 size_t command_len = 0;
 
-uint64_t now_ns() {
-  struct timespec ts;
-  clock_gettime(CLOCK_MONOTONIC, &ts);
-  return static_cast<uint64_t>(ts.tv_sec) * 1000000000u + static_cast<uint64_t>(ts.tv_nsec);
-}
+// The account of each link loss this board declared: how long since it last read a byte from the
+// bridge, how long its own loop had not run just before (a board starved of the CPU), and the
+// bytes waiting unread in its socket.
+const int kMaxLossNotes = 8;
+struct LossNote {
+  uint32_t since_byte_ms;
+  uint32_t loop_gap_ms;
+  int pending;
+};
+LossNote loss_notes[kMaxLossNotes];
+int loss_count = 0;
+unsigned last_link_losses = 0;
+uint64_t last_loop_ns = 0;
+uint32_t max_loop_gap_ms = 0;
+uint32_t own_stalls = 0;  // loop gaps above 200 ms (PROTOCOL.md 2.9's bound at the defaults)
 
 long setting(const char* name, long fallback, long low, long high) {
   const char* text = getenv(name);
@@ -115,10 +150,18 @@ void print_counts() {
   printf("], \"refused\": [");
   for (int j = 0; j < topics; ++j) printf("%s%lu", j ? ", " : "", static_cast<unsigned long>(refused[j]));
   const hwbridge::NodeStats& stats = nh.stats();
-  printf("], \"served\": %lu, \"link_losses\": %u, \"peer_resets\": %u, \"sessions\": %u}}, \"late_ticks\": %lu}\n",
+  printf("], \"served\": %lu, \"link_losses\": %u, \"peer_resets\": %u, \"sessions\": %u,",
          static_cast<unsigned long>(served), static_cast<unsigned>(stats.link_losses),
-         static_cast<unsigned>(stats.peer_resets), static_cast<unsigned>(stats.sessions),
-         static_cast<unsigned long>(late_ticks));
+         static_cast<unsigned>(stats.peer_resets), static_cast<unsigned>(stats.sessions));
+  printf(" \"stalls\": %u, \"own_stalls\": %lu, \"max_loop_gap_ms\": %lu, \"losses\": [",
+         static_cast<unsigned>(stats.stalls), static_cast<unsigned long>(own_stalls),
+         static_cast<unsigned long>(max_loop_gap_ms));
+  for (int i = 0; i < loss_count && i < kMaxLossNotes; ++i) {
+    printf("%s{\"since_byte_ms\": %lu, \"loop_gap_ms\": %lu, \"pending\": %d}", i ? ", " : "",
+           static_cast<unsigned long>(loss_notes[i].since_byte_ms),
+           static_cast<unsigned long>(loss_notes[i].loop_gap_ms), loss_notes[i].pending);
+  }
+  printf("]}}, \"late_ticks\": %lu}\n", static_cast<unsigned long>(late_ticks));
 }
 
 void run_command(const char* text) {
@@ -196,7 +239,23 @@ void setup() {
 }
 
 void loop() {
+  const uint64_t loop_ns = now_ns();
+  const uint32_t gap_ms = last_loop_ns ? static_cast<uint32_t>((loop_ns - last_loop_ns) / 1000000u) : 0;
+  last_loop_ns = loop_ns;
+  if (gap_ms > max_loop_gap_ms) max_loop_gap_ms = gap_ms;
+  if (gap_ms > 200) ++own_stalls;
   nh.spinOnce();
+  if (static_cast<unsigned>(nh.stats().link_losses) != last_link_losses) {
+    last_link_losses = static_cast<unsigned>(nh.stats().link_losses);
+    TracingHardware& hw = nh.getHardware();
+    if (loss_count < kMaxLossNotes) {
+      LossNote& note = loss_notes[loss_count];
+      note.since_byte_ms = hw.last_byte_ns ? static_cast<uint32_t>((now_ns() - hw.last_byte_ns) / 1000000u) : 0;
+      note.loop_gap_ms = gap_ms;
+      note.pending = hw.pending();
+    }
+    ++loss_count;
+  }
   read_commands();
   uint64_t now_us = now_ns() / 1000u;
   if (publishing && now_us >= next_tick_us) {

@@ -66,6 +66,16 @@ struct IsDatagramSink {
   template <class S> static long test(...);
   static const bool value = sizeof(test<Sink>(nullptr)) == 1;
 };
+/** Whether a Hardware shares its CPU with other programs (a host build: it can go unscheduled
+ * for longer than the link timeout): it declares `static const bool kSharesCpu = true`
+ * (PosixHardware does). The node then applies PROTOCOL.md 2.9's stall rule; on bare metal the
+ * rule compiles to nothing. */
+template <class H>
+struct SharesCpu {
+  template <class S> static char test(char (*)[S::kSharesCpu ? 1 : 2]);
+  template <class S> static long test(...);
+  static const bool value = sizeof(test<H>(nullptr)) == 1;
+};
 template <bool B, class T> struct EnableIf {};
 template <class T> struct EnableIf<true, T> { typedef T type; };
 

@@ -46,6 +46,9 @@ namespace hwbridge {
  */
 class PosixHardware {
  public:
+  /** A host program shares the CPU: the node applies the stall rule (detail::SharesCpu). */
+  static const bool kSharesCpu = true;
+
   PosixHardware()
       : fd_(-1), listen_fd_(-1), slave_fd_(-1), out_len_(0), in_len_(0), in_pos_(0), port_(0),
         is_socket_(false) {

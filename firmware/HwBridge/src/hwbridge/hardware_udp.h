@@ -61,6 +61,10 @@ class UdpHardware {
   typedef decltype(declUdp().remoteIP()) Address;
   /** Tells the node to use datagram framing (detail::IsDatagramSink). */
   static const bool kDatagram = true;
+#if defined(HWBRIDGE_HOST)
+  /** A host build shares the CPU: the node applies the stall rule (detail::SharesCpu). */
+  static const bool kSharesCpu = true;
+#endif
   /** The bridge's usual port (`hwbridge connect udp-listen://:2324`). */
   static const uint16_t kDefaultPort = 2324;
   /** A discovered host silent this long is forgotten (its heartbeats come every 100 ms). */

@@ -155,6 +155,12 @@ struct NodeStats {
   Counter ignored_frames;    ///< frames outside a session
   TrafficCounter hellos_sent;
   TrafficCounter heartbeats_sent;
+#if !defined(__AVR__)
+  /// times this end had not run for longer than 200 ms (PROTOCOL.md 2.9: only the first 200 ms
+  /// of such a gap count towards the link timeout); counted by a Hardware that shares the CPU
+  /// (host builds: detail::SharesCpu), always 0 on bare metal
+  Counter stalls;
+#endif
 };
 
 class NodeBase;
@@ -163,6 +169,9 @@ namespace detail {
 /** Tags of the two kinds of link the node reads (detail::IsDatagramSink tells them apart). */
 struct StreamLink {};
 struct DatagramLink {};
+/** Tags of a Hardware that runs alone (bare metal) or shares the CPU (detail::SharesCpu). */
+struct OwnCpu {};
+struct SharedCpu {};
 }  // namespace detail
 
 /** Where a service server's response goes (the node's transmit buffer). */
@@ -481,6 +490,8 @@ class NodeHandle_ : public NodeBase {
   void sendBe(uint8_t channel, const uint8_t* p, size_t n);
   void emit(const Frame& f);
   void clock();
+  void stalled(Tick, detail::OwnCpu*) {}
+  void stalled(Tick before, detail::SharedCpu*);
   void timers(bool alone);
   __attribute__((noinline)) bool markTx();
   void flushOut();

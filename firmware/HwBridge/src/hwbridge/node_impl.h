@@ -158,11 +158,29 @@ HWB_NODE void HWB_SELF::begin(const char* name, const char* firmware) {
 
 /** Reads the microsecond clock into now_, and the session's ticks of 1.024 ms from it. */
 HWB_NODE void HWB_SELF::clock() {
+  const Tick before = tick_;
   now_ = hw_.micros();
   // now_ >> 10 from byte moves and a 2-bit shift (a 32-bit shift by 10 is a loop on AVR)
   tick_ = static_cast<Tick>(static_cast<uint16_t>(now_ >> 8) >> 2 |
                             static_cast<uint16_t>(static_cast<uint8_t>(now_ >> 24)) << 14);
+  stalled(before, static_cast<typename detail::Pick<detail::SharesCpu<Hardware>::value, detail::SharedCpu,
+                                                    detail::OwnCpu>::type*>(nullptr));
 }
+
+#if !defined(__AVR__)
+/** PROTOCOL.md 2.9's stall rule, for a Hardware that shares the CPU: when more than
+ * max(2 x heartbeat, link timeout / 4) = 200 ms passed since the clock was last read, this end
+ * was not running (a host program the scheduler left out, a stopped process): only 200 ms of
+ * the gap counts as the peer's silence. A peer that really went silent is declared lost a link
+ * timeout after this end runs again. */
+HWB_NODE void HWB_SELF::stalled(Tick before, detail::SharedCpu*) {
+  static const Tick kAwake = ticks(200);
+  const Tick step = static_cast<Tick>(tick_ - before);
+  if (!established() || step <= kAwake) return;
+  last_rx_ = static_cast<Tick>(last_rx_ + (step - kAwake));
+  ++stats_.stalls;
+}
+#endif
 
 HWB_NODE bool HWB_SELF::add(Entry& e) {
   if (e.node_ != nullptr || entry_count_ == 255) return false;

@@ -775,16 +775,13 @@ class DeferredReply:
     __slots__ = ("_query", "_server")
 
     def __init__(self, query: zenoh.Query, server: ServiceServer) -> None:
-        self._query = [query]
-        """The query until it is answered: ``list.pop`` hands it to exactly one answer, from
-        any thread, without a lock per call (one is built for every call of the service)."""
+        self._query = [query]  # list.pop hands it to one answer, from any thread, lock-free
         self._server = server
 
     def _finish(self) -> zenoh.Query | None:
-        try:
+        with contextlib.suppress(IndexError):  # answered already
             return self._query.pop()
-        except IndexError:  # answered already
-            return None
+        return None
 
     def ok(self, payload: bytes) -> None:
         """Send the response bytes (ignored if an answer was already given)."""

@@ -31,6 +31,10 @@ import yaml
 from hwbridge.firmware.build import CORE_DIR
 from tests.netutil import free_port, wait_until
 
+# The first test's set-up runs the module's 36-odd builds (about 45 s on a quiet 2-core machine,
+# 470 s at load 20): the suite's 300 s per test would cut them off on a busy machine.
+pytestmark = pytest.mark.timeout(1200)
+
 ROOT = Path(__file__).resolve().parents[2]
 LIBRARY = ROOT / "firmware" / "HwBridge"
 EXAMPLES = sorted(p.name for p in (LIBRARY / "examples").iterdir() if p.is_dir())

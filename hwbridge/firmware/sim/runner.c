@@ -53,6 +53,7 @@
 #include <strings.h>
 #include <time.h>
 #include <poll.h>
+#include <dirent.h>
 #include <pthread.h>
 #include <sys/inotify.h>
 #include <unistd.h>
@@ -141,7 +142,7 @@ static char inbuf[8192];
 static size_t inlen;
 static int want_reset, want_quit, want_go;
 static int boot_mode;        // --bootloader: resets set EXTRF, opens of the pty reset
-static int open_watch = -1;  // inotify on the pty's slave: IN_OPEN
+static int open_watch = -1;  // inotify on the pty's slave: opens and closes
 static int open_wake[2] = {-1, -1};  // the watcher's self-pipe: wait_for_reset polls it
 static volatile int open_seen;       // set by the watcher thread, taken by the main loop
 
@@ -644,20 +645,76 @@ static void read_commands(void) {
    descheduled for longer than avrdude's 300 ms pause after the open, its first bytes reached
    the bootloader that was running before the reset, which then cut the exchange in the middle
    ("protocol expects OK byte 0x10 but got 0x04"). */
+static char watched_slave[64];
+
+#define MAX_HOLDERS 16
+
+/* The other processes that have the pty's slave open now (from /proc/PID/fd): up to
+   MAX_HOLDERS of their pids into held[]; returns how many. */
+static int slave_holders(pid_t held[MAX_HOLDERS]) {
+  DIR *procs = opendir("/proc");
+  if (procs == NULL) return 0;
+  int count = 0;
+  pid_t self = getpid();
+  struct dirent *p;
+  while (count < MAX_HOLDERS && (p = readdir(procs)) != NULL) {
+    char *end;
+    long pid = strtol(p->d_name, &end, 10);
+    if (*end != '\0' || pid <= 0 || pid == self) continue;
+    char fds[64];
+    snprintf(fds, sizeof fds, "/proc/%ld/fd", pid);
+    DIR *dir = opendir(fds);
+    if (dir == NULL) continue;
+    struct dirent *f;
+    while ((f = readdir(dir)) != NULL) {
+      char link[384], target[64];
+      snprintf(link, sizeof link, "%s/%s", fds, f->d_name);
+      ssize_t n = readlink(link, target, sizeof target - 1);
+      if (n <= 0) continue;
+      target[n] = '\0';
+      if (strcmp(target, watched_slave) == 0) {
+        held[count++] = (pid_t)pid;
+        break;
+      }
+    }
+    closedir(dir);
+  }
+  closedir(procs);
+  return count;
+}
+
+/* Whether a process of before[] still holds the slave in now[]: the port was open all along. */
+static int held_throughout(const pid_t *before, int nb, const pid_t *now, int nn) {
+  for (int i = 0; i < nb; i++)
+    for (int j = 0; j < nn; j++)
+      if (before[i] == now[j]) return 1;
+  return 0;
+}
+
+/* DTR follows the port, not each open: a second process opening a port that another one holds
+   leaves DTR asserted, so it does not reset a real board (a busy check of the port a bridge
+   holds must not restart the board under it). So an open resets the AVR only when no process
+   that held the slave at the previous look still holds it; every open and close updates the
+   look (inotify may merge repeated events: the holders are read, not counted). */
 static void *watch_opens(void *arg) {
   (void)arg;
   char events[4096] __attribute__((aligned(__alignof__(struct inotify_event))));
+  pid_t before[MAX_HOLDERS], now[MAX_HOLDERS];
+  int nbefore = slave_holders(before);
   for (;;) {
     ssize_t n = read(open_watch, events, sizeof events);
     if (n < 0 && errno == EINTR) continue;
     if (n <= 0) return NULL;
     for (char *at = events; at < events + n;) {
       const struct inotify_event *e = (const struct inotify_event *)at;
-      if (e->mask & IN_OPEN) {
+      int nnow = slave_holders(now);
+      if ((e->mask & IN_OPEN) && !held_throughout(before, nbefore, now, nnow)) {
         __atomic_store_n(&open_seen, 1, __ATOMIC_RELEASE);
         ssize_t w = write(open_wake[1], "o", 1);  // a full pipe has a wake-up pending already
         (void)w;
       }
+      memcpy(before, now, sizeof now[0] * (size_t)nnow);
+      nbefore = nnow;
       at += sizeof *e + e->len;
     }
   }
@@ -665,8 +722,9 @@ static void *watch_opens(void *arg) {
 
 static void start_open_watch(const char *slave) {
   pthread_t thread;
+  snprintf(watched_slave, sizeof watched_slave, "%s", slave);
   open_watch = inotify_init1(IN_CLOEXEC);
-  if (open_watch < 0 || inotify_add_watch(open_watch, slave, IN_OPEN) < 0 ||
+  if (open_watch < 0 || inotify_add_watch(open_watch, slave, IN_OPEN | IN_CLOSE) < 0 ||
       pipe2(open_wake, O_NONBLOCK | O_CLOEXEC) < 0 ||
       pthread_create(&thread, NULL, watch_opens, NULL) != 0) {
     fprintf(stderr, "hwbridge-simavr: cannot watch %s for opens: %s\n", slave, strerror(errno));

@@ -216,19 +216,8 @@ def decode_id(can_id: int) -> CanId | None:
         to_host = bool(can_id & _TO_HOST_BIT)
         if to_host and node == HOST_NODE:
             return None
-        if can_id & _CHAIN_BIT:
-            return CanId(
-                can_id >> 26,
-                Kind((can_id >> 24) & 3),
-                (can_id >> 16) & 0xFF,
-                HOST_NODE if to_host else node,
-                node if to_host else HOST_NODE,
-                FORMAT_2,
-                (can_id >> 11) & 7,
-                1,
-                _CHAIN_MIN_SIZE << ((can_id >> 8) & 7),
-            )
-        if can_id & _CHAIN_RESERVED:
+        chained = bool(can_id & _CHAIN_BIT)
+        if not chained and can_id & _CHAIN_RESERVED:
             return None
         return CanId(
             can_id >> 26,
@@ -238,7 +227,8 @@ def decode_id(can_id: int) -> CanId | None:
             node if to_host else HOST_NODE,
             FORMAT_2,
             (can_id >> 11) & 7,
-            (can_id >> 9) & 3,
+            1 if chained else (can_id >> 9) & 3,
+            _CHAIN_MIN_SIZE << ((can_id >> 8) & 7) if chained else 0,
         )
     if can_id & _RESERVED_MASK:
         return None

@@ -549,7 +549,7 @@ class NodeHandle_ : public NodeBase {
   // most come first: on AVR a member within 63 bytes of the object's start is one instruction
   // away (ldd/std), one further needs the address computed first.
   uint8_t state_ = 0;
-  uint8_t flags_ = 0;  // kFixed | kInInput | kTimeSynced | kLead
+  uint8_t flags_ = 0;  // kFixed | kInInput | kTimeSynced | kLead | kAnswerOwed
   Tick tick_ = 0;  // now_ >> 10
   // timer_, by state: the last HELLO (handshake), the start of the table (configuring), the
   // pending service call's deadline (connected)
@@ -605,7 +605,9 @@ class NodeHandle_ : public NodeBase {
   FrameDecoder<Profile::kMtu, false> dec_{};
   uint8_t tx_[Profile::kTxBuffer] = {};
 
-  enum Flag : uint8_t { kFixed = 1, kInInput = 2, kTimeSynced = 4, kLead = 8 };
+  // kAnswerOwed: a service request was taken back (no room for its answer); until it comes
+  // again, messages of the board's own do not take the transmit buffer (sendOn)
+  enum Flag : uint8_t { kFixed = 1, kInInput = 2, kTimeSynced = 4, kLead = 8, kAnswerOwed = 16 };
   bool flag(uint8_t f) const { return (flags_ & f) != 0; }
   void setFlag(uint8_t f, bool on) { flags_ = static_cast<uint8_t>(on ? flags_ | f : flags_ & ~f); }
 };

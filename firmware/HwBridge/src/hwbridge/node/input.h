@@ -157,8 +157,17 @@ HWB_NODE void HWB_SELF::onControl(const uint8_t* p, size_t n, bool reliable) {
         // taken back unacknowledged, and the host sends it again after its RTO. Only a request
         // of fragments (a board with reassembly) or one released from the held frames cannot
         // be: counted, and the host's call times out.
-        if (!(reasm_.unfeed() && rel_rx_.refuse())) ++stats_.tx_refused;
-      } else if (on_request_) {
+        // Until it comes again, the board's own reliable messages leave the buffer to its answer
+        // (a sketch publishing whenever a slot frees would otherwise take it first every time).
+        if (reasm_.unfeed() && rel_rx_.refuse()) {
+          setFlag(kAnswerOwed, true);
+        } else {
+          ++stats_.tx_refused;
+        }
+        break;
+      }
+      setFlag(kAnswerOwed, false);
+      if (on_request_) {
         on_request_(this, p, n);
       } else {  // this board serves nothing: NO_SERVICE
         board::ServiceResponse::put(tx_, board::ServiceRequest::channel(p), board::ServiceRequest::request_id(p),
@@ -252,6 +261,7 @@ HWB_NODE void HWB_SELF::teardown() {
   if (was) reasm_.reset(FrameType::Reliable);
   pending_len_ = 0;
   setFlag(kTimeSynced, false);
+  setFlag(kAnswerOwed, false);
   time_.clear();  // time samples of the last session's host
   features_ = 0;
   // a new ISN per session: the random session id mixed with the time (no generator state kept)

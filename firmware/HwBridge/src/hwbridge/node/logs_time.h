@@ -104,6 +104,10 @@ HWB_NODE bool HWB_SELF::sendOn(Entry& e, size_t len) {
     return false;
   }
   if (e.reliable_) {
+    if (flag(kAnswerOwed)) {  // the buffer waits for a request taken back (onControl)
+      ++stats_.tx_refused;
+      return false;
+    }
     pending_ch_ = e.channel_;
     pending_len_ = static_cast<uint16_t>(len);
     pump();

@@ -99,10 +99,12 @@ class Host:
 
 
 class Board:
-    """The SoakBoard program on ``listen://127.0.0.1:PORT`` (one best-effort topic at 20 Hz)."""
+    """The SoakBoard program on ``listen://127.0.0.1:PORT`` (by default one best-effort topic
+    at 20 Hz; ``settings`` overrides its SOAK_* environment, such as ``SOAK_RELIABLE``)."""
 
-    def __init__(self, program: Path, port: int) -> None:
+    def __init__(self, program: Path, port: int, **settings: str) -> None:
         env = dict(os.environ, SOAK_INDEX="7", SOAK_TOPICS="1", SOAK_RELIABLE="0", SOAK_RATE="20")
+        env.update(settings)
         self.process = subprocess.Popen(
             [str(program), f"listen://127.0.0.1:{port}"],
             stdin=subprocess.PIPE,

@@ -67,16 +67,19 @@ not report the bridge silent for its own absence; losses are never hidden, only 
 ``--bridges N`` shares the boards out over N bridge processes (Zenoh routers joined into one
 graph; the figures add up all of them).
 
-What the losses at 32 boards were: before the pump keeper (hwbridge/pump.py: the session's
-timers run while the pump thread hands events on), a pump handing one read's 80 messages to
-graph publishers that blocked behind this client (Zenoh congestion control BLOCK, the client
-sharing the 2 cores) went 300-750 ms, at times more than 0.8 s, without sending the board
-anything: 39 link losses and 38 reliable messages lost in 10 minutes, each declared by a board
-that was running (its loop gaps at most about 230 ms). With the keeper the bridge holds the
-boards back instead (their ``refused`` sends: a full reliable window) when the client cannot
-take all 16,000 messages/s; the last 10-minute run (load average up to 34) lost nothing, but
-one at a load average of 20-52 still had 59 link losses, each declared by a running board while
-the bridge process itself did not get to send for 0.87-0.95 s (``loss_account``).
+What the losses at 32 boards were: before the pump keeper (hwbridge/pump.py), pumps blocked in
+graph publishes behind this client sent the boards nothing for over 0.8 s (39 link losses in 10
+minutes). After it, sessions the *bridge* ended (``peer_resets``) by its retry limit (PROTOCOL.md
+2.4): a board takes back unacknowledged a service request that finds its one transmit buffer
+holding a reliable message waiting for the window (2.8), and these boards, publishing whenever
+the buffer was free, refilled it before every retransmission, so the call failed at 5 s and the
+10th retransmission ended the session with what the board's window held (5 reliable messages,
+46 failed calls in 3 minutes). Boards now keep the buffer for the answer to a request taken back
+(tests/firmware/test_service_busy_board.py). What remains are link losses declared by running
+boards while the whole bridge process sent nothing for 0.84-1.04 s (``loss_account``; many boards
+in the same seconds) when other work loads the 2 cores to an average of 20 or more: 70 link
+losses, 54 reliable messages in 10 minutes at 13-26. A session's end discards its reliable
+stream (2.10): keeping those needs a protocol change (a stream that survives a resumed session).
 
 Why the boards are firmware by default: 32 boards x 10 topics x 50 Hz is 16,000 messages/s, and
 built in Python (the emulators) that saturated this 2-core machine (load about 24). Starved

@@ -77,8 +77,9 @@ the buffer was free, refilled it before every retransmission, so the call failed
 46 failed calls in 3 minutes). Boards now keep the buffer for the answer to a request taken back
 (tests/firmware/test_service_busy_board.py). What remains are link losses declared by running
 boards while the whole bridge process sent nothing for 0.84-1.04 s (``loss_account``; many boards
-in the same seconds) when other work loads the 2 cores to an average of 20 or more: 70 link
-losses, 54 reliable messages in 10 minutes at 13-26. A session's end discards its reliable
+in the same seconds) when other work loads the 2 cores: 70 link losses and 54 reliable messages
+in one 10-minute run (load average 13-26), 2 and none in the next (22-61: no bridge-ended
+session, 2 failed calls, those the 2 losses abandoned). A session's end discards its reliable
 stream (2.10): keeping those needs a protocol change (a stream that survives a resumed session).
 
 Why the boards are firmware by default: 32 boards x 10 topics x 50 Hz is 16,000 messages/s, and

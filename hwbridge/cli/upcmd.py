@@ -241,18 +241,15 @@ def _up(
     quiet: bool,
     wait: bool,
 ) -> None:
-    """Start the runtime, then the shards (if any) with the links the runtime resolved; a
-    Ctrl-C from then on reaches the shards at once."""
-    from hwbridge.cli.stopping import on_signal
-
+    """Start the runtime, then the shards (if any) with the links the runtime resolved. A
+    Ctrl-C meanwhile raises KeyboardInterrupt here, and the shards started are stopped."""
     runtime.start()
     if shards is None:
         return
     links = {b.name: b.link for b in runtime.robot.boards}
     options = [*(["--quiet"] if quiet else []), *(["--wait"] if wait else [])]
     msg_path = [str(p) for p in getattr(ctx.find_root().obj, "msg_path", ())]
-    with on_signal(shards.interrupt):
-        shards.start(config, msg_path, robot.path, links, options)
+    shards.start(config, msg_path, robot.path, links, options)
 
 
 def _wait(shards: Shards | None) -> None:

@@ -262,3 +262,38 @@ def test_plan_shares_the_boards_out_evenly() -> None:
     shards = plan_shards(names, 4)
     assert [len(s) for s in shards] == [3, 3, 4, 3, 4]
     assert [n for s in shards for n in s] == names
+
+
+def test_an_upload_pause_finds_the_bridge_process_that_holds_the_port(
+    procs: Processes, trio: tuple[Path, list[str]]
+) -> None:
+    """What ``firmware upload --pause-bridge`` does: the port's lock holder is the shard with
+    the board, and that shard's board answers the pause and the resume."""
+    from hwbridge.bridge.control import BridgePause, find_holding_board
+    from hwbridge.firmware.upload import _lock_holder
+    from hwbridge.graph import Graph
+
+    robot, links = trio
+    pty = procs.emulate(str(robot), "--board", "b1")  # a serial port, as a real board's
+    links[links.index(next(a for a in links if a.startswith("b1=")))] = f"b1={pty}"
+    up, log = _start(procs, robot, links)
+    shards = _shards(up)
+    holder = [0]
+
+    def held() -> bool:
+        holder[0] = _lock_holder(Path(pty))[0] or 0
+        return holder[0] in shards
+
+    assert wait_until(held, 30, step=0.2), (holder, shards, log.read_text())
+    graph = Graph.attached(
+        connect=[procs.env["HWBRIDGE_ENDPOINT"]], domain=procs.env["HWBRIDGE_DOMAIN"]
+    )
+    try:
+        board = find_holding_board(graph, pty, holder[0], timeout=10)
+        assert board is not None and board.name == "b1", board
+        with BridgePause(graph, board, reason="a test"):
+            assert _lock_holder(Path(pty))[0] is None  # released while paused
+        assert wait_until(lambda: _lock_holder(Path(pty))[0] == holder[0], 30, step=0.2)
+    finally:
+        graph.close()
+    assert up.poll() is None, log.read_text()

@@ -9,13 +9,11 @@ bridge processes, only the parent hosts the server; each shard's boards read thr
 
 from __future__ import annotations
 
-import threading
 from collections.abc import Callable
 from typing import Any, Protocol
 
 from hwbridge.errors import HwBridgeTimeoutError
-from hwbridge.graph.guard import call_guarded
-from hwbridge.graph.params import ParamClient, ParamError, ParamHost
+from hwbridge.graph.params import ParamClient, ParamError, ParamHost, UpdateListeners
 
 __all__ = ["ParamSource", "RemoteParams"]
 
@@ -34,9 +32,8 @@ class RemoteParams:
 
     def __init__(self, graph: ParamHost, timeout: float = 5.0) -> None:
         self._client = ParamClient(graph, timeout)
-        self._lock = threading.Lock()
-        self._listeners: list[Callable[[str, Any], None]] = []
-        self._client.on_update(self._changed)  # one subscription for every board's session
+        self._listeners = UpdateListeners()
+        self._client.on_update(self._listeners.call)  # one subscription for every board
 
     def get(self, name: str) -> Any:
         """The value at ``name``; ParamError when it is missing or no server answers."""
@@ -47,23 +44,8 @@ class RemoteParams:
 
     def on_update(self, callback: Callable[[str, Any], None]) -> Callable[[], None]:
         """Call ``callback(name, value)`` on every change, until the returned function runs."""
-        with self._lock:
-            self._listeners.append(callback)
-
-        def remove() -> None:
-            with self._lock:
-                if callback in self._listeners:
-                    self._listeners.remove(callback)
-
-        return remove
+        return self._listeners.add(callback)
 
     @property
     def listener_count(self) -> int:
-        with self._lock:
-            return len(self._listeners)
-
-    def _changed(self, name: str, value: Any) -> None:
-        with self._lock:
-            listeners = list(self._listeners)
-        for listener in listeners:
-            call_guarded(listener, name, value)
+        return self._listeners.count

@@ -51,8 +51,6 @@ __all__ = [
     "plan_shards",
 ]
 
-log = logging.getLogger("hwbridge.robot")
-
 DEFAULT_BOARDS_PER_PROCESS: Final = 16
 """Boards per bridge process when neither the option nor the robot file says."""
 
@@ -69,6 +67,8 @@ board link's first open)."""
 STOP_WAIT: Final = 1.0
 """Seconds the parent gives its shards to stop on their own before killing them (the parent
 itself is gone 1.5 s after a Ctrl-C: :data:`hwbridge.cli.stopping.GRACE`)."""
+
+log = logging.getLogger("hwbridge.robot")
 
 
 def plan_shards(names: Sequence[str], per_process: int) -> list[tuple[str, ...]]:

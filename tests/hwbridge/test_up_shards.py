@@ -128,22 +128,26 @@ def trio(procs: Processes, tmp_path: Path) -> Iterator[tuple[Path, list[str]]]:
         soak.wait(10)
 
 
-def _start(procs: Processes, robot: Path, links: list[str]) -> tuple[subprocess.Popen[str], Path]:
+def _start(
+    procs: Processes, robot: Path, links: list[str]
+) -> tuple[subprocess.Popen[str], Path, list[int]]:
+    """``hwbridge up`` with one board a process, once it says it is up; its shards' pids."""
     up, log = procs.start("up", "up", str(robot), *links, "--boards-per-process", "1")
     assert wait_until(lambda: "robot trio up" in log.read_text() or up.poll() is not None, 120), (
         log.read_text()
     )
     assert up.poll() is None, log.read_text()
-    return up, log
+    shards = _shards(up)
+    assert len(shards) == 3, log.read_text()
+    return up, log, shards
 
 
 def test_three_boards_in_three_bridge_processes(
     procs: Processes, trio: tuple[Path, list[str]]
 ) -> None:
     robot, links = trio
-    up, log = _start(procs, robot, links)
+    up, log, _pids = _start(procs, robot, links)
     assert "3 boards in 3 bridge processes" in log.read_text(), log.read_text()
-    assert len(_shards(up)) == 3, log.read_text()
 
     for name in BOARDS[:2]:  # every board's topics, each from its own process, reach a client
         assert _echo(procs, f"/trio/{name}/range")["radiation_type"] == 0
@@ -167,9 +171,7 @@ def test_three_boards_in_three_bridge_processes(
 
 def test_sigint_stops_every_bridge_process(procs: Processes, trio: tuple[Path, list[str]]) -> None:
     robot, links = trio
-    up, log = _start(procs, robot, links)
-    shards = _shards(up)
-    assert len(shards) == 3, log.read_text()
+    up, log, shards = _start(procs, robot, links)
     up.send_signal(signal.SIGINT)
     sent = time.monotonic()
     up.wait(30)
@@ -186,9 +188,7 @@ def test_a_shard_that_dies_is_reported_and_the_others_stop(
     procs: Processes, trio: tuple[Path, list[str]]
 ) -> None:
     robot, links = trio
-    up, log = _start(procs, robot, links)
-    shards = _shards(up)
-    assert len(shards) == 3, log.read_text()
+    up, log, shards = _start(procs, robot, links)
     victim = shards[1]
     os.kill(victim, signal.SIGKILL)
     up.wait(60)
@@ -203,9 +203,7 @@ def test_the_shards_do_not_outlive_a_killed_parent(
     procs: Processes, trio: tuple[Path, list[str]]
 ) -> None:
     robot, links = trio
-    up, log = _start(procs, robot, links)
-    shards = _shards(up)
-    assert len(shards) == 3, log.read_text()
+    up, log, shards = _start(procs, robot, links)
     up.kill()  # SIGKILL: the parent cannot stop them itself
     up.wait(30)
     assert wait_until(lambda: not any(_alive(pid) for pid in shards), 30, step=0.1), log.read_text()
@@ -276,8 +274,7 @@ def test_an_upload_pause_finds_the_bridge_process_that_holds_the_port(
     robot, links = trio
     pty = procs.emulate(str(robot), "--board", "b1")  # a serial port, as a real board's
     links[links.index(next(a for a in links if a.startswith("b1=")))] = f"b1={pty}"
-    up, log = _start(procs, robot, links)
-    shards = _shards(up)
+    up, log, shards = _start(procs, robot, links)
     holder = [0]
 
     def held() -> bool:

@@ -249,7 +249,11 @@ def _up(
     links = {b.name: b.link for b in runtime.robot.boards}
     options = [*(["--quiet"] if quiet else []), *(["--wait"] if wait else [])]
     msg_path = [str(p) for p in getattr(ctx.find_root().obj, "msg_path", ())]
-    shards.start(config, msg_path, robot.path, links, options)
+    try:
+        shards.start(config, msg_path, robot.path, links, options)
+    except BaseException:
+        runtime.stop()
+        raise
 
 
 def _wait(shards: Shards | None) -> None:

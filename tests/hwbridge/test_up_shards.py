@@ -243,6 +243,14 @@ def test_boards_per_process_in_the_robot_file(tmp_path: Path) -> None:
     text = robot.read_text()
     robot.write_text(text + "boards_per_process: 2\n")
     assert load_robot(robot).boards_per_process == 2
+    shown = subprocess.run(
+        [sys.executable, "-m", "hwbridge", "robot", "show", str(robot)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=True,
+    )
+    assert yaml.safe_load(shown.stdout)["boards_per_process"] == 2  # and it reads back alike
     robot.write_text(text + "boards_per_process: -1\n")
     with pytest.raises(RobotFileError) as caught:
         load_robot(robot)

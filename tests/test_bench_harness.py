@@ -223,7 +223,8 @@ def test_soak_bench_counts_every_message_and_prints_samples_and_a_summary(kind: 
 
 def test_boards_bench_prints_one_line_a_run_with_ratios_to_its_one_board_baseline() -> None:
     """``tools/bench/boards.py`` small: 1 and 2 firmware boards of three topics, the 2-board
-    count also sharded over 2 bridge processes (one Zenoh graph). Each run's line has the
+    count also sharded over 2 bridge processes (one Zenoh graph), and through ``hwbridge up``
+    with one board a process (its parent and 2 shards, measured together). Each run's line has the
     documented fields; its counts are real (every message the boards published reached the
     client when no session ended, whichever bridge carried it) and its ratios are against the
     1-board run of the same invocation. No timing checks."""
@@ -231,13 +232,15 @@ def test_boards_bench_prints_one_line_a_run_with_ratios_to_its_one_board_baselin
         "boards.py",
         *("--boards", "1,2", "--minutes", "0.1", "--sample", "2", "--topics", "3"),
         *("--rate", "20", "--shard-at", "2", "--per-bridge", "1"),
-        timeout=300,
+        *("--up-at", "2", "--boards-per-process", "1"),
+        timeout=400,
     )
     *runs, summary = lines
-    assert [(r["bench"], r["boards"], r["bridges"]) for r in runs] == [
-        ("boards", 1, 1),
-        ("boards", 2, 1),
-        ("boards", 2, 2),
+    assert [(r["bench"], r["boards"], r["bridges"], r["shape"]) for r in runs] == [
+        ("boards", 1, 1, "connect"),
+        ("boards", 2, 1, "connect"),
+        ("boards", 2, 2, "connect"),
+        ("boards", 2, 3, "up"),
     ]
     base = runs[0]
     for run in runs:
@@ -267,5 +270,7 @@ def test_boards_bench_prints_one_line_a_run_with_ratios_to_its_one_board_baselin
     sharded = runs[2]
     assert sharded["rss_kb_per_extra_board"] is not None
     assert summary["bench"] == "boards_summary"
-    assert set(summary["shapes"]) == {"one_bridge", "sharded"}
+    assert set(summary["shapes"]) == {"one_bridge", "sharded", "up_default"}
     assert summary["shapes"]["sharded"]["bridges"] == 2
+    assert summary["shapes"]["up_default"]["bridges"] == 3
+    assert runs[3]["threads"] > runs[1]["threads"]  # three processes' threads, not one's

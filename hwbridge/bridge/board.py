@@ -221,7 +221,7 @@ class BoardConnection:
             resolve=self.resolve,
             set_state=self.set_state,
             get_param=self.bridge.get_param,
-            on_param_update=self.bridge.params.on_update,
+            on_param_update=self.bridge.param_source.on_update,
             on_firmware=self.firmware.check,
         )
 

@@ -99,6 +99,8 @@ def show(robot_file: _FILE) -> None:
         if robot.ros2_qos:
             ros["qos"] = dict(robot.ros2_qos)
         data["ros"] = ros
+    if robot.boards_per_process is not None:
+        data["boards_per_process"] = robot.boards_per_process
     sys.stdout.write(yaml.safe_dump(data, sort_keys=False))
 
 

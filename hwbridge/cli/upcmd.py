@@ -20,11 +20,13 @@ from hwbridge.cli.bridgecmd import (
 )
 from hwbridge.cli.common import get_registry
 from hwbridge.cli.gatewaycmd import QOS_HELP, qos_rules
+from hwbridge.robot.shards import DEFAULT_BOARDS_PER_PROCESS, Shards, fail_with, plan_shards
 
 if TYPE_CHECKING:
     from hwbridge.gateway.launch import GatewayProcess
     from hwbridge.graph import GraphConfig
     from hwbridge.robot.model import Robot
+    from hwbridge.robot.runtime import RobotRuntime
     from hwbridge.viz.foxglove import VizServer
 
 __all__ = ["LinkOption", "parse_links", "show_notes", "up"]
@@ -144,12 +146,34 @@ def up(
         int,
         typer.Option("--viz-port", min=0, max=65535, help="Foxglove WebSocket port (0: any)."),
     ] = 8765,
+    boards_per_process: Annotated[
+        int | None,
+        typer.Option(
+            "--boards-per-process",
+            min=0,
+            help="With more boards than this, run them in several bridge processes of at most "
+            "this many boards each (this process keeps the graph, parameters, host devices, "
+            "viz and gateways); 0: every board in this process. Default: the robot file's "
+            f"'boards_per_process', else {DEFAULT_BOARDS_PER_PROCESS}.",
+            show_default=False,
+        ),
+    ] = None,
+    shard: Annotated[str | None, typer.Option("--shard", hidden=True)] = None,
     quiet: QuietOption = False,
 ) -> None:
     """Bring a robot up: its boards and every host node its devices need, until Ctrl-C.
 
     The robot file is checked as 'hwbridge robot check' checks it; the boards' log lines (INFO
-    and above) show on stderr, --quiet hides the info ones."""
+    and above) show on stderr, --quiet hides the info ones. A robot with more boards than
+    --boards-per-process (16) runs them in child bridge processes on the same graph (one
+    bridge process slows down past a few dozen boards); nothing else changes for a user, and
+    Ctrl-C stops them all. --boards-per-process 0 keeps every board in this process."""
+    if shard is not None:
+        from hwbridge.cli.shardrun import run_shard
+
+        show_board_logs(quiet)
+        run_shard(ctx, robot_file, parse_links(link), shard, wait=wait)
+        return
     from hwbridge.graph import Graph
     from hwbridge.robot.config import check_robot
     from hwbridge.robot.runtime import RobotRuntime
@@ -165,18 +189,27 @@ def up(
     show_notes(notes)
     initial = read_params(params)
     show_board_logs(quiet)
+    per_process = boards_per_process
+    if per_process is None:
+        per_process = robot.boards_per_process
+    if per_process is None:
+        per_process = DEFAULT_BOARDS_PER_PROCESS
+    groups = plan_shards([b.name for b in robot.boards], per_process)
     config = owner_config(ctx, listen)
-    graph = Graph(config)
+    shards = Shards(groups) if groups else None
+    graph = Graph(shards.parent_config(config) if shards else config)
     try:
         graph.registry = get_registry(ctx)
-        runtime = RobotRuntime(robot, graph, params=initial, wait_for_boards=wait)
-        runtime.start()
+        runtime = RobotRuntime(
+            robot, graph, params=initial, wait_for_boards=wait, run_boards=shards is None
+        )
+        _up(ctx, robot, config, runtime, shards, quiet=quiet, wait=wait)
         gateways: list[GatewayProcess] = []
         server: VizServer | None = None
         try:
             sys.stderr.write(
                 f"hwbridge: robot {robot.name} up on {config.describe()}; Ctrl-C stops\n"
-                f"{runtime.summary()}\n"
+                f"{runtime.summary()}\n" + (f"{shards.describe()}\n" if shards else "")
             )
             if viz:
                 from hwbridge.viz.foxglove import start_viz
@@ -185,8 +218,10 @@ def up(
                 sys.stderr.write(f"hwbridge: Foxglove WebSocket on {server.url}\n")
             sys.stderr.flush()
             gateways = _start_gateways(ctx, config, robot, ros2=ros2, ros1=ros1, ros2_qos=qos)
-            wait_for_signal()
+            _wait(shards)
         finally:
+            if shards is not None:
+                shards.stop()
             for gateway in reversed(gateways):
                 gateway.stop()
             if server is not None:
@@ -194,3 +229,42 @@ def up(
             runtime.stop()
     finally:
         graph.close()
+
+
+def _up(
+    ctx: typer.Context,
+    robot: Robot,
+    config: GraphConfig,
+    runtime: RobotRuntime,
+    shards: Shards | None,
+    *,
+    quiet: bool,
+    wait: bool,
+) -> None:
+    """Start the runtime, then the shards (if any) with the links the runtime resolved. A
+    Ctrl-C meanwhile raises KeyboardInterrupt here, and the shards started are stopped."""
+    runtime.start()
+    if shards is None:
+        return
+    links = {b.name: b.link for b in runtime.robot.boards}
+    options = [*(["--quiet"] if quiet else []), *(["--wait"] if wait else [])]
+    msg_path = [str(p) for p in getattr(ctx.find_root().obj, "msg_path", ())]
+    try:
+        shards.start(config, msg_path, robot.path, links, options)
+    except BaseException:
+        runtime.stop()
+        raise
+
+
+def _wait(shards: Shards | None) -> None:
+    """Until Ctrl-C (SIGINT or SIGTERM), or until a shard ends (an error naming its boards)."""
+    if shards is None:
+        wait_for_signal()
+        return
+    from hwbridge.cli.stopping import STOP, on_signal
+
+    with on_signal(shards.interrupt):
+        while not STOP.wait(0.25):
+            failed = shards.failed()
+            if failed is not None:
+                raise fail_with(failed)

@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Final
 if TYPE_CHECKING:
     from hwbridge.graph import GraphConfig
 
-__all__ = ["GatewayProcess", "client_endpoint"]
+__all__ = ["GatewayProcess", "child_argv", "client_endpoint"]
 
 _WILDCARDS: Final = {"0.0.0.0": "127.0.0.1", "[::]": "[::1]"}
 
@@ -28,6 +28,20 @@ def client_endpoint(listen: str) -> str:
     for wildcard, local in _WILDCARDS.items():
         listen = listen.replace(f"/{wildcard}:", f"/{local}:")
     return listen
+
+
+def child_argv(config: GraphConfig, msg_path: Sequence[str] = ()) -> list[str]:
+    """``python -m hwbridge`` with the global options that attach a child process to the graph
+    ``config`` describes (its endpoint, Zenoh config file and domain) and find the same message
+    packages; the command and its arguments come after."""
+    argv = [sys.executable, "-m", "hwbridge"]
+    for path in msg_path:
+        argv += ["--msg-path", path]
+    if config.listen:
+        argv += ["--endpoint", client_endpoint(config.listen[0])]
+    if config.config_file is not None:
+        argv += ["--zenoh-config", str(config.config_file)]
+    return [*argv, "--domain", config.domain]
 
 
 class GatewayProcess:
@@ -40,14 +54,7 @@ class GatewayProcess:
         extra: Sequence[str] = (),
         msg_path: Sequence[str] = (),
     ) -> None:
-        argv = [sys.executable, "-m", "hwbridge"]
-        for path in msg_path:
-            argv += ["--msg-path", path]
-        if config.listen:
-            argv += ["--endpoint", client_endpoint(config.listen[0])]
-        if config.config_file is not None:
-            argv += ["--zenoh-config", str(config.config_file)]
-        argv += ["--domain", config.domain, kind, *extra]
+        argv = [*child_argv(config, msg_path), kind, *extra]
         self.argv = argv
         self.kind = kind
         self.process = subprocess.Popen(argv, env=dict(os.environ), stdin=subprocess.DEVNULL)

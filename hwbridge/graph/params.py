@@ -24,7 +24,7 @@ from hwbridge.graph.names import resolve_name
 if TYPE_CHECKING:
     import zenoh
 
-__all__ = ["ParamClient", "ParamError", "ParamHost", "ParamServer", "flatten"]
+__all__ = ["ParamClient", "ParamError", "ParamHost", "ParamServer", "UpdateListeners", "flatten"]
 
 
 class ParamHost(Protocol):
@@ -73,6 +73,37 @@ def _check_value(name: str, value: Any) -> None:
     raise ParamError(f"parameter {name}: {value!r} is not a bool, int, float, str, list or dict")
 
 
+class UpdateListeners:
+    """The callbacks that hear parameter changes, each until the function :meth:`add` returned
+    is called; an exception in one is logged and the others still hear the change."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._callbacks: list[Callable[[str, Any], None]] = []
+
+    def add(self, callback: Callable[[str, Any], None]) -> Callable[[], None]:
+        with self._lock:
+            self._callbacks.append(callback)
+
+        def remove() -> None:
+            with self._lock:
+                if callback in self._callbacks:
+                    self._callbacks.remove(callback)
+
+        return remove
+
+    @property
+    def count(self) -> int:
+        with self._lock:
+            return len(self._callbacks)
+
+    def call(self, name: str, value: Any) -> None:
+        with self._lock:
+            callbacks = list(self._callbacks)
+        for callback in callbacks:
+            call_guarded(callback, name, value)
+
+
 class ParamServer:
     """Holds parameters for the graph. One per graph (the bridge starts it)."""
 
@@ -80,7 +111,7 @@ class ParamServer:
         self.graph = graph
         self._values: dict[str, Any] = {}
         self._lock = threading.Lock()
-        self._listeners: list[Callable[[str, Any], None]] = []
+        self._listeners = UpdateListeners()
         self._update_pub = graph.keep(
             graph.session.declare_publisher(f"{graph.prefix}/param_update")
         )
@@ -133,28 +164,16 @@ class ParamServer:
     def on_update(self, callback: Callable[[str, Any], None]) -> Callable[[], None]:
         """Call ``callback(name, value)`` on every change made through this server, until the
         returned function is called (each board session's adapter listens while it lives)."""
-        with self._lock:
-            self._listeners.append(callback)
-
-        def remove() -> None:
-            with self._lock:
-                if callback in self._listeners:
-                    self._listeners.remove(callback)
-
-        return remove
+        return self._listeners.add(callback)
 
     @property
     def listener_count(self) -> int:
         """How many :meth:`on_update` callbacks are registered (flat across board resets)."""
-        with self._lock:
-            return len(self._listeners)
+        return self._listeners.count
 
     def _announce(self, name: str, value: Any) -> None:
         self._update_pub.put(json.dumps({"name": name, "value": value}).encode())
-        with self._lock:
-            listeners = list(self._listeners)
-        for listener in listeners:
-            call_guarded(listener, name, value)
+        self._listeners.call(name, value)
 
     def _on_query(self, query: zenoh.Query) -> None:
         try:

@@ -29,6 +29,7 @@
       ros1: false                      # 'hwbridge ros1' (as --ros1; --no-ros1 overrides)
       qos:                             # optional: ROS 2 QoS by topic pattern, first match wins
         /diffbot/imu: sensor           # reliable, sensor, tf or latched (hwbridge.gateway.qos)
+    boards_per_process: 16             # optional: 'hwbridge up' splits more boards (0: never)
 
 :func:`load_robot` checks every key, link URL, protocol, namespace and device setting (against
 the plugin's :class:`~hwbridge.robot.plugin.Field` list, filling in defaults) and reports every
@@ -96,6 +97,7 @@ from hwbridge.robot.model import (
     RobotFileError,
 )
 from hwbridge.robot.plugin import DevicePlugin, Field
+from hwbridge.robot.shards import boards_per_process_key
 
 __all__ = [
     "check_robot",
@@ -106,7 +108,7 @@ __all__ = [
     "parse_robot",
 ]
 
-_TOP_KEYS: Final = ("robot", "world", "boards", "host_devices", "ros")
+_TOP_KEYS: Final = ("robot", "world", "boards", "host_devices", "ros", "boards_per_process")
 _ROS_KEYS: Final = ("ros2", "ros1", "qos")
 _BOARD_KEYS: Final = (
     "name",
@@ -617,6 +619,7 @@ def _parse_robot(text: str, path: str) -> Robot:
         if (host := _host_device(entry, index, problems)) is not None
     ]
     gateways = _ros(top["ros"][1], problems) if "ros" in top else {}
+    gateways |= boards_per_process_key(top, problems.at)
     if not boards and not hosts and not problems.lines:
         problems.at(root, "the robot has no boards and no host_devices")
     for line, clash in topic_clashes(boards, hosts):

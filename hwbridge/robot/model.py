@@ -107,6 +107,9 @@ class Robot:
     ros2_qos: tuple[tuple[str, str], ...] = ()
     """``ros: {qos: {PATTERN: KIND}}``: ROS 2 QoS rules (topic pattern, kind), in file order;
     ``hwbridge up --ros2-qos`` rules go before them (see :mod:`hwbridge.gateway.qos`)."""
+    boards_per_process: int | None = None
+    """``boards_per_process: N``: ``hwbridge up`` runs more boards than N in several bridge
+    processes (as ``--boards-per-process``; None: the default, 0: one process)."""
 
     def board(self, name: str) -> RobotBoardConfig:
         for board in self.boards:

@@ -33,6 +33,7 @@ from hwbridge.robot.plugin import Closeable, HostContext
 from hwbridge.robot.registry import get_device
 
 if TYPE_CHECKING:
+    from hwbridge.bridge.remoteparams import ParamSource
     from hwbridge.links.discovery import SerialPort
 
 __all__ = ["RobotRuntime", "RunningDevice"]
@@ -64,15 +65,21 @@ class RobotRuntime:
         params: dict[str, Any] | None = None,
         wait_for_boards: bool = False,
         list_ports: Callable[[], Sequence[SerialPort]] | None = None,
+        param_source: ParamSource | None = None,
+        run_boards: bool = True,
     ) -> None:
         """``list_ports`` lists the serial ports that ``usb:`` and ``auto`` links are resolved
         against when the robot starts (default: :func:`hwbridge.links.discovery.
-        list_serial_ports`)."""
+        list_serial_ports`). ``param_source``: where the boards read parameters (default: the
+        server this runtime's bridge hosts, with ``params`` in it). ``run_boards`` False: the
+        boards and their devices' host nodes run elsewhere (shards of ``hwbridge up``, see
+        :mod:`hwbridge.robot.shards`); their links are still resolved here."""
         self.robot = robot
         self._list_ports = list_ports
         self._own_graph = graph is None
         self.graph = graph if graph is not None else Graph(config or GraphConfig.embedded())
-        self.bridge = Bridge(self.graph, params=params)
+        self.bridge = Bridge(self.graph, params=params, param_source=param_source)
+        self._run_boards = run_boards
         self.devices: list[RunningDevice] = []
         self._wait_for_boards = wait_for_boards
         self._stopped = threading.Event()
@@ -137,6 +144,8 @@ class RobotRuntime:
             return None
 
     def _start_boards(self) -> None:
+        if not self._run_boards:
+            return
         problems: list[str] = []
         robot_bytes = self._robot_file_bytes()
         for board in self.robot.boards:
@@ -172,7 +181,7 @@ class RobotRuntime:
     def _start_devices(self) -> None:
         from hwbridge.robot.wiring import on_board
 
-        for board in self.robot.boards:
+        for board in self.robot.boards if self._run_boards else ():
             for device in board.devices:
                 if board.mcu is not None and not on_board(device, board.mcu):
                     continue  # only_on leaves it off this board's MCU board: not in its firmware

@@ -47,6 +47,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import pytest
+import yaml
 
 from tests.netutil import free_port, ros_domain_id, wait_until
 
@@ -241,6 +242,16 @@ def commands(
         for user in ("connect", "up"):
             log = helpers.hwbridge(f"board-{user}", "emulate", "diffbot", "--tcp", "0")
             board_urls[user] = _first_line(log)
+        pair = tmp / "diffbot_pair.yaml"  # two boards, for up in two bridge processes
+        robot = yaml.safe_load(DIFFBOT.read_text())
+        robot["boards"].append(dict(robot["boards"][0], name="base2", namespace="/diffbot2"))
+        pair.write_text(yaml.safe_dump(robot))
+        pair_links: list[str] = []
+        for name in ("base", "base2"):
+            log = helpers.hwbridge(
+                f"pair-{name}", "emulate", str(pair), "--board", name, "--tcp", "0"
+            )
+            pair_links += ["--link", f"{name}={_first_line(log)}"]
         listen = ["--listen", "tcp/127.0.0.1:0"]  # replaced per trial
         found = [
             Command(
@@ -250,6 +261,13 @@ def commands(
                 "up",
                 ["up", str(DIFFBOT), "--link", f"base={board_urls['up']}", "--quiet", *listen],
                 2.0,
+                {},
+                True,
+            ),
+            Command(
+                "up sharded",
+                ["up", str(pair), *pair_links, "--boards-per-process", "1", "--quiet", *listen],
+                3.0,
                 {},
                 True,
             ),

@@ -10,6 +10,8 @@ from hypothesis import settings
 from hwbridge.graph import Graph
 from tests.netutil import free_port
 
+pytest_plugins = ["tests.scheduling"]
+
 # No per-example deadline anywhere: a busy machine stretches one example's wall time many times
 # over (671 ms against the default 200 ms at load 30), which says nothing about the code. A test's
 # own @settings keeps what it sets and takes the rest from this profile.

@@ -523,8 +523,19 @@ def service_list(ctx: typer.Context, as_json: JsonOpt = False, wait: WaitOpt = 1
         typer.echo(name)
 
 
-def _service_type(graph: Graph, name: str, wait: float) -> str:
+def _service_type(graph: Graph, name: str, wait: float, appear: float = 0.0) -> str:
+    """The type of service ``name``, discovered within ``wait`` s; when it has no server yet,
+    looked for again until ``appear`` s have passed (a board's services leave the graph while
+    its session is negotiated again, for a moment after a link loss or a reset)."""
+    deadline = time.monotonic() + max(wait, appear)
     services = _snapshot(graph, wait).services()
+    told = False
+    while not services.get(name) and time.monotonic() < deadline:
+        if not told and sys.stderr.isatty():
+            sys.stderr.write(f"waiting for a server of {name} (up to {appear:g} s)\n")
+            told = True
+        time.sleep(min(0.2, max(0.0, deadline - time.monotonic())))
+        services = _snapshot(graph, 0.2).services()
     types = sorted(services.get(name, set()))
     if not types:
         raise HwBridgeError(
@@ -556,7 +567,12 @@ def service_call(
         str | None, typer.Option("--type", help="Service type (default: as discovered).")
     ] = None,
     timeout: Annotated[
-        float, typer.Option("--timeout", help="Seconds to wait for the answer.")
+        float,
+        typer.Option(
+            "--timeout",
+            help="Seconds to wait for the answer, and before that for a server if none is "
+            "there yet.",
+        ),
     ] = 5.0,
     as_json: JsonOpt = False,
     wait: WaitOpt = 1.0,
@@ -567,7 +583,7 @@ def service_call(
     from hwbridge import msg
 
     with open_graph(ctx) as graph:
-        resolved_type = srv_type or _service_type(graph, name, wait)
+        resolved_type = srv_type or _service_type(graph, name, wait, timeout)
         try:
             data = yaml.safe_load(request or "{}")
         except yaml.YAMLError as exc:

@@ -7,6 +7,7 @@ import math
 import subprocess
 import sys
 import threading
+import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -155,9 +156,35 @@ def test_services(capsys: pytest.CaptureFixture[str]) -> None:
     assert yaml.safe_load(out) == {"success": True, "message": "reset done"}
     code, out, _ = run(capsys, "service", "call", "/diffbot/reset", "--json")
     assert json.loads(out)["message"] == "reset done"
-    code, _, err = run(capsys, "service", "call", "/diffbot/missing")
+    code, _, err = run(capsys, "service", "call", "/diffbot/missing", "--timeout", "0.5")
     assert code == 1
     assert "no server for service /diffbot/missing" in err
+
+
+def test_a_call_waits_within_its_timeout_for_a_server_to_appear(
+    capsys: pytest.CaptureFixture[str], board: dict[str, Any]
+) -> None:
+    """A board's services leave the graph while its session is negotiated again (after a link
+    loss or a reset); a call made meanwhile waits for the server instead of failing at once."""
+    graph: Graph = board["graph"]
+    node = graph.node("late_server", namespace="/diffbot")
+    started = threading.Event()
+
+    def serve_later() -> None:
+        started.wait(30)
+        # a chosen delay, not a wait: declared after the call's first discovery (--wait 0.2)
+        time.sleep(1.0)
+        node.service("late", "std_srvs/Trigger", lambda _: {"success": True, "message": "late"})
+
+    thread = threading.Thread(target=serve_later, daemon=True)
+    thread.start()
+    started.set()
+    code, out, err = run(
+        capsys, "service", "call", "/diffbot/late", "--wait", "0.2", "--timeout", "30"
+    )
+    thread.join(30)
+    assert code == 0, err
+    assert yaml.safe_load(out) == {"success": True, "message": "late"}
 
 
 def test_params(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:

@@ -29,10 +29,12 @@ from hwbridge.protocols.native.framing import (
     FrameDecoder,
     FrameEvent,
     FrameType,
+    NativeDatagramFraming,
     NonFrameBytes,
     Reassembler,
     crc16,
     decode_frame,
+    encode_datagram,
     encode_frame,
     fragment,
     frame_overhead,
@@ -81,9 +83,11 @@ def ref_cobs_encode(data: bytes, *, trailing_group: bool = False) -> bytes:
 
 
 def ref_body(frame: Frame) -> bytes:
-    header = bytes((0x40 | frame.type << 4 | frame.frag << 2, frame.channel, frame.seq))
-    crc = ref_crc(header + frame.payload)
-    return header + frame.payload + bytes((crc & 0xFF, crc >> 8))
+    acked = frame.ack is not None
+    header = bytes((0x40 | frame.type << 4 | frame.frag << 2 | acked, frame.channel, frame.seq))
+    data = header + frame.payload + (bytes((frame.ack,)) if frame.ack is not None else b"")
+    crc = ref_crc(data)
+    return data + bytes((crc & 0xFF, crc >> 8))
 
 
 # --- strategies ----------------------------------------------------------------------------
@@ -310,7 +314,45 @@ def vector_frame(spec: dict[str, Any]) -> Frame:
         spec["seq"],
         bytes.fromhex(spec["payload_hex"]),
         Frag[spec["frag"]],
+        spec.get("ack"),
     )
+
+
+@bounded(300)
+@given(
+    ftype=st.sampled_from([FrameType.BEST_EFFORT, FrameType.RELIABLE]),
+    frag=st.sampled_from(list(Frag)),
+    channel=st.integers(0, 255),
+    seq=st.integers(0, 255),
+    ack=st.integers(0, 255),
+    payload=st.binary(max_size=300),
+    garbage=st.binary(max_size=40),
+)
+def test_frame_with_ack_round_trip(
+    ftype: FrameType, frag: Frag, channel: int, seq: int, ack: int, payload: bytes, garbage: bytes
+) -> None:
+    """A data frame carrying an ACK (ACK_IN_DATA, PROTOCOL.md 1.4) encodes as the reference
+    says and decodes back whole, on streams (after any garbage and a delimiter) and datagrams;
+    the ACK byte counts towards the payload MTU."""
+    frame = Frame(ftype, channel, seq, payload, frag, ack)
+    wire = encode_frame(frame)
+    assert wire == ref_cobs_encode(ref_body(frame)) + b"\x00"
+    events = FrameDecoder(max_payload=len(payload) + 1).feed(garbage + b"\x00" + wire)
+    assert events[-1] == frame
+    assert decode_frame(wire) == frame
+    assert NativeDatagramFraming(max_payload=len(payload) + 1).decode(encode_datagram(frame)) == [
+        frame
+    ]
+    (bad,) = FrameDecoder(max_payload=len(payload)).feed(b"\x00" + wire)
+    assert not isinstance(bad, Frame)  # oversize (or text, for a printable frame)
+
+
+def test_ack_only_in_data_frames() -> None:
+    """An ACK frame cannot carry an ACK byte, nor can an ACK be outside 0..255."""
+    with pytest.raises(FramingError, match="only BEST_EFFORT"):
+        encode_frame(Frame(FrameType.ACK, 0, 1, b"", Frag.WHOLE, 2))
+    with pytest.raises(FramingError, match="only BEST_EFFORT"):
+        encode_frame(Frame(FrameType.RELIABLE, 0, 1, b"", Frag.WHOLE, 256))
 
 
 @pytest.mark.parametrize("vector", VECTORS["vectors"], ids=lambda v: v["name"])

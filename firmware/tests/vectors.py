@@ -13,13 +13,6 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[2]
 TYPES = {"BEST_EFFORT": 0, "RELIABLE": 1, "ACK": 2}
 FRAGS = {"WHOLE": 0, "FIRST": 1, "MIDDLE": 2, "LAST": 3}
-ACK_IN_DATA_VECTORS = (
-    "reliable_with_ack",
-    "best_effort_empty_with_ack_0",
-    "first_fragment_with_ack_255",
-    "ack_flag_without_ack_byte",
-)
-"""Vectors of frames with an ACK byte, which the C++ library does not decode yet."""
 
 
 def _hex(text: str) -> str:
@@ -38,16 +31,15 @@ def _frame(kind: str, name: str, wire: str, frame: dict[str, object]) -> str:
 def lines(root: Path = ROOT) -> list[str]:
     """The vectors, one line each."""
     frames = json.loads((root / "protocols/vectors/native_frames.json").read_text())
-    # The C++ library does not implement ACK_IN_DATA yet (PROTOCOL.md 1.4): the vectors of
-    # frames that carry an ACK are left out here until it does.
-    acked = set(ACK_IN_DATA_VECTORS)
+    # A frame that carries an ACK (ACK_IN_DATA, PROTOCOL.md 1.4) is an "A" line: the ACK last.
     out = [
         _frame("V", v["name"], v["hex"], v["frame"])
+        if v["frame"].get("ack") is None
+        else f"{_frame('A', v['name'], v['hex'], v['frame'])} {v['frame']['ack']}"
         for v in frames["vectors"]
-        if v["name"] not in acked
     ]
     out += [_frame("D", v["name"], v["hex"], v["frame"]) for v in frames["decode_only"]]
-    for v in (v for v in frames["bad"] if v["name"] not in acked):
+    for v in frames["bad"]:
         out.append(f"B {v['name']} {_hex(v['hex'])} {v['expect']} {v.get('max_payload', '-')}")
     for v in frames["fragmentation"]:
         out.append(

@@ -115,7 +115,7 @@ class FrameDecoder {
   /** Every member zero (no slack: the full MTU): a global decoder is in .bss, with
    * no constructor code. */
   constexpr FrameDecoder()
-      : frame_{FrameType::BestEffort, Frag::Whole, 0, 0, nullptr, 0}, stats_(), run_(0), len_(0),
+      : frame_{FrameType::BestEffort, Frag::Whole, 0, 0, nullptr, 0, false, 0}, stats_(), run_(0), len_(0),
         slack_(0), text_(), group_(0), zero_(false),
         error_(FrameError::Ok), peer_byte0_(0), buf_() {}
 

@@ -48,7 +48,7 @@ struct HelloWorldProfile {
   static const uint16_t kMaxMessage = 64;    ///< largest message received (reassembly above kMtu)
   static const uint8_t kWindow = 1;          ///< reliable frames in flight (1..64)
   static const uint16_t kTxBuffer = 64;      ///< largest message sent (serialization buffer)
-  static const uint8_t kFeatures = 3;        ///< TIME_SYNC | PARAM_PUSH (| 4 = HOST_LOG)
+  static const uint8_t kFeatures = 11;       ///< TIME_SYNC | PARAM_PUSH | ACK_IN_DATA (| 4 = HOST_LOG)
   static const uint16_t kTimeSyncMs = 0;     ///< own time requests every this many ms (0: none)
   static const uint16_t kParamTimeoutMs = 2000;
   static const uint16_t kServiceTimeoutMs = 5000;
@@ -62,7 +62,7 @@ struct ComfortableProfile {
   static const uint16_t kMaxMessage = 192;
   static const uint8_t kWindow = 2;
   static const uint16_t kTxBuffer = 192;
-  static const uint8_t kFeatures = 7;
+  static const uint8_t kFeatures = 15;
   static const uint16_t kTimeSyncMs = 5000;
   static const uint16_t kParamTimeoutMs = 2000;
   static const uint16_t kServiceTimeoutMs = 5000;
@@ -495,6 +495,7 @@ class NodeHandle_ : public NodeBase {
   void timers(bool alone);
   __attribute__((noinline)) bool markTx();
   void flushOut();
+  void ackNow();
   void pump();
   bool queueTable();
   bool txFree() const { return pending_len_ == 0 && !rel_tx_.sending(); }

@@ -126,7 +126,18 @@ HWB_NODE void HWB_SELF::emit(const Frame& f) {
   h.frag = f.frag;
   h.channel = f.channel;
   h.seq = f.seq;
-  write_frame(hw_, h, f.payload, f.size, nullptr, 0, markTx());
+  uint8_t opts = markTx();
+  uint8_t ack = 0;
+  // ACK_IN_DATA (PROTOCOL.md 2.4): a due ACK without a bitmap rides in this frame, when its
+  // payload leaves the ACK byte room in the MTU
+  if ((features_ & control::Features::ACK_IN_DATA) && rel_rx_.ack_needed() && rel_rx_.held() == 0 &&
+      f.size < mtu_) {
+    uint8_t bitmap[kMaxSackBytes];
+    size_t bitmap_len;
+    ack = rel_rx_.make_ack(bitmap, &bitmap_len);
+    opts |= kCarryAck;
+  }
+  write_frame(hw_, h, f.payload, f.size, &ack, (opts & kCarryAck) ? 1 : 0, opts);
 }
 
 /** Records a frame going out now; true when it needs a leading 0x00 (1.3): the first after
@@ -164,13 +175,18 @@ HWB_NODE void HWB_SELF::sendHello() {
 }
 
 /** After input: the ACK that is due (every one at once: this board never holds ACKs back),
- * then what the reliable window lets out. */
+ * then what the reliable window lets out. With ACK_IN_DATA the ACK rides in the first frame
+ * the window lets out (emit), and goes alone after them when none did. */
 HWB_NODE void HWB_SELF::flushOut() {
-  if (established() && rel_rx_.ack_needed()) {
-    rel_rx_.write_ack(hw_, markTx());
-  }
+  if (!(features_ & control::Features::ACK_IN_DATA)) ackNow();
   pump();
+  ackNow();
   hw_.flush();
+}
+
+/** The due ACK as a frame of its own. */
+HWB_NODE void HWB_SELF::ackNow() {
+  if (established() && rel_rx_.ack_needed()) rel_rx_.write_ack(hw_, markTx());
 }
 
 /** Moves the waiting message (or the next table message) into the reliable window and sends

@@ -105,7 +105,7 @@ struct RunIndex<false> {
  * without it such a run counts as its failure (usually cobs). The host's other refinements
  * (splitting a corrupted delimiter, text glued to a frame) are not done: a device MAY skip them.
  */
-template <size_t MaxPayload, bool DetectText = true>
+template <size_t MaxPayload, bool DetectText = true, bool AckInData = true>
 class FrameDecoder {
  public:
   static const size_t kCapacity = max_frame(MaxPayload);
@@ -192,7 +192,8 @@ class FrameDecoder {
     if (run_ == kOverflow) return text_.text() ? FrameError::Text : FrameError::Oversize;
     // A code that pointed past the end of the run: its group is still waiting for bytes.
     if (group_ != 0) return text_.text() ? FrameError::Text : FrameError::Cobs;
-    FrameError e = parse_body(buf_, len_, kRunBoundsPayload ? kNoLimit : max_payload(), &frame_);
+    FrameError e =
+        parse_body(buf_, len_, kRunBoundsPayload ? kNoLimit : max_payload(), &frame_, AckInData);
     if ((e == FrameError::TooShort || e == FrameError::Crc) && text_.text()) {
       return FrameError::Text;
     }
@@ -237,14 +238,14 @@ class FrameDecoder {
   uint8_t buf_[kCapacity];  // last: the fuzz tests' guards sit right after it
 };
 
-template <size_t MaxPayload, bool DetectText>
-const size_t FrameDecoder<MaxPayload, DetectText>::kCapacity;
-template <size_t MaxPayload, bool DetectText>
-const bool FrameDecoder<MaxPayload, DetectText>::kRunBoundsPayload;
-template <size_t MaxPayload, bool DetectText>
-const size_t FrameDecoder<MaxPayload, DetectText>::kNoLimit;
-template <size_t MaxPayload, bool DetectText>
-const size_t FrameDecoder<MaxPayload, DetectText>::kOverflow;
+template <size_t MaxPayload, bool DetectText, bool AckInData>
+const size_t FrameDecoder<MaxPayload, DetectText, AckInData>::kCapacity;
+template <size_t MaxPayload, bool DetectText, bool AckInData>
+const bool FrameDecoder<MaxPayload, DetectText, AckInData>::kRunBoundsPayload;
+template <size_t MaxPayload, bool DetectText, bool AckInData>
+const size_t FrameDecoder<MaxPayload, DetectText, AckInData>::kNoLimit;
+template <size_t MaxPayload, bool DetectText, bool AckInData>
+const size_t FrameDecoder<MaxPayload, DetectText, AckInData>::kOverflow;
 
 }  // namespace hwbridge
 

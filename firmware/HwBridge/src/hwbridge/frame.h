@@ -77,9 +77,12 @@ inline constexpr size_t max_wire_size(size_t n) { return max_frame(n) + 1; }
 /**
  * Checks one decoded body (header, payload, CRC; steps 4-9 of PROTOCOL.md 1.6) and, when it is
  * a frame, fills *out (its payload points into body). This is also the whole check of a
- * datagram (1.13).
+ * datagram (1.13). acks: a data frame's flag bit 0 means an ACK byte (ACK_IN_DATA, 1.4); false
+ * for an end that never announces the feature (its peer never sets the bit, and the code is
+ * left out).
  */
-inline FrameError parse_body(const uint8_t* body, size_t n, size_t max_payload, Frame* out) {
+inline FrameError parse_body(const uint8_t* body, size_t n, size_t max_payload, Frame* out,
+                             bool acks = true) {
   if (n < kEnvelope) return FrameError::TooShort;
   const uint16_t sent = wire::get16(body + n - kCrcSize);
   if (crc16(body, n - kCrcSize) != sent) return FrameError::Crc;
@@ -89,7 +92,7 @@ inline FrameError parse_body(const uint8_t* body, size_t n, size_t max_payload, 
   size_t size = n - kEnvelope;
   if (size > max_payload) return FrameError::Oversize;  // the ACK byte counts (1.4)
   // An ACK byte before the CRC: bit 0 on a data frame (an ACK frame's bit 0 is reserved).
-  out->acked = (byte0 & (0x20 | kAckFlag)) == kAckFlag;
+  out->acked = acks && (byte0 & (0x20 | kAckFlag)) == kAckFlag;
   if (out->acked) {
     if (size == 0) return FrameError::TooShort;  // the flag, and no byte for the ACK
     --size;

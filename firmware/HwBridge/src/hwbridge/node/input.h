@@ -11,7 +11,7 @@
 // Input
 
 HWB_NODE void HWB_SELF::onFrame(const Frame& f) {
-  if (f.acked && established()) {  // an ACK in a data frame (ACK_IN_DATA): first, as if before it
+  if (kAckInData && f.acked && established()) {  // an ACK in a data frame (ACK_IN_DATA): first, as if before it
     Frame a = f;
     a.seq = f.ack;
     a.size = 0;

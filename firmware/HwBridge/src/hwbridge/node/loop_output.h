@@ -43,7 +43,7 @@ HWB_NODE void HWB_SELF::readInput(detail::DatagramLink*) {
     const uint8_t* body = hw_.receive(&n);
     if (body == nullptr) break;
     Frame f;
-    if (parse_body(body, n, Profile::kMtu, &f) == FrameError::Ok) {
+    if (parse_body(body, n, Profile::kMtu, &f, kAckInData) == FrameError::Ok) {
       onFrame(f);
     } else {
       ++stats_.dropped_messages;
@@ -126,18 +126,18 @@ HWB_NODE void HWB_SELF::emit(const Frame& f) {
   h.frag = f.frag;
   h.channel = f.channel;
   h.seq = f.seq;
-  uint8_t opts = markTx();
-  uint8_t ack = 0;
+  const bool lead = markTx();
   // ACK_IN_DATA (PROTOCOL.md 2.4): a due ACK without a bitmap rides in this frame, when its
   // payload leaves the ACK byte room in the MTU
-  if ((features_ & control::Features::ACK_IN_DATA) && rel_rx_.ack_needed() && rel_rx_.held() == 0 &&
-      f.size < mtu_) {
+  if (kAckInData && (features_ & control::Features::ACK_IN_DATA) && rel_rx_.ack_needed() &&
+      rel_rx_.held() == 0 && f.size < mtu_) {
     uint8_t bitmap[kMaxSackBytes];
     size_t bitmap_len;
-    ack = rel_rx_.make_ack(bitmap, &bitmap_len);
-    opts |= kCarryAck;
+    const uint8_t ack = rel_rx_.make_ack(bitmap, &bitmap_len);
+    write_frame(hw_, h, f.payload, f.size, &ack, 1, static_cast<uint8_t>(lead | kCarryAck));
+    return;
   }
-  write_frame(hw_, h, f.payload, f.size, &ack, (opts & kCarryAck) ? 1 : 0, opts);
+  write_frame(hw_, h, f.payload, f.size, nullptr, 0, lead);
 }
 
 /** Records a frame going out now; true when it needs a leading 0x00 (1.3): the first after
@@ -178,15 +178,12 @@ HWB_NODE void HWB_SELF::sendHello() {
  * then what the reliable window lets out. With ACK_IN_DATA the ACK rides in the first frame
  * the window lets out (emit), and goes alone after them when none did. */
 HWB_NODE void HWB_SELF::flushOut() {
-  if (!(features_ & control::Features::ACK_IN_DATA)) ackNow();
+  if (!kAckInData || !(features_ & control::Features::ACK_IN_DATA)) {
+    if (established() && rel_rx_.ack_needed()) rel_rx_.write_ack(hw_, markTx());
+  }
   pump();
-  ackNow();
+  if (kAckInData && established() && rel_rx_.ack_needed()) rel_rx_.write_ack(hw_, markTx());
   hw_.flush();
-}
-
-/** The due ACK as a frame of its own. */
-HWB_NODE void HWB_SELF::ackNow() {
-  if (established() && rel_rx_.ack_needed()) rel_rx_.write_ack(hw_, markTx());
 }
 
 /** Moves the waiting message (or the next table message) into the reliable window and sends

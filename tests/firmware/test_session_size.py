@@ -28,7 +28,7 @@ pytestmark = pytest.mark.skipif(
 )
 
 # (flash, sram) measured, and the floor (None: none given)
-CEILING = {"SizeHello": (7262, 639), "SizePubSubSrv": (8796, 717)}
+CEILING = {"SizeHello": (7270, 641), "SizePubSubSrv": (8804, 719)}
 FLOOR = {"SizeHello": (7290, 700), "SizePubSubSrv": (None, 1000)}
 
 

@@ -29,12 +29,10 @@ from hwbridge.protocols.native.framing import (
     FrameDecoder,
     FrameEvent,
     FrameType,
-    NativeDatagramFraming,
     NonFrameBytes,
     Reassembler,
     crc16,
     decode_frame,
-    encode_datagram,
     encode_frame,
     fragment,
     frame_overhead,
@@ -316,43 +314,6 @@ def vector_frame(spec: dict[str, Any]) -> Frame:
         Frag[spec["frag"]],
         spec.get("ack"),
     )
-
-
-@bounded(300)
-@given(
-    ftype=st.sampled_from([FrameType.BEST_EFFORT, FrameType.RELIABLE]),
-    frag=st.sampled_from(list(Frag)),
-    channel=st.integers(0, 255),
-    seq=st.integers(0, 255),
-    ack=st.integers(0, 255),
-    payload=st.binary(max_size=300),
-    garbage=st.binary(max_size=40),
-)
-def test_frame_with_ack_round_trip(
-    ftype: FrameType, frag: Frag, channel: int, seq: int, ack: int, payload: bytes, garbage: bytes
-) -> None:
-    """A data frame carrying an ACK (ACK_IN_DATA, PROTOCOL.md 1.4) encodes as the reference
-    says and decodes back whole, on streams (after any garbage and a delimiter) and datagrams;
-    the ACK byte counts towards the payload MTU."""
-    frame = Frame(ftype, channel, seq, payload, frag, ack)
-    wire = encode_frame(frame)
-    assert wire == ref_cobs_encode(ref_body(frame)) + b"\x00"
-    events = FrameDecoder(max_payload=len(payload) + 1).feed(garbage + b"\x00" + wire)
-    assert events[-1] == frame
-    assert decode_frame(wire) == frame
-    assert NativeDatagramFraming(max_payload=len(payload) + 1).decode(encode_datagram(frame)) == [
-        frame
-    ]
-    (bad,) = FrameDecoder(max_payload=len(payload)).feed(b"\x00" + wire)
-    assert not isinstance(bad, Frame)  # oversize (or text, for a printable frame)
-
-
-def test_ack_only_in_data_frames() -> None:
-    """An ACK frame cannot carry an ACK byte, nor can an ACK be outside 0..255."""
-    with pytest.raises(FramingError, match="only BEST_EFFORT"):
-        encode_frame(Frame(FrameType.ACK, 0, 1, b"", Frag.WHOLE, 2))
-    with pytest.raises(FramingError, match="only BEST_EFFORT"):
-        encode_frame(Frame(FrameType.RELIABLE, 0, 1, b"", Frag.WHOLE, 256))
 
 
 @pytest.mark.parametrize("vector", VECTORS["vectors"], ids=lambda v: v["name"])

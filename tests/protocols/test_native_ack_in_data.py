@@ -8,6 +8,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from hwbridge.protocols.can.transport import TransferDecoder, TransferEncoder
 from hwbridge.protocols.errors import FramingError
 from hwbridge.protocols.native import control as ctl
 from hwbridge.protocols.native.control import Features
@@ -17,6 +18,7 @@ from hwbridge.protocols.native.framing import (
     FrameDecoder,
     FrameType,
     NativeDatagramFraming,
+    cobs_encode,
     decode_frame,
     encode_datagram,
     encode_frame,
@@ -174,3 +176,25 @@ def test_services_with_acks_in_data_survive_a_bad_link(
         assert sorted(r.request_id for r in responses) == sorted(ids)
         assert all(r.ok for r in responses)
     assert link.host.stats.acks_carried + link.device.stats.acks_carried > 0
+
+
+@bounded(100)
+@given(
+    ftype=st.sampled_from([FrameType.BEST_EFFORT, FrameType.RELIABLE]),
+    seq=st.integers(0, 255),
+    ack=st.integers(0, 255),
+    payload=st.binary(max_size=40),
+)
+def test_can_format_2_sends_a_carried_ack_as_an_ack_frame(
+    ftype: FrameType, seq: int, ack: int, payload: bytes
+) -> None:
+    """CAN format 2 carries a frame's header in the id, where flag bit 0 has no room: a frame
+    with an ACK goes as the frame without it, then an ACK frame (CAN.md), nothing lost."""
+    frame = Frame(ftype, 3, seq, payload, Frag.WHOLE, ack)
+    encoder, decoder = TransferEncoder(4), TransferDecoder(0)
+    got = []
+    for can_id, data in encoder.datagram(encode_datagram(frame), 0):
+        transfer = decoder.feed(can_id, data, 0.0)
+        if transfer is not None:
+            got.append(decode_frame(cobs_encode(transfer.payload) + b"\x00"))
+    assert got == [Frame(ftype, 3, seq, payload), Frame(FrameType.ACK, 0, ack, b"")]

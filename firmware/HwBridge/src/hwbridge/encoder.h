@@ -83,6 +83,14 @@ struct SharesCpu {
   template <class S> static long test(...);
   static const bool value = sizeof(test<H>(nullptr)) == 1;
 };
+/** Whether a Hardware cannot carry flag bit 0 of a frame (CAN format 2): it declares
+ * `static const bool kNoAckInData = true`, and the node then leaves ACK_IN_DATA out. */
+template <class H>
+struct NoAckInData {
+  template <class S> static char test(char (*)[S::kNoAckInData ? 1 : 2]);
+  template <class S> static long test(...);
+  static const bool value = sizeof(test<H>(nullptr)) == 1;
+};
 template <bool B, class T> struct EnableIf {};
 template <class T> struct EnableIf<true, T> { typedef T type; };
 

@@ -540,7 +540,12 @@ class NodeHandle_ : public NodeBase {
   // RTO, its reliable sender is one slot (SingleFrameSender).
   static const bool kFragments = Profile::kTxBuffer > Profile::kMtu;
   /** The profile announces ACK_IN_DATA (PROTOCOL.md 2.4): without it none of its code is built. */
-  static const bool kAckInData = (Profile::kFeatures & control::Features::ACK_IN_DATA) != 0;
+  static const bool kAckInData =
+      (Profile::kFeatures & control::Features::ACK_IN_DATA) != 0 && !detail::NoAckInData<Hardware>::value;
+  /** The features this node announces: the profile's, without ACK_IN_DATA where it is left out. */
+  static const uint8_t kOwnFeatures =
+      kAckInData ? Profile::kFeatures
+                 : static_cast<uint8_t>(Profile::kFeatures & ~control::Features::ACK_IN_DATA);
   // ... and if that message fills its MTU, every session's MTU is its own
   static const bool kFixedMtu = Profile::kTxBuffer == Profile::kMtu;
   typedef typename detail::Pick<!kFragments && Profile::kWindow == 1 && Profile::kFixedRto,

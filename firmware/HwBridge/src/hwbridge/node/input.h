@@ -231,7 +231,7 @@ HWB_NODE void HWB_SELF::establish(const uint8_t* h) {
   if (window > kMaxWindow) window = kMaxWindow;
   const uint32_t peer_max = H::max_message(h);
   peer_max_ = peer_max > 0xFFFFUL ? 0xFFFFu : static_cast<uint16_t>(peer_max);
-  features_ = static_cast<uint8_t>(H::features(h) & Profile::kFeatures);
+  features_ = static_cast<uint8_t>(H::features(h) & kOwnFeatures);
   rel_tx_.reset(isn_, window, kFixedMtu ? Profile::kMtu : mtu_);
   rel_rx_.reset(H::isn(h), window);
   reasm_.reset(FrameType::Reliable);

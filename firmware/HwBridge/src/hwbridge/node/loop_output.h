@@ -169,7 +169,7 @@ HWB_NODE void HWB_SELF::sendHello() {
   ++stats_.hellos_sent;
   uint8_t h[board::Hello::kMinSize];
   board::Hello::put(h, control::Role::DEVICE, established() ? control::HelloFlags::ESTABLISHED : 0, id_, peer_,
-                    Profile::kMtu, Profile::kMaxMessage, Profile::kWindow, isn_, Profile::kFeatures);
+                    Profile::kMtu, Profile::kMaxMessage, Profile::kWindow, isn_, kOwnFeatures);
   setFlag(kLead, true);  // 1.3: a HELLO is always led by 0x00
   sendControlBe(h, sizeof h);
 }

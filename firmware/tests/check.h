@@ -67,6 +67,18 @@ struct VecSink {
   void put(uint8_t b) { bytes.push_back(b); }
 };
 
+/** A datagram sink for write_frame() (PROTOCOL.md 1.13): each frame's body, one datagram. */
+struct DatagramSink {
+  static const bool kDatagram = true;
+  std::vector<Bytes> datagrams;
+  Bytes current;
+  void put(uint8_t b) { current.push_back(b); }
+  void endDatagram() {
+    datagrams.push_back(current);
+    current.clear();
+  }
+};
+
 /** xorshift64*: a small seeded generator, the same on every platform. */
 struct Rng {
   uint64_t s;

@@ -679,6 +679,90 @@ void long_round_trip() {
 extern "C" const char hwbridge_transcript[];
 #endif
 
+/** The golden profile with ACK_IN_DATA (the library's profiles announce it). */
+struct AckInDataProfile : harness::GoldenProfile {
+  static const uint8_t kFeatures = 3 | hwbridge::control::Features::ACK_IN_DATA;
+};
+
+/** ACK_IN_DATA negotiated (PROTOCOL.md 2.4, 2.12 P): the board answers a service request with
+ * one frame that carries the request's ACK, takes the ACK of its answer from the host's next
+ * request (its window of 1 frees before the request is handled), and sends no ACK frame; an
+ * ACK in a heartbeat frees the window too. Against a host without the feature, the board sends
+ * ACK frames as before. */
+void ack_in_data() {
+  for (int with = 1; with >= 0; --with) {
+    hwbridge::NodeHandle_<harness::FakeHardware, AckInDataProfile> node;
+    hwbridge::ServiceServer<std_srvs::Trigger> reset{"/reset", &harness::on_reset};  // channel 1
+    harness::FakeHardware& hw = node.getHardware();
+    Host host;
+    node.setIdentity(0xcafef00dUL, 0);
+    node.advertiseService(reset);
+    hw.clock = 10000000;
+    node.begin("acks", "");
+    harness::connect_scripted(node, hw, host, with ? 15 : 7);
+    CHECK(node.connected(), "ack_in_data: not connected");
+    uint8_t last_answer = 0;
+    for (uint8_t id = 1; id <= 3; ++id) {
+      const uint8_t req_seq = host.rel_seq;
+      Bytes request = host.rel(0, Bytes{0x20, 1, id, 0});  // SERVICE_REQUEST /reset
+      if (with && id > 1) {  // the host's request carries the ACK of the last answer
+        check::VecSink sink;
+        hwbridge::FrameHeader h;
+        h.type = FrameType::Reliable;
+        h.frag = hwbridge::Frag::Whole;
+        h.channel = 0;
+        h.seq = req_seq;
+        const Bytes body{0x20, 1, id, 0};
+        hwbridge::write_frame(sink, h, body.data(), body.size(), &last_answer, 1, hwbridge::kCarryAck);
+        request = sink.bytes;
+      } else if (id > 1) {
+        hw.feed(host.ack(last_answer));
+      }
+      hw.feed(request);
+      node.spinOnce();
+      std::vector<std::pair<hwbridge::Frame, Bytes> > fr = harness::frames_of(hw.take());
+      int acks = 0, answers = 0;
+      for (size_t i = 0; i < fr.size(); ++i) {
+        const hwbridge::Frame& f = fr[i].first;
+        if (f.type == FrameType::Ack) {
+          ++acks;
+          CHECK(f.seq == req_seq, "ack_in_data: ACK of %u, expected %u", f.seq, req_seq);
+        } else if (f.type == FrameType::Reliable) {
+          ++answers;
+          last_answer = f.seq;
+          CHECK(fr[i].second.size() >= 4 && fr[i].second[0] == 0x21 && fr[i].second[2] == id,
+                "ack_in_data: call %u answered with %s", id, check::hex(fr[i].second).c_str());
+          CHECK(f.acked == (with == 1) && (!f.acked || f.ack == req_seq), "ack_in_data: answer %u carries %d/%u",
+                id, f.acked, f.ack);
+        }
+      }
+      CHECK(answers == 1 && acks == (with ? 0 : 1), "ack_in_data (%s): call %u gave %d answers, %d ACK frames",
+            with ? "on" : "off", id, answers, acks);
+    }
+    if (with) {  // the last answer acknowledged by a heartbeat that carries the ACK
+      check::VecSink sink;
+      hwbridge::FrameHeader h;
+      h.type = FrameType::BestEffort;
+      h.frag = hwbridge::Frag::Whole;
+      h.channel = 0;
+      h.seq = host.be_seq++;
+      const uint8_t hb = 0x02;
+      hwbridge::write_frame(sink, h, &hb, 1, &last_answer, 1, hwbridge::kCarryAck);
+      const uint8_t req_seq = host.rel_seq;
+      hw.feed(sink.bytes);
+      hw.feed(host.rel(0, Bytes{0x20, 1, 9, 0}));
+      node.spinOnce();
+      std::vector<std::pair<hwbridge::Frame, Bytes> > fr = harness::frames_of(hw.take());
+      CHECK(fr.size() == 1 && fr[0].first.type == FrameType::Reliable && fr[0].first.acked &&
+                fr[0].first.ack == req_seq,
+            "ack_in_data: after a heartbeat with the ACK, %zu frames", fr.size());
+    }
+    CHECK(node.stats().link_losses == 0 && node.stats().protocol_errors == 0, "ack_in_data: losses %u, errors %u",
+          node.stats().link_losses, node.stats().protocol_errors);
+  }
+  printf("ack_in_data: answers carry the request's ACK, requests the answer's\n");
+}
+
 int main() {
   Transcript tr;
 #ifdef HWBRIDGE_EMBEDDED_TRANSCRIPT
@@ -703,6 +787,7 @@ int main() {
   small_hosts_and_hellos();
   late_first_spin();
   long_round_trip();
+  ack_in_data();
   printf("test_session: %lu checks passed\n", check::count());
   return 0;
 }

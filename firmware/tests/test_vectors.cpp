@@ -122,6 +122,45 @@ void frame_vector(const std::string& name, const Bytes& wire, int type, int chan
   expect_frame(name, events[0], type, channel, seq, frag, payload);
 }
 
+/** A frame that carries an ACK (ACK_IN_DATA, PROTOCOL.md 1.4): the ACK byte after the payload
+ * and flag bit 0 (kCarryAck), encoded byte for byte on both links; decoded back with its ACK and
+ * without it in the payload; the ACK byte counts towards the MTU. */
+void acked_vector(const std::string& name, const Bytes& wire, int type, int channel, int seq, int frag,
+                  const Bytes& payload, int ack) {
+  const FrameHeader h = header(type, channel, seq, frag);
+  const uint8_t a = static_cast<uint8_t>(ack);
+  check::VecSink sink;
+  write_frame(sink, h, payload.data(), payload.size(), &a, 1, kCarryAck);
+  CHECK(sink.bytes == wire, "%s: write_frame gave %s, expected %s", name.c_str(), hex(sink.bytes).c_str(),
+        hex(wire).c_str());
+  check::VecSink led;
+  write_frame(led, h, payload.data(), payload.size(), &a, 1, kCarryAck | kLead);
+  CHECK(led.bytes.size() == wire.size() + 1 && led.bytes[0] == 0 && Bytes(led.bytes.begin() + 1, led.bytes.end()) == wire,
+        "%s: with a lead", name.c_str());
+  HostDecoder d;
+  std::vector<Event> events = decode_all(d, wire);
+  CHECK(events.size() == 1, "%s: %zu events, expected one frame", name.c_str(), events.size());
+  expect_frame(name, events[0], type, channel, seq, frag, payload);
+  CHECK(events[0].frame.acked && events[0].frame.ack == a, "%s: ACK %d (carried %d), expected %d", name.c_str(),
+        events[0].frame.ack, events[0].frame.acked, ack);
+  FrameDecoder<kMtu, false> quiet;
+  quiet.set_max_payload(payload.size() + 1);
+  events = decode_all(quiet, wire);
+  CHECK(events.size() == 1 && events[0].kind == Decoded::Frame && events[0].frame.acked,
+        "%s: not a frame at MTU payload + 1", name.c_str());
+  quiet.set_max_payload(payload.size());
+  events = decode_all(quiet, wire);
+  CHECK(events.size() == 1 && events[0].kind == Decoded::Bad && events[0].error == FrameError::Oversize,
+        "%s: the ACK byte does not count towards the MTU", name.c_str());
+  // The datagram form (1.13): the body, flag and ACK byte included.
+  check::DatagramSink dg;
+  write_frame(dg, h, payload.data(), payload.size(), &a, 1, kCarryAck);
+  Frame f;
+  CHECK(dg.datagrams.size() == 1 && parse_body(dg.datagrams[0].data(), dg.datagrams[0].size(), kMtu, &f) == FrameError::Ok &&
+            f.acked && f.ack == a && f.size == payload.size(),
+        "%s: datagram round trip", name.c_str());
+}
+
 FrameError reason(const std::string& name) {
   static const FrameError all[] = {FrameError::Crc, FrameError::Cobs, FrameError::TooShort,
                                    FrameError::Version, FrameError::ReservedType,
@@ -268,7 +307,7 @@ void selective_ack_vector(const std::string& name, const Bytes& wire) {
   // PROTOCOL.md 2.12 O: window 4, frame 10 lost, 11 and 13 held: ACK seq 9, bitmap 05.
   ReliableReceiver<4, 16> rx(10);
   static const uint8_t p[] = {1};
-  Frame f = {FrameType::Reliable, Frag::Whole, 3, 11, p, 1};
+  Frame f = {FrameType::Reliable, Frag::Whole, 3, 11, p, 1, false, 0};
   CHECK(rx.receive(f) == Received::Held, "%s: 11 not held", name.c_str());
   f.seq = 13;
   CHECK(rx.receive(f) == Received::Held, "%s: 13 not held", name.c_str());
@@ -509,7 +548,7 @@ void unit_reassembly() {
   CHECK(frags.size() == 6, "40 bytes at MTU 8: %zu frames", frags.size());
   struct Feed {
     static bool one(Reassembler<64>& ra, const Fragment& f, const Bytes& p, Message* m) {
-      Frame fr = {f.header.type, f.header.frag, f.header.channel, f.header.seq, p.data(), p.size()};
+      Frame fr = {f.header.type, f.header.frag, f.header.channel, f.header.seq, p.data(), p.size(), false, 0};
       return ra.feed(fr, m);
     }
   };
@@ -527,7 +566,7 @@ void unit_reassembly() {
   // Then the whole message goes through; a best-effort WHOLE in between does not disturb it, a
   // best-effort FIRST does (one buffer shared by both spaces).
   static const uint8_t be[] = {0x55};
-  Frame whole = {FrameType::BestEffort, Frag::Whole, 2, 9, be, 1};
+  Frame whole = {FrameType::BestEffort, Frag::Whole, 2, 9, be, 1, false, 0};
   for (size_t i = 0; i < frags.size(); ++i) {
     const bool done = Feed::one(ra, frags[i], payloads[i], &m);
     if (i == 1) {
@@ -539,7 +578,7 @@ void unit_reassembly() {
   CHECK(m.size == sizeof msg && memcmp(m.data, msg, sizeof msg) == 0 && m.seq == 250 && m.channel == 7,
         "reassembled message");
   const uint8_t first_be[] = {4, 0, 0, 0, 1, 2};
-  Frame bf = {FrameType::BestEffort, Frag::First, 2, 10, first_be, sizeof first_be};
+  Frame bf = {FrameType::BestEffort, Frag::First, 2, 10, first_be, sizeof first_be, false, 0};
   const Counter partial = ra.stats().dropped_partial;
   Feed::one(ra, frags[0], payloads[0], &m);
   ra.feed(bf, &m);
@@ -549,18 +588,18 @@ void unit_reassembly() {
   // Malformed: a FIRST shorter than its prefix, a LAST that overshoots.
   const Counter malformed = ra.stats().malformed;
   const uint8_t big_last[] = {3, 4, 5, 6, 7};
-  Frame bl = {FrameType::BestEffort, Frag::Last, 2, 11, big_last, sizeof big_last};
+  Frame bl = {FrameType::BestEffort, Frag::Last, 2, 11, big_last, sizeof big_last, false, 0};
   CHECK(!ra.feed(bl, &m) && ra.stats().malformed == malformed + 1 &&
             !ra.in_progress(FrameType::BestEffort),
         "overshooting LAST");
   const uint8_t short_first[] = {1, 0};
-  Frame sf = {FrameType::Reliable, Frag::First, 1, 1, short_first, 2};
+  Frame sf = {FrameType::Reliable, Frag::First, 1, 1, short_first, 2, false, 0};
   ra.feed(sf, &m);
   CHECK(ra.stats().malformed == malformed + 2, "short FIRST");
   // A reassembler without a buffer delivers WHOLE frames and refuses the rest.
   Reassembler<0> none;
   CHECK(none.feed(whole, &m) && m.size == 1, "Reassembler<0> WHOLE");
-  Frame first0 = {frags[0].header.type, frags[0].header.frag, 7, 250, payloads[0].data(), payloads[0].size()};
+  Frame first0 = {frags[0].header.type, frags[0].header.frag, 7, 250, payloads[0].data(), payloads[0].size(), false, 0};
   none.feed(first0, &m);
   CHECK(none.stats().oversize == 1, "Reassembler<0> refuses fragments");
 }
@@ -600,7 +639,7 @@ void unit_reliable_sender() {
   CHECK(tx.poll(0, &f) && f.seq == 0 && f.frag == Frag::First, "first");
   CHECK(tx.poll(0, &f) && f.seq == 1 && f.frag == Frag::Middle, "middle");
   CHECK(!tx.poll(0, &f), "window full");
-  Frame ack = {FrameType::Ack, Frag::Whole, 0, 0, nullptr, 0};
+  Frame ack = {FrameType::Ack, Frag::Whole, 0, 0, nullptr, 0, false, 0};
   tx.on_ack(ack, 20000);
   CHECK(tx.rtt().sampled() && tx.rtt().srtt() == 20000, "RTT sample from the ACK");
   CHECK(tx.poll(20000, &f) && f.seq == 2 && f.frag == Frag::Last && !tx.sending(), "last released");
@@ -637,7 +676,7 @@ void unit_reliable_sender() {
 void unit_reliable_receiver() {
   ReliableReceiver<4, 8> rx(254);
   static const uint8_t p[] = {42};
-  Frame f = {FrameType::Reliable, Frag::Whole, 1, 254, p, 1};
+  Frame f = {FrameType::Reliable, Frag::Whole, 1, 254, p, 1, false, 0};
   CHECK(rx.receive(f) == Received::Deliver && rx.expected() == 255, "in order");
   CHECK(!rx.ack_urgent() && rx.ack_needed(), "an in-order ACK may wait (W=4: every 2nd)");
   CHECK(rx.receive(f) == Received::Duplicate && rx.ack_urgent(), "duplicate");
@@ -730,6 +769,9 @@ int main(int argc, char** argv) {
                    atoi(w[6].c_str()), unhex(w[7]), kind == "V");
       stream.insert(stream.end(), wire.begin(), wire.end());
       expected_frames.push_back(w);
+    } else if (kind == "A" && w.size() == 9) {
+      acked_vector(w[1], unhex(w[2]), atoi(w[3].c_str()), atoi(w[4].c_str()), atoi(w[5].c_str()),
+                   atoi(w[6].c_str()), unhex(w[7]), atoi(w[8].c_str()));
     } else if (kind == "B" && w.size() == 5) {
       bad_vector(w[1], unhex(w[2]), w[3], w[4] == "-" ? kMtu : strtoul(w[4].c_str(), nullptr, 10));
     } else if (kind == "F" && w.size() == 8) {

@@ -31,7 +31,13 @@ def _frame(kind: str, name: str, wire: str, frame: dict[str, object]) -> str:
 def lines(root: Path = ROOT) -> list[str]:
     """The vectors, one line each."""
     frames = json.loads((root / "protocols/vectors/native_frames.json").read_text())
-    out = [_frame("V", v["name"], v["hex"], v["frame"]) for v in frames["vectors"]]
+    # A frame that carries an ACK (ACK_IN_DATA, PROTOCOL.md 1.4) is an "A" line: the ACK last.
+    out = [
+        _frame("V", v["name"], v["hex"], v["frame"])
+        if v["frame"].get("ack") is None
+        else f"{_frame('A', v['name'], v['hex'], v['frame'])} {v['frame']['ack']}"
+        for v in frames["vectors"]
+    ]
     out += [_frame("D", v["name"], v["hex"], v["frame"]) for v in frames["decode_only"]]
     for v in frames["bad"]:
         out.append(f"B {v['name']} {_hex(v['hex'])} {v['expect']} {v.get('max_payload', '-')}")

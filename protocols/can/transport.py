@@ -129,6 +129,10 @@ CHAIN_MAX: Final = 4096
 """The longest message a sender chains (a receiver's transfer limit, CAN.md §4)."""
 _LENGTH_PREFIX: Final = 4
 _NATIVE_VERSION: Final = 0x40
+_ACK_FLAG: Final = 0x01
+"""Header byte 0, bit 0 of a data frame: an ACK byte before the CRC (PROTOCOL.md 1.4)."""
+_ACK_FLAGS: Final = 0x60
+"""Header byte 0 of an ACK frame (WHOLE)."""
 _NATIVE_ENVELOPE: Final = 5
 
 
@@ -297,6 +301,16 @@ class TransferEncoder:
         if crc16(data[:-2]) != int.from_bytes(data[-2:], "little"):
             raise ValueError("the native datagram's CRC-16 is wrong")
         kind = Kind(frame_type)
+        if flags & _ACK_FLAG and kind is not Kind.ACK and len(data) > _NATIVE_ENVELOPE:
+            # A data frame that carries an ACK (ACK_IN_DATA, PROTOCOL.md 1.4): the id has no room
+            # for its flag bit, so it goes as the frame without it and an ACK datagram after it.
+            return self.datagram(
+                _rebuilt(flags & ~_ACK_FLAG, channel, seq, data[3:-3]),
+                destination,
+                priority,
+                format=format,
+                chain=chain,
+            ) + self.datagram(_rebuilt(_ACK_FLAGS, 0, data[-3], b""), destination, format=format)
         frag = (flags >> 2) & 3
         payload = data[3:-2]
         going = self._chains.get(destination)
@@ -669,3 +683,9 @@ class ConflictMonitor:
         for node, (uid, seen) in sorted(self._claims.items()):
             if now - seen < self.window:
                 yield node, uid
+
+
+def _rebuilt(flags: int, channel: int, seq: int, payload: bytes) -> bytes:
+    """A native datagram: header, payload and its CRC-16."""
+    body = bytes((flags, channel, seq)) + payload
+    return body + crc16(body).to_bytes(2, "little")

@@ -87,6 +87,7 @@ SET_CHANNEL: Final = slot_setter(Frame, "channel")
 SET_SEQ: Final = slot_setter(Frame, "seq")
 SET_PAYLOAD: Final = slot_setter(Frame, "payload")
 SET_FRAG: Final = slot_setter(Frame, "frag")
+SET_ACK: Final = slot_setter(Frame, "ack")
 
 
 def make_frame(
@@ -103,6 +104,7 @@ def make_frame(
     SET_SEQ(frame, seq)
     SET_PAYLOAD(frame, payload)
     SET_FRAG(frame, frag)
+    SET_ACK(frame, None)
     return frame
 
 

@@ -33,6 +33,7 @@ from hwbridge.protocols.native._control.calls import (
 from hwbridge.protocols.native._control.common import (
     ALL_FEATURES,
     CONTROL_CHANNEL,
+    FEATURES_BEFORE_ACK_IN_DATA,
     MAX_NAME_BYTES,
     MAX_WINDOW,
     MIN_MTU,
@@ -75,6 +76,7 @@ from hwbridge.protocols.native._control.table import (
 __all__ = [
     "ALL_FEATURES",
     "CONTROL_CHANNEL",
+    "FEATURES_BEFORE_ACK_IN_DATA",
     "MAX_NAME_BYTES",
     "MAX_WINDOW",
     "MIN_MTU",

@@ -18,6 +18,7 @@ from hwbridge.protocols.native._framing.decoder import FrameDecoder
 from hwbridge.protocols.native._framing.encoder import encode_datagram, encode_frame
 from hwbridge.protocols.native._framing.fragment import Reassembler, ReassemblyStats, fragment
 from hwbridge.protocols.native._framing.frames import (
+    ACK_FLAG,
     CRC_INIT,
     CRC_SIZE,
     DEFAULT_MAX_PAYLOAD,
@@ -52,6 +53,7 @@ from hwbridge.protocols.native.cobs import decode as cobs_decode
 from hwbridge.protocols.native.cobs import encode as cobs_encode
 
 __all__ = [
+    "ACK_FLAG",
     "CRC_INIT",
     "CRC_SIZE",
     "DEFAULT_MAX_PAYLOAD",

@@ -124,6 +124,8 @@ class SequenceStats:
     """Reliable frames ahead of the receive window (dropped)."""
     acks_sent: int = 0
     acks_received: int = 0
+    acks_carried: int = 0
+    """ACKs sent inside a data frame (ACK_IN_DATA; included in ``acks_sent``)."""
     oversize_messages: int = 0
     """Messages whose announced length exceeded the negotiated max_message (dropped)."""
     malformed_messages: int = 0
@@ -514,8 +516,8 @@ class ReliableReceiver:
     ) -> None:
         if not 1 <= window <= MAX_WINDOW:
             raise ValueError(f"window must be 1..{MAX_WINDOW}, not {window}")
-        if not 1 <= ack_every <= window:
-            raise ValueError(f"ack_every must be 1..window ({window}), not {ack_every}")
+        if not 1 <= ack_every <= max(window, 2):
+            raise ValueError(f"ack_every must be 1..max(window, 2) ({window}), not {ack_every}")
         self.stats = stats
         self.window = window
         self.ack_every = ack_every

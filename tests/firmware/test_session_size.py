@@ -28,7 +28,7 @@ pytestmark = pytest.mark.skipif(
 )
 
 # (flash, sram) measured, and the floor (None: none given)
-CEILING = {"SizeHello": (7288, 639), "SizePubSubSrv": (8822, 717)}
+CEILING = {"SizeHello": (7288, 641), "SizePubSubSrv": (8822, 719)}
 FLOOR = {"SizeHello": (7290, 700), "SizePubSubSrv": (None, 1000)}
 
 

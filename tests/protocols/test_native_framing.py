@@ -81,9 +81,11 @@ def ref_cobs_encode(data: bytes, *, trailing_group: bool = False) -> bytes:
 
 
 def ref_body(frame: Frame) -> bytes:
-    header = bytes((0x40 | frame.type << 4 | frame.frag << 2, frame.channel, frame.seq))
-    crc = ref_crc(header + frame.payload)
-    return header + frame.payload + bytes((crc & 0xFF, crc >> 8))
+    acked = frame.ack is not None
+    header = bytes((0x40 | frame.type << 4 | frame.frag << 2 | acked, frame.channel, frame.seq))
+    data = header + frame.payload + (bytes((frame.ack,)) if frame.ack is not None else b"")
+    crc = ref_crc(data)
+    return data + bytes((crc & 0xFF, crc >> 8))
 
 
 # --- strategies ----------------------------------------------------------------------------
@@ -310,6 +312,7 @@ def vector_frame(spec: dict[str, Any]) -> Frame:
         spec["seq"],
         bytes.fromhex(spec["payload_hex"]),
         Frag[spec["frag"]],
+        spec.get("ack"),
     )
 
 

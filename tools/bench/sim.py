@@ -233,8 +233,10 @@ void loop() {
 # the transmit ring, so it does not wait for the line), idle otherwise. The busy cycles over a
 # run of calls are divided by the calls; idle_spin_cycles is what one spinOnce() with nothing
 # to read costs (a sketch pays it at every loop()). Each answers "hello" (HwBridge:
-# std_srvs/Trigger, ros_lib: rosserial_arduino/Test with the request "x").
+# std_srvs/Trigger, ros_lib: rosserial_arduino/Test with the request "x"). The HwBridge server
+# builds ACK_IN_DATA in (as the library's ServiceServer example does): a call has no ACK frame.
 HWBRIDGE_CYCLES_SERVICE = """\
+#define HWBRIDGE_ACK_IN_DATA 1
 #include <HwBridge.h>
 #include <std_srvs/Trigger.h>
 hwbridge::NodeHandle nh;

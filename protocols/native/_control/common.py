@@ -90,9 +90,16 @@ class Features(IntFlag):
     """The device accepts unsolicited PARAM_VALUE updates for parameters it subscribed to."""
     HOST_LOG = 0x04
     """The device accepts LOG messages from the host."""
+    ACK_IN_DATA = 0x08
+    """A BEST_EFFORT or RELIABLE frame may carry the cumulative ACK of the other direction
+    (PROTOCOL.md 1.4, 2.4): a service exchange needs no ACK frames of its own."""
 
 
-ALL_FEATURES: Final = Features.TIME_SYNC | Features.PARAM_PUSH | Features.HOST_LOG
+ALL_FEATURES: Final = (
+    Features.TIME_SYNC | Features.PARAM_PUSH | Features.HOST_LOG | Features.ACK_IN_DATA
+)
+FEATURES_BEFORE_ACK_IN_DATA: Final = Features.TIME_SYNC | Features.PARAM_PUSH | Features.HOST_LOG
+"""Every feature a host had before ACK_IN_DATA: the golden transcript's (PROTOCOL.md 2.12)."""
 
 
 class EntryFlags(IntFlag):

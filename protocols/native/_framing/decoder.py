@@ -26,11 +26,13 @@ from hwbridge.protocols.native._framing.frames import (
     FramingStats,
     NonFrameBytes,
     _parse_run,
+    body_frame,
     max_run_size,
 )
 from hwbridge.protocols.native._hotpath import (
     ACK,
     NEW_FRAME,
+    SET_ACK,
     SET_CHANNEL,
     SET_FRAG,
     SET_PAYLOAD,
@@ -94,9 +96,8 @@ def _split_glued_frames(run: bytes, max_payload: int) -> tuple[Frame, Frame] | N
             if crc == decoded[-2] | decoded[-1] << 8 and length - _ENVELOPE <= max_payload:
                 rest = run[end + 1 :]
                 second = _parse_run(rest, max_payload) if rest else None
-                if isinstance(second, Frame):
-                    payload = bytes(decoded[3:-2])
-                    return Frame(kind[0], decoded[1], decoded[2], payload, kind[1]), second
+                if isinstance(second, Frame) and (not kind[2] or length > _ENVELOPE):
+                    return body_frame(kind, decoded), second
         if code != 0xFF:
             decoded.append(0)
         pos = end
@@ -185,13 +186,14 @@ class FrameDecoder:
         max_payload = self._max_payload
         header = _HEADER
         append = events.append
-        new, set_type, set_channel, set_seq, set_payload, set_frag = (
+        new, set_type, set_channel, set_seq, set_payload, set_frag, set_ack = (
             NEW_FRAME,
             SET_TYPE,
             SET_CHANNEL,
             SET_SEQ,
             SET_PAYLOAD,
             SET_FRAG,
+            SET_ACK,
         )
         bare_acks = _DECODED_ACKS
         count = 0
@@ -225,8 +227,16 @@ class FrameDecoder:
                         set_type(frame, kind[0])
                         set_channel(frame, body[o + 1])
                         set_seq(frame, body[o + 2])
-                        set_payload(frame, body[o + 3 : -2])
                         set_frag(frame, kind[1])
+                        if not kind[2]:
+                            set_payload(frame, body[o + 3 : -2])
+                            set_ack(frame, None)
+                        elif len(body) - o > _ENVELOPE:  # the ACK byte before the CRC
+                            set_payload(frame, body[o + 3 : -3])
+                            set_ack(frame, body[-3])
+                        else:
+                            self._slow(run, events)  # the ACK flag without its byte
+                            continue
                         append(frame)
                         count += 1
                         if (

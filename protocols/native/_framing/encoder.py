@@ -14,7 +14,7 @@ from typing import Final
 
 from hwbridge.protocols.errors import FramingError
 from hwbridge.protocols.native import cobs
-from hwbridge.protocols.native._framing.frames import CRC_INIT, VERSION, Frame
+from hwbridge.protocols.native._framing.frames import ACK_FLAG, CRC_INIT, VERSION, Frame
 from hwbridge.protocols.native._hotpath import ACK
 from hwbridge.protocols.native.cobs import encode as cobs_encode
 from hwbridge.protocols.native.cobs import encode_short as cobs_encode_short
@@ -51,9 +51,23 @@ def encode_frame(frame: Frame, *, lead: bool = False) -> bytes:
     except struct.error:  # channel or seq is not a byte
         body = _checked_header(byte0, frame.channel, frame.seq)
     payload = frame.payload
+    if frame.ack is not None:
+        return _encode_body(_with_ack(body, payload, frame), lead)
     if ftype is ACK and payload == b"":
         return _encode_bare_ack(body, lead)
     return _encode_body(body + payload, lead)
+
+
+def _with_ack(header: bytes, payload: bytes, frame: Frame) -> bytes:
+    """Header and payload of a frame that carries an ACK (PROTOCOL.md 1.4): flag bit 0 set in
+    byte 0 and the ACK's byte after the payload."""
+    ack = frame.ack
+    if frame.type is ACK or ack is None or not 0 <= ack <= 0xFF:
+        raise FramingError(
+            f"cannot encode an ACK of {ack!r} in a {frame.type.name} frame: only BEST_EFFORT "
+            "and RELIABLE frames carry one, of 0..255"
+        )
+    return bytes((header[0] | ACK_FLAG,)) + header[1:] + payload + bytes((ack,))
 
 
 def _encode_body(body: bytes, lead: bool) -> bytes:
@@ -103,7 +117,8 @@ def encode_datagram(frame: Frame) -> bytes:
         )
     byte0 = _VERSION_BITS | ftype << 4 | frag << 2
     try:
-        body = _HEAD.pack(byte0, frame.channel, frame.seq) + frame.payload
+        head = _HEAD.pack(byte0, frame.channel, frame.seq)
     except struct.error:  # channel or seq is not a byte
-        body = _checked_header(byte0, frame.channel, frame.seq) + frame.payload
+        head = _checked_header(byte0, frame.channel, frame.seq)
+    body = head + frame.payload if frame.ack is None else _with_ack(head, frame.payload, frame)
     return body + _CRC.pack(crc_hqx(body, CRC_INIT))

@@ -37,6 +37,9 @@ DEFAULT_MAX_PAYLOAD: Final = 1024
 
 _ENVELOPE: Final = HEADER_SIZE + CRC_SIZE
 _ZERO: Final = b"\x00"
+ACK_FLAG: Final = 0x01
+"""Header byte 0, bit 0, on a BEST_EFFORT or RELIABLE frame: the body's byte before the CRC is
+a cumulative ACK (PROTOCOL.md 1.4). On an ACK frame the bit stays reserved (ignored)."""
 
 
 class FrameType(IntEnum):
@@ -84,6 +87,10 @@ class Frame:
     """0..255; for ACK frames, the acknowledged RELIABLE sequence number."""
     payload: bytes
     frag: Frag = Frag.WHOLE
+    ack: int | None = None
+    """A BEST_EFFORT or RELIABLE frame only: the cumulative ACK of the other direction's
+    reliable stream it carries (PROTOCOL.md 1.4, flag bit 0 and one byte before the CRC), or
+    None. Never part of ``payload``; sent only when both ends have the ACK_IN_DATA feature."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -151,19 +158,33 @@ def max_run_size(max_payload: int) -> int:
     return cobs.max_encoded_size(max_payload + _ENVELOPE)
 
 
-def _header_table() -> tuple[tuple[FrameType, Frag] | None, ...]:
-    table: list[tuple[FrameType, Frag] | None] = []
+def _header_table() -> tuple[tuple[FrameType, Frag, bool] | None, ...]:
+    table: list[tuple[FrameType, Frag, bool] | None] = []
     for byte0 in range(256):
         type_bits = (byte0 >> 4) & 3
         if byte0 >> 6 != VERSION or type_bits == 3:
             table.append(None)
         else:
-            table.append((FrameType(type_bits), Frag((byte0 >> 2) & 3)))
+            acked = bool(byte0 & ACK_FLAG) and type_bits != FrameType.ACK
+            table.append((FrameType(type_bits), Frag((byte0 >> 2) & 3), acked))
     return tuple(table)
 
 
 _HEADER: Final = _header_table()
-"""Header byte 0 -> (type, frag), or None for another version or the reserved type."""
+"""Header byte 0 -> (type, frag, carries an ACK byte), or None for another version or the
+reserved type."""
+
+
+def body_frame(kind: tuple[FrameType, Frag, bool], body: bytes | bytearray, o: int = 0) -> Frame:
+    """The frame of a checked body ``body[o:]`` whose byte 0 maps to ``kind`` in ``_HEADER``;
+    a body with the ACK flag but no byte for it must have been refused (``_ACKED_ENVELOPE``)."""
+    if kind[2]:
+        return Frame(kind[0], body[o + 1], body[o + 2], bytes(body[o + 3 : -3]), kind[1], body[-3])
+    return Frame(kind[0], body[o + 1], body[o + 2], bytes(body[o + 3 : -2]), kind[1])
+
+
+_ACKED_ENVELOPE: Final = _ENVELOPE + 1
+"""The smallest body of a frame with the ACK flag: header, the ACK byte, CRC."""
 
 
 def _parse_body(body: bytes, max_payload: int) -> Frame | BadFrameReason:
@@ -179,7 +200,9 @@ def _parse_body(body: bytes, max_payload: int) -> Frame | BadFrameReason:
         return BadFrameReason.RESERVED_TYPE
     if len(body) - _ENVELOPE > max_payload:
         return BadFrameReason.OVERSIZE
-    return Frame(kind[0], body[1], body[2], body[3:-2], kind[1])
+    if kind[2] and len(body) < _ACKED_ENVELOPE:
+        return BadFrameReason.TOO_SHORT  # the ACK flag, and no byte for the ACK
+    return body_frame(kind, body)
 
 
 def _parse_run(run: bytes, max_payload: int) -> Frame | BadFrameReason:

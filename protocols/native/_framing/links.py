@@ -24,8 +24,8 @@ from hwbridge.protocols.native._framing.frames import (
     Frame,
     FrameEvent,
     FramingStats,
+    body_frame,
 )
-from hwbridge.protocols.native._hotpath import make_frame
 
 __all__ = ["IDLE_LEAD", "NativeDatagramFraming", "NativeFraming", "NativeStreamFraming"]
 
@@ -174,9 +174,11 @@ class NativeDatagramFraming:
                 reason = BadFrameReason.VERSION if version else BadFrameReason.RESERVED_TYPE
             elif len(body) - _ENVELOPE > self._max_payload:
                 reason = BadFrameReason.OVERSIZE
+            elif kind[2] and len(body) == _ENVELOPE:
+                reason = BadFrameReason.TOO_SHORT  # the ACK flag without its byte
             else:
                 stats.frames += 1
-                return [make_frame(kind[0], body[1], body[2], body[3:-2], kind[1])]
+                return [body_frame(kind, body)]
         name = _BAD_COUNTERS[reason]
         setattr(stats, name, getattr(stats, name) + 1)
         return [BadFrame(reason, body)]

@@ -152,7 +152,7 @@ class DeviceConfig(SessionConfig):
     mtu: int = 64
     max_message: int = 64
     window: int = 1
-    features: Features = Features.TIME_SYNC | Features.PARAM_PUSH
+    features: Features = Features.TIME_SYNC | Features.PARAM_PUSH | Features.ACK_IN_DATA
     tx_queue_limit: int = 128
 
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 import random
 from collections import deque
 from collections.abc import Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, ClassVar, Generic, TypeVar
 
 from hwbridge.protocols.errors import HwBridgeError, ProtocolError
@@ -27,7 +27,7 @@ from hwbridge.protocols.native._control.common import (
 )
 from hwbridge.protocols.native._framing.frames import BadFrame, Frame, NonFrameBytes
 from hwbridge.protocols.native._framing.links import NativeFraming, NativeStreamFraming
-from hwbridge.protocols.native._hotpath import CLOSED, CONFIGURING, CONNECTED
+from hwbridge.protocols.native._hotpath import ACK, CLOSED, CONFIGURING, CONNECTED
 from hwbridge.protocols.native._session.config import (
     _MAX_TIME_SAMPLES,
     _U32,
@@ -151,6 +151,8 @@ class SessionCore(Generic[_E]):
         (it is called at least every heartbeat_interval while established)."""
         self._ack_due: float | None = None
         """When a held-back ACK must go out at the latest (None: none is held)."""
+        self._ack_in_data = False
+        """Both ends have ACK_IN_DATA: a due ACK rides in the next data frame (PROTOCOL.md 2.4)."""
         self._next_hello = 0.0
         self._hello_wait = min(HELLO_FIRST_RETRY, config.hello_interval)
         """Wait before the next HELLO retry: doubles from HELLO_FIRST_RETRY to hello_interval."""
@@ -473,7 +475,11 @@ class SessionCore(Generic[_E]):
 
     def _send_frame(self, frame: Frame) -> None:
         if self._ack_due is not None:  # a held ACK goes out with the first frame that does
-            self._send_ack()
+            carried = self._carry_ack(frame) if self._ack_in_data else None
+            if carried is None:
+                self._send_ack()
+            else:
+                frame = carried
         self._out.append(frame)
         self._c.frames_sent += 1
         self._last_tx = self._now
@@ -512,6 +518,15 @@ class SessionCore(Generic[_E]):
         receiver = self._rel_rx
         if receiver is not None and receiver.ack_needed:
             if receiver.ack_urgent or self._out or self._rel_tx is None or self._rel_tx.has_pending:
+                if self._ack_in_data:
+                    # ACK_IN_DATA: the ACK rides in a frame of this write (one already out, or
+                    # the first the window releases), or goes alone after them.
+                    self._ack_due = self._now
+                    if not self._carry_in_out():
+                        self._pump()
+                    if self._ack_due is not None:
+                        self._send_ack()
+                    return
                 self._send_ack()
             elif self._ack_due is None:
                 self._ack_due = self._now + self._cfg.ack_delay
@@ -522,6 +537,36 @@ class SessionCore(Generic[_E]):
         receiver = self._rel_rx
         if receiver is not None:
             self._send_frame(receiver.ack_frame())
+
+    def _carry_ack(self, frame: Frame) -> Frame | None:
+        """``frame`` carrying the due ACK (ACK_IN_DATA, PROTOCOL.md 2.4), or None when it cannot:
+        an ACK frame, one that already carries one, a payload that fills the MTU, or an ACK
+        with a selective bitmap (early frames held), which goes as a frame of its own."""
+        receiver = self._rel_rx
+        link = self._link
+        if (
+            receiver is None
+            or link is None
+            or frame.type is ACK
+            or frame.ack is not None
+            or receiver.buffered
+            or len(frame.payload) >= link.mtu
+        ):
+            return None
+        self._ack_due = None
+        self._seq.acks_carried += 1
+        return replace(frame, ack=receiver.ack_frame().seq)
+
+    def _carry_in_out(self) -> bool:
+        """Put the due ACK into the last data frame already queued for this write, if one can
+        carry it; True when it went."""
+        out = self._out
+        for i in range(len(out) - 1, -1, -1):
+            carried = self._carry_ack(out[i])
+            if carried is not None:
+                out[i] = carried
+                return True
+        return False
 
     def _check_size(self, size: int, what: str, *args: object) -> None:
         """Raise if ``size`` is above the peer's max_message; ``what % args`` names the

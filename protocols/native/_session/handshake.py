@@ -114,6 +114,7 @@ class Handshake(SessionCore[Any]):
         self._link = link
         self._peer_max = device_max if self._ROLE == Role.HOST else host_max
         self._time_sync = cfg.time_sync_interval > 0 and bool(link.features & Features.TIME_SYNC)
+        self._ack_in_data = bool(link.features & Features.ACK_IN_DATA)
         self._established = True
         self._reported.clear()
         self._c.sessions += 1
@@ -131,8 +132,9 @@ class Handshake(SessionCore[Any]):
             isn=peer.isn,
             window=window,
             max_message=cfg.max_message,
-            # ACKs wait (ack_delay) only while the peer keeps at least half its window free.
-            ack_every=max(1, window // 2) if cfg.ack_delay > 0 else 1,
+            # ACKs wait (ack_delay) only while the peer keeps at least half its window free,
+            # or (ACK_IN_DATA, window below 4) for a frame of this end's to carry them.
+            ack_every=_ack_every(window, cfg.ack_delay, self._ack_in_data),
         )
         self._ack_due = None
         self._framing.max_payload = mtu
@@ -164,6 +166,7 @@ class Handshake(SessionCore[Any]):
         self._rel_tx = None
         self._rel_rx = None
         self._ack_due = None
+        self._ack_in_data = False
         self._established = False
         self._peer_id = NO_SESSION
         self._link = None
@@ -268,3 +271,14 @@ class Handshake(SessionCore[Any]):
         return f"no connected session after {self._cfg.handshake_timeout:.1f} s: {what}" + (
             self._hello_context()
         )
+
+
+def _ack_every(window: int, ack_delay: float, ack_in_data: bool) -> int:
+    """In-order frames after which an ACK goes at once (PROTOCOL.md 2.4, delayed ACKs): half the
+    window; with ACK_IN_DATA and a window below 4, 2 (a window-1 peer's one frame waits up to
+    ack_delay for an answer to carry its ACK); 1 (never held) without an ack_delay."""
+    if ack_delay <= 0:
+        return 1
+    if ack_in_data and window < 4:
+        return 2
+    return max(1, window // 2)

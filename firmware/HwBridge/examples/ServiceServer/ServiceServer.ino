@@ -3,6 +3,9 @@
 //
 //   hwbridge service call /set_led '{data: true}'
 //   hwbridge service call /count '{}'
+// A service server gains from ACKs carried in data frames (no ACK frame per call, PROTOCOL.md
+// 2.4): on AVR the library builds them only when asked, as they cost some 300 B of flash.
+#define HWBRIDGE_ACK_IN_DATA 1
 #include <HwBridge.h>
 #include <std_srvs/SetBool.h>
 #include <std_srvs/Trigger.h>

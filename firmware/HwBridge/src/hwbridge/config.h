@@ -37,6 +37,18 @@ struct NullCounter {
 };
 typedef NullCounter TrafficCounter;
 #endif
+
+#ifndef HWBRIDGE_ACK_IN_DATA
+#ifdef __AVR__
+/** On AVR the library profiles announce ACK_IN_DATA (PROTOCOL.md 2.4: a service exchange with
+ * no ACK frames, some 2000 cycles less a call) only when a sketch defines HWBRIDGE_ACK_IN_DATA
+ * as 1 before including HwBridge.h: it costs some 300 B of flash, more than a hello world at
+ * its budget has. */
+#define HWBRIDGE_ACK_IN_DATA 0
+#else
+#define HWBRIDGE_ACK_IN_DATA 1
+#endif
+#endif
 }  // namespace hwbridge
 
 #endif  // HWBRIDGE_CONFIG_H

@@ -105,7 +105,7 @@ struct RunIndex<false> {
  * without it such a run counts as its failure (usually cobs). The host's other refinements
  * (splitting a corrupted delimiter, text glued to a frame) are not done: a device MAY skip them.
  */
-template <size_t MaxPayload, bool DetectText = true>
+template <size_t MaxPayload, bool DetectText = true, bool AckInData = true>
 class FrameDecoder {
  public:
   static const size_t kCapacity = max_frame(MaxPayload);
@@ -115,7 +115,7 @@ class FrameDecoder {
   /** Every member zero (no slack: the full MTU): a global decoder is in .bss, with
    * no constructor code. */
   constexpr FrameDecoder()
-      : frame_{FrameType::BestEffort, Frag::Whole, 0, 0, nullptr, 0}, stats_(), run_(0), len_(0),
+      : frame_{FrameType::BestEffort, Frag::Whole, 0, 0, nullptr, 0, false, 0}, stats_(), run_(0), len_(0),
         slack_(0), text_(), group_(0), zero_(false),
         error_(FrameError::Ok), peer_byte0_(0), buf_() {}
 
@@ -192,7 +192,8 @@ class FrameDecoder {
     if (run_ == kOverflow) return text_.text() ? FrameError::Text : FrameError::Oversize;
     // A code that pointed past the end of the run: its group is still waiting for bytes.
     if (group_ != 0) return text_.text() ? FrameError::Text : FrameError::Cobs;
-    FrameError e = parse_body(buf_, len_, kRunBoundsPayload ? kNoLimit : max_payload(), &frame_);
+    FrameError e =
+        parse_body(buf_, len_, kRunBoundsPayload ? kNoLimit : max_payload(), &frame_, AckInData);
     if ((e == FrameError::TooShort || e == FrameError::Crc) && text_.text()) {
       return FrameError::Text;
     }
@@ -237,14 +238,14 @@ class FrameDecoder {
   uint8_t buf_[kCapacity];  // last: the fuzz tests' guards sit right after it
 };
 
-template <size_t MaxPayload, bool DetectText>
-const size_t FrameDecoder<MaxPayload, DetectText>::kCapacity;
-template <size_t MaxPayload, bool DetectText>
-const bool FrameDecoder<MaxPayload, DetectText>::kRunBoundsPayload;
-template <size_t MaxPayload, bool DetectText>
-const size_t FrameDecoder<MaxPayload, DetectText>::kNoLimit;
-template <size_t MaxPayload, bool DetectText>
-const size_t FrameDecoder<MaxPayload, DetectText>::kOverflow;
+template <size_t MaxPayload, bool DetectText, bool AckInData>
+const size_t FrameDecoder<MaxPayload, DetectText, AckInData>::kCapacity;
+template <size_t MaxPayload, bool DetectText, bool AckInData>
+const bool FrameDecoder<MaxPayload, DetectText, AckInData>::kRunBoundsPayload;
+template <size_t MaxPayload, bool DetectText, bool AckInData>
+const size_t FrameDecoder<MaxPayload, DetectText, AckInData>::kNoLimit;
+template <size_t MaxPayload, bool DetectText, bool AckInData>
+const size_t FrameDecoder<MaxPayload, DetectText, AckInData>::kOverflow;
 
 }  // namespace hwbridge
 

@@ -7,6 +7,7 @@
 #include <stdint.h>
 
 #include "cobs.h"
+#include "config.h"
 #include "../hwbridge_wire.h"
 #include "frame.h"
 
@@ -20,6 +21,12 @@ struct FrameHeader {
   uint8_t seq;
 };
 
+/** write_frame()'s last argument: bits of these. kLead (the value of `true`): a leading 0x00
+ * (1.3). kCarryAck: a data frame whose payload ends with an ACK byte (p2, n2 = 1), flag bit 0
+ * set in header byte 0 (ACK_IN_DATA, PROTOCOL.md 1.4). */
+static const uint8_t kLead = 1;
+static const uint8_t kCarryAck = 2;
+
 namespace detail {
 /**
  * A frame body seen as one run of bytes without copying the payload: header, the payload in
@@ -29,8 +36,9 @@ struct Body {
   ByteSpan pieces[2];         ///< the payload
   size_t size;                ///< body bytes
   uint8_t env[kEnvelope];     ///< the header, then the CRC
-  Body(const FrameHeader& h, const uint8_t* p1, size_t n1, const uint8_t* p2, size_t n2) {
-    env[0] = header_byte0(h.type, h.frag);
+  Body(const FrameHeader& h, const uint8_t* p1, size_t n1, const uint8_t* p2, size_t n2,
+       uint8_t opts = 0) {
+    env[0] = static_cast<uint8_t>(header_byte0(h.type, h.frag) | (HWBRIDGE_ACK_IN_DATA ? opts >> 1 : 0));
     env[1] = h.channel;
     env[2] = h.seq;
     pieces[0].data = p1;
@@ -76,6 +84,14 @@ struct SharesCpu {
   template <class S> static long test(...);
   static const bool value = sizeof(test<H>(nullptr)) == 1;
 };
+/** Whether a Hardware cannot carry flag bit 0 of a frame (CAN format 2): it declares
+ * `static const bool kNoAckInData = true`, and the node then leaves ACK_IN_DATA out. */
+template <class H>
+struct NoAckInData {
+  template <class S> static char test(char (*)[S::kNoAckInData ? 1 : 2]);
+  template <class S> static long test(...);
+  static const bool value = sizeof(test<H>(nullptr)) == 1;
+};
 template <bool B, class T> struct EnableIf {};
 template <class T> struct EnableIf<true, T> { typedef T type; };
 
@@ -106,10 +122,12 @@ inline constexpr size_t wire_room(size_t n) { return n + kEnvelope + ((n + kEnve
  * cobs_write), byte for byte. Returns the wire length.
  */
 inline size_t encode_wire(uint8_t* out, const FrameHeader& h, const uint8_t* p1, size_t n1,
-                          const uint8_t* p2, size_t n2, bool lead) {
+                          const uint8_t* p2, size_t n2, uint8_t opts) {
   const size_t n = kHeaderSize + n1 + n2;  // the body without its CRC
   uint8_t* const body = out + wire_room(n1 + n2) - n - kCrcSize;
-  body[0] = header_byte0(h.type, h.frag);
+  // kCarryAck: bit 0 (compiled where ACK_IN_DATA can be announced: not on an AVR sketch that
+  // leaves it out, whose node never asks for it)
+  body[0] = static_cast<uint8_t>(header_byte0(h.type, h.frag) | (HWBRIDGE_ACK_IN_DATA ? opts >> 1 : 0));
   body[1] = h.channel;
   body[2] = h.seq;
   if (n1 != 0) memcpy(body + kHeaderSize, p1, n1);
@@ -118,7 +136,7 @@ inline size_t encode_wire(uint8_t* out, const FrameHeader& h, const uint8_t* p1,
   const uint8_t* r = body;
   const uint8_t* const end = body + n + kCrcSize;
   uint8_t* w = out;
-  if (lead) *w++ = 0;
+  if (opts & kLead) *w++ = 0;
   uint8_t* code = w++;  // the open group's code byte
   uint8_t run = 1;      // its code so far: 1 + its data bytes
   bool full = false;    // the group before the open one ended full (254 bytes, no zero)
@@ -155,9 +173,9 @@ template <class Sink>
 __attribute__((noinline))
 typename detail::EnableIf<!detail::IsDatagramSink<Sink>::value, size_t>::type write_frame(
     Sink& sink, const FrameHeader& h, const uint8_t* p1, size_t n1, const uint8_t* p2 = nullptr,
-    size_t n2 = 0, bool lead = false) {
+    size_t n2 = 0, uint8_t opts = 0) {
   uint8_t* const out = static_cast<uint8_t*>(__builtin_alloca(detail::wire_room(n1 + n2)));
-  const size_t n = detail::encode_wire(out, h, p1, n1, p2, n2, lead);
+  const size_t n = detail::encode_wire(out, h, p1, n1, p2, n2, opts);
   detail::put_run(sink, out, n, 0);
   return n;
 }
@@ -169,8 +187,8 @@ typename detail::EnableIf<!detail::IsDatagramSink<Sink>::value, size_t>::type wr
 template <class Sink>
 typename detail::EnableIf<detail::IsDatagramSink<Sink>::value, size_t>::type write_frame(
     Sink& sink, const FrameHeader& h, const uint8_t* p1, size_t n1, const uint8_t* p2 = nullptr,
-    size_t n2 = 0, bool = false) {
-  const detail::Body body(h, p1, n1, p2, n2);
+    size_t n2 = 0, uint8_t opts = 0) {
+  const detail::Body body(h, p1, n1, p2, n2, opts & kCarryAck);
   for (size_t i = 0; i < body.size; ++i) sink.put(body.at(i));
   sink.endDatagram();
   return body.size;

@@ -23,6 +23,9 @@ static const size_t kLengthPrefix = 4;
 static const size_t kMinFragmentPayload = kLengthPrefix + 1;
 /** Channel of every ACK frame, and of control messages. */
 static const uint8_t kControlChannel = 0;
+/** Header byte 0, bit 0, of a BEST_EFFORT or RELIABLE frame: the body's byte before the CRC is
+ * a cumulative ACK of the other direction (ACK_IN_DATA, PROTOCOL.md 1.4). */
+static const uint8_t kAckFlag = 0x01;
 
 /** Header bits 5-4. The value 3 is reserved (a bad frame). */
 enum class FrameType : uint8_t { BestEffort = 0, Reliable = 1, Ack = 2 };
@@ -50,6 +53,8 @@ struct Frame {
   uint8_t seq;  ///< for an ACK, the acknowledged RELIABLE sequence number
   const uint8_t* payload;
   size_t size;
+  bool acked;   ///< a data frame that carries an ACK (kAckFlag): ack is its seq
+  uint8_t ack;
 };
 
 /** Header byte 0 of a frame: 0x40 | type << 4 | frag << 2. */
@@ -72,17 +77,30 @@ inline constexpr size_t max_wire_size(size_t n) { return max_frame(n) + 1; }
 /**
  * Checks one decoded body (header, payload, CRC; steps 4-9 of PROTOCOL.md 1.6) and, when it is
  * a frame, fills *out (its payload points into body). This is also the whole check of a
- * datagram (1.13).
+ * datagram (1.13). acks: a data frame's flag bit 0 means an ACK byte (ACK_IN_DATA, 1.4); false
+ * for an end that never announces the feature (its peer never sets the bit, and the code is
+ * left out).
  */
-inline FrameError parse_body(const uint8_t* body, size_t n, size_t max_payload, Frame* out) {
+inline FrameError parse_body(const uint8_t* body, size_t n, size_t max_payload, Frame* out,
+                             bool acks = true) {
   if (n < kEnvelope) return FrameError::TooShort;
   const uint16_t sent = wire::get16(body + n - kCrcSize);
   if (crc16(body, n - kCrcSize) != sent) return FrameError::Crc;
   const uint8_t byte0 = body[0];
   if ((byte0 & 0xC0) != kVersion << 6) return FrameError::Version;  // bits, not shifts: AVR
   if ((byte0 & 0x30) == 0x30) return FrameError::ReservedType;      // type 3
-  const size_t size = n - kEnvelope;
-  if (size > max_payload) return FrameError::Oversize;
+  size_t size = n - kEnvelope;
+  if (size > max_payload) return FrameError::Oversize;  // the ACK byte counts (1.4)
+  // An ACK byte before the CRC: bit 0 on a data frame (an ACK frame's bit 0 is reserved).
+  // Without acks, out->acked is left as it was (false in a zeroed Frame): no code for it.
+  if (acks) {
+    out->acked = (byte0 & (0x20 | kAckFlag)) == kAckFlag;
+    if (out->acked) {
+      if (size == 0) return FrameError::TooShort;  // the flag, and no byte for the ACK
+      --size;
+      out->ack = body[n - kCrcSize - 1];
+    }
+  }
   // Bits 5-4 by a nibble swap (one instruction on AVR, where a shift by 4 is a loop).
   out->type = static_cast<FrameType>(static_cast<uint8_t>(byte0 << 4 | byte0 >> 4) & 3);
   out->frag = static_cast<Frag>((byte0 & 0x0C) >> 2);

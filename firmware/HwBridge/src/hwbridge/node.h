@@ -48,7 +48,8 @@ struct HelloWorldProfile {
   static const uint16_t kMaxMessage = 64;    ///< largest message received (reassembly above kMtu)
   static const uint8_t kWindow = 1;          ///< reliable frames in flight (1..64)
   static const uint16_t kTxBuffer = 64;      ///< largest message sent (serialization buffer)
-  static const uint8_t kFeatures = 3;        ///< TIME_SYNC | PARAM_PUSH (| 4 = HOST_LOG)
+  /// TIME_SYNC | PARAM_PUSH (| 4 = HOST_LOG); | 8 = ACK_IN_DATA with HWBRIDGE_ACK_IN_DATA defined
+  static const uint8_t kFeatures = 3 | (HWBRIDGE_ACK_IN_DATA ? 8 : 0);
   static const uint16_t kTimeSyncMs = 0;     ///< own time requests every this many ms (0: none)
   static const uint16_t kParamTimeoutMs = 2000;
   static const uint16_t kServiceTimeoutMs = 5000;
@@ -62,7 +63,7 @@ struct ComfortableProfile {
   static const uint16_t kMaxMessage = 192;
   static const uint8_t kWindow = 2;
   static const uint16_t kTxBuffer = 192;
-  static const uint8_t kFeatures = 7;
+  static const uint8_t kFeatures = 7 | (HWBRIDGE_ACK_IN_DATA ? 8 : 0);
   static const uint16_t kTimeSyncMs = 5000;
   static const uint16_t kParamTimeoutMs = 2000;
   static const uint16_t kServiceTimeoutMs = 5000;
@@ -538,6 +539,13 @@ class NodeHandle_ : public NodeBase {
   // A board whose largest message fits its own MTU never fragments: with window 1 and the fixed
   // RTO, its reliable sender is one slot (SingleFrameSender).
   static const bool kFragments = Profile::kTxBuffer > Profile::kMtu;
+  /** The profile announces ACK_IN_DATA (PROTOCOL.md 2.4): without it none of its code is built. */
+  static const bool kAckInData =
+      (Profile::kFeatures & control::Features::ACK_IN_DATA) != 0 && !detail::NoAckInData<Hardware>::value;
+  /** The features this node announces: the profile's, without ACK_IN_DATA where it is left out. */
+  static const uint8_t kOwnFeatures =
+      kAckInData ? Profile::kFeatures
+                 : static_cast<uint8_t>(Profile::kFeatures & ~control::Features::ACK_IN_DATA);
   // ... and if that message fills its MTU, every session's MTU is its own
   static const bool kFixedMtu = Profile::kTxBuffer == Profile::kMtu;
   typedef typename detail::Pick<!kFragments && Profile::kWindow == 1 && Profile::kFixedRto,
@@ -602,7 +610,7 @@ class NodeHandle_ : public NodeBase {
   Entry* call_entry_ = nullptr;
   uint32_t board_ref_ = 0, host_sec_ = 0, host_nsec_ = 0;  // time sync reference pair
   Reassembler<kReassembly> reasm_{};
-  FrameDecoder<Profile::kMtu, false> dec_{};
+  FrameDecoder<Profile::kMtu, false, kAckInData> dec_{};
   uint8_t tx_[Profile::kTxBuffer] = {};
 
   // kAnswerOwed: a service request was taken back (no room for its answer); until it comes

@@ -62,6 +62,9 @@ template <class Driver, size_t MaxDatagram = 72, uint8_t RxSlots = 2,
 class CanHardware {
  public:
   static const uint32_t kClaimPeriodUs = 1000000UL;
+  /** CAN format 2 carries a frame's header in the id, with no room for flag bit 0 of an ACK in
+   * a data frame (PROTOCOL.md 1.4): a node on this link does not announce ACK_IN_DATA. */
+  static const bool kNoAckInData = true;
   static const size_t kOutCap = MaxDatagram + MaxDatagram / 254 + 1;
 
   // constexpr and all zero: a global node lies in .bss, with neither start-up code nor a copy of

@@ -11,6 +11,12 @@
 // Input
 
 HWB_NODE void HWB_SELF::onFrame(const Frame& f) {
+  if (kAckInData && f.acked && established()) {  // an ACK in a data frame (ACK_IN_DATA): first, as if before it
+    Frame a = f;
+    a.seq = f.ack;
+    a.size = 0;
+    rel_tx_.on_ack(a, now_);
+  }
   if (f.type == FrameType::BestEffort) {
     onBestEffort(f);
     return;
@@ -160,13 +166,13 @@ HWB_NODE void HWB_SELF::onControl(const uint8_t* p, size_t n, bool reliable) {
         // Until it comes again, the board's own reliable messages leave the buffer to its answer
         // (a sketch publishing whenever a slot frees would otherwise take it first every time).
         if (reasm_.unfeed() && rel_rx_.refuse()) {
-          setFlag(kAnswerOwed, true);
+          flags_ |= kAnswerOwed;
         } else {
           ++stats_.tx_refused;
         }
         break;
       }
-      setFlag(kAnswerOwed, false);
+      flags_ &= static_cast<uint8_t>(~kAnswerOwed);
       if (on_request_) {
         on_request_(this, p, n);
       } else {  // this board serves nothing: NO_SERVICE
@@ -234,7 +240,7 @@ HWB_NODE void HWB_SELF::establish(const uint8_t* h) {
   if (window > kMaxWindow) window = kMaxWindow;
   const uint32_t peer_max = H::max_message(h);
   peer_max_ = peer_max > 0xFFFFUL ? 0xFFFFu : static_cast<uint16_t>(peer_max);
-  features_ = static_cast<uint8_t>(H::features(h) & Profile::kFeatures);
+  features_ = static_cast<uint8_t>(H::features(h) & kOwnFeatures);
   rel_tx_.reset(isn_, window, kFixedMtu ? Profile::kMtu : mtu_);
   rel_rx_.reset(H::isn(h), window);
   reasm_.reset(FrameType::Reliable);
@@ -260,8 +266,7 @@ HWB_NODE void HWB_SELF::teardown() {
   if (!kFixedMtu) dec_.set_max_payload(Profile::kMtu);
   if (was) reasm_.reset(FrameType::Reliable);
   pending_len_ = 0;
-  setFlag(kTimeSynced, false);
-  setFlag(kAnswerOwed, false);
+  flags_ = static_cast<uint8_t>(flags_ & ~(kTimeSynced | kAnswerOwed));
   time_.clear();  // time samples of the last session's host
   features_ = 0;
   // a new ISN per session: the random session id mixed with the time (no generator state kept)

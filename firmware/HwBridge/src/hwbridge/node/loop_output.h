@@ -42,8 +42,8 @@ HWB_NODE void HWB_SELF::readInput(detail::DatagramLink*) {
     size_t n = 0;
     const uint8_t* body = hw_.receive(&n);
     if (body == nullptr) break;
-    Frame f;
-    if (parse_body(body, n, Profile::kMtu, &f) == FrameError::Ok) {
+    Frame f = {};
+    if (parse_body(body, n, Profile::kMtu, &f, kAckInData) == FrameError::Ok) {
       onFrame(f);
     } else {
       ++stats_.dropped_messages;
@@ -126,7 +126,18 @@ HWB_NODE void HWB_SELF::emit(const Frame& f) {
   h.frag = f.frag;
   h.channel = f.channel;
   h.seq = f.seq;
-  write_frame(hw_, h, f.payload, f.size, nullptr, 0, markTx());
+  const bool lead = markTx();
+  // ACK_IN_DATA (PROTOCOL.md 2.4): a due ACK without a bitmap rides in this frame, when its
+  // payload leaves the ACK byte room in the MTU
+  if (kAckInData && (features_ & control::Features::ACK_IN_DATA) && rel_rx_.ack_needed() &&
+      rel_rx_.held() == 0 && f.size < mtu_) {
+    uint8_t bitmap[kMaxSackBytes];
+    size_t bitmap_len;
+    const uint8_t ack = rel_rx_.make_ack(bitmap, &bitmap_len);
+    write_frame(hw_, h, f.payload, f.size, &ack, 1, static_cast<uint8_t>(lead | kCarryAck));
+    return;
+  }
+  write_frame(hw_, h, f.payload, f.size, nullptr, 0, lead);
 }
 
 /** Records a frame going out now; true when it needs a leading 0x00 (1.3): the first after
@@ -158,18 +169,20 @@ HWB_NODE void HWB_SELF::sendHello() {
   ++stats_.hellos_sent;
   uint8_t h[board::Hello::kMinSize];
   board::Hello::put(h, control::Role::DEVICE, established() ? control::HelloFlags::ESTABLISHED : 0, id_, peer_,
-                    Profile::kMtu, Profile::kMaxMessage, Profile::kWindow, isn_, Profile::kFeatures);
+                    Profile::kMtu, Profile::kMaxMessage, Profile::kWindow, isn_, kOwnFeatures);
   setFlag(kLead, true);  // 1.3: a HELLO is always led by 0x00
   sendControlBe(h, sizeof h);
 }
 
 /** After input: the ACK that is due (every one at once: this board never holds ACKs back),
- * then what the reliable window lets out. */
+ * then what the reliable window lets out. With ACK_IN_DATA the ACK rides in the first frame
+ * the window lets out (emit), and goes alone after them when none did. */
 HWB_NODE void HWB_SELF::flushOut() {
-  if (established() && rel_rx_.ack_needed()) {
-    rel_rx_.write_ack(hw_, markTx());
+  if (!kAckInData || !(features_ & control::Features::ACK_IN_DATA)) {
+    if (established() && rel_rx_.ack_needed()) rel_rx_.write_ack(hw_, markTx());
   }
   pump();
+  if (kAckInData && established() && rel_rx_.ack_needed()) rel_rx_.write_ack(hw_, markTx());
   hw_.flush();
 }
 

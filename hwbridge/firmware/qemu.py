@@ -28,6 +28,7 @@ from typing import Final
 
 from hwbridge.errors import HwBridgeError
 from hwbridge.firmware.build import ARM_BOARDS
+from hwbridge.firmware.children import follow_parent
 
 __all__ = ["DEBIAN_PACKAGE", "QemuBoard", "QemuError", "QemuMissingError", "run_semihosted"]
 
@@ -116,7 +117,7 @@ class QemuBoard:
         ]
         log.debug("starting %s", " ".join(command))
         self._process = subprocess.Popen(
-            command,
+            follow_parent(command),  # a killed hwbridge leaves no QEMU behind
             stdin=subprocess.DEVNULL,
             stdout=subprocess.DEVNULL,
             stderr=subprocess.PIPE,

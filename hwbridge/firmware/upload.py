@@ -14,10 +14,12 @@ import errno
 import fcntl
 import os
 import re
+import select
 import shutil
 import signal
 import subprocess
 import threading
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,6 +27,7 @@ from typing import Final
 
 from hwbridge.errors import HwBridgeError
 from hwbridge.firmware import build
+from hwbridge.firmware.children import follow_parent
 from hwbridge.firmware.sim.bootloader import HexError, read_hex
 
 __all__ = [
@@ -202,8 +205,16 @@ _OUT_OF_STEP: Final = re.compile(r"protocol expects|programmer is out of sync", 
 _MISMATCH: Final = re.compile(r"verification (?:error|mismatch)|mismatch", re.I)
 
 
+SILENCE_LIMIT: Final = 60.0
+"""avrdude prints its retries, its progress bars and its errors; a run silent this long is stuck
+(seen: avrdude spinning for half an hour on a pty whose simulator had gone)."""
+
+
 class Upload:
     """avrdude writing ``image`` into ``port``'s board through its bootloader, with verify."""
+
+    silence_limit: float = SILENCE_LIMIT
+    """Seconds avrdude may write nothing before it is taken for stuck (ended, an error)."""
 
     def __init__(
         self, image: Path, port: Path, board: str = "uno", *, progress: Progress = _no_progress
@@ -249,7 +260,7 @@ class Upload:
             if self._stop.is_set():
                 return
             self._process = subprocess.Popen(
-                self.command(avrdude),
+                follow_parent(self.command(avrdude)),
                 stdin=subprocess.DEVNULL,
                 stdout=subprocess.PIPE,
                 stderr=subprocess.STDOUT,
@@ -259,7 +270,21 @@ class Upload:
         assert process.stdout is not None
         seen: set[str] = set()
         pending = b""
-        while chunk := os.read(process.stdout.fileno(), 4096):
+        stuck = False
+        heard = time.monotonic()
+        fd = process.stdout.fileno()
+        while True:
+            ready, _, _ = select.select([fd], [], [], 1.0)
+            if not ready:
+                if time.monotonic() - heard > self.silence_limit:
+                    stuck = True
+                    self._end(process)
+                    break
+                continue
+            chunk = os.read(fd, 4096)
+            if not chunk:
+                break
+            heard = time.monotonic()
             pending += chunk
             *lines, pending = re.split(rb"[\r\n]", pending)
             for raw in lines:
@@ -268,6 +293,12 @@ class Upload:
         code = process.wait()
         if self._stop.is_set():
             return
+        if stuck:
+            raise UploadError(
+                f"avrdude wrote nothing for {self.silence_limit:g} s and was ended: the board on "
+                f"{self.port} stopped answering mid-upload (unplugged, or a simulator that went "
+                "away); plug it in again and upload again"
+            )
         if code != 0:
             raise UploadError(self.explain_failure(code))
         self.progress(f"done: {self.image.name} written to {self.port} and verified")
@@ -317,6 +348,11 @@ class Upload:
         with self._lock:
             self._stop.set()
             process = self._process
-        if process is not None and process.poll() is None:
+        if process is not None:
+            self._end(process)
+
+    @staticmethod
+    def _end(process: subprocess.Popen[bytes]) -> None:
+        if process.poll() is None:
             with contextlib.suppress(ProcessLookupError, PermissionError):
                 os.killpg(process.pid, signal.SIGKILL)

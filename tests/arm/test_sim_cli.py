@@ -66,3 +66,37 @@ def _nobody_has(pty: str) -> bool:
         return True
     os.close(fd)
     return False
+
+
+def test_a_killed_sim_takes_qemu_with_it() -> None:
+    """SIGKILL (no clean-up runs in hwbridge): QEMU goes too, instead of holding its pty."""
+    need_arm_tools()
+    build_example("HelloWorld", "microbit")
+    process = subprocess.Popen(
+        [sys.executable, "-m", "hwbridge", "firmware", "sim", "HelloWorld", "--mcu", "nrf51822"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    children: list[int] = []
+    try:
+        assert process.stdout is not None
+        first = process.stdout.readline().strip()
+        assert first.startswith("serial:///dev/pts/"), first
+        children = [
+            int(pid)
+            for pid in Path(f"/proc/{process.pid}/task/{process.pid}/children").read_text().split()
+        ]
+        assert children, "QEMU is not a child of the command"
+    finally:
+        process.kill()
+        process.wait()
+    assert wait_until(lambda: not any(_running(pid) for pid in children), 10), children
+
+
+def _running(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"  # a zombie has ended (nobody waited for it yet)

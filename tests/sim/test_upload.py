@@ -183,6 +183,67 @@ def test_replies_out_of_step_are_told_apart_from_silence(tmp_path: Path) -> None
     assert upload.explain_failure(1).startswith("no bootloader answered"), upload.explain_failure(1)
 
 
+def _stuck_avrdude(tmp_path: Path) -> tuple[dict[str, str], Path]:
+    """An environment whose ``avrdude`` is a stand-in that writes one line and its pid, then
+    nothing (as a real one spinning on a pty whose simulator had gone did for half an hour)."""
+    bin_dir = tmp_path / "bin"
+    bin_dir.mkdir()
+    pid_file = tmp_path / "avrdude.pid"
+    script = bin_dir / "avrdude"
+    script.write_text(f"#!/bin/sh\necho $$ > {pid_file}\necho 'avrdude: stuck'\nexec sleep 600\n")
+    script.chmod(0o755)
+    env = {**os.environ, "PATH": f"{bin_dir}{os.pathsep}{os.environ['PATH']}"}
+    return env, pid_file
+
+
+def _alive(pid_file: Path) -> bool:
+    try:
+        os.kill(int(pid_file.read_text()), 0)
+    except ProcessLookupError:
+        return False
+    return True
+
+
+def test_a_silent_avrdude_is_ended_with_an_error(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    env, pid_file = _stuck_avrdude(tmp_path)
+    monkeypatch.setenv("PATH", env["PATH"])
+    upload = Upload(tmp_path / "x.hex", tmp_path / "port")
+    upload.silence_limit = 1.0
+    with pytest.raises(HwBridgeError, match="avrdude wrote nothing for 1 s and was ended"):
+        upload.run()
+    assert upload.output == ["avrdude: stuck"]
+    assert wait_until(lambda: not _alive(pid_file), 10)
+
+
+def test_a_killed_upload_leaves_no_avrdude_behind(tmp_path: Path) -> None:
+    """The avrdude of a ``hwbridge firmware upload`` that is killed (SIGKILL: no clean-up runs)
+    goes with it instead of holding the port."""
+    env, pid_file = _stuck_avrdude(tmp_path)
+    image = tmp_path / "empty.hex"
+    image.write_text(":0400000000000000FC\n:00000001FF\n")
+    master, slave = os.openpty()
+    try:
+        upload = subprocess.Popen(
+            [sys.executable, "-m", "hwbridge", "firmware", "upload", str(image), "--port",
+             os.ttyname(slave)],
+            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+        )  # fmt: skip
+        try:
+            assert wait_until(lambda: pid_file.exists() and pid_file.read_text().strip(), 60)
+            assert _alive(pid_file)
+        finally:
+            upload.kill()
+            _, err = upload.communicate(timeout=30)
+        assert wait_until(lambda: not _alive(pid_file), 10), err
+    finally:
+        if pid_file.exists() and _alive(pid_file):
+            os.kill(int(pid_file.read_text()), 9)
+        os.close(master)
+        os.close(slave)
+
+
 def _sketch(tmp_path: Path, name: str, topic: str, text: str) -> Path:
     """HelloWorld copied to ``tmp_path/name``, publishing ``text`` on ``topic``."""
     sketch = tmp_path / name

@@ -124,7 +124,9 @@ class QemuBoard:
             text=True,
             start_new_session=True,  # Ctrl-C in a terminal reaches us, and we stop QEMU
         )
-        self._reader = threading.Thread(target=self._read_stderr, daemon=True)
+        self._reader = threading.Thread(
+            target=self._read_stderr, args=(self._process,), daemon=True
+        )
         self._reader.start()
         deadline = time.monotonic() + self.start_timeout
         while self.pty is None:
@@ -149,12 +151,12 @@ class QemuBoard:
                     return found.group(1)
         return None
 
-    def _read_stderr(self) -> None:
-        process = self._process
-        assert process is not None and process.stderr is not None
-        for line in process.stderr:
-            self._stderr.append(line)
-            log.info("qemu: %s", line.rstrip())
+    def _read_stderr(self, process: subprocess.Popen[str]) -> None:
+        assert process.stderr is not None
+        with contextlib.suppress(ValueError, OSError):  # closed by close() after a kill
+            for line in process.stderr:
+                self._stderr.append(line)
+                log.info("qemu: %s", line.rstrip())
 
     def qmp(self, command: str, timeout: float = 10.0) -> dict[str, object]:
         """Runs one QMP command; returns its answer (``{"return": ...}``)."""
@@ -190,6 +192,8 @@ class QemuBoard:
             except subprocess.TimeoutExpired:
                 process.kill()
                 process.wait(5)
+        if self._reader is not None:  # it ends at the end of QEMU's stderr
+            self._reader.join(5)
         if process is not None and process.stderr is not None:
             with contextlib.suppress(OSError):
                 process.stderr.close()

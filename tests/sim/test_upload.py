@@ -231,7 +231,7 @@ def test_a_killed_upload_leaves_no_avrdude_behind(tmp_path: Path) -> None:
             env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
         )  # fmt: skip
         try:
-            assert wait_until(lambda: pid_file.exists() and pid_file.read_text().strip(), 60)
+            assert wait_until(lambda: pid_file.exists() and bool(pid_file.read_text().strip()), 60)
             assert _alive(pid_file)
         finally:
             upload.kill()

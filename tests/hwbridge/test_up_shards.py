@@ -13,6 +13,7 @@ import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 import yaml
@@ -294,8 +295,16 @@ def test_an_upload_pause_finds_the_bridge_process_that_holds_the_port(
         connect=[procs.env["HWBRIDGE_ENDPOINT"]], domain=procs.env["HWBRIDGE_DOMAIN"]
     )
     try:
-        board = find_holding_board(graph, pty, holder[0], timeout=10)
-        assert board is not None and board.name == "b1", board
+        # the lock comes with the port's open, the board's info on the graph a moment later
+        found: list[Any] = [None]
+
+        def named() -> bool:
+            found[0] = find_holding_board(graph, pty, holder[0], timeout=5)
+            return found[0] is not None
+
+        assert wait_until(named, 60, step=0.5), log.read_text()
+        board = found[0]
+        assert board.name == "b1", board
         with BridgePause(graph, board, reason="a test"):
             assert _lock_holder(Path(pty))[0] is None  # released while paused
         assert wait_until(lambda: _lock_holder(Path(pty))[0] == holder[0], 30, step=0.2)

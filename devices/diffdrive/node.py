@@ -24,6 +24,10 @@ __all__ = ["DiffDriveNode"]
 
 log = logging.getLogger("hwbridge.devices")
 
+CLOCK_STEP_BACK = 1.0
+"""Seconds a board's stamps may go back without meaning a restart: a time sync that sets a
+slow board's clock back to host time (the firmware syncs every 5 s)."""
+
 
 class DiffDriveNode:
     """Wheel ticks -> odometry and tf; cmd_vel -> wheel targets (stops after 0.5 s silence).
@@ -96,9 +100,12 @@ class DiffDriveNode:
             abs(wrap_delta(left, last_left, bits)), abs(wrap_delta(right, last_right, bits))
         )
         gap = stamp - last_stamp
-        if not 0.0 <= gap <= 5.0:
+        if not -CLOCK_STEP_BACK <= gap <= 5.0:
             return True  # the board's clock restarted or jumped: its counters may have too
-        return moved > self.max_counts_per_s * (gap + 0.1) + 2
+        # A stamp a little older than the last is the board's clock set back by a time sync
+        # (a board that runs slow, such as simavr on a busy machine, falls behind host time
+        # between two syncs): the counters alone say whether they restarted.
+        return moved > self.max_counts_per_s * (max(gap, 0.0) + 0.1) + 2
 
     def _on_cmd_vel(self, twist: Any) -> None:
         targets = self.odometry.wheel_targets(float(twist.linear.x), float(twist.angular.z))

@@ -208,6 +208,64 @@ def test_the_watchdog_stops_the_wheels_once_and_a_later_command_restarts_them(
     assert drive.watchdog.timeouts == 1
 
 
+def _ticks_at(stamp: float, count: int) -> dict[str, Any]:
+    """Both wheels at ``count`` at board time ``stamp`` (a straight line)."""
+    sec, nanosec = divmod(round(stamp * 1e9), 1_000_000_000)
+    return {
+        "header": {"stamp": {"sec": sec, "nanosec": nanosec}},
+        "left": count,
+        "right": count,
+        "counter_bits": 32,
+    }
+
+
+def test_a_board_clock_set_back_by_a_time_sync_is_not_a_restart_and_loses_no_travel(
+    router: Graph, client: Graph
+) -> None:
+    """A board that runs slow (simavr on a busy machine) falls behind host time between two
+    time syncs, and each sync sets its stamps back by what it lost. Its counters go on: the
+    node keeps every count (no re-referencing). A restart (counters from 0) still re-references.
+    """
+    drive = DiffDriveNode(router.node("devices", namespace="/resync"), PARAMS)
+    drive.stop()
+    publisher = client.node("board").publisher("/resync/wheel_ticks", "hwbridge_msgs/WheelTicks")
+    seen: list[float] = []
+    client.node("viewer").subscriber(
+        "/resync/odom",
+        "nav_msgs/Odometry",
+        lambda m: seen.append(m.header.stamp.sec + m.header.stamp.nanosec * 1e-9),
+    )
+
+    def send(stamp: float, count: int) -> None:
+        publisher.publish(msg.from_dict("hwbridge_msgs/WheelTicks", _ticks_at(stamp, count)))
+
+    def reached(stamp: float) -> Callable[[], bool]:
+        return lambda: bool(seen) and abs(seen[-1] - stamp) < 1e-6
+
+    def subscribed() -> bool:  # the first reading, again until the node has taken it
+        send(100.0, 0)
+        return bool(seen)
+
+    try:
+        assert wait_until(subscribed, 10, step=0.05)
+        stamp, count = 100.0, 0
+        for step in range(150):  # 50 Hz, 10 counts a reading; the clock set back 0.35 s twice
+            stamp += 0.02 - (0.35 if step in (50, 100) else 0.0)
+            count += 10
+            send(stamp, count)
+            assert wait_until(reached(stamp), 10), (step, seen[-3:])
+        assert drive.rereferences == 0
+        travelled = drive.odometry.state.distance
+        assert travelled == pytest.approx(count * 2 * math.pi * 0.033 / 1320, rel=1e-9)
+
+        send(stamp - 0.35, 10)  # the board restarted: its counters begin again
+        assert wait_until(reached(stamp - 0.35), 10)
+        assert drive.rereferences == 1
+        assert drive.odometry.state.x == pytest.approx(travelled, rel=1e-9)  # the pose is kept
+    finally:
+        drive.close()
+
+
 # ---------------------------------------------------------------------- IMU
 def _raw_imu(chip: MpuChip, code: int) -> dict[str, Any]:
     chip.write(PWR_MGMT_1, b"\x00")  # awake (the MPU-6050 starts asleep)

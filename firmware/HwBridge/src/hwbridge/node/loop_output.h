@@ -191,7 +191,7 @@ HWB_NODE void HWB_SELF::flushOut() {
 HWB_NODE void HWB_SELF::pump() {
   if (!established()) return;
   while (!rel_tx_.sending() && rel_tx_.free_slots()) {
-    if (pending_len_ == 0 && !queueTable()) break;
+    if (pending_len_ == 0 && (state_ != kConfiguring || !queueTable())) break;
     if (!rel_tx_.send(pending_ch_, tx_, pending_len_)) break;
     pending_len_ = 0;
   }
@@ -203,9 +203,10 @@ HWB_NODE void HWB_SELF::pump() {
   }
 }
 
-/** Builds the next message of the topic table (2.6) in tx_; false when the table is done. */
+/** Builds the next message of the topic table (2.6) in tx_; false when the table is done.
+ * Called by pump() in state kConfiguring only. */
 HWB_NODE bool HWB_SELF::queueTable() {
-  if (state_ != kConfiguring || table_pos_ > entry_count_ + 1) return false;
+  if (table_pos_ > entry_count_ + 1) return false;
   uint8_t* p = tx_;
   const size_t cap = Profile::kTxBuffer;
   static_assert(Profile::kTxBuffer >= 24, "kTxBuffer must hold at least 24 bytes");

@@ -39,11 +39,17 @@ so it never waits for the line; a service sketch runs every ``spinOnce()`` with 
 so bytes arrive only between two of them. The bench reads the counters out of the AVR's SRAM
 (the runner's ``peek``) and refuses a counter that does not count 1000 cycles for
 ``__builtin_avr_delay_cycles(1000)``. Here ``ratio`` is hwbridge / rosserial cycles: below 1,
-hwbridge spends fewer. ``calls_per_wall_s`` is wall clock (the simulation is held to real time).
+hwbridge spends fewer. ``calls_per_wall_s`` is wall clock (the simulation is held to real time)
+and ``p50_us`` the median round trip; ``wall_ratio`` and ``wall_ratio_p50`` are hwbridge / ros_lib
+calls per second by the mean and by the median round trip (above 1, hwbridge answers faster).
+Both libraries are called the same way: the same runner, baud rate, in-process bridge, graph and
+caller (a Zenoh query per call); what differs is the firmware and the bridge's protocol session
+(hwbridge's native one, with CRC-16 and ACKs, or its rosserial host).
 
 What simavr's UART model means for the figures: simavr moves a byte through the AVR's UART in
 the time the baud rate gives it (UBRR and U2X as the firmware sets them: 10 bit times a byte),
-in both directions, with the AVR's 64-byte receive FIFO; the pty side has no rate at all. The
+in both directions, with the AVR's 64-byte receive FIFO; the pty side has no rate at all (the
+runner moves the bytes between the pty and the UART every 50 us of simulated time). The
 line rate is therefore the AVR's real one, and the messages per second depend on the bytes per
 message and on the CPU time the firmware spends per message (both simulated cycle by cycle), as
 on a real Uno; what is not modelled is a USB-serial converter's latency (an Uno's 16U2 batches
@@ -689,6 +695,7 @@ def cycles_per_call(
         "idle_spin_cycles": (last["idle_cycles"] - first["idle_cycles"])
         / max(1, last["idles"] - first["idles"]),
         "calls_per_wall_s": 1.0 / statistics.mean(times),
+        "p50_us": statistics.median(times) * 1e6,
     }
 
 
@@ -802,6 +809,11 @@ def _cycles_line(
     line.update({k: round(v, 2) for k, v in ours.items() if k != "cycles"})
     if theirs is not None:
         line.update({f"peer_{k}": round(v, 2) for k, v in theirs.items() if k != "cycles"})
+        if "calls_per_wall_s" in ours:
+            # Wall clock, hwbridge / ros_lib: calls per second by the mean round trip (what a
+            # caller gets, a few slow calls of a busy machine included) and by the median one.
+            line["wall_ratio"] = round(ours["calls_per_wall_s"] / theirs["calls_per_wall_s"], 3)
+            line["wall_ratio_p50"] = round(theirs["p50_us"] / ours["p50_us"], 3)
     sys.stdout.write(json.dumps(line) + "\n")
     sys.stdout.flush()
 

@@ -18,8 +18,8 @@ subscriber or service caller in this process. For each library and baud rate (11
   ``test_srv``, rosserial_arduino/Test, answered "hello" or "world", with its example's
   ``delay(10)`` and its ``chatter`` publish taken out of loop() so that both only serve, as
   fast as they can), ``p50_us`` and ``p99_us`` of the round trip, wall clock. (With the publish
-  left in, ros_lib's answers queued behind a line full of its messages, which made hwbridge
-  look 1.3 to 2.4 times faster than it is.)
+  left in, ros_lib's answers queued behind a line full of its messages: the ratio read 1.3 to
+  2.5 where it reads 0.7 to 1.2 without, runs of the same day on a shared machine.)
 - ``sim_service_hello``: the like-for-like service: both servers answer "hello" (HwBridge:
   Trigger with ACK_IN_DATA; ros_lib: Test to the request "x") and loop() is ``spinOnce()``
   alone. Per call the line carries HwBridge's 12-byte request and 23-byte answer against

@@ -151,7 +151,7 @@ void loop() {
 # cycles sketches without their counters, interrupts as any sketch has them): each answers
 # "hello" (HwBridge: std_srvs/Trigger with ACK_IN_DATA built in; ros_lib: rosserial_arduino/Test
 # to the request "x").
-HWBRIDGE_HELLO_SERVICE = """\
+_HWBRIDGE_SERVER = """\
 #define HWBRIDGE_ACK_IN_DATA 1
 #include <HwBridge.h>
 #include <std_srvs/Trigger.h>
@@ -164,11 +164,11 @@ hwbridge::ServiceServer<std_srvs::Trigger> count("count", &on_count);
 void setup() {
   nh.initNode(BENCH_BAUD, "service_server");
   nh.advertiseService(count);
-}
-void loop() { nh.spinOnce(); }
 """
+"""The HwBridge server's sketch up to the end of setup() (the hello and the cycles servers)."""
+HWBRIDGE_HELLO_SERVICE = _HWBRIDGE_SERVER + "}\nvoid loop() { nh.spinOnce(); }\n"
 
-ROSSERIAL_HELLO_SERVICE = """\
+_ROSSERIAL_SERVER = """\
 #include <ros.h>
 #include <rosserial_arduino/Test.h>
 ros::NodeHandle nh;
@@ -179,9 +179,9 @@ void setup() {
   nh.getHardware()->setBaud(BENCH_BAUD);
   nh.initNode();
   nh.advertiseService(server);
-}
-void loop() { nh.spinOnce(); }
 """
+"""ros_lib's server up to the end of setup() (the hello and the cycles servers)."""
+ROSSERIAL_HELLO_SERVICE = _ROSSERIAL_SERVER + "}\nvoid loop() { nh.spinOnce(); }\n"
 
 # The cycle counter of the cycles_* lines, put before each of their sketches: Timer1 at clk/1
 # (16 MHz, 16 bits; the Arduino core only sets it up for analogWrite on pins 9 and 10) read
@@ -288,19 +288,9 @@ void loop() {
 # to read costs (a sketch pays it at every loop()). Each answers "hello" (HwBridge:
 # std_srvs/Trigger, ros_lib: rosserial_arduino/Test with the request "x"). The HwBridge server
 # builds ACK_IN_DATA in (as the library's ServiceServer example does): a call has no ACK frame.
-HWBRIDGE_CYCLES_SERVICE = """\
-#define HWBRIDGE_ACK_IN_DATA 1
-#include <HwBridge.h>
-#include <std_srvs/Trigger.h>
-hwbridge::NodeHandle nh;
-void on_count(const std_srvs::Trigger::Request&, std_srvs::Trigger::Response& res) {
-  res.success = true;
-  res.message.assign("hello");
-}
-hwbridge::ServiceServer<std_srvs::Trigger> count("count", &on_count);
-void setup() {
-  nh.initNode(BENCH_BAUD, "service_server");
-  nh.advertiseService(count);
+HWBRIDGE_CYCLES_SERVICE = (
+    _HWBRIDGE_SERVER
+    + """\
   bench_start();
 }
 void loop() {
@@ -308,18 +298,11 @@ void loop() {
   else BENCH_COUNT(idle_cycles, idles, nh.spinOnce());
 }
 """
+)
 
-ROSSERIAL_CYCLES_SERVICE = """\
-#include <ros.h>
-#include <rosserial_arduino/Test.h>
-ros::NodeHandle nh;
-using rosserial_arduino::Test;
-void callback(const Test::Request&, Test::Response& res) { res.output = "hello"; }
-ros::ServiceServer<Test::Request, Test::Response> server("test_srv", &callback);
-void setup() {
-  nh.getHardware()->setBaud(BENCH_BAUD);
-  nh.initNode();
-  nh.advertiseService(server);
+ROSSERIAL_CYCLES_SERVICE = (
+    _ROSSERIAL_SERVER
+    + """\
   bench_start();
 }
 void loop() {
@@ -327,6 +310,7 @@ void loop() {
   else BENCH_COUNT(idle_cycles, idles, nh.spinOnce());
 }
 """
+)
 
 
 def build_hwbridge_sketch(name: str, source: str | None, baud: int, tmp: Path) -> Path:

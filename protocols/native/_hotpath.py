@@ -56,6 +56,7 @@ __all__ = [
     "make_frame",
     "message",
     "slot_setter",
+    "with_ack",
 ]
 
 _T = TypeVar("_T")
@@ -106,6 +107,19 @@ def make_frame(
     SET_FRAG(frame, frag)
     SET_ACK(frame, None)
     return frame
+
+
+def with_ack(frame: Frame, ack: int) -> Frame:
+    """A copy of ``frame`` carrying ``ack`` (``dataclasses.replace(frame, ack=ack)`` without its
+    field-by-field introspection: the host pays it on every service request it sends)."""
+    copy = NEW_FRAME(Frame)
+    SET_TYPE(copy, frame.type)
+    SET_CHANNEL(copy, frame.channel)
+    SET_SEQ(copy, frame.seq)
+    SET_PAYLOAD(copy, frame.payload)
+    SET_FRAG(copy, frame.frag)
+    SET_ACK(copy, ack)
+    return copy
 
 
 # ---- events ---------------------------------------------------------------------------------

@@ -153,6 +153,26 @@ def test_fast_built_objects_equal_the_constructed_ones() -> None:
     assert_same_object(_hotpath.message(1, b"hi", 2), Message(1, b"hi", 2))
 
 
+data_frames = st.builds(
+    Frame,
+    st.sampled_from([FrameType.BEST_EFFORT, FrameType.RELIABLE]),
+    st.integers(0, 255),
+    st.integers(0, 255),
+    st.binary(max_size=40),
+    st.sampled_from(list(Frag)),
+)
+
+
+@SETTINGS
+@given(data_frames, st.integers(0, 255))
+def test_with_ack_is_replace(frame: Frame, ack: int) -> None:
+    """The carried ACK's copy of a data frame (ACK_IN_DATA) is ``dataclasses.replace`` of it,
+    slot for slot, and leaves the frame the reliable sender keeps untouched."""
+    copy = _hotpath.with_ack(frame, ack)
+    assert_same_object(copy, dataclasses.replace(frame, ack=ack))
+    assert frame.ack is None
+
+
 def test_bare_acks_are_the_acks_built_in_place() -> None:
     receiver = ReliableReceiver(SequenceStats(), isn=200, window=4, max_message=100)
     for seq in range(200, 200 + 300):

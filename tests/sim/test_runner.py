@@ -122,6 +122,39 @@ def test_uart_pins_twi_and_resets(probe_elf: Path, terminal_factory: type[Termin
     assert not sim.running
 
 
+def test_uart_carries_a_burst_whole(probe_elf: Path, terminal_factory: type[Terminal]) -> None:
+    """The runner's pty hands the host's bytes to the UART only while its 64-byte receive FIFO
+    has room (simavr's XOFF/XON): a burst far longer than the FIFO, written at once, comes back
+    from the echoing program whole and in order (a byte pushed into a full FIFO is lost)."""
+    # bytes the probe echoes (no command letters), long enough to fill the FIFO many times
+    letters = bytes(sorted(set(range(0x20, 0x7F)) - set(b"cpsirwa#")))
+    burst = (letters * 40)[:3000] + b"#"
+    with SimAvr(probe_elf) as sim:
+        sim.start(hold=True)
+        uart = terminal_factory(sim.path)
+        sim.go()
+        assert uart.read_until(b"boot\n") == b"boot\n"
+        uart.write(burst)
+        assert uart.read_until(b"#", timeout=60) == burst
+
+
+def test_reset_drops_what_the_host_sent_before(
+    probe_elf: Path, terminal_factory: type[Terminal]
+) -> None:
+    """Bytes the host wrote that the AVR had not taken when it is reset are gone after the
+    reset, as with a board held in reset: the program that boots sees only what comes after."""
+    with SimAvr(probe_elf, speed=0.02) as sim:  # slow: the burst is still unread at the reset
+        sim.start(hold=True)
+        uart = terminal_factory(sim.path)
+        sim.go()
+        assert uart.read_until(b"boot\n", timeout=60) == b"boot\n"
+        uart.write(b"X" * 2000)
+        sim.reset()
+        assert uart.read_until(b"boot\n", timeout=60).endswith(b"boot\n")
+        uart.write(b"#")
+        assert uart.read_until(b"#", timeout=60) == b"#"  # no X left over from before
+
+
 def test_peek_reads_the_data_space(probe_elf: Path, terminal_factory: type[Terminal]) -> None:
     """``peek`` reads the AVR's data space between instructions (the benches read counters a
     sketch keeps in SRAM with it): here the UART and TWI registers probe.c set at boot."""

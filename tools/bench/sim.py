@@ -13,13 +13,23 @@ subscriber or service caller in this process. For each library and baud rate (11
   simulation ran against the wall clock). ``wire_bytes_per_msg`` are the bytes the bridge read
   from the UART per message received (framing, headers and the other traffic of the session
   included).
-- ``sim_service_*``: the service of the library's ServiceServer example called from the graph
-  one call after the other (HwBridge: ``count``, std_srvs/Trigger; ros_lib: ``test_srv``,
-  rosserial_arduino/Test, with its example's ``delay(10)`` taken out of loop() so that both
-  answer as soon as they can), ``p50_us`` and ``p99_us`` of the round trip, wall clock.
+- ``sim_service``: the service of the library's ServiceServer example called from the graph
+  one call after the other (HwBridge: ``count``, std_srvs/Trigger, answered "N calls"; ros_lib:
+  ``test_srv``, rosserial_arduino/Test, answered "hello" or "world", with its example's
+  ``delay(10)`` and its ``chatter`` publish taken out of loop() so that both only serve, as
+  fast as they can), ``p50_us`` and ``p99_us`` of the round trip, wall clock. (With the publish
+  left in, ros_lib's answers queued behind a line full of its messages: the ratio read 1.3 to
+  2.5 where it reads 0.7 to 1.2 without, runs of the same day on a shared machine.)
+- ``sim_service_hello``: the like-for-like service: both servers answer "hello" (HwBridge:
+  Trigger with ACK_IN_DATA; ros_lib: Test to the request "x") and loop() is ``spinOnce()``
+  alone. Per call the line carries HwBridge's 12-byte request and 23-byte answer against
+  ros_lib's 13 and 17 bytes: the answer's native frame (header, request id, status, CRC-16,
+  COBS and the Trigger's bool) is 6 bytes longer than rosserial's, its request one shorter,
+  5 bytes a call: 50 us at 1 Mbaud, 0.43 ms at 115200.
 
 ``ratio`` is hwbridge / rosserial: above 1, hwbridge delivers more messages per second; for the
-service lines the figure compared is calls per second (1 / mean round trip).
+service lines the figure compared is calls per second (1 / mean round trip), and ``ratio_p50``
+compares the median round trips (peer / hwbridge: above 1, hwbridge answers faster).
 
 At 1 Mbaud, the AVR's own count of the cycles of library work (``sim_cycles_*``; simulated
 cycles, deterministic but for the host's traffic, which the wall clock paces):
@@ -39,11 +49,21 @@ so it never waits for the line; a service sketch runs every ``spinOnce()`` with 
 so bytes arrive only between two of them. The bench reads the counters out of the AVR's SRAM
 (the runner's ``peek``) and refuses a counter that does not count 1000 cycles for
 ``__builtin_avr_delay_cycles(1000)``. Here ``ratio`` is hwbridge / rosserial cycles: below 1,
-hwbridge spends fewer. ``calls_per_wall_s`` is wall clock (the simulation is held to real time).
+hwbridge spends fewer. ``calls_per_wall_s`` is wall clock (the simulation is held to real time)
+and ``p50_us`` the median round trip; ``wall_ratio`` and ``wall_ratio_p50`` are hwbridge / ros_lib
+calls per second by the mean and by the median round trip (above 1, hwbridge answers faster).
+These sketches run every ``spinOnce()`` with interrupts off, so the UART's interrupts move one
+byte in and one byte out per loop(): a call's round trip there grows with its bytes times one
+idle loop (392 cycles for HwBridge, 338 for ros_lib), not with the line rate; for wall-clock
+calls per second as a sketch sees them, read ``sim_service_hello``.
+Both libraries are called the same way: the same runner, baud rate, in-process bridge, graph and
+caller (a Zenoh query per call); what differs is the firmware and the bridge's protocol session
+(hwbridge's native one, with CRC-16 and ACKs, or its rosserial host).
 
 What simavr's UART model means for the figures: simavr moves a byte through the AVR's UART in
 the time the baud rate gives it (UBRR and U2X as the firmware sets them: 10 bit times a byte),
-in both directions, with the AVR's 64-byte receive FIFO; the pty side has no rate at all. The
+in both directions, with the AVR's 64-byte receive FIFO; the pty side has no rate at all (the
+runner moves the bytes between the pty and the UART every 50 us of simulated time). The
 line rate is therefore the AVR's real one, and the messages per second depend on the bytes per
 message and on the CPU time the firmware spends per message (both simulated cycle by cycle), as
 on a real Uno; what is not modelled is a USB-serial converter's latency (an Uno's 16U2 batches
@@ -64,9 +84,7 @@ Runs in about two minutes (``--only cycles``: under one); prints one JSON object
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
-import os
 import socket
 import statistics
 import subprocess
@@ -80,12 +98,11 @@ from typing import Any, TypeVar
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from _common import emit
+from _ros_lib import ROSSERIAL_GIT, build_ros_lib_sketch, git_file, make_ros_lib
 
-from hwbridge import msg
 from hwbridge.firmware import build
 from hwbridge.firmware.sim import SimAvr
 
-ROSSERIAL_GIT = Path(os.environ.get("ROSSERIAL_GIT", "/work/.mirror/ros-drivers+rosserial/repo"))
 BAUDS = (115200, 1000000)
 CYCLES_BAUD = 1000000
 REQUEST_X = b"\x01\x00\x00\x00x"
@@ -129,6 +146,42 @@ void loop() {
   nh.spinOnce();
 }
 """
+
+# Service servers for sim_service_hello: the same work on both sides, nothing else in loop() (the
+# cycles sketches without their counters, interrupts as any sketch has them): each answers
+# "hello" (HwBridge: std_srvs/Trigger with ACK_IN_DATA built in; ros_lib: rosserial_arduino/Test
+# to the request "x").
+_HWBRIDGE_SERVER = """\
+#define HWBRIDGE_ACK_IN_DATA 1
+#include <HwBridge.h>
+#include <std_srvs/Trigger.h>
+hwbridge::NodeHandle nh;
+void on_count(const std_srvs::Trigger::Request&, std_srvs::Trigger::Response& res) {
+  res.success = true;
+  res.message.assign("hello");
+}
+hwbridge::ServiceServer<std_srvs::Trigger> count("count", &on_count);
+void setup() {
+  nh.initNode(BENCH_BAUD, "service_server");
+  nh.advertiseService(count);
+"""
+"""The HwBridge server's sketch up to the end of setup() (the hello and the cycles servers)."""
+HWBRIDGE_HELLO_SERVICE = _HWBRIDGE_SERVER + "}\nvoid loop() { nh.spinOnce(); }\n"
+
+_ROSSERIAL_SERVER = """\
+#include <ros.h>
+#include <rosserial_arduino/Test.h>
+ros::NodeHandle nh;
+using rosserial_arduino::Test;
+void callback(const Test::Request&, Test::Response& res) { res.output = "hello"; }
+ros::ServiceServer<Test::Request, Test::Response> server("test_srv", &callback);
+void setup() {
+  nh.getHardware()->setBaud(BENCH_BAUD);
+  nh.initNode();
+  nh.advertiseService(server);
+"""
+"""ros_lib's server up to the end of setup() (the hello and the cycles servers)."""
+ROSSERIAL_HELLO_SERVICE = _ROSSERIAL_SERVER + "}\nvoid loop() { nh.spinOnce(); }\n"
 
 # The cycle counter of the cycles_* lines, put before each of their sketches: Timer1 at clk/1
 # (16 MHz, 16 bits; the Arduino core only sets it up for analogWrite on pins 9 and 10) read
@@ -235,19 +288,9 @@ void loop() {
 # to read costs (a sketch pays it at every loop()). Each answers "hello" (HwBridge:
 # std_srvs/Trigger, ros_lib: rosserial_arduino/Test with the request "x"). The HwBridge server
 # builds ACK_IN_DATA in (as the library's ServiceServer example does): a call has no ACK frame.
-HWBRIDGE_CYCLES_SERVICE = """\
-#define HWBRIDGE_ACK_IN_DATA 1
-#include <HwBridge.h>
-#include <std_srvs/Trigger.h>
-hwbridge::NodeHandle nh;
-void on_count(const std_srvs::Trigger::Request&, std_srvs::Trigger::Response& res) {
-  res.success = true;
-  res.message.assign("hello");
-}
-hwbridge::ServiceServer<std_srvs::Trigger> count("count", &on_count);
-void setup() {
-  nh.initNode(BENCH_BAUD, "service_server");
-  nh.advertiseService(count);
+HWBRIDGE_CYCLES_SERVICE = (
+    _HWBRIDGE_SERVER
+    + """\
   bench_start();
 }
 void loop() {
@@ -255,18 +298,11 @@ void loop() {
   else BENCH_COUNT(idle_cycles, idles, nh.spinOnce());
 }
 """
+)
 
-ROSSERIAL_CYCLES_SERVICE = """\
-#include <ros.h>
-#include <rosserial_arduino/Test.h>
-ros::NodeHandle nh;
-using rosserial_arduino::Test;
-void callback(const Test::Request&, Test::Response& res) { res.output = "hello"; }
-ros::ServiceServer<Test::Request, Test::Response> server("test_srv", &callback);
-void setup() {
-  nh.getHardware()->setBaud(BENCH_BAUD);
-  nh.initNode();
-  nh.advertiseService(server);
+ROSSERIAL_CYCLES_SERVICE = (
+    _ROSSERIAL_SERVER
+    + """\
   bench_start();
 }
 void loop() {
@@ -274,246 +310,7 @@ void loop() {
   else BENCH_COUNT(idle_cycles, idles, nh.spinOnce());
 }
 """
-
-
-# ------------------------------------------------------------------------------ ros_lib
-def _git_file(path: str) -> bytes:
-    return subprocess.run(
-        ["git", "--git-dir", str(ROSSERIAL_GIT), "show", f"HEAD:{path}"],
-        capture_output=True,
-        check=True,
-    ).stdout
-
-
-def _git_ls(prefix: str) -> list[str]:
-    done = subprocess.run(
-        ["git", "--git-dir", str(ROSSERIAL_GIT), "ls-tree", "-r", "--name-only", "HEAD", prefix],
-        capture_output=True,
-        text=True,
-        check=True,
-    )
-    return done.stdout.split()
-
-
-_CTYPES = {
-    "bool": ("bool", 1),
-    "uint8": ("uint8_t", 1),
-    "int8": ("int8_t", 1),
-    "uint16": ("uint16_t", 2),
-    "int16": ("int16_t", 2),
-    "uint32": ("uint32_t", 4),
-    "int32": ("int32_t", 4),
-    "float32": ("float", 4),
-}
-
-
-def _put(expr: str, size: int) -> list[str]:
-    lines = [f"      {{ uint32_t v = 0; memcpy(&v, &({expr}), {size});"]
-    lines += [f"        out[n++] = (unsigned char)(v >> {8 * i});" for i in range(size)]
-    return [*lines, "      }"]
-
-
-def _get(expr: str, ctype: str, size: int) -> list[str]:
-    parts = " | ".join(f"((uint32_t)in[n + {i}] << {8 * i})" for i in range(size))
-    return [
-        f"      {{ uint32_t v = {parts}; {ctype} t; memcpy(&t, &v, {size});",
-        f"        {expr} = t; n += {size}; }}",
-    ]
-
-
-def _string_get(expr: str) -> list[str]:
-    # The string's bytes move one place back over its length's last byte, which becomes room
-    # for the terminating zero at their end (as ros_lib does, no copy elsewhere).
-    return [
-        "      { uint32_t len = (uint32_t)in[n] | ((uint32_t)in[n+1] << 8) | "
-        "((uint32_t)in[n+2] << 16) | ((uint32_t)in[n+3] << 24); n += 4;",
-        "        for (uint32_t k = 0; k < len; ++k) in[n + k - 1] = in[n + k];",
-        f"        in[n + len - 1] = 0; {expr} = (char *)(in + n - 1); n += len; }}",
-    ]
-
-
-def _string_put(expr: str) -> list[str]:
-    return [
-        f"      {{ uint32_t len = strlen({expr}); memcpy(out + n, &len, 4); n += 4;",
-        f"        memcpy(out + n, {expr}, len); n += len; }}",
-    ]
-
-
-def _message_class(registry: Any, type_name: str, class_name: str, type_text: str) -> str:
-    """A ros::Msg subclass for ``type_name`` (the field kinds ros_lib's own messages use)."""
-    members: list[str] = []
-    put: list[str] = []
-    get: list[str] = []
-    for name, (kind, detail) in registry.fields(type_name):
-        if kind.name == "BASE" and detail[0] == "string":
-            members.append(f'  const char *{name} = "";')
-            put += _string_put(name)
-            get += _string_get(name)
-        elif kind.name == "BASE":
-            ctype, size = _CTYPES[detail[0]]
-            members.append(f"  {ctype} {name} = 0;")
-            put += _put(name, size)
-            get += _get(name, ctype, size)
-        elif kind.name == "NAME" and "Time" in detail:
-            members.append(f"  ros::Time {name};")
-            put += _put(f"{name}.sec", 4) + _put(f"{name}.nsec", 4)
-            get += _get(f"{name}.sec", "uint32_t", 4) + _get(f"{name}.nsec", "uint32_t", 4)
-        elif kind.name == "SEQUENCE":
-            element = detail[0][1][0]
-            ctype = "char *" if element == "string" else _CTYPES[element][0]
-            members += [f"  uint32_t {name}_length = 0;", f"  {ctype} *{name} = nullptr;"]
-            put += [
-                f"      memcpy(out + n, &{name}_length, 4); n += 4;",
-                f"      for (uint32_t i = 0; i < {name}_length; i++) {{",
-            ]
-            put += (
-                _string_put(f"{name}[i]")
-                if element == "string"
-                else _put(f"{name}[i]", _CTYPES[element][1])
-            )
-            put += ["      }"]
-            get += [
-                "      { uint32_t count = (uint32_t)in[n] | ((uint32_t)in[n+1] << 8) | "
-                "((uint32_t)in[n+2] << 16) | ((uint32_t)in[n+3] << 24); n += 4;",
-                f"        if (count > {name}_length) {name} = ({ctype} *)realloc({name}, "
-                f"count * sizeof({ctype}));",
-                f"        {name}_length = count;",
-                "        for (uint32_t i = 0; i < count; i++) {",
-            ]
-            get += (
-                _string_get(f"{name}[i]")
-                if element == "string"
-                else _get(f"{name}[i]", ctype, _CTYPES[element][1])
-            )
-            get += ["        }", "      }"]
-        else:
-            raise ValueError(f"{type_name}.{name}: a field kind this generator does not make")
-    constants = [
-        f"  enum {{ {name} = {value} }};" for name, _type, value in registry.constants(type_name)
-    ]
-    md5 = registry.md5(type_name)
-    return "\n".join(
-        [
-            f"class {class_name} : public ros::Msg {{",
-            " public:",
-            *members,
-            *constants,
-            "  int serialize(unsigned char *out) const override {",
-            "    int n = 0;",
-            *put,
-            "    return n;",
-            "  }",
-            "  int deserialize(unsigned char *in) override {",
-            "    int n = 0;",
-            *get,
-            "    return n;",
-            "  }",
-            f'  const char *getType() override {{ return "{type_text}"; }}',
-            f'  const char *getMD5() override {{ return "{md5}"; }}',
-            "};",
-        ]
-    )
-
-
-def _header(package: str, body: str) -> str:
-    guard = f"BENCH_ROS_LIB_{package.upper()}_{hashlib.md5(body.encode()).hexdigest()[:8]}"
-    return "\n".join(
-        [
-            f"#ifndef {guard}",
-            f"#define {guard}",
-            "#include <stdint.h>",
-            "#include <stdlib.h>",
-            "#include <string.h>",
-            '#include "ros/msg.h"',
-            '#include "ros/time.h"',
-            f"namespace {package} {{",
-            body,
-            "}",
-            "#endif",
-            "",
-        ]
-    )
-
-
-def make_ros_lib(folder: Path) -> Path:
-    """An Arduino library folder (``ros_lib/src``) with rosserial's client and Arduino files
-    and generated message headers."""
-    registry = msg.registry()
-    src = folder / "ros_lib" / "src"
-    for prefix, strip in (
-        ("rosserial_client/src/ros_lib/", "rosserial_client/src/ros_lib/"),
-        ("rosserial_arduino/src/ros_lib/", "rosserial_arduino/src/ros_lib/"),
-    ):
-        for path in _git_ls(prefix):
-            relative = path[len(strip) :]
-            if relative.startswith(("examples/", "tests/")) or not relative.endswith(
-                (".h", ".cpp")
-            ):
-                continue
-            if "Tcp" in relative:
-                continue
-            target = src / relative
-            target.parent.mkdir(parents=True, exist_ok=True)
-            target.write_bytes(_git_file(path))
-    messages = {
-        "std_msgs/String": ("std_msgs", "String"),
-        "std_msgs/Time": ("std_msgs", "Time"),
-        "rosserial_msgs/TopicInfo": ("rosserial_msgs", "TopicInfo"),
-        "rosserial_msgs/Log": ("rosserial_msgs", "Log"),
-    }
-    for type_name, (package, name) in messages.items():
-        body = _message_class(registry, type_name, name, type_name)
-        (src / package).mkdir(parents=True, exist_ok=True)
-        (src / package / f"{name}.h").write_text(_header(package, body))
-    for service, (package, name) in {
-        "rosserial_msgs/RequestParam": ("rosserial_msgs", "RequestParam"),
-        "rosserial_arduino/Test": ("rosserial_arduino", "Test"),
-    }.items():
-        parts = [
-            _message_class(registry, f"{service}Request", f"{name}Request", service),
-            _message_class(registry, f"{service}Response", f"{name}Response", service),
-            f"class {name} {{ public: typedef {name}Request Request; "
-            f"typedef {name}Response Response; }};",
-        ]
-        (src / package).mkdir(parents=True, exist_ok=True)
-        (src / package / f"{name}.h").write_text(_header(package, "\n".join(parts)))
-    return folder / "ros_lib"
-
-
-def build_ros_lib_sketch(ros_lib: Path, name: str, source: str, baud: int, tmp: Path) -> Path:
-    """Compile a ros_lib sketch as build_sketch does, without -Werror for rosserial's code."""
-    board = build.BOARDS["uno"]
-    out = tmp / f"{name}-{baud}"
-    out.mkdir(parents=True, exist_ok=True)
-    gpp, gcc = build._tool("avr-g++"), build._tool("avr-gcc")
-    flags = [
-        *build._CPP_FLAGS,
-        *build._flags(board),
-        f"-I{ros_lib / 'src'}",
-        f"-DBENCH_BAUD={baud}",
-    ]
-    cpp = out / f"{name}.ino.cpp"
-    cpp.write_text("#include <Arduino.h>\n" + source)
-    objects = [out / f"{name}.o"]
-    _run([gpp, *flags, "-w", str(cpp), "-o", str(objects[0])])
-    for unit in sorted((ros_lib / "src").rglob("*.cpp")):
-        objects.append(out / f"{unit.stem}.o")
-        _run([gpp, *flags, "-w", str(unit), "-o", str(objects[-1])])
-    elf = out / f"{name}.elf"
-    core = build._core_archive(board)
-    _run(
-        [
-            *(gcc, "-Os", "-flto", "-fuse-linker-plugin", "-Wl,--gc-sections"),
-            *(f"-mmcu={board.mcu}", "-o", str(elf), *map(str, objects), str(core), "-lm"),
-        ]
-    )
-    return elf
-
-
-def _run(command: list[str]) -> None:
-    done = subprocess.run(command, capture_output=True, text=True, check=False)
-    if done.returncode != 0:
-        raise RuntimeError(f"{' '.join(command[:2])}...: {done.stderr.strip()[:2000]}")
+)
 
 
 def build_hwbridge_sketch(name: str, source: str | None, baud: int, tmp: Path) -> Path:
@@ -529,10 +326,18 @@ def build_hwbridge_sketch(name: str, source: str | None, baud: int, tmp: Path) -
 
 
 def rosserial_service_source() -> str:
-    text = _git_file(
+    """ros_lib's ServiceServer example as the sim_service lines run it: its loop() without the
+    ``delay(10)`` and without the ``chatter`` publish, so that, like HwBridge's example, it
+    serves as fast as it can and does nothing else (with the publish at every loop, the
+    service's answers queued behind a line full of messages: at 115200 baud ros_lib's calls
+    took a median 10.6 ms, 3.3 ms without them)."""
+    text = git_file(
         "rosserial_arduino/src/ros_lib/examples/ServiceServer/ServiceServer.pde"
     ).decode()
-    text = text.replace("delay(10);", "")
+    for line in ("delay(10);", "chatter.publish( &str_msg );"):
+        if line not in text:
+            raise RuntimeError(f"rosserial's ServiceServer example has no {line!r} any more")
+        text = text.replace(line, "")
     return text.replace(
         "nh.initNode();", "nh.getHardware()->setBaud(BENCH_BAUD);\n  nh.initNode();"
     )
@@ -689,6 +494,7 @@ def cycles_per_call(
         "idle_spin_cycles": (last["idle_cycles"] - first["idle_cycles"])
         / max(1, last["idles"] - first["idles"]),
         "calls_per_wall_s": 1.0 / statistics.mean(times),
+        "p50_us": statistics.median(times) * 1e6,
     }
 
 
@@ -751,37 +557,57 @@ def main() -> None:
                 peer_sim_speed=round(theirs["speed"], 3) if theirs else None,
             )
 
-            ours_elf = build_hwbridge_sketch("ServiceServer", None, baud, tmp)
-            ours_t = _measure(
-                ours_elf,
-                "native",
-                baud,
-                lambda r: service_times(r, "/bench/count", "std_srvs/Trigger", b"", args.calls),
-            )
-            theirs_t: list[float] | None = None
-            if ros_lib is not None:
-                elf = build_ros_lib_sketch(
-                    ros_lib, "RosService", rosserial_service_source(), baud, tmp
-                )
-                theirs_t = _measure(
-                    elf,
-                    "rosserial",
-                    baud,
-                    lambda r: service_times(
-                        r, "/bench/test_srv", "rosserial_arduino/Test", REQUEST_X, args.calls
-                    ),
-                )
-            emit(
-                "sim_service",
-                {"baud": baud},
-                1.0 / statistics.mean(ours_t),
-                "rosserial_ros_lib" if theirs_t else None,
-                1.0 / statistics.mean(theirs_t) if theirs_t else None,
-                p50_us=round(_percentile(ours_t, 0.5) * 1e6),
-                p99_us=round(_percentile(ours_t, 0.99) * 1e6),
-                peer_p50_us=round(_percentile(theirs_t, 0.5) * 1e6) if theirs_t else None,
-                peer_p99_us=round(_percentile(theirs_t, 0.99) * 1e6) if theirs_t else None,
-            )
+            for line, ours_source, ros_source in (
+                ("sim_service", None, rosserial_service_source() if ros_lib else ""),
+                ("sim_service_hello", HWBRIDGE_HELLO_SERVICE, ROSSERIAL_HELLO_SERVICE),
+            ):
+                service_line(line, ours_source, ros_source, ros_lib, baud, tmp, args.calls)
+
+
+def service_line(
+    line: str,
+    ours_source: str | None,
+    ros_source: str,
+    ros_lib: Path | None,
+    baud: int,
+    tmp: Path,
+    calls: int,
+) -> None:
+    """One sim_service* line: ``calls`` calls of HwBridge's server (``ours_source``, or the
+    library's ServiceServer example) and of ros_lib's (``ros_source``) through the bridge."""
+    name = "ServiceServer" if ours_source is None else "HelloService"
+    ours_elf = build_hwbridge_sketch(name, ours_source, baud, tmp)
+    ours_t = _measure(
+        ours_elf,
+        "native",
+        baud,
+        lambda r: service_times(r, "/bench/count", "std_srvs/Trigger", b"", calls),
+    )
+    theirs_t: list[float] | None = None
+    if ros_lib is not None:
+        elf = build_ros_lib_sketch(ros_lib, f"Ros{name}", ros_source, baud, tmp)
+        theirs_t = _measure(
+            elf,
+            "rosserial",
+            baud,
+            lambda r: service_times(
+                r, "/bench/test_srv", "rosserial_arduino/Test", REQUEST_X, calls
+            ),
+        )
+    emit(
+        line,
+        {"baud": baud},
+        1.0 / statistics.mean(ours_t),
+        "rosserial_ros_lib" if theirs_t else None,
+        1.0 / statistics.mean(theirs_t) if theirs_t else None,
+        p50_us=round(_percentile(ours_t, 0.5) * 1e6),
+        p99_us=round(_percentile(ours_t, 0.99) * 1e6),
+        peer_p50_us=round(_percentile(theirs_t, 0.5) * 1e6) if theirs_t else None,
+        peer_p99_us=round(_percentile(theirs_t, 0.99) * 1e6) if theirs_t else None,
+        ratio_p50=round(_percentile(theirs_t, 0.5) / _percentile(ours_t, 0.5), 3)
+        if theirs_t
+        else None,
+    )
 
 
 def _cycles_line(
@@ -802,6 +628,11 @@ def _cycles_line(
     line.update({k: round(v, 2) for k, v in ours.items() if k != "cycles"})
     if theirs is not None:
         line.update({f"peer_{k}": round(v, 2) for k, v in theirs.items() if k != "cycles"})
+        if "calls_per_wall_s" in ours:
+            # Wall clock, hwbridge / ros_lib: calls per second by the mean round trip (what a
+            # caller gets, a few slow calls of a busy machine included) and by the median one.
+            line["wall_ratio"] = round(ours["calls_per_wall_s"] / theirs["calls_per_wall_s"], 3)
+            line["wall_ratio_p50"] = round(theirs["p50_us"] / ours["p50_us"], 3)
     sys.stdout.write(json.dumps(line) + "\n")
     sys.stdout.flush()
 

@@ -40,7 +40,9 @@
  *                                 instructions: answered by a "mem" line
  *   quit                          exit
  * Time: the simulation is held to the wall clock times --speed (0: as fast as it goes).
- * simavr 1.6's uart_pty_stop() hangs, so the runner exits without it.
+ * UART0's pty is the runner's own (not simavr's uart_pty part, whose thread polls every 500 us
+ * of wall time and feeds the UART from outside the simulation's thread): the main loop moves
+ * the bytes both ways every PTY_US of simulated time (see the pty section).
  */
 #define _GNU_SOURCE
 #include <errno.h>
@@ -62,7 +64,8 @@
 #include <avr_ioport.h>
 #include <avr_twi.h>
 #include <avr_uart.h>
-#include <parts/uart_pty.h>
+#include <pty.h>
+#include <termios.h>
 #include <sim_avr.h>
 #include <sim_elf.h>
 #include <sim_hex.h>
@@ -74,6 +77,7 @@
 #define MAX_SONAR 4
 #define MAX_I2C 4
 #define TICK_US 1000
+#define PTY_US 50
 
 typedef struct pin_ref {
   char port;
@@ -121,11 +125,7 @@ typedef struct i2c_slave {
   uint8_t first_reg;
 } i2c_slave;
 
-/* uart_pty's own 1 kHz timer that feeds the host's bytes to the UART (not in its header). */
-extern avr_cycle_count_t uart_pty_flush_timer(avr_t *avr, avr_cycle_count_t when, void *param);
-
 static avr_t *avr;
-static uart_pty_t uart;
 static watched_pin watched[MAX_PINS];
 static int nwatched;
 static encoder encoders[MAX_ENC];
@@ -637,6 +637,125 @@ static void read_commands(void) {
   }
 }
 
+/* ------------------------------------------------------------------ UART0's pty */
+/* The runner's end of UART0: the pty's master, non-blocking, in the simulation's own thread.
+   What the firmware transmits is collected as the UART sends it and written to the master
+   every PTY_US of simulated time (a byte at 1 Mbaud takes 10 us); the host's bytes are read
+   at the same moments and handed to the UART while its receive FIFO has room (simavr raises
+   XOFF when it is full and XON when there is room again), the rest kept for the next time.
+   The slave stays open here too, so the master never reads a hang-up between two openers
+   (and what the firmware sends meanwhile waits in the pty, as it did with simavr's uart_pty,
+   until the pty and then this buffer are full: then it is dropped, as on a line with nobody
+   listening). */
+typedef struct pty_port {
+  int master, slave;
+  char slavename[64];
+  avr_irq_t *to_uart;   // our output irq, connected to the UART's input
+  int xon;              // the UART's receive FIFO has room
+  uint8_t in[256];      // read from the host, not yet taken by the UART
+  size_t in_len, in_done;
+  uint8_t out[4096];    // sent by the firmware, not yet written to the host
+  size_t out_len;
+} pty_port;
+static pty_port uart;
+
+static void uart_byte_out(avr_irq_t *irq, uint32_t value, void *param) {
+  (void)irq;
+  (void)param;
+  if (uart.out_len < sizeof uart.out) uart.out[uart.out_len++] = (uint8_t)value;
+}
+
+static void uart_xon(avr_irq_t *irq, uint32_t value, void *param) {
+  (void)irq;
+  (void)value;
+  (void)param;
+  uart.xon = 1;
+}
+
+static void uart_xoff(avr_irq_t *irq, uint32_t value, void *param) {
+  (void)irq;
+  (void)value;
+  (void)param;
+  uart.xon = 0;
+}
+
+static void pty_write_out(void) {
+  size_t done = 0;
+  while (done < uart.out_len) {
+    ssize_t n = write(uart.master, uart.out + done, uart.out_len - done);
+    if (n > 0) {
+      done += (size_t)n;
+    } else if (n < 0 && errno == EINTR) {
+      continue;
+    } else {
+      break;  // the pty is full (nobody reads): keep the rest while there is room
+    }
+  }
+  memmove(uart.out, uart.out + done, uart.out_len - done);
+  uart.out_len -= done;
+}
+
+static void pty_feed_in(void) {
+  if (uart.in_done == uart.in_len) {
+    ssize_t n = read(uart.master, uart.in, sizeof uart.in);
+    uart.in_len = n > 0 ? (size_t)n : 0;
+    uart.in_done = 0;
+  }
+  // simavr's UART raises XOFF from inside this irq once its FIFO is full.
+  while (uart.xon && uart.in_done < uart.in_len) avr_raise_irq(uart.to_uart, uart.in[uart.in_done++]);
+}
+
+static avr_cycle_count_t pty_timer(avr_t *a, avr_cycle_count_t when, void *param) {
+  (void)a;
+  (void)param;
+  if (uart.out_len) pty_write_out();
+  pty_feed_in();
+  return when + avr_usec_to_cycles(avr, PTY_US);
+}
+
+/* A reset loses what the host sent before it, as a board held in reset does. */
+static void pty_drop_input(void) {
+  uint8_t drain[256];
+  uart.in_len = uart.in_done = 0;
+  while (read(uart.master, drain, sizeof drain) > 0) {
+  }
+}
+
+static int pty_open(void) {
+  if (openpty(&uart.master, &uart.slave, uart.slavename, NULL, NULL) < 0) {
+    fprintf(stderr, "hwbridge-simavr: cannot make a pty: %s\n", strerror(errno));
+    return -1;
+  }
+  struct termios tio;
+  tcgetattr(uart.master, &tio);
+  cfmakeraw(&tio);
+  tcsetattr(uart.master, TCSANOW, &tio);
+  fcntl(uart.master, F_SETFL, fcntl(uart.master, F_GETFL) | O_NONBLOCK);
+  fcntl(uart.master, F_SETFD, FD_CLOEXEC);
+  fcntl(uart.slave, F_SETFD, FD_CLOEXEC);
+  uint32_t flags = 0;
+  avr_ioctl(avr, AVR_IOCTL_UART_GET_FLAGS('0'), &flags);
+  // No stdio dump of the bytes; and no sleep at each read of UCSR0A with RXC and TXC clear
+  // (simavr's way of sparing the CPU of a polling firmware): that usleep(1) costs tens of
+  // microseconds of wall time, more on a busy machine, for a fraction of one of simulated
+  // time. The Arduino core reads UCSR0A on every Serial.write() into an empty ring, and the
+  // Mega's stk500v2 bootloader in its receive loop (it fell minutes behind avrdude's
+  // timeouts). The runner paces the simulation to real time by itself (tick).
+  flags &= ~(uint32_t)(AVR_UART_FLAG_STDIO | AVR_UART_FLAG_POLL_SLEEP);
+  avr_ioctl(avr, AVR_IOCTL_UART_SET_FLAGS('0'), &flags);
+  static const char *names[1] = {"8>pty.out"};
+  uart.to_uart = avr_alloc_irq(&avr->irq_pool, 0, 1, names);
+  avr_connect_irq(uart.to_uart, avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_INPUT));
+  avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUTPUT),
+                          uart_byte_out, NULL);
+  avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUT_XON),
+                          uart_xon, NULL);
+  avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUT_XOFF),
+                          uart_xoff, NULL);
+  uart.xon = 1;
+  return 0;
+}
+
 /* ------------------------------------------------------------------ bootloader mode */
 /* The auto-reset of an Uno: opening its port pulls DTR and resets the AVR at once, before the
    host can send a byte. A pty has no DTR, so a thread waits on inotify for opens of the slave
@@ -775,6 +894,7 @@ static int ends_with(const char *s, const char *tail) {
 }
 
 static void external_reset(void) {
+  pty_drop_input();
   avr_reset(avr);
   if (boot_mode) avr_regbit_set(avr, avr->reset_flags.extrf);
 }
@@ -846,7 +966,11 @@ static avr_cycle_count_t tick(avr_t *a, avr_cycle_count_t when, void *param) {
     double sim = (double)(avr->cycle - cycle_start) / (double)avr->frequency / speed;
     double wall = wall_seconds();
     double ahead = sim - wall;
-    if (ahead > 0.0002) usleep((useconds_t)(ahead * 1e6));
+    if (ahead > 0.0002) {
+      // What the firmware sent goes out now, not after the pause (the host waits for it).
+      if (uart.out_len) pty_write_out();
+      usleep((useconds_t)(ahead * 1e6));
+    }
     // A board that answers late looks broken to peers with wall-clock timeouts (avrdude
     // drains for 250 ms between its sync attempts): say so when the machine holds us back.
     static double warned_at = -10.0;
@@ -867,6 +991,7 @@ static void start_timers(void) {
   // acts as a falling edge instead, which no Arduino sketch tells apart.
   for (uint8_t i = 0; i < 8; i++) avr_extint_set_strict_lvl_trig(avr, i, 0);
   avr_cycle_timer_register_usec(avr, TICK_US, tick, NULL);
+  avr_cycle_timer_register_usec(avr, PTY_US, pty_timer, NULL);
   for (int i = 0; i < MAX_ENC; i++) encoders[i].running = 0;
   for (int i = 0; i < MAX_ENC; i++)
     if (encoders[i].used) encoder_move(&encoders[i], encoders[i].target);
@@ -938,28 +1063,9 @@ int main(int argc, char **argv) {
     if (!elf) avr_regbit_set(avr, avr->reset_flags.extrf);
   }
 
-  // uart_pty prints its pty names on stdout: keep stdout for our own lines.
-  fflush(stdout);
-  int saved = dup(1);
-  dup2(2, 1);
-  uart_pty_init(avr, &uart);
-  uart_pty_connect(&uart, '0');
-  fflush(stdout);
-  dup2(saved, 1);
-  close(saved);
-  if (boot_mode) {
-    start_open_watch(uart.port[0].slavename);
-    // simavr sleeps 1 us (a scheduler slice, really) at every read of UCSR0A while RXC and TXC
-    // are both clear. The Mega's stk500v2 bootloader clears TXC after each byte it sends and
-    // polls UCSR0A in its receive loop, so each poll cost tens of microseconds of wall time for
-    // a fraction of one of simulated time: the board fell minutes behind avrdude's timeouts.
-    // The runner paces the simulation to real time by itself (tick), so the sleep goes.
-    uint32_t flags = 0;
-    avr_ioctl(avr, AVR_IOCTL_UART_GET_FLAGS('0'), &flags);
-    flags &= ~(uint32_t)AVR_UART_FLAG_POLL_SLEEP;
-    avr_ioctl(avr, AVR_IOCTL_UART_SET_FLAGS('0'), &flags);
-  }
-  out_line("serial://%s\n", uart.port[0].slavename);
+  if (pty_open() != 0) return 1;
+  if (boot_mode) start_open_watch(uart.slavename);
+  out_line("serial://%s\n", uart.slavename);
 
   static const char *twi_names[2] = {"<twi.in", ">twi.out"};
   twi_irq = avr_alloc_irq(&avr->irq_pool, 0, 2, twi_names);
@@ -1011,8 +1117,6 @@ int main(int argc, char **argv) {
     if (avr->pc == avr->reset_pc && avr_cycle_timer_status(avr, tick, NULL) == 0) {
       // avr_reset (ours, or the watchdog's) cleared the cycle timers and the registers.
       start_timers();
-      // avr_reset dropped uart_pty's feeding timer too; it comes back only at the next XON.
-      if (uart.xon) avr_cycle_timer_register(avr, avr_hz_to_cycles(avr, 1000), uart_pty_flush_timer, &uart);
       reapply_inputs();
       for (int i = 0; i < MAX_I2C; i++) slaves[i].selected = 0;
       out_line("reset\n");
@@ -1027,5 +1131,5 @@ int main(int argc, char **argv) {
     }
   }
   fflush(stdout);
-  _exit(0);  // not uart_pty_stop(): it hangs in simavr 1.6
+  _exit(0);
 }

@@ -13,7 +13,7 @@ from __future__ import annotations
 import random
 from collections import deque
 from collections.abc import Iterable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any, ClassVar, Generic, TypeVar
 
 from hwbridge.protocols.errors import HwBridgeError, ProtocolError
@@ -27,7 +27,7 @@ from hwbridge.protocols.native._control.common import (
 )
 from hwbridge.protocols.native._framing.frames import BadFrame, Frame, NonFrameBytes
 from hwbridge.protocols.native._framing.links import NativeFraming, NativeStreamFraming
-from hwbridge.protocols.native._hotpath import ACK, CLOSED, CONFIGURING, CONNECTED
+from hwbridge.protocols.native._hotpath import ACK, CLOSED, CONFIGURING, CONNECTED, with_ack
 from hwbridge.protocols.native._session.config import (
     _MAX_TIME_SAMPLES,
     _U32,
@@ -555,7 +555,7 @@ class SessionCore(Generic[_E]):
             return None
         self._ack_due = None
         self._seq.acks_carried += 1
-        return replace(frame, ack=receiver.ack_frame().seq)
+        return with_ack(frame, receiver.ack_frame().seq)
 
     def _carry_in_out(self) -> bool:
         """Put the due ACK into the last data frame already queued for this write, if one can

@@ -64,3 +64,8 @@ class ProtocolMismatchError(ProtocolError):
 
 class HwBridgeTimeoutError(HwBridgeError, TimeoutError):
     """An operation did not complete in the time allowed."""
+
+
+class NoServerError(HwBridgeTimeoutError):
+    """A request that no server took: nothing answered it, not even with an error, so nothing
+    acted on it (asking again once a server is there is safe)."""

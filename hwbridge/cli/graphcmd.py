@@ -38,6 +38,7 @@ from hwbridge.errors import (
     HwBridgeError,
     HwBridgeTimeoutError,
     MessageTypeError,
+    NoServerError,
     ProtocolMismatchError,
     UnknownTypeError,
 )
@@ -582,15 +583,25 @@ def service_call(
 
     from hwbridge import msg
 
+    try:
+        data = yaml.safe_load(request or "{}")
+    except yaml.YAMLError as exc:
+        raise MessageTypeError(f"request is not valid YAML: {exc}") from exc
     with open_graph(ctx) as graph:
+        deadline = time.monotonic() + max(wait, timeout)
         resolved_type = srv_type or _service_type(graph, name, wait, timeout)
-        try:
-            data = yaml.safe_load(request or "{}")
-        except yaml.YAMLError as exc:
-            raise MessageTypeError(f"request is not valid YAML: {exc}") from exc
-        response = graph.node(f"hwbridge_call_{graph.zid[:8]}").call(
-            name, resolved_type, data or {}, timeout=timeout
-        )
+        node = graph.node(f"hwbridge_call_{graph.zid[:8]}")
+        while True:
+            try:
+                response = node.call(name, resolved_type, data or {}, timeout=timeout)
+                break
+            except NoServerError:
+                # Listed, but its server went before the request reached it (a board's session
+                # ending): nothing acted on the request, so it goes again once a server is back.
+                if deadline - time.monotonic() < 0.5:
+                    raise
+                _service_type(graph, name, 0.2, deadline - time.monotonic())
+                timeout = max(0.5, deadline - time.monotonic())
         result = msg.to_dict(response)
     if as_json:
         emit_json(result)

@@ -32,6 +32,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Final
 
+from hwbridge import errors
 from hwbridge.errors import HwBridgeError, HwBridgeTimeoutError, ProtocolMismatchError
 from hwbridge.graph.config import GraphConfig, open_error
 from hwbridge.graph.guard import call_guarded
@@ -462,11 +463,9 @@ class Node:
         return ServiceServer(self, self.resolve(name), srv_type, handler, True, deferred=True)
 
     def call(self, name: str, srv_type: str, request: Any, timeout: float = 5.0) -> Any:
-        """Call a service and return the decoded response.
-
-        ``request`` is a message object or a dict; errors: ServiceError (the server refused or
-        failed), HwBridgeTimeoutError (no answer in time, or no server).
-        """
+        """Call a service and return the decoded response. ``request`` is a message object or a
+        dict; errors: ServiceError (the server refused or failed), HwBridgeTimeoutError (no
+        answer in time), its subclass NoServerError (no server took the request)."""
         from hwbridge import msg as msgmod
 
         service = self.graph.registry.service(srv_type)
@@ -496,7 +495,7 @@ class Node:
                 raise ServiceError(f"{resolved}: {text}")
         early = time.monotonic() - started < 0.9 * timeout  # no server took the query
         what = "no server answered" if early else f"no answer within {timeout:g} s from"
-        raise HwBridgeTimeoutError(
+        raise (errors.NoServerError if early else HwBridgeTimeoutError)(
             f"{what} service {resolved} (is its server running? see 'hwbridge service list')"
         )
 

@@ -187,6 +187,39 @@ def test_a_call_waits_within_its_timeout_for_a_server_to_appear(
     assert yaml.safe_load(out) == {"success": True, "message": "late"}
 
 
+def test_a_call_that_no_server_took_goes_again_once_a_server_is_there(
+    capsys: pytest.CaptureFixture[str], board: dict[str, Any]
+) -> None:
+    """A service still listed when its server has gone (a board's session ending, its
+    liveliness not yet withdrawn): the request reaches nobody, and nothing acted on it, so the
+    call goes again when a server is back, within its timeout."""
+    graph: Graph = board["graph"]
+    node = graph.node("flaky_server", namespace="/diffbot")
+    token = graph.announce("srv", node.name, "/diffbot/flaky", "std_srvs/Trigger")  # listed only
+    answered: list[str] = []
+    listed = threading.Event()
+
+    def serve_later() -> None:
+        listed.wait(30)
+        time.sleep(1.0)  # a chosen delay, not a wait: after the call's first request
+        node.service(
+            "flaky", "std_srvs/Trigger", lambda _: answered.append("x") or {"success": True}
+        )
+
+    thread = threading.Thread(target=serve_later, daemon=True)
+    thread.start()
+    assert wait_until(lambda: "/diffbot/flaky" in graph.snapshot(timeout=0.2).services(), 10)
+    listed.set()
+    try:
+        code, out, err = run(capsys, "service", "call", "/diffbot/flaky", "--timeout", "30")
+    finally:
+        thread.join(30)
+        token.undeclare()
+    assert code == 0, err
+    assert yaml.safe_load(out) == {"success": True, "message": ""}
+    assert answered == ["x"]  # asked again, answered once
+
+
 def test_params(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
     assert run(capsys, "param", "get", "/diffbot/wheel_radius") == (0, "0.033\n", "")
     assert run(capsys, "param", "set", "/diffbot/max_speed", "0.5")[0] == 0

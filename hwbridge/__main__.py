@@ -1,7 +1,5 @@
 """``python -m hwbridge`` runs the command line."""
 
-import sys
+from hwbridge.cli import entry
 
-from hwbridge.cli import main
-
-sys.exit(main())
+entry()

@@ -21,7 +21,7 @@ import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, NoReturn
 
 import typer
 
@@ -32,7 +32,7 @@ from hwbridge.cli.shell import ClickException, Command, Group, UsageError, adopt
 from hwbridge.errors import HwBridgeError
 from hwbridge.heap import keep_the_heap_small
 
-__all__ = ["COMMANDS", "LazyCommand", "build_app", "main"]
+__all__ = ["COMMANDS", "LazyCommand", "build_app", "entry", "main"]
 
 
 @dataclass(frozen=True)
@@ -283,6 +283,13 @@ def main(argv: list[str] | None = None) -> int:
     if restore is not None:
         restore()
     return code
+
+
+def entry() -> NoReturn:
+    """The ``hwbridge`` process (console script and ``python -m hwbridge``): :func:`main`,
+    then the process ends through :func:`hwbridge.cli.stopping.leave`, without the
+    interpreter's finalization. In-process callers (tests) call :func:`main` and go on."""
+    stopping.leave(main())
 
 
 def _interrupted() -> int:

@@ -24,7 +24,8 @@ thread is doing.
 After a signal, :func:`hwbridge.cli.main` ends the process with ``os._exit`` once the command
 has returned and stdout and stderr are flushed: the interpreter's own finalization would tear
 down Zenoh's and rclpy's threads while they may be in C code, which glibc reports as
-``FATAL: exception not rethrown`` and an abort.
+``FATAL: exception not rethrown`` and an abort. Without a signal, :func:`leave` ends a
+``hwbridge`` process the same way once its command returned (``hwbridge.cli.entry``).
 
 Before :func:`install`, from the first import of :mod:`hwbridge` in a ``hwbridge`` process, a
 signal ends the process at once (``hwbridge/__init__.py``): nothing is open yet. Earlier
@@ -35,6 +36,7 @@ no hwbridge code has run.
 from __future__ import annotations
 
 import _thread
+import atexit
 import contextlib
 import faulthandler
 import os
@@ -44,13 +46,14 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from types import FrameType
-from typing import Final
+from typing import Final, NoReturn
 
 __all__ = [
     "GRACE",
     "STOP",
     "exit_now",
     "install",
+    "leave",
     "on_signal",
     "shielded",
     "signalled",
@@ -217,6 +220,27 @@ def exit_now(status: int, reason: str | None = None) -> None:
     flusher = threading.Thread(target=_flush, name="hwbridge-flush", daemon=True)
     flusher.start()
     flusher.join(0.2)  # another thread may hold a stream's lock, writing to a full pipe
+    os._exit(status)
+
+
+def leave(status: int) -> NoReturn:
+    """End a ``hwbridge`` process whose command returned: what the interpreter's exit does
+    first (``threading``'s exit hooks, which close the graphs still open, the join of the
+    non-daemon threads, the ``atexit`` handlers, the streams flushed however long a pipe
+    takes), then ``os._exit(status)`` instead of the finalization that would follow. That
+    finalization stops the threads Zenoh (and rclpy) started, and one caught calling into
+    Python ends the process with glibc's ``FATAL: exception not rethrown`` and an abort (seen
+    at the end of a successful ``hwbridge demo --firmware``)."""
+    _state.settled = True
+    shutdown = getattr(threading, "_shutdown", None)
+    if callable(shutdown):
+        with contextlib.suppress(Exception):
+            shutdown()
+    run_exit_functions = getattr(atexit, "_run_exitfuncs", None)
+    if callable(run_exit_functions):
+        with contextlib.suppress(Exception):
+            run_exit_functions()
+    _flush()
     os._exit(status)
 
 

@@ -50,7 +50,7 @@ def test_wheel_layout_and_data(tmp_path: Path) -> None:
         assert required in names, required
     assert not any(n.startswith(("protocols/", "devices/", "tests/")) for n in names)
     entry_points = next(n for n in names if n.endswith("entry_points.txt"))
-    assert "hwbridge = hwbridge.cli:main" in zipfile.ZipFile(wheel).read(entry_points).decode()
+    assert "hwbridge = hwbridge.cli:entry" in zipfile.ZipFile(wheel).read(entry_points).decode()
 
     target = tmp_path / "site"
     subprocess.run(

@@ -150,7 +150,24 @@ def test_eight_boards_from_the_cli_at_once(bridge: BridgeProcess, emulator: Emul
     for node in NODES:
         answer = yaml.safe_load(results[2 + 2 * (node - 1)].stdout)
         assert answer == {"success": True, "message": f"node {node}"}
-    assert wait_until(lambda: all(f"node{n} command {n * 11}" in emulator.lines for n in NODES), 30)
+
+    def missing() -> list[int]:
+        return [n for n in NODES if f"node{n} command {n * 11}" not in emulator.lines]
+
+    if not wait_until(lambda: not missing(), 30):
+        # A command that reached the bridge as the board's session ended (the link timeout,
+        # as in _run_all) went with that session: a reliable message does not outlive its
+        # session (PROTOCOL.md 2.10). Published again once the sessions are back.
+        for node in missing():
+            assert f"node{node}: session ended" in bridge.output(), (node, bridge.output())
+            assert wait_until(lambda: _listed(bridge), 30), bridge.output()
+            again = bridge.cli(*commands[3 + 2 * (node - 1)], timeout=90)
+            assert again.returncode == 0, again.stderr
+    assert wait_until(lambda: not missing(), 30), (
+        missing(),
+        [x for x in emulator.lines if " command " in x],
+        bridge.output()[-3000:],
+    )
     odom = json.loads(results[0].stdout.splitlines()[0])
     imu = json.loads(results[1].stdout.splitlines()[0])
     assert "node3_base" in json.dumps(odom)

@@ -218,4 +218,7 @@ def test_the_restart_bench_runs_small_and_prints_its_fields() -> None:
     for line in lines:
         assert line["bench"] == "udp_restart" and line["peer"] == "cold_start"
         assert 0 < line["p50_s"] <= line["p99_s"] <= line["max_s"] < 30
-        assert line["ratio"] == pytest.approx(line["p99_s"] / line["peer_p50_s"], rel=0.01)
+        # The bench prints the ratio to 3 decimals (0.033 for 0.0334: 1.3 % off at that size) from
+        # unrounded times, the line its times to 4.
+        expected = line["p99_s"] / line["peer_p50_s"]
+        assert line["ratio"] == pytest.approx(expected, rel=0.01, abs=1e-3)

@@ -2,12 +2,13 @@
 
 Every program is built into pytest's temporary directory with ``g++ -std=c++11 -Wall -Wextra
 -Werror -O1``, once plain and once under ASan and UBSan (``-fsanitize=address,undefined
--fno-sanitize-recover=all -O0``; the warnings that need the optimizer are the plain build's): ``test_vectors`` (every vector of
-``protocols/vectors/native_frames.json``, fed on stdin, plus unit checks and a pty/TCP loopback
-of the POSIX ``Hardware``), ``test_streams`` (the reliable stream over a seeded lossy,
-duplicating, reordering link) and ``fuzz_decoder`` (a seeded, time-bounded fuzz run; also as a
-libFuzzer target when clang++ with its fuzzer runtime is installed). The
-headers are also compiled one by one, and for the ATmega328P with ``avr-g++`` when it is on PATH.
+-fno-sanitize-recover=all -O0``; the warnings that need the optimizer are the plain build's):
+``test_vectors`` (every vector of ``protocols/vectors/native_frames.json``, fed on stdin, plus
+unit checks and a pty/TCP loopback of the POSIX ``Hardware``), ``test_streams`` (the reliable
+stream over a seeded lossy, duplicating, reordering link) and ``fuzz_decoder`` (a seeded,
+time-bounded fuzz run; also as a libFuzzer target when clang++ with its fuzzer runtime is
+installed). The headers are also compiled one by one, and for the ATmega328P with ``avr-g++``
+when it is on PATH.
 """
 
 from __future__ import annotations

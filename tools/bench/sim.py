@@ -17,7 +17,9 @@ subscriber or service caller in this process. For each library and baud rate (11
   one call after the other (HwBridge: ``count``, std_srvs/Trigger, answered "N calls"; ros_lib:
   ``test_srv``, rosserial_arduino/Test, answered "hello" or "world", with its example's
   ``delay(10)`` and its ``chatter`` publish taken out of loop() so that both only serve, as
-  fast as they can), ``p50_us`` and ``p99_us`` of the round trip, wall clock. (With the publish
+  fast as they can), ``p50_us`` and ``p99_us`` of the round trip, wall clock. Both firmwares
+  run at once, each in its simavr behind its bridge, and the calls alternate between them
+  (``alternating``), so that both meet the same moments of the host's load. (With the publish
   left in, ros_lib's answers queued behind a line full of its messages: the ratio read 1.3 to
   2.5 where it reads 0.7 to 1.2 without, runs of the same day on a shared machine.)
 - ``sim_service_hello``: the like-for-like service: both servers answer "hello" (HwBridge:
@@ -574,24 +576,27 @@ def service_line(
     calls: int,
 ) -> None:
     """One sim_service* line: ``calls`` calls of HwBridge's server (``ours_source``, or the
-    library's ServiceServer example) and of ros_lib's (``ros_source``) through the bridge."""
+    library's ServiceServer example) and of ros_lib's (``ros_source``) through the bridge.
+
+    With ros_lib, both firmwares run at once (two simavr processes, two bridges) and the calls
+    alternate between them, one each in turn: both meet the machine's load of the same moment,
+    so the ratio no longer depends on which of two short windows a burst of other work fell in
+    (back to back, 200 calls each, the ratio read 0.92 to 1.48 across runs of one commit)."""
     name = "ServiceServer" if ours_source is None else "HelloService"
     ours_elf = build_hwbridge_sketch(name, ours_source, baud, tmp)
-    ours_t = _measure(
-        ours_elf,
-        "native",
-        baud,
-        lambda r: service_times(r, "/bench/count", "std_srvs/Trigger", b"", calls),
-    )
+    ours_call = ("/bench/count", "std_srvs/Trigger", b"")
+    theirs_call = ("/bench/test_srv", "rosserial_arduino/Test", REQUEST_X)
     theirs_t: list[float] | None = None
-    if ros_lib is not None:
+    if ros_lib is None:
+        ours_t = _measure(ours_elf, "native", baud, lambda r: service_times(r, *ours_call, calls))
+    else:
         elf = build_ros_lib_sketch(ros_lib, f"Ros{name}", ros_source, baud, tmp)
-        theirs_t = _measure(
-            elf,
-            "rosserial",
+        ours_t, theirs_t = _measure_pair(
+            (ours_elf, "native"),
+            (elf, "rosserial"),
             baud,
-            lambda r: service_times(
-                r, "/bench/test_srv", "rosserial_arduino/Test", REQUEST_X, calls
+            lambda ours, theirs: alternating_service_times(
+                (ours, *ours_call), (theirs, *theirs_call), calls
             ),
         )
     emit(
@@ -607,7 +612,30 @@ def service_line(
         ratio_p50=round(_percentile(theirs_t, 0.5) / _percentile(ours_t, 0.5), 3)
         if theirs_t
         else None,
+        calls=len(ours_t),
+        alternating=theirs_t is not None,
     )
+
+
+Call = tuple[Running, str, str, bytes]
+"""Where a call goes: the running firmware, the service's name, its type, the request."""
+
+
+def alternating_service_times(
+    ours: Call, theirs: Call, calls: int
+) -> tuple[list[float], list[float]]:
+    """Round trips (s) of ``calls`` calls to each of two services, made one each in turn."""
+    for running, name, kind, payload in (ours, theirs):
+        service_times(running, name, kind, payload, 0)  # returns once the service has answered
+    nodes = [running.graph.node("bench_caller") for running, *_ in (ours, theirs)]
+    times: tuple[list[float], list[float]] = ([], [])
+    for n in range(2 * calls):
+        side = n % 2 if (n // 2) % 2 == 0 else 1 - n % 2  # ABBA: neither side always goes first
+        _, name, kind, payload = (ours, theirs)[side]
+        started = time.perf_counter()
+        nodes[side].call_raw(name, kind, payload, timeout=2.0)
+        times[side].append(time.perf_counter() - started)
+    return times
 
 
 def _cycles_line(
@@ -707,6 +735,33 @@ def _measure(elf: Path, protocol: str, baud: int, measure: Callable[[Running], T
             print(f"{elf.name}: {exc}; running it again", file=sys.stderr, flush=True)
         finally:
             running.close()
+    raise AssertionError("unreachable")
+
+
+def _measure_pair(
+    ours: tuple[Path, str],
+    theirs: tuple[Path, str],
+    baud: int,
+    measure: Callable[[Running, Running], T],
+) -> T:
+    """``measure`` on two firmwares (ELF, protocol) running at once, retried ATTEMPTS times."""
+    for attempt in range(1, ATTEMPTS + 1):
+        started: list[Running] = []
+        try:
+            for elf, protocol in (ours, theirs):
+                started.append(Running(elf, protocol, baud))
+            return measure(*started)
+        except Exception as exc:
+            if attempt == ATTEMPTS:
+                raise
+            print(
+                f"{ours[0].name} and {theirs[0].name}: {exc}; running them again",
+                file=sys.stderr,
+                flush=True,
+            )
+        finally:
+            for running in started:
+                running.close()
     raise AssertionError("unreachable")
 
 

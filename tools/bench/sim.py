@@ -19,9 +19,14 @@ subscriber or service caller in this process. For each library and baud rate (11
   ``delay(10)`` and its ``chatter`` publish taken out of loop() so that both only serve, as
   fast as they can), ``p50_us`` and ``p99_us`` of the round trip, wall clock. Both firmwares
   run at once, each in its simavr behind its bridge, and the calls alternate between them
-  (``alternating``), so that both meet the same moments of the host's load. (With the publish
-  left in, ros_lib's answers queued behind a line full of its messages: the ratio read 1.3 to
-  2.5 where it reads 0.7 to 1.2 without, runs of the same day on a shared machine.)
+  (``alternating``), so that both meet the same moments of the host's load.
+  ``board_answer_us`` and ``peer_board_answer_us`` are each board's own part of a call, in
+  simulated time (the runner's ``--trace-uart`` log): the median time from the request's last
+  byte reaching the firmware to the answer's first byte written to the UART, the same whatever
+  the host's load; ``board_answer_ratio`` is ros_lib's over HwBridge's (above 1, HwBridge
+  answers sooner). (With the publish left in, ros_lib's answers queued behind a line full of
+  its messages: the ratio read 1.3 to 2.5 where it reads 0.7 to 1.2 without, runs of the same
+  day on a shared machine.)
 - ``sim_service_hello``: the like-for-like service: both servers answer "hello" (HwBridge:
   Trigger with ACK_IN_DATA; ros_lib: Test to the request "x") and loop() is ``spinOnce()``
   alone. Per call the line carries HwBridge's 12-byte request and 23-byte answer against
@@ -86,6 +91,7 @@ Runs in about two minutes (``--only cycles``: under one); prints one JSON object
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import socket
 import statistics
@@ -103,7 +109,7 @@ from _common import emit
 from _ros_lib import ROSSERIAL_GIT, build_ros_lib_sketch, git_file, make_ros_lib
 
 from hwbridge.firmware import build
-from hwbridge.firmware.sim import SimAvr
+from hwbridge.firmware.sim import SimAvr, UartBytes, read_uart_trace
 
 BAUDS = (115200, 1000000)
 CYCLES_BAUD = 1000000
@@ -349,11 +355,11 @@ def rosserial_service_source() -> str:
 class Running:
     """A firmware in simavr behind an in-process bridge on an embedded graph."""
 
-    def __init__(self, elf: Path, protocol: str, baud: int) -> None:
+    def __init__(self, elf: Path, protocol: str, baud: int, trace: Path | None = None) -> None:
         from hwbridge.bridge import BoardSpec, Bridge
         from hwbridge.graph import Graph
 
-        self.sim = SimAvr(elf).start()
+        self.sim = SimAvr(elf, trace_uart=trace).start()
         self.graph = Graph.embedded(listen=[f"tcp/127.0.0.1:{_free_port()}"], domain=DOMAIN)
         self.bridge = Bridge(self.graph)
         self.bridge.add_board(
@@ -591,9 +597,10 @@ def service_line(
         ours_t = _measure(ours_elf, "native", baud, lambda r: service_times(r, *ours_call, calls))
     else:
         elf = build_ros_lib_sketch(ros_lib, f"Ros{name}", ros_source, baud, tmp)
+        traces = (tmp / f"{line}-{baud}-ours.uart", tmp / f"{line}-{baud}-theirs.uart")
         ours_t, theirs_t = _measure_pair(
-            (ours_elf, "native"),
-            (elf, "rosserial"),
+            (ours_elf, "native", traces[0]),
+            (elf, "rosserial", traces[1]),
             baud,
             lambda ours, theirs: alternating_service_times(
                 (ours, *ours_call), (theirs, *theirs_call), calls
@@ -614,7 +621,47 @@ def service_line(
         else None,
         calls=len(ours_t),
         alternating=theirs_t is not None,
+        **(_answer_fields(*traces) if theirs_t is not None else {}),
     )
+
+
+def _answer_fields(ours: Path, theirs: Path) -> dict[str, Any]:
+    """The boards' own part of a call, from the runners' UART logs (simulated time)."""
+    mine, peer = answer_delays(read_uart_trace(ours)), answer_delays(read_uart_trace(theirs))
+    if not mine or not peer:
+        return {}
+    return {
+        "board_answer_us": round(statistics.median(mine), 1),
+        "peer_board_answer_us": round(statistics.median(peer), 1),
+        "board_answer_ratio": round(statistics.median(peer) / statistics.median(mine), 3),
+    }
+
+
+def answer_delays(trace: list[UartBytes]) -> list[float]:
+    """For each request in a ``--trace-uart`` log, microseconds of simulated time from its last
+    byte reaching the firmware to the answer's first byte written to the UART: the board's own
+    part of a call (reading and checking the request, the callback, and writing the answer up
+    to its first byte), whatever the host's load. A request is the bytes handed to the UART
+    last before a byte went out (one read of the pty; a request split over two reads counts
+    from the second); its last byte reaches the firmware one byte time per byte after it was
+    handed over. The byte time is the shortest gap between two bytes written to the UART (the
+    line's own, with UBRR's rounding: a write waits for the one before), and the cycles are
+    16 MHz ones."""
+    sent = [e.cycle for e in trace if not e.into_avr]
+    gaps = [b - a for a, b in itertools.pairwise(sent) if b > a]
+    if not gaps:
+        return []
+    byte_cycles = min(gaps)
+    delays: list[float] = []
+    request: UartBytes | None = None
+    for entry in trace:
+        if entry.into_avr:
+            request = entry
+        elif request is not None:
+            arrived = request.cycle + len(request.data) * byte_cycles
+            delays.append((entry.cycle - arrived) / 16.0)
+            request = None
+    return delays
 
 
 Call = tuple[Running, str, str, bytes]
@@ -739,17 +786,18 @@ def _measure(elf: Path, protocol: str, baud: int, measure: Callable[[Running], T
 
 
 def _measure_pair(
-    ours: tuple[Path, str],
-    theirs: tuple[Path, str],
+    ours: tuple[Path, str, Path],
+    theirs: tuple[Path, str, Path],
     baud: int,
     measure: Callable[[Running, Running], T],
 ) -> T:
-    """``measure`` on two firmwares (ELF, protocol) running at once, retried ATTEMPTS times."""
+    """``measure`` on two firmwares (ELF, protocol, UART log) running at once, retried ATTEMPTS
+    times."""
     for attempt in range(1, ATTEMPTS + 1):
         started: list[Running] = []
         try:
-            for elf, protocol in (ours, theirs):
-                started.append(Running(elf, protocol, baud))
+            for elf, protocol, trace in (ours, theirs):
+                started.append(Running(elf, protocol, baud, trace))
             return measure(*started)
         except Exception as exc:
             if attempt == ATTEMPTS:

@@ -35,7 +35,9 @@ __all__ = [
     "SimError",
     "SimToolchainMissingError",
     "Tick",
+    "UartBytes",
     "arduino_pin",
+    "read_uart_trace",
     "runner_binary",
 ]
 
@@ -160,6 +162,34 @@ class Tick:
     duty: dict[str, float] = field(default_factory=dict)
 
 
+@dataclass(frozen=True)
+class UartBytes:
+    """One line of a ``--trace-uart`` log (see ``runner.c``)."""
+
+    into_avr: bool
+    """True: bytes the runner read from the pty and handed to the UART at ``cycle`` (the UART
+    delivers them to the firmware one per byte time from then on); False: one byte the
+    firmware wrote to the UART's data register at ``cycle`` (the next write waits a byte
+    time)."""
+    cycle: int
+    """The AVR's cycle count (cycles since power-on)."""
+    data: bytes
+
+
+def read_uart_trace(path: Path | str) -> list[UartBytes]:
+    """The lines of a ``--trace-uart`` log (a last line still being written is left out)."""
+    entries: list[UartBytes] = []
+    for line in Path(path).read_text().splitlines():
+        parts = line.split()
+        if len(parts) != 3 or parts[0] not in ("i", "o"):
+            continue
+        try:
+            entries.append(UartBytes(parts[0] == "i", int(parts[1]), bytes.fromhex(parts[2])))
+        except ValueError:
+            continue
+    return entries
+
+
 class SimAvr:
     """The runner with one ELF. ``start()`` returns once the UART's pty exists (:attr:`url`);
     with ``hold`` the AVR waits until :meth:`go` so that devices are in place before it boots.
@@ -183,6 +213,7 @@ class SimAvr:
         speed: float = 1.0,
         report_us: int = 5000,
         symlink: Path | str | None = None,
+        trace_uart: Path | str | None = None,
     ) -> None:
         if mcu not in MCUS:
             raise SimError(f"unknown MCU {mcu!r}: choose {' or '.join(MCUS)}")
@@ -201,6 +232,9 @@ class SimAvr:
         self.symlink = Path(symlink) if symlink is not None else None
         """A path kept pointing at the current pty, across :meth:`restart` (which makes a new
         pty): give the bridge ``serial://SYMLINK`` and it finds the board again."""
+        self.trace_uart = Path(trace_uart) if trace_uart is not None else None
+        """Where the runner logs every UART0 byte with the AVR's cycle count (``--trace-uart``
+        in ``runner.c``; :func:`read_uart_trace` reads it)."""
         self.url = ""
         self.time = 0.0
         """Simulated seconds since power-on, as of the last report."""
@@ -241,6 +275,7 @@ class SimAvr:
             str(self.report_us),
             "--hold",
             *(["--bootloader", str(self.bootloader)] if self.bootloader is not None else []),
+            *(["--trace-uart", str(self.trace_uart)] if self.trace_uart is not None else []),
             *([str(self.elf)] if self.elf is not None else []),
         ]
         self._process = subprocess.Popen(

@@ -3,7 +3,7 @@
  * pins, driven line by line from a controlling process (hwbridge.firmware.sim).
  *
  *   hwbridge-simavr --mcu atmega328p --freq 16000000 [--speed 1.0] [--report-us 5000] [--hold]
- *                   [--bootloader BOOT.hex] FIRMWARE.elf
+ *                   [--bootloader BOOT.hex] [--trace-uart FILE] FIRMWARE.elf
  *
  * With --bootloader (an Intel HEX at the top of flash: Optiboot's 0x7E00 on the ATmega328P, the
  * stk500v2 bootloader's 0x3E000 on the ATmega2560) the CPU starts at the bootloader, as the BOOTRST fuse makes it, and FIRMWARE (an ELF or an Intel HEX) is optional:
@@ -39,6 +39,12 @@
  *                                 (hex; an ELF symbol's address less 0x800000), between two
  *                                 instructions: answered by a "mem" line
  *   quit                          exit
+ * --trace-uart FILE: every byte through UART0, stamped with the AVR's cycle count, one line each
+ * way: "i CYCLE HEX" for what the runner read from the pty and handed to the UART at that cycle
+ * (the UART delivers the bytes to the firmware one per byte time from then on), "o CYCLE XX" for
+ * each byte the firmware wrote to the UART's data register (simavr puts it out then; the next
+ * write waits a byte time). For benchmarks: where the
+ * board's time goes in a round trip, in simulated time, whatever the host's load.
  * Time: the simulation is held to the wall clock times --speed (0: as fast as it goes).
  * UART0's pty is the runner's own (not simavr's uart_pty part, whose thread polls every 500 us
  * of wall time and feeds the UART from outside the simulation's thread): the main loop moves
@@ -659,9 +665,12 @@ typedef struct pty_port {
 } pty_port;
 static pty_port uart;
 
+static FILE *uart_trace;  // --trace-uart
+
 static void uart_byte_out(avr_irq_t *irq, uint32_t value, void *param) {
   (void)irq;
   (void)param;
+  if (uart_trace) fprintf(uart_trace, "o %llu %02x\n", (unsigned long long)avr->cycle, value & 0xFFu);
   if (uart.out_len < sizeof uart.out) uart.out[uart.out_len++] = (uint8_t)value;
 }
 
@@ -700,6 +709,11 @@ static void pty_feed_in(void) {
     ssize_t n = read(uart.master, uart.in, sizeof uart.in);
     uart.in_len = n > 0 ? (size_t)n : 0;
     uart.in_done = 0;
+    if (uart_trace && n > 0) {
+      fprintf(uart_trace, "i %llu ", (unsigned long long)avr->cycle);
+      for (ssize_t k = 0; k < n; k++) fprintf(uart_trace, "%02x", uart.in[k]);
+      fputc('\n', uart_trace);
+    }
   }
   // simavr's UART raises XOFF from inside this irq once its FIFO is full.
   while (uart.xon && uart.in_done < uart.in_len) avr_raise_irq(uart.to_uart, uart.in[uart.in_done++]);
@@ -1001,7 +1015,8 @@ static void start_timers(void) {
 static void usage(void) {
   fprintf(stderr,
           "usage: hwbridge-simavr [--mcu atmega328p] [--freq 16000000] [--speed 1.0] "
-          "[--report-us 5000] [--hold] [--bootloader BOOT.hex] FIRMWARE.elf\n");
+          "[--report-us 5000] [--hold] [--bootloader BOOT.hex] [--trace-uart FILE] "
+          "FIRMWARE.elf\n");
   exit(2);
 }
 
@@ -1024,6 +1039,14 @@ int main(int argc, char **argv) {
       hold = 1;
     else if (!strcmp(argv[i], "--bootloader") && i + 1 < argc)
       boot = argv[++i];
+    else if (!strcmp(argv[i], "--trace-uart") && i + 1 < argc) {
+      uart_trace = fopen(argv[++i], "w");
+      if (!uart_trace) {
+        fprintf(stderr, "hwbridge-simavr: cannot write %s: %s\n", argv[i], strerror(errno));
+        exit(2);
+      }
+      setvbuf(uart_trace, NULL, _IOLBF, 0);  // whole lines, readable while the run goes on
+    }
     else if (argv[i][0] == '-')
       usage();
     else

@@ -593,11 +593,11 @@ def service_line(
     ours_call = ("/bench/count", "std_srvs/Trigger", b"")
     theirs_call = ("/bench/test_srv", "rosserial_arduino/Test", REQUEST_X)
     theirs_t: list[float] | None = None
+    traces = (tmp / f"{line}-{baud}-ours.uart", tmp / f"{line}-{baud}-theirs.uart")
     if ros_lib is None:
         ours_t = _measure(ours_elf, "native", baud, lambda r: service_times(r, *ours_call, calls))
     else:
         elf = build_ros_lib_sketch(ros_lib, f"Ros{name}", ros_source, baud, tmp)
-        traces = (tmp / f"{line}-{baud}-ours.uart", tmp / f"{line}-{baud}-theirs.uart")
         ours_t, theirs_t = _measure_pair(
             (ours_elf, "native", traces[0]),
             (elf, "rosserial", traces[1]),

@@ -337,12 +337,15 @@ class SimAvr:
         process = self._process
         if process is None or process.stderr is None:
             return
-        for line in process.stderr:
-            text = line.rstrip()
-            if text:
-                # The runner's lag behind real time matters to whoever talks to the board.
-                level = logging.WARNING if "behind real time" in text else logging.DEBUG
-                log.log(level, "simavr: %s", text.removeprefix("hwbridge-simavr: "))
+        try:
+            for line in process.stderr:
+                text = line.rstrip()
+                if text:
+                    # The runner's lag behind real time matters to whoever talks to the board.
+                    level = logging.WARNING if "behind real time" in text else logging.DEBUG
+                    log.log(level, "simavr: %s", text.removeprefix("hwbridge-simavr: "))
+        except (ValueError, OSError):  # close() closed the pipe while this thread read it
+            return
 
     @property
     def path(self) -> str:

@@ -150,7 +150,10 @@ def test_eight_boards_topics_services_and_multi_frame_messages(
     stats = host.links[1].can_stats()
     assert stats["rx_crc_errors"] == 0
     assert stats["rx_malformed"] == 0
-    assert set(stats["claims"]) == set(nodes)
+    # claims are the nodes heard claiming in the last 3 s (three claim intervals): a board
+    # whose claim waits for a CPU drops out for a moment (seen with both cores loaded)
+    link = host.links[1]
+    assert wait_for(lambda: set(link.can_stats()["claims"]) == set(nodes)), link.can_stats()
 
 
 @pytest.mark.parametrize(

@@ -766,23 +766,7 @@ a call to time out; the case is then run again from a fresh simulation, and said
 
 def _measure(elf: Path, protocol: str, baud: int, measure: Callable[[Running], T]) -> T:
     """``measure`` on ``elf`` running in simavr behind a bridge, retried ATTEMPTS times."""
-    for attempt in range(1, ATTEMPTS + 1):
-        try:
-            running = Running(elf, protocol, baud)
-        except Exception as exc:
-            if attempt == ATTEMPTS:
-                raise
-            print(f"{elf.name}: {exc}; running it again", file=sys.stderr, flush=True)
-            continue
-        try:
-            return measure(running)
-        except Exception as exc:
-            if attempt == ATTEMPTS:
-                raise
-            print(f"{elf.name}: {exc}; running it again", file=sys.stderr, flush=True)
-        finally:
-            running.close()
-    raise AssertionError("unreachable")
+    return _measure_all([(elf, protocol, None)], baud, lambda started: measure(started[0]))
 
 
 def _measure_pair(
@@ -793,20 +777,28 @@ def _measure_pair(
 ) -> T:
     """``measure`` on two firmwares (ELF, protocol, UART log) running at once, retried ATTEMPTS
     times."""
+    return _measure_all([ours, theirs], baud, lambda started: measure(*started))
+
+
+def _measure_all(
+    firmwares: list[tuple[Path, str, Path | None]],
+    baud: int,
+    measure: Callable[[list[Running]], T],
+) -> T:
+    """``measure`` on the firmwares (ELF, protocol, UART log or None) running at once, each in
+    simavr behind its bridge; started again, all of them, when a start or ``measure`` fails
+    (ATTEMPTS tries)."""
+    names = " and ".join(elf.name for elf, _, _ in firmwares)
     for attempt in range(1, ATTEMPTS + 1):
         started: list[Running] = []
         try:
-            for elf, protocol, trace in (ours, theirs):
+            for elf, protocol, trace in firmwares:
                 started.append(Running(elf, protocol, baud, trace))
-            return measure(*started)
+            return measure(started)
         except Exception as exc:
             if attempt == ATTEMPTS:
                 raise
-            print(
-                f"{ours[0].name} and {theirs[0].name}: {exc}; running them again",
-                file=sys.stderr,
-                flush=True,
-            )
+            print(f"{names}: {exc}; running again", file=sys.stderr, flush=True)
         finally:
             for running in started:
                 running.close()

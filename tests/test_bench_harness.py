@@ -274,3 +274,27 @@ def test_boards_bench_prints_one_line_a_run_with_ratios_to_its_one_board_baselin
     assert summary["shapes"]["sharded"]["bridges"] == 2
     assert summary["shapes"]["up_default"]["bridges"] == 3
     assert runs[3]["threads"] > runs[1]["threads"]  # three processes' threads, not one's
+
+
+def test_sim_bench_times_a_board_answer_from_the_line_pace() -> None:
+    """``tools/bench/sim.py``'s ``board_answer_us``: the line's byte time is the pace of the
+    answers' bursts (not the shortest gap: the UART takes a second byte at once), and each
+    request's last byte arrives that many cycles a byte after the request was handed over."""
+    from hwbridge.firmware.sim import UartBytes
+
+    path = BENCH.with_name("sim.py")
+    spec = importlib.util.spec_from_file_location("bench_sim", path)
+    assert spec is not None and spec.loader is not None
+    sim = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(sim)
+    trace: list[UartBytes] = []
+    for start in (10_000, 50_000):  # two calls: 12 bytes in, 5 bytes out
+        trace.append(UartBytes(True, start, bytes(12)))
+        answer = start + 12 * 176 + 1600  # the first byte 100 us after the last one arrived
+        for k, cycle in enumerate(
+            [answer, answer + 30, *(answer + 30 + 176 * j for j in range(1, 4))]
+        ):
+            trace.append(UartBytes(False, cycle, bytes([k])))
+    assert sim.byte_cycles(trace) == 176
+    assert sim.answer_delays(trace, 176) == [100.0, 100.0]
+    assert sim.byte_cycles([UartBytes(True, 5, b"x")]) is None

@@ -4,7 +4,9 @@ pins driven and watched, an HC-SR04 echo, an I2C register file, watchdog and ext
 from __future__ import annotations
 
 import itertools
+import subprocess
 import threading
+from collections import Counter
 from pathlib import Path
 
 import pytest
@@ -14,6 +16,7 @@ from hwbridge.firmware.sim import (
     SimError,
     Tick,
     arduino_pin,
+    read_pc_trace,
     read_uart_trace,
     runner_binary,
 )
@@ -180,6 +183,47 @@ def test_uart_trace_stamps_every_byte_both_ways(
     assert all(b - a >= 1300 for a, b in itertools.pairwise(cycles))
     handed = next(e.cycle for e in entries if e.into_avr)
     assert all(e.cycle > handed for e in out[len(b"boot\n") :])
+
+
+def test_pc_trace_records_the_instructions_from_a_read_to_the_next_byte_out(
+    probe_elf: Path, terminal_factory: type[Terminal], tmp_path: Path
+) -> None:
+    """``trace_pc`` (the runner's --trace-pc) logs every instruction from each read of the pty
+    that brought bytes to the next byte the firmware writes: the probe's echo of "hello#" is
+    such a window, its records one instruction apart in cycles (1 to 5 each, an interrupt's
+    entry a few more), at flash addresses, starting at the read the UART log shows and ending
+    before the first echoed byte; each address inside a function of the ELF (``avr-nm``), and
+    the probe's UART polling loop among them, run many times while the bytes trickle in."""
+    uart_log, pc_log = tmp_path / "uart.log", tmp_path / "pc.bin"
+    with SimAvr(probe_elf, trace_uart=uart_log, trace_pc=pc_log) as sim:
+        sim.start(hold=True)
+        uart = terminal_factory(sim.path)
+        sim.go()
+        assert uart.read_until(b"boot\n") == b"boot\n"
+        uart.write(b"hello#")
+        assert uart.read_until(b"#") == b"hello#"
+    entries = read_uart_trace(uart_log)
+    handed = next(e for e in entries if e.into_avr)
+    echoed = next(e for e in entries if not e.into_avr and e.cycle > handed.cycle)
+    records = read_pc_trace(pc_log)
+    window = [(cycle, pc) for cycle, pc in records if handed.cycle <= cycle < echoed.cycle]
+    assert len(window) > 50
+    assert window[0][0] - handed.cycle < 10
+    assert echoed.cycle - window[-1][0] < 10
+    assert all(1 <= b[0] - a[0] <= 12 for a, b in itertools.pairwise(window))
+    listing = subprocess.run(
+        ["avr-nm", "-S", str(probe_elf)], capture_output=True, text=True, check=True
+    ).stdout
+    functions = [
+        (int(start, 16), int(start, 16) + int(size, 16))
+        for start, size, kind, _ in (
+            fields for fields in map(str.split, listing.splitlines()) if len(fields) == 4
+        )
+        if kind in "tTwW"
+    ]
+    assert all(any(a <= pc < b for a, b in functions) for _, pc in window)
+    assert max(Counter(pc for _, pc in window).values()) > 20  # the polling loop
+    assert not [r for r in records if r[0] < handed.cycle]  # nothing before the first read
 
 
 def test_reset_drops_what_the_host_sent_before(

@@ -99,6 +99,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections import Counter
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TypeVar
@@ -355,11 +356,18 @@ def rosserial_service_source() -> str:
 class Running:
     """A firmware in simavr behind an in-process bridge on an embedded graph."""
 
-    def __init__(self, elf: Path, protocol: str, baud: int, trace: Path | None = None) -> None:
+    def __init__(
+        self,
+        elf: Path,
+        protocol: str,
+        baud: int,
+        trace: Path | None = None,
+        trace_pc: Path | None = None,
+    ) -> None:
         from hwbridge.bridge import BoardSpec, Bridge
         from hwbridge.graph import Graph
 
-        self.sim = SimAvr(elf, trace_uart=trace).start()
+        self.sim = SimAvr(elf, trace_uart=trace, trace_pc=trace_pc).start()
         self.graph = Graph.embedded(listen=[f"tcp/127.0.0.1:{_free_port()}"], domain=DOMAIN)
         self.bridge = Bridge(self.graph)
         self.bridge.add_board(
@@ -627,7 +635,12 @@ def service_line(
 
 def _answer_fields(ours: Path, theirs: Path) -> dict[str, Any]:
     """The boards' own part of a call, from the runners' UART logs (simulated time)."""
-    mine, peer = answer_delays(read_uart_trace(ours)), answer_delays(read_uart_trace(theirs))
+    ours_trace = read_uart_trace(ours)
+    byte_time = byte_cycles(ours_trace)
+    if byte_time is None:
+        return {}
+    mine = answer_delays(ours_trace, byte_time)
+    peer = answer_delays(read_uart_trace(theirs), byte_time)
     if not mine or not peer:
         return {}
     return {
@@ -637,28 +650,34 @@ def _answer_fields(ours: Path, theirs: Path) -> dict[str, Any]:
     }
 
 
-def answer_delays(trace: list[UartBytes]) -> list[float]:
+def byte_cycles(trace: list[UartBytes]) -> int | None:
+    """The line's byte time in AVR cycles, from the ``--trace-uart`` log of a firmware that
+    writes as fast as the line takes its bytes (HwBridge's): the most common gap between two
+    bytes it wrote to the UART, the pace of its bursts. 176 cycles at 1 Mbaud and 1496 at
+    115200 in simavr, whose UART takes 11 bit times a byte (UBRR's rounding included); the
+    same pace as the received bytes' interrupts. Not the shortest gap: the UART takes a second
+    byte as soon as the first moves to its shift register. Not from ros_lib's log: it writes
+    slower than the line (some 245 cycles a byte at 1 Mbaud)."""
+    sent = [e.cycle for e in trace if not e.into_avr]
+    gaps = Counter(b - a for a, b in itertools.pairwise(sent) if b > a)
+    return gaps.most_common(1)[0][0] if gaps else None
+
+
+def answer_delays(trace: list[UartBytes], byte_time: int) -> list[float]:
     """For each request in a ``--trace-uart`` log, microseconds of simulated time from its last
     byte reaching the firmware to the answer's first byte written to the UART: the board's own
     part of a call (reading and checking the request, the callback, and writing the answer up
     to its first byte), whatever the host's load. A request is the bytes handed to the UART
     last before a byte went out (one read of the pty; a request split over two reads counts
     from the second); its last byte reaches the firmware one byte time per byte after it was
-    handed over. The byte time is the shortest gap between two bytes written to the UART (the
-    line's own, with UBRR's rounding: a write waits for the one before), and the cycles are
-    16 MHz ones."""
-    sent = [e.cycle for e in trace if not e.into_avr]
-    gaps = [b - a for a, b in itertools.pairwise(sent) if b > a]
-    if not gaps:
-        return []
-    byte_cycles = min(gaps)
+    handed over (``byte_time``: the line's, :func:`byte_cycles`); the cycles are 16 MHz ones."""
     delays: list[float] = []
     request: UartBytes | None = None
     for entry in trace:
         if entry.into_avr:
             request = entry
         elif request is not None:
-            arrived = request.cycle + len(request.data) * byte_cycles
+            arrived = request.cycle + len(request.data) * byte_time
             delays.append((entry.cycle - arrived) / 16.0)
             request = None
     return delays

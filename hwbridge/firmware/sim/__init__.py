@@ -18,6 +18,7 @@ import hashlib
 import logging
 import os
 import shutil
+import struct
 import subprocess
 import threading
 import time
@@ -37,6 +38,7 @@ __all__ = [
     "Tick",
     "UartBytes",
     "arduino_pin",
+    "read_pc_trace",
     "read_uart_trace",
     "runner_binary",
 ]
@@ -190,6 +192,14 @@ def read_uart_trace(path: Path | str) -> list[UartBytes]:
     return entries
 
 
+def read_pc_trace(path: Path | str) -> list[tuple[int, int]]:
+    """The records of a ``--trace-pc`` log: (cycle count before the instruction, its byte
+    address in flash), in order (a record still being written is left out)."""
+    data = Path(path).read_bytes()
+    whole = len(data) - len(data) % 12
+    return [(cycle, pc) for cycle, pc in struct.iter_unpack("<QI", data[:whole])]
+
+
 class SimAvr:
     """The runner with one ELF. ``start()`` returns once the UART's pty exists (:attr:`url`);
     with ``hold`` the AVR waits until :meth:`go` so that devices are in place before it boots.
@@ -214,6 +224,7 @@ class SimAvr:
         report_us: int = 5000,
         symlink: Path | str | None = None,
         trace_uart: Path | str | None = None,
+        trace_pc: Path | str | None = None,
     ) -> None:
         if mcu not in MCUS:
             raise SimError(f"unknown MCU {mcu!r}: choose {' or '.join(MCUS)}")
@@ -235,6 +246,9 @@ class SimAvr:
         self.trace_uart = Path(trace_uart) if trace_uart is not None else None
         """Where the runner logs every UART0 byte with the AVR's cycle count (``--trace-uart``
         in ``runner.c``; :func:`read_uart_trace` reads it)."""
+        self.trace_pc = Path(trace_pc) if trace_pc is not None else None
+        """Where the runner logs every instruction from each read of the pty to the next byte
+        the firmware sends (``--trace-pc``; :func:`read_pc_trace` reads it)."""
         self.url = ""
         self.time = 0.0
         """Simulated seconds since power-on, as of the last report."""
@@ -276,6 +290,7 @@ class SimAvr:
             "--hold",
             *(["--bootloader", str(self.bootloader)] if self.bootloader is not None else []),
             *(["--trace-uart", str(self.trace_uart)] if self.trace_uart is not None else []),
+            *(["--trace-pc", str(self.trace_pc)] if self.trace_pc is not None else []),
             *([str(self.elf)] if self.elf is not None else []),
         ]
         self._process = subprocess.Popen(

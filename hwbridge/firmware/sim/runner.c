@@ -45,6 +45,11 @@
  * each byte the firmware wrote to the UART's data register (simavr puts it out then; the next
  * write waits a byte time). For benchmarks: where the
  * board's time goes in a round trip, in simulated time, whatever the host's load.
+ * --trace-pc FILE: from each read of the pty that brought bytes to the next byte the firmware
+ * writes to UART0 (a request and the start of its answer), every instruction as a 12-byte
+ * record, little-endian: the cycle count before it (u64) and its byte address in flash (u32);
+ * an instruction's cycles are the next record's count less its own. For profiling the board's
+ * answer (tools/bench/sim_profile.py), not for long runs (some 2 MB per hundred requests).
  * Time: the simulation is held to the wall clock times --speed (0: as fast as it goes).
  * UART0's pty is the runner's own (not simavr's uart_pty part, whose thread polls every 500 us
  * of wall time and feeds the UART from outside the simulation's thread): the main loop moves
@@ -666,11 +671,15 @@ typedef struct pty_port {
 static pty_port uart;
 
 static FILE *uart_trace;  // --trace-uart
+static FILE *pc_trace;    // --trace-pc
+static int pc_window;     // --trace-pc: between a read of the pty and the next byte out
 
 static void uart_byte_out(avr_irq_t *irq, uint32_t value, void *param) {
   (void)irq;
   (void)param;
   if (uart_trace) fprintf(uart_trace, "o %llu %02x\n", (unsigned long long)avr->cycle, value & 0xFFu);
+  if (pc_window) fflush(pc_trace);  // each window whole on disk, whenever the runner is stopped
+  pc_window = 0;
   if (uart.out_len < sizeof uart.out) uart.out[uart.out_len++] = (uint8_t)value;
 }
 
@@ -709,6 +718,7 @@ static void pty_feed_in(void) {
     ssize_t n = read(uart.master, uart.in, sizeof uart.in);
     uart.in_len = n > 0 ? (size_t)n : 0;
     uart.in_done = 0;
+    if (n > 0) pc_window = pc_trace != NULL;
     if (uart_trace && n > 0) {
       fprintf(uart_trace, "i %llu ", (unsigned long long)avr->cycle);
       for (ssize_t k = 0; k < n; k++) fprintf(uart_trace, "%02x", uart.in[k]);
@@ -1016,7 +1026,7 @@ static void usage(void) {
   fprintf(stderr,
           "usage: hwbridge-simavr [--mcu atmega328p] [--freq 16000000] [--speed 1.0] "
           "[--report-us 5000] [--hold] [--bootloader BOOT.hex] [--trace-uart FILE] "
-          "FIRMWARE.elf\n");
+          "[--trace-pc FILE] FIRMWARE.elf\n");
   exit(2);
 }
 
@@ -1046,6 +1056,13 @@ int main(int argc, char **argv) {
         exit(2);
       }
       setvbuf(uart_trace, NULL, _IOLBF, 0);  // whole lines, readable while the run goes on
+    }
+    else if (!strcmp(argv[i], "--trace-pc") && i + 1 < argc) {
+      pc_trace = fopen(argv[++i], "wb");
+      if (!pc_trace) {
+        fprintf(stderr, "hwbridge-simavr: cannot write %s: %s\n", argv[i], strerror(errno));
+        exit(2);
+      }
     }
     else if (argv[i][0] == '-')
       usage();
@@ -1122,6 +1139,14 @@ int main(int argc, char **argv) {
 
   int state = cpu_Running;
   while (!want_quit) {
+    if (pc_window) {
+      uint8_t rec[12];
+      uint64_t cycle = avr->cycle;
+      uint32_t pc = avr->pc;
+      for (int k = 0; k < 8; k++) rec[k] = (uint8_t)(cycle >> (8 * k));
+      for (int k = 0; k < 4; k++) rec[8 + k] = (uint8_t)(pc >> (8 * k));
+      fwrite(rec, sizeof rec, 1, pc_trace);
+    }
     state = avr_run(avr);
     if (boot_mode && pty_opened()) want_reset = 1;
     if ((state == cpu_Done || state == cpu_Crashed) && boot_mode) {

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import signal
 from collections.abc import Iterator
 
 import pytest
@@ -17,6 +18,15 @@ pytest_plugins = ["tests.scheduling"]
 # own @settings keeps what it sets and takes the rest from this profile.
 settings.register_profile("hwbridge", deadline=None)
 settings.load_profile("hwbridge")
+
+# The commands the tests start must meet SIGINT as they do when started from a terminal. A job
+# started in the background of a script (``./tools/test &`` in a CI runner's shell, which has no
+# job control) inherits SIGINT ignored, every process it starts keeps it ignored through exec,
+# and Python then installs no KeyboardInterrupt handler: the tests that press Ctrl-C on a command
+# (tests/hwbridge/test_sigint.py and others) failed by the dozen that way. A handler here is not
+# inherited through exec: what the tests start begins with SIGINT's default action again.
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 @pytest.fixture(scope="module")

@@ -447,3 +447,28 @@ def _problem(outcome: Outcome, deadline: float) -> str | None:
     if "FATAL" in outcome.output:
         return "FATAL in its output"
     return outcome.problem
+
+
+def test_what_the_suite_starts_handles_sigint_when_the_suite_was_started_ignoring_it() -> None:
+    """The SIGINT tests need the commands they start to handle SIGINT as when started from a
+    terminal. A suite started in the background of a script (``./tools/test &`` in a CI
+    runner's shell) inherits SIGINT ignored, and so would everything it starts; tests/conftest.py
+    gives the suite's processes a handler instead, which exec does not pass on. Here a process
+    started with SIGINT ignored (``trap '' INT``) loads the conftest and starts a Python: that one
+    has its KeyboardInterrupt handler."""
+    report = "import signal; print(signal.getsignal(signal.SIGINT) is signal.default_int_handler)"
+    code = (
+        "import subprocess, sys\n"
+        "import tests.conftest\n"
+        f"print(subprocess.run([sys.executable, '-c', {report!r}], capture_output=True,"
+        " text=True, check=True).stdout.strip())\n"
+    )
+    done = subprocess.run(
+        ["/bin/sh", "-c", 'trap "" INT; exec "$0" -c "$1"', sys.executable, code],
+        cwd=Path(__file__).parents[2],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=True,
+    )
+    assert done.stdout.strip() == "True", done.stderr

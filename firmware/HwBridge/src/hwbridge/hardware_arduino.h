@@ -34,10 +34,25 @@ struct SerialRing : HardwareSerial {
     const Index tail = s.*(&SerialRing::_tx_buffer_tail);  // the interrupt only frees more
     if (n > static_cast<Index>((tail - head - 1) & mask)) return false;  // no room for all
     unsigned char* const ring = s.*(&SerialRing::_tx_buffer);
-    do {
-      ring[head] = *p++;
-      head = static_cast<Index>((head + 1) & mask);
-    } while (--n != 0);
+    // A pointer that wraps at the ring's end and a one-byte count (n is below the ring's size):
+    // 11 cycles a byte, where avr-gcc 5.4 made 16 of the same loop in C (it recomputed the
+    // address from the index at each byte).
+    unsigned char* w = ring + head;
+    unsigned char* const stop = ring + mask + 1;
+    uint8_t k = static_cast<uint8_t>(n);
+    __asm__ volatile(
+        "1:\tld __tmp_reg__, %a[p]+\n\t"
+        "st %a[w]+, __tmp_reg__\n\t"
+        "cp %A[w], %A[stop]\n\t"
+        "cpc %B[w], %B[stop]\n\t"
+        "brne 2f\n\t"
+        "movw %A[w], %A[ring]\n"
+        "2:\tdec %[k]\n\t"
+        "brne 1b"
+        : [p] "+e"(p), [w] "+e"(w), [k] "+r"(k)
+        : [stop] "r"(stop), [ring] "r"(ring)
+        : "memory");
+    head = static_cast<Index>(w - ring);
     s.*(&SerialRing::_written) = true;
     volatile uint8_t* const ucsrb = s.*(&SerialRing::_ucsrb);
     const uint8_t sreg = SREG;

@@ -9,7 +9,12 @@ it keeps the instructions from the request's last byte reaching the firmware (as
 ``answer_delays`` in sim.py computes it) to the answer's first byte: ``board_answer``, the board's
 own part of a call. Each instruction's cycles go to the function its address is in (``avr-nm``
 of the ELF; with LTO, inlined code counts in its caller). Prints one JSON line per firmware:
-the median cycles of a call's answer, and cycles per call by function, largest first.
+the median cycles of a call's answer (``answer_cycles_p50``), cycles per call by function,
+largest first, and where a call's time goes: ``rtt_us_p50`` (wall clock),
+``board_and_line_us_p50`` (simulated: from the request handed to the UART to the answer's last
+byte out, the line's time both ways included) and ``host_us_p50``, the difference of the two
+medians (the host's part, with the runner's pty pacing of up to 50 us each way). ros_lib's
+request arrival is counted with HwBridge's byte time (the line's; ros_lib writes slower).
 
 Not a benchmark with a pass mark: a tool for finding what to make faster (issue 29).
 Runs in under a minute.

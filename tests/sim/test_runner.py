@@ -159,6 +159,23 @@ def test_uart_carries_a_burst_whole(probe_elf: Path, terminal_factory: type[Term
         assert uart.read_until(b"#", timeout=60) == burst
 
 
+def _echo_hello(
+    probe_elf: Path,
+    terminal_factory: type[Terminal],
+    *,
+    trace_uart: Path | None = None,
+    trace_pc: Path | None = None,
+) -> None:
+    """The probe boots and echoes "hello#", with the runner's logs asked for."""
+    with SimAvr(probe_elf, trace_uart=trace_uart, trace_pc=trace_pc) as sim:
+        sim.start(hold=True)
+        uart = terminal_factory(sim.path)
+        sim.go()
+        assert uart.read_until(b"boot\n") == b"boot\n"
+        uart.write(b"hello#")
+        assert uart.read_until(b"#") == b"hello#"
+
+
 def test_uart_trace_stamps_every_byte_both_ways(
     probe_elf: Path, terminal_factory: type[Terminal], tmp_path: Path
 ) -> None:
@@ -167,13 +184,7 @@ def test_uart_trace_stamps_every_byte_both_ways(
     echo appear in order, no two written bytes closer than a byte time at 115200 baud (10 bits:
     1389 cycles at 16 MHz, less UBRR's rounding), and each echoed byte after it arrived."""
     trace = tmp_path / "uart.log"
-    with SimAvr(probe_elf, trace_uart=trace) as sim:
-        sim.start(hold=True)
-        uart = terminal_factory(sim.path)
-        sim.go()
-        assert uart.read_until(b"boot\n") == b"boot\n"
-        uart.write(b"hello#")
-        assert uart.read_until(b"#") == b"hello#"
+    _echo_hello(probe_elf, terminal_factory, trace_uart=trace)
     entries = read_uart_trace(trace)
     into = b"".join(e.data for e in entries if e.into_avr)
     out = [e for e in entries if not e.into_avr]
@@ -195,13 +206,7 @@ def test_pc_trace_records_the_instructions_from_a_read_to_the_next_byte_out(
     before the first echoed byte; each address inside a function of the ELF (``avr-nm``), and
     the probe's UART polling loop among them, run many times while the bytes trickle in."""
     uart_log, pc_log = tmp_path / "uart.log", tmp_path / "pc.bin"
-    with SimAvr(probe_elf, trace_uart=uart_log, trace_pc=pc_log) as sim:
-        sim.start(hold=True)
-        uart = terminal_factory(sim.path)
-        sim.go()
-        assert uart.read_until(b"boot\n") == b"boot\n"
-        uart.write(b"hello#")
-        assert uart.read_until(b"#") == b"hello#"
+    _echo_hello(probe_elf, terminal_factory, trace_uart=uart_log, trace_pc=pc_log)
     entries = read_uart_trace(uart_log)
     handed = next(e for e in entries if e.into_avr)
     echoed = next(e for e in entries if not e.into_avr and e.cycle > handed.cycle)

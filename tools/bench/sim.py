@@ -667,20 +667,25 @@ def answer_delays(trace: list[UartBytes], byte_time: int) -> list[float]:
     """For each request in a ``--trace-uart`` log, microseconds of simulated time from its last
     byte reaching the firmware to the answer's first byte written to the UART: the board's own
     part of a call (reading and checking the request, the callback, and writing the answer up
-    to its first byte), whatever the host's load. A request is the bytes handed to the UART
-    last before a byte went out (one read of the pty; a request split over two reads counts
-    from the second); its last byte reaches the firmware one byte time per byte after it was
-    handed over (``byte_time``: the line's, :func:`byte_cycles`); the cycles are 16 MHz ones."""
-    delays: list[float] = []
+    to its first byte), whatever the host's load (:func:`answer_windows`; 16 MHz cycles)."""
+    return [(answered - arrived) / 16.0 for arrived, answered in answer_windows(trace, byte_time)]
+
+
+def answer_windows(trace: list[UartBytes], byte_time: int) -> list[tuple[int, int]]:
+    """For each request in a ``--trace-uart`` log, the cycle its last byte reached the firmware
+    and the cycle the answer's first byte was written to the UART. A request is the bytes
+    handed to the UART last before a byte went out (one read of the pty; a request split over
+    two reads counts from the second); its last byte reaches the firmware one byte time per
+    byte after it was handed over (``byte_time``: the line's, :func:`byte_cycles`)."""
+    windows: list[tuple[int, int]] = []
     request: UartBytes | None = None
     for entry in trace:
         if entry.into_avr:
             request = entry
         elif request is not None:
-            arrived = request.cycle + len(request.data) * byte_time
-            delays.append((entry.cycle - arrived) / 16.0)
+            windows.append((request.cycle + len(request.data) * byte_time, entry.cycle))
             request = None
-    return delays
+    return windows
 
 
 Call = tuple[Running, str, str, bytes]

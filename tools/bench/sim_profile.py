@@ -42,6 +42,7 @@ from sim import (
     REQUEST_X,
     ROSSERIAL_HELLO_SERVICE,
     Running,
+    answer_windows,
     build_hwbridge_sketch,
     byte_cycles,
     service_times,
@@ -87,23 +88,19 @@ def profile(
     byte_time = line_byte if line_byte is not None else byte_cycles(trace)
     if byte_time is None:
         raise RuntimeError(f"{elf.name} sent nothing")
-    # each answer's window: from the last request bytes' arrival to the answer's first byte;
-    # and the board's whole part of each call: from the request's first byte handed to the
-    # UART to the answer's last byte out (the last byte of the burst, plus its byte time)
-    windows: list[tuple[int, int]] = []
+    windows = answer_windows(trace, byte_time)
+    # the board's whole part of each call: from the request's first byte handed to the UART
+    # to the answer's last byte out (the last byte of the burst, plus its byte time)
     board_parts: list[int] = []
     request = None
     last_out = 0
     for entry in trace:
-        if entry.into_avr:
-            if request is not None and last_out > request.cycle:
-                board_parts.append(last_out + byte_time - request.cycle)
-            request = entry
-            last_out = 0
-        else:
-            if request is not None and last_out == 0:
-                windows.append((request.cycle + len(request.data) * byte_time, entry.cycle))
+        if not entry.into_avr:
             last_out = entry.cycle
+            continue
+        if request is not None and last_out > request.cycle:
+            board_parts.append(last_out + byte_time - request.cycle)
+        request = entry
     records = read_pc_trace(pcs)
     starts, names = symbols(elf)
     per_function: Counter[str] = Counter()

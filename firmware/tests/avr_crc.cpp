@@ -1,6 +1,7 @@
-// The AVR crc16 on the chip itself (host builds take the C loop): with -DHWBRIDGE_SMALL_CRC (an
-// inline-assembly bit loop) against avr-libc's _crc_xmodem_update, and by default (avr-libc's) on
-// the check value; prints "CRC OK" or "CRC BAD" on UART 0 (tests/firmware/test_cpp_core.py).
+// The AVR crc16 on the chip itself (host builds take the C loop): by default the library's
+// HWBRIDGE_AVR_CRC_STEP, with -DHWBRIDGE_SMALL_CRC its bit loop, each against avr-libc's
+// _crc_xmodem_update (the same CRC) and on the check value; prints "CRC OK" or "CRC BAD" on
+// UART 0 (tests/firmware/test_cpp_core.py).
 //   avr-g++ -mmcu=atmega328p -std=gnu++11 -Os -flto -I../HwBridge/src avr_crc.cpp -o avr_crc.elf
 //   simavr -m atmega328p -f 16000000 avr_crc.elf
 #include <avr/io.h>

@@ -10,10 +10,6 @@
 #include <stdint.h>
 #include <string.h>
 
-#if defined(__AVR__)
-#include <util/crc16.h>
-#endif
-
 namespace hwbridge {
 
 // ---------------------------------------------------------------------------------------------
@@ -23,10 +19,41 @@ namespace hwbridge {
 /** Initial value of the CRC. */
 static const uint16_t kCrcInit = 0xFFFF;
 
+#if defined(__AVR__)
+/**
+ * One byte of the CRC in AVR instructions, for inline assembly with the operands [crc] (the CRC,
+ * a register pair), [c] (the byte), [t] (a scratch register from r16 up) and [t2] (a scratch
+ * register): the byte form of CRC-16/CCITT, x = crc.hi ^ c, x ^= x >> 4, then
+ * crc = crc << 8 ^ x << 12 ^ x << 5 ^ x, which is new hi = lo ^ (x << 4 & 0xF0) ^ x >> 3 and
+ * new lo = x ^ (x << 5 & 0xE0). 18 instructions of one cycle, no branch.
+ */
+#define HWBRIDGE_AVR_CRC_STEP              \
+  "eor %B[crc], %[c]\n\t" /* x */          \
+  "mov %[t], %B[crc]\n\t"                  \
+  "swap %[t]\n\t"                          \
+  "andi %[t], 0x0f\n\t"                    \
+  "eor %B[crc], %[t]\n\t" /* x ^= x >> 4 */ \
+  "mov %[t], %B[crc]\n\t"                  \
+  "swap %[t]\n\t"                          \
+  "andi %[t], 0xf0\n\t" /* x << 4 */       \
+  "mov %[t2], %B[crc]\n\t"                 \
+  "lsr %[t2]\n\t"                          \
+  "lsr %[t2]\n\t"                          \
+  "lsr %[t2]\n\t" /* x >> 3 */             \
+  "eor %[t2], %[t]\n\t"                    \
+  "eor %[t2], %A[crc]\n\t" /* new hi */    \
+  "lsl %[t]\n\t" /* x << 5 */              \
+  "eor %[t], %B[crc]\n\t" /* new lo */     \
+  "mov %A[crc], %[t]\n\t"                  \
+  "mov %B[crc], %[t2]\n\t"
+#endif
+
 /** The CRC after one more byte. */
 inline uint16_t crc16_update(uint16_t crc, uint8_t byte) {
 #if defined(__AVR__) && !defined(HWBRIDGE_SMALL_CRC)
-  return _crc_xmodem_update(crc, byte);  // the same CRC, unrolled: ~25 cycles a byte
+  uint8_t t, t2;  // 18 cycles a byte (avr-libc's _crc_xmodem_update takes about 25)
+  __asm__(HWBRIDGE_AVR_CRC_STEP : [crc] "+r"(crc), [t] "=&d"(t), [t2] "=&r"(t2) : [c] "r"(byte));
+  return crc;
 #elif defined(__AVR__)
   // -DHWBRIDGE_SMALL_CRC: the bit loop below in 9 instructions (the compiler makes 17 of it):
   // shift the top bit out, fold the polynomial back in when it was set. 12 B less flash than
@@ -59,7 +86,20 @@ inline uint16_t crc16_update(uint16_t crc, uint8_t byte) {
 /** The CRC of n bytes, continuing from crc (kCrcInit for a new one). */
 __attribute__((noinline)) inline uint16_t crc16(const uint8_t* data, size_t n,
                                                 uint16_t crc = kCrcInit) {
+#if defined(__AVR__) && !defined(HWBRIDGE_SMALL_CRC)
+  if (n != 0) {  // the loop in assembly too: 24 cycles a byte, 10 B less than in C
+    uint8_t c, t, t2;
+    __asm__("1:\tld %[c], %a[p]+\n\t" HWBRIDGE_AVR_CRC_STEP
+            "sbiw %[n], 1\n\t"
+            "brne 1b"
+            : [p] "+e"(data), [n] "+w"(n), [crc] "+r"(crc), [c] "=&r"(c), [t] "=&d"(t),
+              [t2] "=&r"(t2)
+            :
+            : "memory");
+  }
+#else
   for (size_t i = 0; i < n; ++i) crc = crc16_update(crc, data[i]);
+#endif
   return crc;
 }
 

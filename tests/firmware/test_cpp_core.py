@@ -273,56 +273,46 @@ def test_avr_build_uses_no_heap(profile: str, tmp_path: Path) -> None:
     assert text < 8192, size.stdout
 
 
+needs_simavr = pytest.mark.skipif(
+    shutil.which("simavr") is None, reason="simavr is not installed (Debian)"
+)
+
+
+def _run_on_avr(source: str, tmp_path: Path, defines: list[str]) -> str:
+    """Builds ``firmware/tests/<source>`` for the ATmega328P and runs it in simavr; returns what
+    it printed on UART 0 (with simavr's own lines)."""
+    elf = tmp_path / Path(source).with_suffix(".elf").name
+    flags = [*AVRFLAGS, "-flto", *defines, f"-I{INCLUDE}"]
+    _compile(["avr-g++", *flags, str(TESTS / source), "-o", str(elf)])
+    run = subprocess.run(
+        ["simavr", "-m", "atmega328p", "-f", "16000000", str(elf)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
+    return run.stdout + run.stderr
+
+
 @needs_avr
-@pytest.mark.skipif(shutil.which("simavr") is None, reason="simavr is not installed (Debian)")
+@needs_simavr
 @pytest.mark.parametrize("variant", ["default", "small"])
 def test_crc_on_the_avr(variant: str, tmp_path: Path) -> None:
     """crc16 as the ATmega328P runs it (simavr): the library's 18-instruction step by default,
     the bit loop of HWBRIDGE_SMALL_CRC, each against avr-libc's _crc_xmodem_update on random runs
     and on the check value."""
-    elf = tmp_path / "avr_crc.elf"
     define = ["-DHWBRIDGE_SMALL_CRC"] if variant == "small" else []
-    source = TESTS / "avr_crc.cpp"
-    _compile(["avr-g++", *AVRFLAGS, "-flto", *define, f"-I{INCLUDE}", str(source), "-o", str(elf)])
-    run = subprocess.run(
-        ["simavr", "-m", "atmega328p", "-f", "16000000", str(elf)],
-        capture_output=True,
-        text=True,
-        timeout=120,
-        check=False,
-    )
-    output = run.stdout + run.stderr
+    output = _run_on_avr("avr_crc.cpp", tmp_path, define)
     assert "CRC OK" in output and "CRC BAD" not in output, output
 
 
 @needs_avr
-@pytest.mark.skipif(shutil.which("simavr") is None, reason="needs simavr (Debian package)")
+@needs_simavr
 def test_frame_encoder_on_the_avr(tmp_path: Path) -> None:
     """write_frame as the ATmega328P runs it (simavr): its fused CRC and COBS pass in assembly
     against the frame's definition (crc16 and the look-ahead COBS), on 400 random frames, some
     of them ending with a full 254-byte group."""
-    elf = tmp_path / "avr_encode.elf"
-    source = TESTS / "avr_encode.cpp"
-    _compile(
-        [
-            "avr-g++",
-            *AVRFLAGS,
-            "-flto",
-            "-DHWBRIDGE_ACK_IN_DATA=1",
-            f"-I{INCLUDE}",
-            str(source),
-            "-o",
-            str(elf),
-        ]
-    )
-    run = subprocess.run(
-        ["simavr", "-m", "atmega328p", "-f", "16000000", str(elf)],
-        capture_output=True,
-        text=True,
-        timeout=120,
-        check=False,
-    )
-    output = run.stdout + run.stderr
+    output = _run_on_avr("avr_encode.cpp", tmp_path, ["-DHWBRIDGE_ACK_IN_DATA=1"])
     found = re.search(r"ENCODE OK (\d+)", output)
     assert found is not None and "ENCODE BAD" not in output, output
     assert int(found.group(1)) > 0, f"no frame ended with a full group: {output}"

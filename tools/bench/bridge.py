@@ -39,9 +39,17 @@ trip (``zenoh_rtt_p50_us``), a round trip on the board's link with the board idl
 rounds (a raw echo process on the board's end of the same transport, ``pty://`` or
 ``tcp-listen://``, answering the request's bytes with as many bytes as the board's answer,
 ``frame_bytes``, paused as in a call) and the board's own handling (``board_us``, which a
-Python board makes far longer than a C++ one). ``rtt_over_floor`` is ``rtt_p50_us /
-floor_p50_us``: what the bridge costs beyond the floor, as a ratio. ``rtt_over_zenoh_plus_link``
-leaves the board's handling out of the floor (it charges the board's time to the bridge).
+Python board makes far longer than a C++ one). ``rtt_over_floor`` is what the bridge costs
+beyond the floor, as a ratio: the latency case runs in ``LATENCY_ROUNDS`` rounds, each its
+share of the calls, then its floors and its link's echo, and ``rtt_over_floor`` is the median
+of the rounds' ratios (``rtt_over_floor_rounds``, each a round's p50 over that round's floor;
+``rtt_p50_rounds_us`` and ``floor_rounds_us`` are the two). The other fields pool the rounds
+(``floor_p50_us`` sums the pooled parts, the link's the median of the rounds'). The rounds show
+how much one window of calls says: on the 2-core machine of issue 29 the rounds of one run read
+1.03 to 1.57, the bridged p50 of 500 calls moving from 338 to 623 us between rounds while the
+floors moved from 325 to 442 us; one pass (all calls, then the floors) read 1.06 to 1.50 over
+four runs of one commit within an hour. ``rtt_over_zenoh_plus_link`` leaves the board's
+handling out of the floor (it charges the board's time to the bridge).
 
 Runs with no arguments in about a minute; prints one JSON object per line. ``--cases latency``
 runs only the service calls.
@@ -59,6 +67,7 @@ import tempfile
 import threading
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -83,6 +92,9 @@ N_CALLS = 2000
 GRAPH_PAUSE = 300e-6
 """Seconds the caller waits between calls to the floor services: about what the board and the
 link take in a bridged call, so both processes go idle between messages as they do there."""
+LATENCY_ROUNDS = 4
+"""The latency case runs in rounds: each its share of the calls, its floors and its link echo,
+one after the other, and its own ratio (see the module's docstring)."""
 RAW_KEY = "bench_raw/trigger"
 """Key of the bare Zenoh queryable (outside the graph's key space)."""
 DOMAIN = "bench"
@@ -562,28 +574,50 @@ def _latency(
     )
     floors = f"@{GRAPH_PAUSE!r}"
     targets = ["/bench/trigger", "/bench/graph_trigger" + floors, f"zenoh:{RAW_KEY}" + floors]
+    times: list[float] = []
+    graph_times: list[float] = []
+    zenoh_times: list[float] = []
+    rounds: list[_Round] = []
+    handled = 0  # the board's handling times taken by the rounds before
+    handling: dict[str, list[Any]] = {"seconds": []}
+    sizes = (16, 16)
     try:
-        measured = _call_times(endpoint, calls, targets)
+        for index in range(LATENCY_ROUNDS):
+            share = calls // LATENCY_ROUNDS + (index < calls % LATENCY_ROUNDS)
+            measured = _call_times(endpoint, share, targets)
+            handling = json.loads(_ask(board, "handling"))
+            seconds, handled = handling["seconds"][handled:], len(handling["seconds"])
+            sizes = (
+                int(statistics.median(handling["request_bytes"] or [16])),
+                int(statistics.median(handling["reply_bytes"] or [16])),
+            )
+            rounds.append(
+                _floor_round(
+                    measured[targets[0]],
+                    measured[targets[2]],
+                    seconds,
+                    sizes,
+                    echo_rtt,
+                    tmp,
+                    transport,
+                )
+            )
+            times += measured[targets[0]]
+            graph_times += measured[targets[1]]
+            zenoh_times += measured[targets[2]]
     finally:
         raw_server.undeclare()
-    times, graph_times, zenoh_times = (measured[target] for target in targets)
-    handling = json.loads(_ask(board, "handling"))
     board_time = statistics.median(handling["seconds"]) if handling["seconds"] else 0.0
-    sizes = (
-        int(statistics.median(handling["request_bytes"] or [16])),
-        int(statistics.median(handling["reply_bytes"] or [16])),
-    )
     host = [t - echo_rtt - board_time for t in times]
     # The same echo with each side idle between rounds as long as the board is in a bridged
     # call (the rest of the round trip): the pty round trip as the call meets it.
     idle = max(_percentile(times, 0.5) - board_time - echo_rtt, 0.0)
     echo_idle = pty_echo_rtt(tmp, 500, pause=idle)
-    # The floor's link part: that idle echo on this run's transport, with the call's own
-    # frame sizes each way.
-    link_idle = pty_echo_rtt(tmp, 500, pause=idle, transport=transport, sizes=sizes)
+    link_idle = statistics.median(r.link for r in rounds)
     rtt_p50 = _percentile(times, 0.5)
     zenoh_p50 = _percentile(zenoh_times, 0.5)
     floor = zenoh_p50 + link_idle + board_time
+    ratios = [r.rtt / r.floor for r in rounds]
     emit(
         f"bridge_latency_{protocol}_{transport}",
         {"payload": 0},
@@ -607,10 +641,42 @@ def _latency(
             "board": round(board_time * 1e6, 1),
         },
         frame_bytes={"request": sizes[0], "reply": sizes[1]},
-        rtt_over_floor=round(rtt_p50 / floor, 3),
+        rtt_over_floor=round(statistics.median(ratios), 3),
+        rtt_over_floor_rounds=[round(ratio, 3) for ratio in ratios],
+        rtt_p50_rounds_us=[round(r.rtt * 1e6, 1) for r in rounds],
+        floor_rounds_us=[round(r.floor * 1e6, 1) for r in rounds],
         rtt_over_zenoh_plus_link=round(rtt_p50 / (zenoh_p50 + link_idle), 3),
         calls=len(times),
     )
+
+
+@dataclass(frozen=True)
+class _Round:
+    """One round of the latency case: its bridged calls' p50 and the floor measured with them
+    (seconds), and the floor's link part."""
+
+    rtt: float
+    floor: float
+    link: float
+
+
+def _floor_round(
+    times: list[float],
+    zenoh_times: list[float],
+    board_seconds: list[float],
+    sizes: tuple[int, int],
+    echo_rtt: float,
+    tmp: Path,
+    transport: str,
+) -> _Round:
+    """A round's floor: its Zenoh round trip, the board's handling in it, and the link's idle
+    echo measured right after it, with the call's own frame sizes each way, paused as long as
+    the rest of the call keeps the board's end idle."""
+    board_time = statistics.median(board_seconds) if board_seconds else 0.0
+    rtt = _percentile(times, 0.5)
+    idle = max(rtt - board_time - echo_rtt, 0.0)
+    link = pty_echo_rtt(tmp, 500, pause=idle, transport=transport, sizes=sizes)
+    return _Round(rtt, _percentile(zenoh_times, 0.5) + link + board_time, link)
 
 
 def _call_times(endpoint: str, calls: int, targets: list[str]) -> dict[str, list[float]]:

@@ -123,8 +123,8 @@ static const uint8_t kAvrFullGroup = 0;
  * group's code byte plus the group's count so far (run: 1 + its data bytes), so that no third
  * pointer is needed: a group closes with its code stored at w - run. The CRC step is
  * HWBRIDGE_AVR_CRC_STEP (hwbridge_wire.h). About 33 cycles a data byte, where crc16() and the C
- * loop took some 55. Returns the open group's count (its code byte not yet stored), or kAvrFullGroup when
- * the last group ended full (no code byte open: the caller drops the slot).
+ * loop took some 55. Returns the open group's count (its code byte not yet stored), or
+ * kAvrFullGroup when the last group ended full (no code byte open: the caller drops the slot).
  */
 inline uint8_t avr_encode_body(uint8_t* body, size_t n, uint8_t** wp) {
   const uint8_t* r = body;
@@ -180,8 +180,9 @@ inline uint8_t avr_encode_body(uint8_t* body, size_t n, uint8_t** wp) {
 /**
  * The wire bytes of one frame into out (wire_room(n1 + n2) bytes): an optional lead 0x00,
  * COBS(header, p1, p2, CRC) and the delimiter. The body is first copied to the end of out (and
- * its CRC computed there), then encoded forward from there to out's start, in place: the
- * writer never catches up with the reader, as the encoding adds at most one byte for 254.
+ * its CRC computed there; on AVR, avr_encode_body() sums the CRC in the encoding's own pass),
+ * then encoded forward from there to out's start, in place: the writer never catches up with
+ * the reader, as the encoding adds at most one byte for 254.
  * Each data byte is copied, each zero becomes the code of the group before it (a group's code
  * byte is kept open until its group ends: no look-ahead). The canonical encoding (that of
  * cobs_write), byte for byte. Returns the wire length.

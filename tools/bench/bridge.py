@@ -15,21 +15,21 @@ session (the graph's own ceiling on this machine). CPU use of the bridge process
 Latency (``bench`` contains ``latency``): the client calls a std_srvs/Trigger service served by
 the board through the bridge. ``p50_us``/``p99_us`` are host-added: the round trip minus what
 the host does not cause: the board's own processing (``board_us``, measured in the board
-process) and the pty round trip (``pty_echo_us``, a raw echo over a pty measured in the same run,
-which is also the ``peer``). The round trip itself is ``rtt_p50_us``/``rtt_p99_us``.
-That echo runs back to back, so its two processes never sleep; in a bridged call the board
-sleeps between calls and waking a sleeping process costs far more on some machines (a virtual
-one most). ``pty_echo_idle_us`` is the echo with a pause between rounds as long as the board
-sleeps in a bridged call, and ``p50_idle_echo_us`` the host-added p50 with that echo subtracted
+process) and the pty round trip (``pty_echo_us``, a raw echo over a pty measured in the same
+run, which is also the ``peer``). The round trip itself is ``rtt_p50_us``/``rtt_p99_us``. That
+echo runs back to back, so its two processes never sleep; in a bridged call the board sleeps
+between calls and waking a sleeping process costs far more on some machines (a virtual one
+most). ``pty_echo_idle_us`` is the echo with a pause between rounds as long as the board sleeps
+in a bridged call, and ``p50_idle_echo_us`` the host-added p50 with that echo subtracted
 instead: what the host adds when the link is charged at the price the call pays for it.
-``p50_us`` stays the stricter figure.
-Two floors are measured by the same caller process right after the bridged calls:
-``graph_rtt_p50_us``, a graph-only service served in the bridge process (no board, no link),
-and ``zenoh_rtt_p50_us``, a bare Zenoh querier calling a bare Zenoh queryable there (no
-hwbridge code on either side). For both, the caller pauses between calls so that, as in a
-bridged call, both processes go idle in between. (Interleaving the three in blocks was tried:
-each switch leaves the board and the bridge cold, which adds 65-100 us to the bridged p50, a
-cost a caller that keeps calling does not pay.) ``p50_us`` minus ``graph_rtt_p50_us`` is about
+``p50_us`` stays the stricter figure. Two floors are measured by the same caller process right
+after the bridged calls: ``graph_rtt_p50_us``, a graph-only service served in the bridge
+process (no board, no link), and ``zenoh_rtt_p50_us``, a bare Zenoh querier calling a bare
+Zenoh queryable there (no hwbridge code on either side). For both, the caller pauses between
+calls so that, as in a bridged call, both processes go idle in between. (Interleaving the three
+in small blocks was tried: each switch leaves the board and the bridge cold, which adds 65-100
+us to the bridged p50, a cost a caller that keeps calling does not pay; the rounds below switch
+once a round, after 50 warm-up calls of each.) ``p50_us`` minus ``graph_rtt_p50_us`` is about
 what the bridge itself adds; ``graph_rtt_p50_us`` minus ``zenoh_rtt_p50_us`` is what the graph
 layer adds to Zenoh.
 
@@ -582,8 +582,9 @@ def _latency(
     handling: dict[str, list[Any]] = {"seconds": []}
     sizes = (16, 16)
     try:
-        for index in range(LATENCY_ROUNDS):
-            share = calls // LATENCY_ROUNDS + (index < calls % LATENCY_ROUNDS)
+        count = max(1, min(LATENCY_ROUNDS, calls))  # a round has at least one call
+        for index in range(count):
+            share = calls // count + (index < calls % count)
             measured = _call_times(endpoint, share, targets)
             handling = json.loads(_ask(board, "handling"))
             seconds, handled = handling["seconds"][handled:], len(handling["seconds"])

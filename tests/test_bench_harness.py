@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import importlib.util
+import itertools
 import platform
 import random
+import shutil
 import statistics
 import sys
 from pathlib import Path
@@ -300,3 +302,36 @@ def test_sim_bench_times_a_board_answer_from_the_line_pace() -> None:
     assert sim.byte_cycles(trace) == 176
     assert sim.answer_delays(trace, 176) == [100.0, 100.0]
     assert sim.byte_cycles([UartBytes(True, 5, b"x")]) is None
+
+
+@pytest.mark.skipif(
+    shutil.which("avr-g++") is None
+    or shutil.which("simavr") is None
+    or not Path("/usr/share/arduino/hardware/arduino/avr/cores/arduino").is_dir(),
+    reason="needs gcc-avr, avr-libc, arduino-core-avr and simavr (Debian packages)",
+)
+def test_sim_profile_gives_a_call_as_the_functions_it_ran_through() -> None:
+    """``tools/bench/sim_profile.py --timeline N``: call N's answer as stretches of one function
+    each, in order from the request's last byte, among them the frame writer and the copy into
+    the UART's ring; the per-function sums are there too. No timing checks (cycles differ with
+    the firmware)."""
+    import json
+    import subprocess
+
+    done = subprocess.run(
+        [sys.executable, str(BENCH.with_name("sim_profile.py")), "--calls", "6", "--timeline", "3"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=True,
+    )
+    (line,) = [json.loads(text) for text in done.stdout.splitlines() if text.startswith("{")]
+    assert line["firmware"] == "HelloService" and line["calls"] >= 6
+    timeline = line["timeline"]
+    starts = [start for start, _cycles, _name in timeline]
+    assert starts == sorted(starts) and all(cycles > 0 for _start, cycles, _name in timeline)
+    assert all(a[2] != b[2] for a, b in itertools.pairwise(timeline))  # one stretch a function
+    names = " ".join(name for _start, _cycles, name in timeline)
+    assert "write_frame" in names and "put_block" in names, names
+    assert sum(cycles for _start, cycles, _name in timeline) > 1000
+    assert "write_frame" in " ".join(line["per_call_by_function"])

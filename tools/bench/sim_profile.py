@@ -10,7 +10,8 @@ it keeps the instructions from the request's last byte reaching the firmware (as
 own part of a call. Each instruction's cycles go to the function its address is in (``avr-nm``
 of the ELF; with LTO, inlined code counts in its caller). Prints one JSON line per firmware:
 the median cycles of a call's answer (``answer_cycles_p50``), cycles per call by function,
-largest first, and where a call's time goes: ``rtt_us_p50`` (wall clock),
+largest first (with ``--timeline N``, call N's answer as the functions it ran through, in order),
+and where a call's time goes: ``rtt_us_p50`` (wall clock),
 ``board_and_line_us_p50`` (simulated: from the request handed to the UART to the answer's last
 byte out, the line's time both ways included) and ``host_us_p50``, the difference of the two
 medians (the host's part, with the runner's pty pacing of up to 50 us each way). ros_lib's
@@ -75,9 +76,11 @@ def profile(
     calls: int,
     tmp: Path,
     line_byte: int | None = None,
+    timeline: int | None = None,
 ) -> dict[str, Any]:
     """One firmware's profile (the JSON line); ``line_byte``: the line's byte time in cycles
-    (None: from this firmware's own writes, see ``byte_cycles`` in sim.py)."""
+    (None: from this firmware's own writes, see ``byte_cycles`` in sim.py); ``timeline``: the
+    index of a call whose answer is also given as the run of functions it went through."""
     uart, pcs = tmp / f"{elf.stem}.uart", tmp / f"{elf.stem}.pc"
     running = Running(elf, protocol, BAUD, trace=uart, trace_pc=pcs)
     try:
@@ -107,6 +110,7 @@ def profile(
     totals: list[int] = []
     w = 0
     window_total = 0
+    segments: list[list[Any]] = []  # [cycles from the window's start, cycles, function]
     for (cycle, pc), (following, _) in itertools.pairwise(records):
         while w < len(windows) and cycle >= windows[w][1]:
             if window_total:
@@ -120,7 +124,13 @@ def profile(
         spent = following - cycle
         window_total += spent
         at = bisect.bisect_right(starts, pc) - 1
-        per_function[names[at] if at >= 0 else f"0x{pc:04x}"] += spent
+        name = names[at] if at >= 0 else f"0x{pc:04x}"
+        per_function[name] += spent
+        if w == timeline:
+            if segments and segments[-1][2] == name:
+                segments[-1][1] += spent
+            else:
+                segments.append([cycle - windows[w][0], spent, name])
     answered = len(totals)
     return {
         "firmware": elf.stem,
@@ -138,6 +148,7 @@ def profile(
         }
         if answered
         else {},
+        **({"timeline": segments} if timeline is not None else {}),
     }
 
 
@@ -145,12 +156,19 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     parser.add_argument("--calls", type=int, default=100)
     parser.add_argument("--peer", action="store_true", help="profile ros_lib's server too")
+    parser.add_argument(
+        "--timeline",
+        type=int,
+        metavar="N",
+        help="also give call N's answer as the run of functions it went through: [cycles from "
+        "the request's last byte, cycles, function] for each stretch in one function",
+    )
     args = parser.parse_args()
     with tempfile.TemporaryDirectory(prefix="hwbridge-sim-profile-") as folder:
         tmp = Path(folder)
         ours = build_hwbridge_sketch("HelloService", HWBRIDGE_HELLO_SERVICE, BAUD, tmp)
         trigger = ("/bench/count", "std_srvs/Trigger", b"")
-        found = profile(ours, "native", trigger, args.calls, tmp)
+        found = profile(ours, "native", trigger, args.calls, tmp, timeline=args.timeline)
         print(json.dumps(found), flush=True)
         if args.peer and (ROSSERIAL_GIT / "HEAD").exists():
             ros_lib = make_ros_lib(tmp)
@@ -159,7 +177,8 @@ def main() -> None:
             )
             test = ("/bench/test_srv", "rosserial_arduino/Test", REQUEST_X)
             line = int(found["byte_cycles"])
-            print(json.dumps(profile(theirs, "rosserial", test, args.calls, tmp, line)), flush=True)
+            found = profile(theirs, "rosserial", test, args.calls, tmp, line, args.timeline)
+            print(json.dumps(found), flush=True)
 
 
 if __name__ == "__main__":

@@ -113,9 +113,6 @@ inline void put_run(Sink& sink, const uint8_t* p, size_t n, long) {
 inline constexpr size_t wire_room(size_t n) { return n + kEnvelope + ((n + kEnvelope) >> 7) + 3; }
 
 #if defined(__AVR__)
-/** What avr_encode_body() returns when the body ended with a full group (254 data bytes). */
-static const uint8_t kAvrFullGroup = 0;
-
 /**
  * The AVR's pass of encode_wire(): the CRC-16 of the n bytes at body, stored after them, and the
  * COBS of all n + 2, in one loop, forward and in place (*w, the writer, stays behind the body).
@@ -123,10 +120,11 @@ static const uint8_t kAvrFullGroup = 0;
  * group's code byte plus the group's count so far (run: 1 + its data bytes), so that no third
  * pointer is needed: a group closes with its code stored at w - run. The CRC step is
  * HWBRIDGE_AVR_CRC_STEP (hwbridge_wire.h). About 33 cycles a data byte, where crc16() and the C
- * loop took some 55. Returns the open group's count (its code byte not yet stored), or
- * kAvrFullGroup when the last group ended full (no code byte open: the caller drops the slot).
+ * loop took some 55. At the end the last group's code byte is stored, or, when the last group
+ * ended full (254 data bytes), its empty slot dropped (canonical: no empty group after it);
+ * *wp is then where the delimiter goes.
  */
-inline uint8_t avr_encode_body(uint8_t* body, size_t n, uint8_t** wp) {
+inline void avr_encode_body(uint8_t* body, size_t n, uint8_t** wp) {
   const uint8_t* r = body;
   uint8_t* w = *wp;
   const uint8_t* end = body + n;  // first the body, then its CRC
@@ -172,8 +170,12 @@ inline uint8_t avr_encode_body(uint8_t* body, size_t n, uint8_t** wp) {
         [phase] "+r"(phase), [full] "+r"(full), [c] "=&r"(c), [t] "=&d"(t), [t2] "=&r"(t2)
       :
       : "memory");
+  if (run == 1 && full) {
+    --w;
+  } else {
+    *(w - run) = run;
+  }
   *wp = w;
-  return run == 1 && full ? kAvrFullGroup : run;
 }
 #endif
 
@@ -202,12 +204,7 @@ inline size_t encode_wire(uint8_t* out, const FrameHeader& h, const uint8_t* p1,
   uint8_t* w = out;
   if (opts & kLead) *w++ = 0;
   ++w;  // after the first group's code byte, at out + run - 1
-  uint8_t run = avr_encode_body(body, n, &w);
-  if (run == kAvrFullGroup) {
-    --w;  // canonical: no empty group after a final full one
-  } else {
-    *(w - run) = run;
-  }
+  avr_encode_body(body, n, &w);
 #else
   wire::put16(body + n, crc16(body, n));
   const uint8_t* r = body;

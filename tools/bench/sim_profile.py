@@ -132,17 +132,18 @@ def profile(
             else:
                 segments.append([cycle - windows[w][0], spent, name])
     answered = len(totals)
+    answer = statistics.median(totals) if totals else None
+    rtt_us = statistics.median(times) * 1e6
+    board_us = statistics.median(board_parts) / 16
     return {
         "firmware": elf.stem,
         "calls": answered,
         "byte_cycles": byte_time,
-        "answer_cycles_p50": statistics.median(totals) if totals else None,
-        "answer_us_p50": round(statistics.median(totals) / 16, 1) if totals else None,
-        "rtt_us_p50": round(statistics.median(times) * 1e6, 1),
-        "board_and_line_us_p50": round(statistics.median(board_parts) / 16, 1),
-        "host_us_p50": round(
-            statistics.median(times) * 1e6 - statistics.median(board_parts) / 16, 1
-        ),
+        "answer_cycles_p50": answer,
+        "answer_us_p50": round(answer / 16, 1) if answer is not None else None,
+        "rtt_us_p50": round(rtt_us, 1),
+        "board_and_line_us_p50": round(board_us, 1),
+        "host_us_p50": round(rtt_us - board_us, 1),
         "per_call_by_function": {
             name: round(count / answered) for name, count in per_function.most_common(25)
         }

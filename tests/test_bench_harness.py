@@ -302,6 +302,12 @@ def test_sim_bench_times_a_board_answer_from_the_line_pace() -> None:
     assert sim.byte_cycles(trace) == 176
     assert sim.answer_delays(trace, 176) == [100.0, 100.0]
     assert sim.byte_cycles([UartBytes(True, 5, b"x")]) is None
+    # bytes a call puts on the line: 12 in and 5 out, whatever the reads and writes they took;
+    # a third request split over two reads (7 + 3) with a 4-byte answer
+    trace += [UartBytes(True, 90_000, bytes(7)), UartBytes(True, 90_100, bytes(3))]
+    trace += [UartBytes(False, 95_000, bytes(4)), UartBytes(True, 99_000, bytes(1))]
+    assert sim.call_bytes(trace) == 17
+    assert sim.call_bytes(trace[:6]) is None  # no answer ended by a next request yet
 
 
 @pytest.mark.skipif(

@@ -3,8 +3,10 @@
 // against the reference written from the frame's definition (the body with crc16() and the
 // look-ahead COBS of cobs_encode_to). Random headers and payloads in one or two pieces, with
 // runs of non-zero bytes around the 254-byte group (full groups at the end and in the middle),
-// with and without a lead and a carried ACK; prints "ENCODE OK n" (n: frames whose last group
-// was full) or "ENCODE BAD" on UART 0 (tests/firmware/test_cpp_core.py).
+// with and without a lead and a carried ACK; then the same frames through write_frame_early (the
+// frame writer of a sketch that serves a service: the groups before the body's last zero first,
+// then the CRC and the last group); prints "ENCODE OK n" (n: frames whose last group was full,
+// of the first 400) or "ENCODE BAD" on UART 0 (tests/firmware/test_cpp_core.py).
 //   avr-g++ -mmcu=atmega328p -std=gnu++11 -Os -flto -I../HwBridge/src avr_encode.cpp -o avr_encode.elf
 //   simavr -m atmega328p -f 16000000 avr_encode.elf
 #include <avr/io.h>
@@ -39,7 +41,12 @@ int main() {
   UBRR0 = 8;
   UCSR0B = (1 << TXEN0);
   uint16_t bad = 0, full_last = 0;
-  for (uint16_t trial = 0; trial < 400; ++trial) {
+  for (uint16_t trial = 0; trial < 800; ++trial) {
+    // the second 400: through write_frame_early, as in a sketch that serves a service
+    if (trial == 400) {
+      hwbridge::detail::use_early_writer<hwbridge::detail::BufferSink>();
+      x = 2463534242UL;
+    }
     // sizes: all small ones, the ones around a full group (254 - 5 header/CRC bytes), random
     uint16_t n = trial < 64 ? trial : trial < 96 ? static_cast<uint16_t>(240 + (trial - 64)) : next() % kMax;
     const uint8_t zeros = next() & 3;  // 0: no zero at all; else one in about 4, 16 or 64
@@ -83,7 +90,7 @@ int main() {
       code = want[at];
       at += code;
     }
-    if (code == 0xFF) ++full_last;
+    if (code == 0xFF && trial < 400) ++full_last;
   }
   if (bad) {
     outs("ENCODE BAD ");

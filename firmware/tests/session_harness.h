@@ -138,11 +138,13 @@ struct GoldenBoard {
 /** The golden transcript, read from stdin (session_vectors.py). */
 struct Transcript {
   std::vector<std::pair<std::string, std::pair<char, Bytes> > > frames;
+  size_t golden = 0;  ///< the frames of the transcript itself (T lines); the rest are extra vectors (X)
 
   void read(FILE* f) {
     char kind[4], name[128], dir[4], hex[1024];
     while (fscanf(f, "%3s %127s %3s %1023s", kind, name, dir, hex) == 4) {
       frames.push_back(std::make_pair(std::string(name), std::make_pair(dir[0], check::unhex(hex))));
+      if (kind[0] == 'T') ++golden;
     }
     CHECK(frames.size() > 30, "no transcript on stdin (%zu frames)", frames.size());
   }

@@ -16,6 +16,28 @@ using hwbridge::FrameType;
 
 namespace {
 
+/** The golden profile with SERVICE_CHANNELS (PROTOCOL.md 2.8): calls on the services' own
+ * channels when the host has it too. */
+struct OwnChannelProfile : harness::GoldenProfile {
+  static const uint8_t kFeatures = 3 | hwbridge::control::Features::SERVICE_CHANNELS;
+};
+
+/** Whether a board of profile P and a host that announces P's features speak SERVICE_CHANNELS. */
+template <class P>
+bool own_channels() {
+  return (P::kFeatures & hwbridge::control::Features::SERVICE_CHANNELS) != 0;
+}
+
+/** A service message as P's session sends it: on the service's channel without the opcode and
+ * channel (SERVICE_CHANNELS), else as the control message op on channel 0. */
+template <class P>
+std::pair<uint8_t, Bytes> call_message(uint8_t op, uint8_t channel, const Bytes& fields) {
+  if (own_channels<P>()) return std::make_pair(channel, fields);
+  Bytes m{op, channel};
+  m.insert(m.end(), fields.begin(), fields.end());
+  return std::make_pair(static_cast<uint8_t>(0), m);
+}
+
 hwbridge::ParamValue g_last;
 int g_answers = 0;
 int32_t g_value = 0;
@@ -104,7 +126,7 @@ void golden(const Transcript& tr) {
         s.dropped_messages, s.tx_refused);
   // %lu, not %zu: newlib-nano's printf (the ARM replay in QEMU) has no z modifier
   printf("golden transcript: %lu frames, every byte as PROTOCOL.md 2.12\n",
-         static_cast<unsigned long>(tr.frames.size()));
+         static_cast<unsigned long>(tr.golden));
 }
 
 /** Bad input on a connected board: counted, dropped, the session kept, no write past a buffer
@@ -230,15 +252,23 @@ void restarts(const Transcript& tr) {
 
 /** A board with a service client: calls answered, refused (NO_SERVICE), timed out. The host's
  * answers are queued before the call: request ids and sequence numbers are deterministic. */
+template <class P = harness::GoldenProfile>
 struct ClientBoard {
-  harness::Node node;
+  hwbridge::NodeHandle_<harness::FakeHardware, P> node;
   hwbridge::ServiceClient<std_srvs::Trigger> client{"/host_reset"};
   hwbridge::Publisher<harness::Raw> chatter{"/chatter", true};
   ClientBoard() : node() {}
 };
 
+/** Host features with HOST_LOG (4) and P's: P's own set is negotiated. */
+template <class P>
+uint8_t host_features() {
+  return static_cast<uint8_t>(P::kFeatures | 4);
+}
+
+template <class P>
 void service_client() {
-  ClientBoard b;
+  ClientBoard<P> b;
   harness::FakeHardware& hw = b.node.getHardware();
   b.node.setIdentity(0xcafef00dUL, 0);
   b.node.serviceClient(b.client);
@@ -246,25 +276,38 @@ void service_client() {
   hw.clock = 1000000;
   b.node.begin("client", "");
   Host host;
-  harness::connect_scripted(b.node, hw, host, 7);
+  harness::connect_scripted(b.node, hw, host, host_features<P>());
   CHECK(b.node.connected() && b.client.accepted() && b.chatter.accepted(), "client board not connected");
   uint8_t next_seq = 4;  // BOARD_INFO, 2 TOPICs, TABLE_END
   std_srvs::TriggerRequest req;
   std_srvs::TriggerResponse res;
+  // a response of the host, on channel 0 or the client's own (1)
+  auto answer = [&host](const Bytes& fields) -> Bytes {
+    const std::pair<uint8_t, Bytes> m = call_message<P>(0x21, 1, fields);
+    return host.rel(m.first, m.second);
+  };
   // answered: the host ACKs the request and answers OK
   hw.feed(host.ack(next_seq++));
-  hw.feed(host.rel(0, Bytes{0x21, 1, 1, 0, 0, 1, 3, 0, 0, 0, 'y', 'e', 's'}));
+  hw.feed(answer(Bytes{1, 0, 0, 1, 3, 0, 0, 0, 'y', 'e', 's'}));
   uint8_t st = b.client.call(req, res);
   CHECK(st == hwbridge::kCallOk && res.success && strcmp(res.message.c_str(), "yes") == 0, "call: %u", st);
+  // the request went out in the session's form: id 1, the empty Trigger request
+  std::vector<std::pair<hwbridge::Frame, Bytes> > sent = harness::frames_of(hw.take());
+  const std::pair<uint8_t, Bytes> want = call_message<P>(0x20, 1, Bytes{1, 0});
+  bool found = false;
+  for (size_t i = 0; i < sent.size(); ++i) {
+    found = found || (sent[i].first.type == FrameType::Reliable && sent[i].first.channel == want.first &&
+                      sent[i].second == want.second);
+  }
+  CHECK(found, "service client: no request %s on channel %u", check::hex(want.second).c_str(), want.first);
   // NO_SERVICE
-  hw.take();
   hw.feed(host.ack(next_seq++));
-  hw.feed(host.rel(0, Bytes{0x21, 1, 2, 0, 2}));
+  hw.feed(answer(Bytes{2, 0, 2}));
   st = b.client.call(req, res);
   CHECK(st == hwbridge::kCallNoService, "NO_SERVICE: %u", st);
   // a response that does not deserialize
   hw.feed(host.ack(next_seq++));
-  hw.feed(host.rel(0, Bytes{0x21, 1, 3, 0, 0, 9}));
+  hw.feed(answer(Bytes{3, 0, 0, 9}));
   st = b.client.call(req, res);
   CHECK(st == hwbridge::kCallBadResponse, "bad response: %u", st);
   // no answer within 300 ms (the host keeps the link alive, its ACK came)
@@ -274,9 +317,9 @@ void service_client() {
   st = b.client.call(req, res, 300);
   CHECK(st == hwbridge::kCallTimeout, "timeout: %u", st);
   // a late answer to the timed-out call is ignored; the next call still works
-  hw.feed(host.rel(0, Bytes{0x21, 1, 4, 0, 0, 0, 0, 0, 0, 0}));
+  hw.feed(answer(Bytes{4, 0, 0, 0, 0, 0, 0, 0}));
   hw.feed(host.ack(next_seq++));
-  hw.feed(host.rel(0, Bytes{0x21, 1, 5, 0, 0, 1, 0, 0, 0, 0}));
+  hw.feed(answer(Bytes{5, 0, 0, 1, 0, 0, 0, 0}));
   st = b.client.call(req, res);
   CHECK(st == hwbridge::kCallOk && res.success, "call after a timeout: %u", st);
   // the link dies during a call: the call ends with the session
@@ -284,7 +327,9 @@ void service_client() {
   hw.step_us = 1000;
   st = b.client.call(req, res);
   CHECK(st == hwbridge::kCallSessionReset && !b.node.connected(), "call at link loss: %u", st);
-  printf("service client: answered, NO_SERVICE, bad response, timeout, session reset\n");
+  CHECK(b.node.stats().protocol_errors == 0, "service client: %u protocol errors", b.node.stats().protocol_errors);
+  printf("service client%s: answered, NO_SERVICE, bad response, timeout, session reset\n",
+         own_channels<P>() ? " (SERVICE_CHANNELS)" : "");
 }
 
 
@@ -397,19 +442,20 @@ void small_mtu_host() {
 }
 
 /** A board whose session host can be scripted step by step: a reliable publisher, connected. */
-struct StepBoard {
-  harness::Node node;
+template <class P>
+struct StepBoardOf {
+  hwbridge::NodeHandle_<harness::FakeHardware, P> node;
   hwbridge::Publisher<harness::Raw> rel{"/rel", true};
   hwbridge::ServiceServer<std_srvs::Trigger> reset{"/reset", &harness::on_reset};  // channel 2
   Host host;
-  StepBoard(uint32_t max_message = 0x100000) : node() {
+  explicit StepBoardOf(uint32_t max_message = 0x100000) : node() {
     harness::FakeHardware& hw = node.getHardware();
     node.setIdentity(0xcafef00dUL, 0);
     node.advertise(rel);
     node.advertiseService(reset);
     hw.clock = 10000000;
     node.begin("step", "");
-    harness::connect_scripted(node, hw, host, 3, max_message);
+    harness::connect_scripted(node, hw, host, P::kFeatures, max_message);
     CHECK(node.connected(), "step board not connected");
   }
   harness::FakeHardware& hw() { return node.getHardware(); }
@@ -422,6 +468,7 @@ struct StepBoard {
     }
   }
 };
+typedef StepBoardOf<harness::GoldenProfile> StepBoard;
 
 int reliable_frames(const Bytes& out) {
   int n = 0;
@@ -435,9 +482,10 @@ int reliable_frames(const Bytes& out) {
  * for its answer: the board takes it back unacknowledged (the ACK it writes covers only the
  * frames before it) and answers it when the host sends it again, once the window moved on. It
  * is never acknowledged and then dropped (the host would learn only at its call timeout). */
+template <class P>
 void busy_tx_request() {
-  StepBoard b;
-  harness::Node& node = b.node;
+  StepBoardOf<P> b;
+  hwbridge::NodeHandle_<harness::FakeHardware, P>& node = b.node;
   harness::FakeHardware& hw = b.hw();
   Host& host = b.host;
   const uint8_t text[] = {1, 0, 0, 0, 'a'};
@@ -452,7 +500,9 @@ void busy_tx_request() {
   CHECK(hw.take().empty() && !node.txReady(), "the second message did not wait for the window");
 
   const uint8_t req_seq = host.rel_seq;
-  const Bytes request = host.rel(0, Bytes{0x20, 2, 7, 0});  // SERVICE_REQUEST /reset, id 7
+  const std::pair<uint8_t, Bytes> call = call_message<P>(0x20, 2, Bytes{7, 0});  // /reset, id 7
+  const Bytes request = host.rel(call.first, call.second);
+  const std::pair<uint8_t, Bytes> reply = call_message<P>(0x21, 2, Bytes{7, 0, 0, 1, 2, 0, 0, 0, 'o', 'k'});
   const hwbridge::Counter refused = node.stats().tx_refused;
   hw.feed(request);
   node.spinOnce();
@@ -489,8 +539,8 @@ void busy_tx_request() {
   uint8_t answer_seq = 0;
   for (size_t i = 0; i < fr.size(); ++i) {
     acked = acked || (fr[i].first.type == FrameType::Ack && fr[i].first.seq == req_seq);
-    if (fr[i].first.type == FrameType::Reliable &&
-        fr[i].second == (Bytes{0x21, 2, 7, 0, 0, 1, 2, 0, 0, 0, 'o', 'k'})) {
+    if (fr[i].first.type == FrameType::Reliable && fr[i].first.channel == reply.first &&
+        fr[i].second == reply.second) {
       answered = true;
       answer_seq = fr[i].first.seq;
     }
@@ -501,8 +551,8 @@ void busy_tx_request() {
   node.spinOnce();
   hw.take();
   CHECK(b.rel.publish(m), "reliable publishing did not resume once the request was answered");
-  printf("busy transmit buffer: a service request is taken back unacknowledged, keeps the buffer for its "
-         "answer, and is answered when repeated\n");
+  printf("busy transmit buffer%s: a service request is taken back unacknowledged, keeps the buffer for its "
+         "answer, and is answered when repeated\n", own_channels<P>() ? " (SERVICE_CHANNELS)" : "");
 }
 
 /** Time sync (2.8): of its last 4 answers the board follows the newest whose round trip is
@@ -763,6 +813,115 @@ void ack_in_data() {
   printf("ack_in_data: answers carry the request's ACK, requests the answer's\n");
 }
 
+/** The golden board's entries (/chatter on channel 1, /reset on 2) on a node of profile P, with
+ * a subscriber on channel 3, connected by a host of the given features. */
+std::vector<std::string> g_heard;
+void on_heard(const std_msgs::String& m) { g_heard.push_back(m.data.c_str()); }
+
+template <class P>
+struct CallBoard {
+  hwbridge::NodeHandle_<harness::FakeHardware, P> node;
+  hwbridge::Publisher<harness::Raw> chatter{"/chatter"};
+  hwbridge::ServiceServer<std_srvs::Trigger> reset{"/reset", &harness::on_reset};
+  hwbridge::Subscriber<std_msgs::String> heard{"/heard", &on_heard};
+  Host host;
+  CallBoard(uint8_t host_features, bool subscriber) : node() {
+    harness::FakeHardware& hw = node.getHardware();
+    node.setIdentity(0xcafef00dUL, 0);
+    node.advertise(chatter);
+    node.advertiseService(reset);  // its channel carries calls: the subscriber after it still hears
+    if (subscriber) node.subscribe(heard);
+    hw.clock = 10000000;
+    node.begin("calls", "");
+    harness::connect_scripted(node, hw, host, host_features);
+    CHECK(node.connected(), "call board not connected");
+  }
+  /** Feeds bytes, spins once, returns the frames written. */
+  std::vector<std::pair<hwbridge::Frame, Bytes> > exchange(const Bytes& in) {
+    node.getHardware().feed(in);
+    node.spinOnce();
+    return harness::frames_of(node.getHardware().take());
+  }
+};
+
+/** The golden board's answers to the calls of native_session.json's extra vectors (PROTOCOL.md
+ * 2.12 P and Q), byte for byte: the board and the host both with ACK_IN_DATA, and then also with
+ * SERVICE_CHANNELS. */
+struct AckInDataOwnChannelProfile : harness::GoldenProfile {
+  static const uint8_t kFeatures =
+      3 | hwbridge::control::Features::ACK_IN_DATA | hwbridge::control::Features::SERVICE_CHANNELS;
+};
+
+template <class P>
+void replay_calls(const Transcript& tr, const char* prefix, uint8_t host_features) {
+  CallBoard<P> b(host_features, false);
+  for (int call = 1; call <= 2; ++call) {
+    char req[64], res[64];
+    snprintf(req, sizeof req, "%s_request_%d", prefix, call);
+    snprintf(res, sizeof res, "%s_response_%d", prefix, call);
+    b.node.getHardware().feed(tr.get(req, 'h'));
+    b.node.spinOnce();
+    expect_bytes(res, b.node.getHardware().take(), tr.get(res, 'd'));
+  }
+}
+
+/** SERVICE_CHANNELS (PROTOCOL.md 2.8): the vectors' calls answered byte for byte; a request on
+ * the server's channel answered there, a SERVICE_REQUEST on channel 0 answered too (for a
+ * channel without a service: NO_SERVICE on channel 0), a call message shorter than its fields a
+ * protocol error, a
+ * subscriber's messages still delivered in a sketch with a service; against a host without the
+ * feature, answers as SERVICE_RESPONSE and a message on the service's channel is no call. */
+void service_channels(const Transcript& tr) {
+  replay_calls<AckInDataProfile>(tr, "ack_in_data", 15);
+  replay_calls<AckInDataOwnChannelProfile>(tr, "service_channel", 31);
+
+  CallBoard<OwnChannelProfile> b(3 | 4 | 16, true);
+  const hwbridge::Counter errors = b.node.stats().protocol_errors;
+  const Bytes trigger_ok{0, 1, 2, 0, 0, 0, 'o', 'k'};  // status OK, success, "ok"
+  std::vector<std::pair<hwbridge::Frame, Bytes> > fr = b.exchange(b.host.rel(2, Bytes{7, 0}));
+  Bytes want{7, 0};
+  want.insert(want.end(), trigger_ok.begin(), trigger_ok.end());
+  CHECK(fr.size() == 2 && fr[0].first.type == FrameType::Ack && fr[1].first.type == FrameType::Reliable &&
+            fr[1].first.channel == 2 && fr[1].second == want,
+        "own channel: %zu frames, the answer %s", fr.size(), fr.empty() ? "" : check::hex(fr.back().second).c_str());
+  b.node.getHardware().feed(b.host.ack(fr[1].first.seq));
+  // a SERVICE_REQUEST all the same: answered (on the service's channel: the session's form)
+  fr = b.exchange(b.host.rel(0, Bytes{0x20, 2, 8, 0}));
+  want[0] = 8;
+  CHECK(fr.size() == 2 && fr[1].first.channel == 2 && fr[1].second == want, "SERVICE_REQUEST in the session: %s",
+        fr.empty() ? "" : check::hex(fr.back().second).c_str());
+  b.node.getHardware().feed(b.host.ack(fr[1].first.seq));
+  // a SERVICE_REQUEST for a channel with no service (the publisher's): NO_SERVICE as a
+  // SERVICE_RESPONSE, which a caller always reads
+  fr = b.exchange(b.host.rel(0, Bytes{0x20, 1, 4, 0}));
+  CHECK(fr.size() == 2 && fr[1].first.channel == 0 && fr[1].second == (Bytes{0x21, 1, 4, 0, 2}),
+        "SERVICE_REQUEST for no service: %s", fr.empty() ? "" : check::hex(fr.back().second).c_str());
+  b.node.getHardware().feed(b.host.ack(fr[1].first.seq));
+  // a message shorter than a request id: a protocol error, acknowledged, no answer
+  fr = b.exchange(b.host.rel(2, Bytes{9}));
+  CHECK(fr.size() == 1 && fr[0].first.type == FrameType::Ack && b.node.stats().protocol_errors == errors + 1,
+        "a 1-byte request: %zu frames, %u errors", fr.size(), b.node.stats().protocol_errors);
+  // the subscriber on channel 3 still hears its topic
+  g_heard.clear();
+  fr = b.exchange(b.host.rel(3, Bytes{2, 0, 0, 0, 'h', 'i'}));
+  CHECK(g_heard.size() == 1 && g_heard[0] == "hi", "the subscriber heard %zu messages", g_heard.size());
+
+  CallBoard<OwnChannelProfile> old(3 | 4, false);  // a host without SERVICE_CHANNELS
+  fr = old.exchange(old.host.rel(0, Bytes{0x20, 2, 5, 0}));
+  want = Bytes{0x21, 2, 5, 0};
+  want.insert(want.end(), trigger_ok.begin(), trigger_ok.end());
+  CHECK(fr.size() == 2 && fr[1].first.channel == 0 && fr[1].second == want, "without the feature: %s",
+        fr.empty() ? "" : check::hex(fr.back().second).c_str());
+  old.node.getHardware().feed(old.host.ack(fr[1].first.seq));
+  const hwbridge::Counter dropped = old.node.stats().dropped_messages;
+  fr = old.exchange(old.host.rel(2, Bytes{6, 0}));
+  CHECK(fr.size() == 1 && fr[0].first.type == FrameType::Ack && old.node.stats().dropped_messages == dropped + 1,
+        "without the feature a message on the service's channel was taken for a call");
+  CHECK(b.node.stats().link_losses == 0 && old.node.stats().protocol_errors == 0, "service channels: losses, errors");
+  printf("service channels: the vectors' answers, calls on the service's channel, SERVICE_REQUEST still "
+         "answered, short calls refused, subscribers served; old hosts get SERVICE_RESPONSE\n");
+}
+
 int main() {
   Transcript tr;
 #ifdef HWBRIDGE_EMBEDDED_TRANSCRIPT
@@ -777,10 +936,12 @@ int main() {
   bad_input(tr);
   liveness(tr);
   restarts(tr);
-  service_client();
+  service_client<harness::GoldenProfile>();
+  service_client<OwnChannelProfile>();
   early_frames();
   tx_ready();
-  busy_tx_request();
+  busy_tx_request<harness::GoldenProfile>();
+  busy_tx_request<OwnChannelProfile>();
   small_mtu_host();
   time_samples();
   send_times();
@@ -788,6 +949,7 @@ int main() {
   late_first_spin();
   long_round_trip();
   ack_in_data();
+  service_channels(tr);
   printf("test_session: %lu checks passed\n", check::count());
   return 0;
 }

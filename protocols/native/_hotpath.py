@@ -19,7 +19,9 @@ runs of 10^6, timeit's loop included on both sides):
   use setters and one precompiled ``struct`` unpack too: 394 ns against 825 ns for the generic
   ``_Reader`` path (2.1x), 453 ns against 1310 ns (2.9x). The bench cannot time those two (the
   generic path only runs, through public names, on a payload too short to decode); the figures
-  come from one ``timeit`` run against the reader code written out.
+  come from one ``timeit`` run against the reader code written out. A call on its service's own
+  channel (SERVICE_CHANNELS) has neither decoder nor message object: ``_session/services.py``
+  reads its request id (and status) where the message lies and hands the fields on.
 * **Enum members as module globals** (:data:`ACK`, :data:`CONNECTED`, ...): ``x is
   SessionState.CONNECTED`` costs ~65 ns on Python 3.11 (the enum metaclass defines
   ``__getattr__``), ``x is CONNECTED`` ~8 ns (7.8x); per frame they are tested several times.
@@ -52,6 +54,7 @@ __all__ = [
     "RELIABLE",
     "SERVICE_ERROR",
     "SERVICE_NO_SERVICE",
+    "SERVICE_OK",
     "WHOLE",
     "make_frame",
     "message",
@@ -77,6 +80,7 @@ WHOLE: Final = Frag.WHOLE
 CONFIGURING: Final = SessionState.CONFIGURING
 CONNECTED: Final = SessionState.CONNECTED
 CLOSED: Final = SessionState.CLOSED
+SERVICE_OK: Final = ServiceStatus.OK
 SERVICE_ERROR: Final = ServiceStatus.ERROR
 SERVICE_NO_SERVICE: Final = ServiceStatus.NO_SERVICE
 

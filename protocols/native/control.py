@@ -22,11 +22,15 @@ from typing import Final, TypeAlias
 
 from hwbridge.protocols.errors import ProtocolError
 from hwbridge.protocols.native._control.calls import (
+    CHANNEL_REQUEST_HEAD_SIZE,
+    CHANNEL_RESPONSE_HEAD_SIZE,
     LogMsg,
     ParamGetMsg,
     ParamValueMsg,
     ServiceRequestMsg,
     ServiceResponseMsg,
+    encode_channel_request,
+    encode_channel_response,
     encode_service_request,
     encode_service_response,
 )
@@ -75,6 +79,8 @@ from hwbridge.protocols.native._control.table import (
 
 __all__ = [
     "ALL_FEATURES",
+    "CHANNEL_REQUEST_HEAD_SIZE",
+    "CHANNEL_RESPONSE_HEAD_SIZE",
     "CONTROL_CHANNEL",
     "FEATURES_BEFORE_ACK_IN_DATA",
     "MAX_NAME_BYTES",
@@ -116,6 +122,8 @@ __all__ = [
     "TopicStatus",
     "coerce_param",
     "decode_control",
+    "encode_channel_request",
+    "encode_channel_response",
     "encode_service_request",
     "encode_service_response",
     "is_best_effort_opcode",

@@ -197,6 +197,8 @@ class SimLink:
         self.on_device: EventHandler | None = None
         self.h2d_log: list[bytes] = []
         """Every byte chunk the host wrote (to check what the device was sent)."""
+        self.d2h_log: list[bytes] = []
+        """Every byte chunk the device wrote (to check what the host was sent)."""
 
     def device_time(self, t: float) -> float:
         """The device's clock at simulation time ``t``."""
@@ -240,13 +242,18 @@ class SimLink:
             out_chunks = self.host.chunks_to_send()
             self.h2d_log.extend(out_chunks)
             self.h2d.send_datagrams(out_chunks, self.now)
-            self.d2h.send_datagrams(self.device.chunks_to_send(), self.now)
+            device_chunks = self.device.chunks_to_send()
+            self.d2h_log.extend(device_chunks)
+            self.d2h.send_datagrams(device_chunks, self.now)
             return
         out = self.host.data_to_send()
         if out:
             self.h2d_log.append(out)
         self.h2d.send(out, self.now)
-        self.d2h.send(self.device.data_to_send(), self.now)
+        out = self.device.data_to_send()
+        if out:
+            self.d2h_log.append(out)
+        self.d2h.send(out, self.now)
 
     def _next_time(self) -> float:
         candidates = [self.now + self.max_step]

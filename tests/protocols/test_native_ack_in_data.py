@@ -84,12 +84,18 @@ def test_ack_only_in_data_frames() -> None:
         encode_frame(Frame(FrameType.RELIABLE, 0, 1, b"", Frag.WHOLE, 256))
 
 
+@pytest.mark.parametrize(
+    "features",
+    [ctl.ALL_FEATURES, ctl.ALL_FEATURES & ~Features.SERVICE_CHANNELS],
+    ids=["service channels", "SERVICE_REQUEST"],
+)
 @pytest.mark.parametrize("window", [1, 3, 8])
-def test_acks_ride_in_data_frames_with_ack_in_data(window: int) -> None:
-    """Both ends with ACK_IN_DATA, any window: a service exchange sends no ACK frame. The
-    board's answer carries the ACK of the request, the host's next request the ACK of the
-    answer; with nothing to carry it, a held ACK goes alone after ack_delay."""
-    link = _quiet_link(window, features=ctl.ALL_FEATURES)
+def test_acks_ride_in_data_frames_with_ack_in_data(window: int, features: Features) -> None:
+    """Both ends with ACK_IN_DATA, any window, either form of service calls: a service
+    exchange sends no ACK frame. The board's answer carries the ACK of the request, the host's
+    next request the ACK of the answer; with nothing to carry it, a held ACK goes alone after
+    ack_delay."""
+    link = _quiet_link(window, features=features)
     host, device = link.host, link.device
     t = link.now
     acks_before = host.stats.acks_sent, device.stats.acks_sent
@@ -100,6 +106,7 @@ def test_acks_ride_in_data_frames_with_ack_in_data(window: int) -> None:
     device.respond_service(call.channel, call.request_id, b"pong")
     (answer,) = [f for f in FrameDecoder(4096).feed(device.data_to_send()) if isinstance(f, Frame)]
     assert answer.type is FrameType.RELIABLE and answer.ack is not None  # ... and rides in it
+    assert answer.channel == (CH_RESET if features & Features.SERVICE_CHANNELS else 0)
     (response,) = of_type(host.receive_data(encode_frame(answer), t), ServiceResponse)
     assert response.ok and response.payload == b"pong"
     assert host.data_to_send() == b""

@@ -859,7 +859,7 @@ def test_device_limits_are_honoured() -> None:
     with pytest.raises(SessionError, match="at most 48 bytes"):
         link.host.publish(CH_CONFIG, bytes(49))
     with pytest.raises(SessionError, match="at most 48 bytes"):
-        link.host.call_service(CH_RESET, bytes(45))
+        link.host.call_service(CH_RESET, bytes(47))  # + the request id (SERVICE_CHANNELS)
     link.host.log(LogLevel.INFO, "x" * 500)  # HOST_LOG is off on this board: refused
     link.run(1.0)
     assert messages(link.device_events, CH_CONFIG) == [bytes(48)]
@@ -888,15 +888,22 @@ def _serve_device(link: SimLink, answer: Callable[[bytes], bytes] | None) -> Non
     link.on_device = on_device
 
 
+@pytest.mark.parametrize(
+    "dev_features",
+    [DeviceConfig().features, DeviceConfig().features & ~Features.SERVICE_CHANNELS],
+    ids=["service channels", "SERVICE_REQUEST"],
+)
 @SETTINGS
 @given(seed=st.integers(0, 2**16), loss=st.floats(0.0, 0.3), calls=st.integers(1, 8))
 def test_services_complete_in_both_directions_under_loss(
-    seed: int, loss: float, calls: int
+    dev_features: Features, seed: int, loss: float, calls: int
 ) -> None:
+    """Either form of the calls (the board's features decide): each call both ways is
+    answered once, with its own answer."""
     link = make_link(
         seed,
         host_cfg=HostConfig(**PATIENT),
-        dev_cfg=DeviceConfig(window=2, **PATIENT),
+        dev_cfg=DeviceConfig(window=2, features=dev_features, **PATIENT),
         h2d=lossy(loss, duplicate=0.05, max_chunk=11),
         d2h=lossy(loss, duplicate=0.05, max_chunk=11),
     )
@@ -1552,17 +1559,28 @@ def build_transcript() -> list[dict[str, Any]]:
     return steps
 
 
-def _ack_in_data_vectors() -> list[dict[str, Any]]:
-    """Two service calls between a host and a board that both have ACK_IN_DATA (their
-    defaults; otherwise as the transcript): no ACK frame, each data frame carries the ACK of
-    the one before it (PROTOCOL.md 2.12 P)."""
-    host = HostSession(
-        HostConfig(epoch_offset=1_700_000_000.0), session_id=HOST_ID, rng=_FixedRandom()
-    )
+FEATURES_BEFORE_SERVICE_CHANNELS = ctl.FEATURES_BEFORE_ACK_IN_DATA | Features.ACK_IN_DATA
+"""Every feature a host had before SERVICE_CHANNELS (the ACK_IN_DATA vectors' host)."""
+DEVICE_FEATURES_BEFORE_SERVICE_CHANNELS = (
+    Features.TIME_SYNC | Features.PARAM_PUSH | Features.ACK_IN_DATA
+)
+"""DeviceConfig's features before SERVICE_CHANNELS (the ACK_IN_DATA vectors' board)."""
+
+
+def _connected_vector_pair(
+    host_features: Features | None, device_features: Features | None
+) -> tuple[HostSession, DeviceSession, float]:
+    """The transcript's host and board (their defaults unless features are given), connected
+    on a clean link without recording; also the host time reached."""
+    host_cfg = HostConfig(epoch_offset=1_700_000_000.0)
+    dev_cfg = DeviceConfig()
+    if host_features is not None:
+        host_cfg = HostConfig(epoch_offset=1_700_000_000.0, features=host_features)
+    if device_features is not None:
+        dev_cfg = DeviceConfig(features=device_features)
+    host = HostSession(host_cfg, session_id=HOST_ID, rng=_FixedRandom())
     board = BoardInfo("uno", bytes.fromhex("0102030405060708"), format_identity(GOLDEN_IDENTITY))
-    device = DeviceSession(
-        board, VECTOR_TOPICS, DeviceConfig(), session_id=DEVICE_ID, rng=_FixedRandom()
-    )
+    device = DeviceSession(board, VECTOR_TOPICS, dev_cfg, session_id=DEVICE_ID, rng=_FixedRandom())
     dclock = 10.0
     t = 0.0
     host.tick(t)
@@ -1575,6 +1593,16 @@ def _ack_in_data_vectors() -> list[dict[str, Any]]:
     device.receive_data(host.data_to_send(), t + dclock)
     host.receive_data(device.data_to_send(), t)
     assert host.state is SessionState.CONNECTED and device.state is SessionState.CONNECTED
+    return host, device, t
+
+
+def _service_call_vectors(
+    host: HostSession, device: DeviceSession, t: float, prefix: str, notes: tuple[str, str, str]
+) -> list[dict[str, Any]]:
+    """Two calls of /reset (channel 2, empty request) on a connected pair, answered
+    {success: true, 'ok'} at once: their four frames, named ``{prefix}_request_1`` and so on.
+    ``notes``: the first request's, the next request's and every response's."""
+    dclock = 10.0
     steps: list[dict[str, Any]] = []
 
     def record(name: str, data: bytes, direction: str, note: str) -> bytes:
@@ -1590,26 +1618,57 @@ def _ack_in_data_vectors() -> list[dict[str, Any]]:
         )
         return data
 
-    for call, note in ((1, "first call"), (2, "the next call, within ack_delay")):
+    for call, note in ((1, notes[0]), (2, notes[1])):
         host.call_service(2, b"")
-        d = record(
-            f"ack_in_data_request_{call}",
-            host.data_to_send(),
-            "host->device",
-            f"{note}: carries the ACK of the board's last reliable frame",
-        )
+        d = record(f"{prefix}_request_{call}", host.data_to_send(), "host->device", note)
         (req,) = of_type(device.receive_data(d, t + dclock), ServiceRequest)
         device.respond_service(req.channel, req.request_id, b"\x01\x02\x00\x00\x00ok")
-        d = record(
-            f"ack_in_data_response_{call}",
-            device.data_to_send(),
-            "device->host",
-            "the response carries the ACK of the request: no ACK frame",
-        )
-        host.receive_data(d, t + 0.0001)
+        d = record(f"{prefix}_response_{call}", device.data_to_send(), "device->host", notes[2])
+        (response,) = of_type(host.receive_data(d, t + 0.0001), ServiceResponse)
+        assert response.ok and response.payload == b"\x01\x02\x00\x00\x00ok"
         assert host.data_to_send() == b""  # the host holds its ACK for the next frame
         t += 0.001
     return steps
+
+
+def _ack_in_data_vectors() -> list[dict[str, Any]]:
+    """Two service calls between a host and a board that both have ACK_IN_DATA (and, as before
+    SERVICE_CHANNELS, the old service messages; otherwise as the transcript): no ACK frame,
+    each data frame carries the ACK of the one before it (PROTOCOL.md 2.12 P)."""
+    host, device, t = _connected_vector_pair(
+        FEATURES_BEFORE_SERVICE_CHANNELS, DEVICE_FEATURES_BEFORE_SERVICE_CHANNELS
+    )
+    return _service_call_vectors(
+        host,
+        device,
+        t,
+        "ack_in_data",
+        (
+            "first call: carries the ACK of the board's last reliable frame",
+            "the next call, within ack_delay: carries the ACK of the board's last reliable frame",
+            "the response carries the ACK of the request: no ACK frame",
+        ),
+    )
+
+
+def _service_channel_vectors() -> list[dict[str, Any]]:
+    """The ACK_IN_DATA vectors' two calls between a host and a board with their defaults, which
+    have SERVICE_CHANNELS too: each request and response goes on the service's channel (2)
+    as request id [status] body, without opcode and channel (PROTOCOL.md 2.8)."""
+    host, device, t = _connected_vector_pair(None, None)
+    assert host.link is not None and host.link.features & Features.SERVICE_CHANNELS
+    return _service_call_vectors(
+        host,
+        device,
+        t,
+        "service_channel",
+        (
+            "first call, on /reset's own channel 2: request id 1, the empty request",
+            "the next call, within ack_delay: request id 2; carries the ACK of the response",
+            "on the same channel: request id, status OK, the body; carries the ACK of the "
+            "request: no ACK frame",
+        ),
+    )
 
 
 def _sack_vector() -> dict[str, Any]:
@@ -1666,7 +1725,12 @@ def build_vectors() -> dict[str, Any]:
         ),
         "protocol_version": ctl.PROTOCOL_VERSION,
         "transcript": build_transcript(),
-        "extra": [_sack_vector(), _old_board_info_vector(), *_ack_in_data_vectors()],
+        "extra": [
+            _sack_vector(),
+            _old_board_info_vector(),
+            *_ack_in_data_vectors(),
+            *_service_channel_vectors(),
+        ],
     }
 
 

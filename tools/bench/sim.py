@@ -28,11 +28,12 @@ subscriber or service caller in this process. For each library and baud rate (11
   its messages: the ratio read 1.3 to 2.5 where it reads 0.7 to 1.2 without, runs of the same
   day on a shared machine.)
 - ``sim_service_hello``: the like-for-like service: both servers answer "hello" (HwBridge:
-  Trigger with ACK_IN_DATA; ros_lib: Test to the request "x") and loop() is ``spinOnce()``
-  alone. Per call the line carries HwBridge's 12-byte request and 23-byte answer against
-  ros_lib's 13 and 17 bytes: the answer's native frame (header, request id, status, CRC-16,
-  COBS and the Trigger's bool) is 6 bytes longer than rosserial's, its request one shorter,
-  5 bytes a call: 50 us at 1 Mbaud, 0.43 ms at 115200.
+  Trigger with ACK_IN_DATA and SERVICE_CHANNELS; ros_lib: Test to the request "x") and loop()
+  is ``spinOnce()`` alone. Per call the line carries HwBridge's 10-byte request and 21-byte
+  answer against ros_lib's 13 and 17 bytes: the answer's native frame (header, request id,
+  status, CRC-16, COBS and the Trigger's bool) is 4 bytes longer than rosserial's, its request
+  3 shorter, 1 byte a call: 11 us at 1 Mbaud, 87 us at 115200 (before SERVICE_CHANNELS, PROTOCOL.md
+  2.8, 5 bytes a call).
 
 ``ratio`` is hwbridge / rosserial: above 1, hwbridge delivers more messages per second; for the
 service lines the figure compared is calls per second (1 / mean round trip), and ``ratio_p50``
@@ -647,7 +648,27 @@ def _answer_fields(ours: Path, theirs: Path) -> dict[str, Any]:
         "board_answer_us": round(statistics.median(mine), 1),
         "peer_board_answer_us": round(statistics.median(peer), 1),
         "board_answer_ratio": round(statistics.median(peer) / statistics.median(mine), 3),
+        "wire_bytes_per_call": call_bytes(ours_trace),
+        "peer_wire_bytes_per_call": call_bytes(read_uart_trace(theirs)),
     }
+
+
+def call_bytes(trace: list[UartBytes]) -> float | None:
+    """The median bytes a call puts on the line, both ways, from a ``--trace-uart`` log: the
+    bytes handed to the firmware since its last answer, plus the answer's bytes up to the next
+    input (a request and its answer; the rare heartbeat or time sync among them moves the median
+    not at all)."""
+    sizes: list[int] = []
+    into = out = 0
+    for entry in trace:
+        if entry.into_avr:
+            if out:
+                sizes.append(into + out)
+                into = out = 0
+            into += len(entry.data)
+        else:
+            out += len(entry.data)
+    return statistics.median(sizes) if sizes else None
 
 
 def byte_cycles(trace: list[UartBytes]) -> int | None:

@@ -8,7 +8,7 @@
 // The firmware identity (PROTOCOL.md 2.6.1): this schema's hash (a test build may
 // define another before including the library) and the key of each item.
 #ifndef HWBRIDGE_SCHEMA_HASH
-#define HWBRIDGE_SCHEMA_HASH "7023bf7c"
+#define HWBRIDGE_SCHEMA_HASH "13f55068"
 #endif
 #define HWBRIDGE_ID_KEY_SCHEMA_HASH "s"
 #define HWBRIDGE_ID_KEY_MESSAGES_HASH "m"
@@ -361,6 +361,7 @@ struct Features {
     PARAM_PUSH = 0x02,
     HOST_LOG = 0x04,
     ACK_IN_DATA = 0x08,
+    SERVICE_CHANNELS = 0x10,
   };
 };
 
@@ -478,7 +479,7 @@ inline bool encode(const HelloMsg& m, uint8_t* buf, size_t cap, size_t* len) {
   w.u32(m.max_message);
   w.u8(m.window);
   w.u8(m.isn);
-  w.u8(static_cast<uint8_t>(m.features & 0x0f));
+  w.u8(static_cast<uint8_t>(m.features & 0x1f));
   return detail::finish(w, len);
 }
 
@@ -499,7 +500,7 @@ inline bool decode(const uint8_t* buf, size_t len, HelloMsg* m) {
   m->window = r.u8();
   m->isn = r.u8();
   m->features = r.u8();
-  m->features = static_cast<uint8_t>(m->features & 0x0f);
+  m->features = static_cast<uint8_t>(m->features & 0x1f);
   return r.ok();
 }
 

@@ -32,6 +32,13 @@ _SERVICE_REQUEST_HEAD: Final = struct.Struct("<BBH")
 _SERVICE_RESPONSE_HEAD: Final = struct.Struct("<BBHB")
 """SERVICE_RESPONSE up to its body: opcode, channel, request id, status."""
 _SERVICE_STATUS: Final = {int(status): status for status in ServiceStatus}
+"""Each known status byte's member (an unknown byte is not a key)."""
+_CHANNEL_RESPONSE_HEAD: Final = struct.Struct("<HB")
+"""A response on its service's channel (SERVICE_CHANNELS) up to its body: request id, status."""
+CHANNEL_REQUEST_HEAD_SIZE: Final = 2
+"""Bytes before the body of a request on its service's channel (SERVICE_CHANNELS): request id."""
+CHANNEL_RESPONSE_HEAD_SIZE: Final = _CHANNEL_RESPONSE_HEAD.size
+"""Bytes before the body of a response on its service's channel: request id, status."""
 
 
 def encode_service_request(channel: int, request_id: int, body: bytes) -> bytes:
@@ -51,6 +58,22 @@ def encode_service_response(
     """
     head = _SERVICE_RESPONSE_HEAD.pack(ServiceResponseMsg.OPCODE, channel, request_id, status)
     return head + body
+
+
+def encode_channel_request(request_id: int, body: bytes) -> bytes:
+    """A service request as it travels on its service's own channel when both ends have
+    SERVICE_CHANNELS (PROTOCOL.md 2.8): SERVICE_REQUEST without its opcode and channel bytes.
+
+    For callers that know the request id is in range (0..65535): ``OverflowError`` otherwise.
+    """
+    return request_id.to_bytes(2, "little") + body
+
+
+def encode_channel_response(request_id: int, status: ServiceStatus, body: bytes) -> bytes:
+    """A service response on its service's own channel (SERVICE_CHANNELS, PROTOCOL.md 2.8):
+    SERVICE_RESPONSE without its opcode and channel bytes; numbers unchecked as in
+    :func:`encode_channel_request` (``struct.error`` if out of range)."""
+    return _CHANNEL_RESPONSE_HEAD.pack(request_id, status) + body
 
 
 @dataclass(frozen=True, slots=True)

@@ -93,10 +93,17 @@ class Features(IntFlag):
     ACK_IN_DATA = 0x08
     """A BEST_EFFORT or RELIABLE frame may carry the cumulative ACK of the other direction
     (PROTOCOL.md 1.4, 2.4): a service exchange needs no ACK frames of its own."""
+    SERVICE_CHANNELS = 0x10
+    """Service requests and responses travel on the service's own channel, without the opcode
+    and channel bytes of SERVICE_REQUEST and SERVICE_RESPONSE (PROTOCOL.md 2.8)."""
 
 
 ALL_FEATURES: Final = (
-    Features.TIME_SYNC | Features.PARAM_PUSH | Features.HOST_LOG | Features.ACK_IN_DATA
+    Features.TIME_SYNC
+    | Features.PARAM_PUSH
+    | Features.HOST_LOG
+    | Features.ACK_IN_DATA
+    | Features.SERVICE_CHANNELS
 )
 FEATURES_BEFORE_ACK_IN_DATA: Final = Features.TIME_SYNC | Features.PARAM_PUSH | Features.HOST_LOG
 """Every feature a host had before ACK_IN_DATA: the golden transcript's (PROTOCOL.md 2.12)."""

@@ -152,7 +152,9 @@ class DeviceConfig(SessionConfig):
     mtu: int = 64
     max_message: int = 64
     window: int = 1
-    features: Features = Features.TIME_SYNC | Features.PARAM_PUSH | Features.ACK_IN_DATA
+    features: Features = (
+        Features.TIME_SYNC | Features.PARAM_PUSH | Features.ACK_IN_DATA | Features.SERVICE_CHANNELS
+    )
     tx_queue_limit: int = 128
 
 

@@ -24,6 +24,7 @@ from hwbridge.protocols.native._control.common import (
     EntryKind,
     LogLevel,
     Role,
+    ServiceStatus,
 )
 from hwbridge.protocols.native._framing.frames import BadFrame, Frame, NonFrameBytes
 from hwbridge.protocols.native._framing.links import NativeFraming, NativeStreamFraming
@@ -46,12 +47,11 @@ from hwbridge.protocols.native.control import (
     GoodbyeMsg,
     HelloMsg,
     LogMsg,
-    ServiceRequestMsg,
-    ServiceResponseMsg,
 )
 from hwbridge.protocols.native.reliable import (
     BestEffortReceiver,
     BestEffortSender,
+    Delivery,
     ReliableReceiver,
     ReliableSender,
     RttEstimator,
@@ -153,6 +153,9 @@ class SessionCore(Generic[_E]):
         """When a held-back ACK must go out at the latest (None: none is held)."""
         self._ack_in_data = False
         """Both ends have ACK_IN_DATA: a due ACK rides in the next data frame (PROTOCOL.md 2.4)."""
+        self._service_channels = False
+        """Both ends have SERVICE_CHANNELS: service calls travel on their services' own channels,
+        not as SERVICE_REQUEST and SERVICE_RESPONSE on channel 0 (PROTOCOL.md 2.8)."""
         self._next_hello = 0.0
         self._hello_wait = min(HELLO_FIRST_RETRY, config.hello_interval)
         """Wait before the next HELLO retry: doubles from HELLO_FIRST_RETRY to hello_interval."""
@@ -379,6 +382,12 @@ class SessionCore(Generic[_E]):
         """The accepted entry on ``channel`` in the current session."""
         raise NotImplementedError
 
+    def _board_entry(self, channel: int) -> TopicEntry | None:
+        """The entry on ``channel`` in the board's table as this end knows it this session,
+        accepted or not (a board's own table; what the board announced, on the host). With
+        SERVICE_CHANNELS its kind says what a message on the channel is (PROTOCOL.md 2.8)."""
+        raise NotImplementedError
+
     def _on_established(self) -> None:
         """The handshake completed (state CONFIGURING)."""
 
@@ -432,13 +441,21 @@ class SessionCore(Generic[_E]):
     def _connect(self, board: BoardInfo, topics: tuple[TopicEntry, ...]) -> None:
         raise NotImplementedError
 
-    def _on_service_request(self, msg: ServiceRequestMsg) -> None:
+    def _on_service_request(self, channel: int, request_id: int, body: bytes) -> None:
         raise NotImplementedError
 
     def _expire_calls(self, now: float) -> None:
         raise NotImplementedError
 
-    def _on_service_response(self, msg: ServiceResponseMsg) -> None:
+    def _on_service_response(
+        self, channel: int, request_id: int, status: ServiceStatus, body: bytes
+    ) -> None:
+        raise NotImplementedError
+
+    def _on_service_message(self, delivery: Delivery, entry: TopicEntry | None) -> bool:
+        """A reliable message on a channel other than 0 that is no topic message for this end,
+        in a SERVICE_CHANNELS session (services mixin); False when it is no service call either.
+        """
         raise NotImplementedError
 
     # ---- clock -----------------------------------------------------------------------------

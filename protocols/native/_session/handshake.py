@@ -115,6 +115,7 @@ class Handshake(SessionCore[Any]):
         self._peer_max = device_max if self._ROLE == Role.HOST else host_max
         self._time_sync = cfg.time_sync_interval > 0 and bool(link.features & Features.TIME_SYNC)
         self._ack_in_data = bool(link.features & Features.ACK_IN_DATA)
+        self._service_channels = bool(link.features & Features.SERVICE_CHANNELS)
         self._established = True
         self._reported.clear()
         self._c.sessions += 1
@@ -167,6 +168,7 @@ class Handshake(SessionCore[Any]):
         self._rel_rx = None
         self._ack_due = None
         self._ack_in_data = False
+        self._service_channels = False
         self._established = False
         self._peer_id = NO_SESSION
         self._link = None

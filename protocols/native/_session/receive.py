@@ -2,7 +2,8 @@
 
 The per-frame path: ``_on_frame`` hands ACKs and reliable frames to the reliability layer and
 best-effort frames to their reassembler; a complete message becomes a Message event
-(``_on_data``) or a control message (``_on_control``). See
+(``_on_data``), a service call on its own channel (``_on_data``, with SERVICE_CHANNELS) or a
+control message (``_on_control``). See
 :mod:`hwbridge.protocols.native._hotpath` for what is written out inline here.
 """
 
@@ -113,14 +114,19 @@ class Receiver(SessionCore[Any]):
             self._on_control(delivery.payload, reliable=False)
         elif self._established:
             self._last_rx = self._now  # _alive(), on a per-message path
-            self._on_data(delivery)
+            self._on_data(delivery, False)
         else:
             self._c.ignored_frames += 1
 
-    def _on_data(self, delivery: Delivery) -> None:
+    def _on_data(self, delivery: Delivery, reliable: bool = True) -> None:
+        """A message on a channel other than 0: a topic message of this end's, or (reliable,
+        SERVICE_CHANNELS) a service call, or a message on the wrong channel."""
         connected = self._state is CONNECTED
         entry = self._entry(delivery.channel) if connected else None
         if entry is None or entry.kind != self._RECEIVE_KIND:
+            # Service calls are looked for only here, off the topic messages' path.
+            if reliable and self._service_channels and self._on_service_message(delivery, entry):
+                return
             self._c.dropped_messages += 1
             if connected:
                 self._protocol_error(
@@ -156,9 +162,9 @@ class Receiver(SessionCore[Any]):
         self._last_rx = self._now  # _alive(), on a per-message path
         # The message classes are disjoint: the common ones are tested first.
         if isinstance(msg, ServiceRequestMsg):
-            self._on_service_request(msg)
+            self._on_service_request(msg.channel, msg.request_id, msg.body)
         elif isinstance(msg, ServiceResponseMsg):
-            self._on_service_response(msg)
+            self._on_service_response(msg.channel, msg.request_id, msg.status, msg.body)
         elif isinstance(msg, HeartbeatMsg):
             return
         elif isinstance(msg, GoodbyeMsg):

@@ -49,6 +49,9 @@ class HostTable(SessionCore[Any]):
     def _entry(self, channel: int) -> TopicEntry | None:
         return self._topics.get(channel)
 
+    def _board_entry(self, channel: int) -> TopicEntry | None:
+        return self._announced.get(channel)
+
     def _on_topic(self, msg: TopicMsg) -> None:
         if self._state is not CONFIGURING:
             self._protocol_error(f"TOPIC for channel {msg.channel} after the table ended")
@@ -133,6 +136,9 @@ class DeviceTable(SessionCore[Any]):
 
     def _entry(self, channel: int) -> TopicEntry | None:
         return self._table.get(channel) if channel in self._accepted else None
+
+    def _board_entry(self, channel: int) -> TopicEntry | None:
+        return self._table.get(channel)
 
     def _on_established(self) -> None:
         self._accepted.clear()

@@ -49,6 +49,20 @@ typedef NullCounter TrafficCounter;
 #define HWBRIDGE_ACK_IN_DATA 1
 #endif
 #endif
+
+namespace detail {
+/** Whether a write of several bytes puts its first byte straight into an idle UART, where the
+ * hardware can (ArduinoHardware on Serial): it leaves while the rest is stored, some 300 cycles
+ * sooner on an AVR. advertiseService turns it on (a service's answer starts sooner); in a sketch
+ * that serves nothing nothing writes the flag, and the optimizer drops the code that reads it
+ * (a template's static member: defined in this header). */
+template <class Unused = void>
+struct EagerWrites {
+  static bool on;
+};
+template <class Unused>
+bool EagerWrites<Unused>::on = false;
+}  // namespace detail
 }  // namespace hwbridge
 
 #endif  // HWBRIDGE_CONFIG_H

@@ -33,6 +33,20 @@ struct SerialRing : HardwareSerial {
     Index head = s.*(&SerialRing::_tx_buffer_head);
     const Index tail = s.*(&SerialRing::_tx_buffer_tail);  // the interrupt only frees more
     if (n > static_cast<Index>((tail - head - 1) & mask)) return false;  // no room for all
+    s.*(&SerialRing::_written) = true;
+#if defined(UDR0) && defined(MPCM0)
+    if (EagerWrites<>::on && head == tail && (UCSR0A & _BV(UDRE0)) && &s == &Serial) {
+      // Serial's line idle (ring and data register empty): the first byte goes to the UART at
+      // once, as write() does with a single byte, and leaves while the rest is copied (see
+      // EagerWrites). TXC cleared with it, for flush().
+      const uint8_t sreg = SREG;
+      cli();
+      UDR0 = *p++;
+      UCSR0A = static_cast<uint8_t>((UCSR0A & (_BV(U2X0) | _BV(MPCM0))) | _BV(TXC0));
+      SREG = sreg;
+      if (--n == 0) return true;
+    }
+#endif
     unsigned char* const ring = s.*(&SerialRing::_tx_buffer);
     // A pointer that wraps at the ring's end and a one-byte count (n is below the ring's size):
     // 11 cycles a byte, where avr-gcc 5.4 made 16 of the same loop in C (it recomputed the
@@ -53,7 +67,6 @@ struct SerialRing : HardwareSerial {
         : [stop] "r"(stop), [ring] "r"(ring)
         : "memory");
     head = static_cast<Index>(w - ring);
-    s.*(&SerialRing::_written) = true;
     volatile uint8_t* const ucsrb = s.*(&SerialRing::_ucsrb);
     const uint8_t sreg = SREG;
     cli();  // as write(): the interrupt may clear UDRIE0 between our read and write of UCSRnB

@@ -48,8 +48,9 @@ struct HelloWorldProfile {
   static const uint16_t kMaxMessage = 64;    ///< largest message received (reassembly above kMtu)
   static const uint8_t kWindow = 1;          ///< reliable frames in flight (1..64)
   static const uint16_t kTxBuffer = 64;      ///< largest message sent (serialization buffer)
-  /// TIME_SYNC | PARAM_PUSH (| 4 = HOST_LOG); | 8 = ACK_IN_DATA with HWBRIDGE_ACK_IN_DATA defined
-  static const uint8_t kFeatures = 3 | (HWBRIDGE_ACK_IN_DATA ? 8 : 0);
+  /// TIME_SYNC | PARAM_PUSH (| 4 = HOST_LOG) | 16 = SERVICE_CHANNELS; | 8 = ACK_IN_DATA with
+  /// HWBRIDGE_ACK_IN_DATA defined
+  static const uint8_t kFeatures = 19 | (HWBRIDGE_ACK_IN_DATA ? 8 : 0);
   static const uint16_t kTimeSyncMs = 0;     ///< own time requests every this many ms (0: none)
   static const uint16_t kParamTimeoutMs = 2000;
   static const uint16_t kServiceTimeoutMs = 5000;
@@ -63,7 +64,7 @@ struct ComfortableProfile {
   static const uint16_t kMaxMessage = 192;
   static const uint8_t kWindow = 2;
   static const uint16_t kTxBuffer = 192;
-  static const uint8_t kFeatures = 7 | (HWBRIDGE_ACK_IN_DATA ? 8 : 0);
+  static const uint8_t kFeatures = 23 | (HWBRIDGE_ACK_IN_DATA ? 8 : 0);
   static const uint16_t kTimeSyncMs = 5000;
   static const uint16_t kParamTimeoutMs = 2000;
   static const uint16_t kServiceTimeoutMs = 5000;
@@ -346,17 +347,23 @@ class NodeHandle_ : public NodeBase {
     return add(p);
   }
   template <class T> bool subscribe(Subscriber<T>& s) {
-    on_data_ = &dataThunk;
+    if (on_data_ == nullptr) on_data_ = &dataThunk;  // channelThunk, once a service is there, delivers to it too
     return add(s);
   }
   template <class S> bool advertiseService(ServiceServer<S>& s) {
     on_request_ = &requestThunk;
+    on_data_ = &channelThunk;  // calls on the service's channel (SERVICE_CHANNELS)
+    detail::EagerWrites<>::on = true;  // answers start sooner
+#if defined(__AVR__)
+    detail::use_early_writer<Hardware>();
+#endif
     return add(s);
   }
   template <class S> bool serviceClient(ServiceClient<S>& c) {
     tx_fn_ = &txThunk;
     call_fn_ = &callThunk;
     on_response_ = &responseThunk;
+    on_data_ = &channelThunk;
     return add(c);
   }
 
@@ -479,7 +486,9 @@ class NodeHandle_ : public NodeBase {
   void onHello(const uint8_t* p);
   void onData(const Message& m);
   void onTopicAck(const uint8_t* p, size_t n);
-  void onServiceRequest(const uint8_t* p, size_t n);
+  void onChannel(const Message& m);
+  bool admitRequest();
+  void onServiceRequest(uint8_t channel, const uint8_t* p, size_t n);
   void onServiceResponse(const uint8_t* p, size_t n);
   void onParamValue(const uint8_t* p, size_t n);
   void onTimeResponse(const uint8_t* p);
@@ -518,11 +527,29 @@ class NodeHandle_ : public NodeBase {
   // without a service, client or parameter request links none of their code).
   typedef void (*Handler)(NodeHandle_*, const uint8_t*, size_t);
   static void dataThunk(NodeHandle_* n, const Message& m) { n->onData(m); }
-  static void requestThunk(NodeHandle_* n, const uint8_t* p, size_t len) { n->onServiceRequest(p, len); }
+  // with a service server or client: a message on a service's channel is a call (2.8)
+  static void channelThunk(NodeHandle_* n, const Message& m) { n->onChannel(m); }
+  // SERVICE_REQUEST (a control message): its channel, then the request id and body as on the
+  // service's own channel
+  static void requestThunk(NodeHandle_* n, const uint8_t* p, size_t len) {
+    n->onServiceRequest(control::board::ServiceRequest::channel(p), p + 2, len - 2);
+  }
+  // A response: a SERVICE_RESPONSE (a control message, len bytes), or with kOwnChannel added
+  // to len the request id, status and body on the pending call's own channel (onChannel).
   // p nullptr: the pending call, if any, ends with the status len (a session reset; a timeout
   // once its deadline passed)
+  static const size_t kOwnChannel = static_cast<size_t>(1) << (sizeof(size_t) * 8 - 1);
   static void responseThunk(NodeHandle_* n, const uint8_t* p, size_t len) {
     if (p != nullptr) {
+      if (len & kOwnChannel) {
+        len &= ~kOwnChannel;
+      } else if (n->call_entry_ == nullptr ||
+                 control::board::ServiceResponse::channel(p) != n->call_entry_->channel_) {
+        return;  // not ours
+      } else {
+        p += 2;
+        len -= 2;
+      }
       n->onServiceResponse(p, len);
     } else if (n->call_state_ == 1 && (len != kCallTimeout || reached(n->tick_, n->timer_))) {
       n->call_status_ = static_cast<uint8_t>(len);

@@ -82,6 +82,51 @@ HWB_NODE void HWB_SELF::onData(const Message& m) {
   }
 }
 
+/** Whether a service request can be answered now. When there is no room for the answer (a
+ * message waits for the reliable window) the request is taken back unacknowledged, and the
+ * host sends it again after its RTO; only a request of fragments (a board with reassembly) or
+ * one released from the held frames cannot be: counted, and the host's call times out. Until
+ * it comes again, the board's own reliable messages leave the buffer to its answer (a sketch
+ * publishing whenever a slot frees would otherwise take it first every time). */
+HWB_NODE bool HWB_SELF::admitRequest() {
+  if (!txFree()) {
+    if (reasm_.unfeed() && rel_rx_.refuse()) {
+      flags_ |= kAnswerOwed;
+    } else {
+      ++stats_.tx_refused;
+    }
+    return false;
+  }
+  flags_ &= static_cast<uint8_t>(~kAnswerOwed);
+  return true;
+}
+
+/** A message on a channel other than 0 in a sketch with a service (channelThunk): with
+ * SERVICE_CHANNELS (2.8) a service entry's channel carries its calls, a request on a server's
+ * and a response on a client's; any other channel is a subscriber's. */
+HWB_NODE void HWB_SELF::onChannel(const Message& m) {
+  Entry* e = entries_;
+  while (e && e->channel_ != m.channel) e = e->next_;
+  if (e == nullptr || e->kind_ < kServiceServer || !(features_ & control::Features::SERVICE_CHANNELS)) {
+    onData(m);
+    return;
+  }
+  const uint8_t* p = m.data;
+  if (e->kind_ == kServiceServer) {
+    if (m.size < 2) {
+      protocolError();
+    } else if (admitRequest()) {
+      onServiceRequest(m.channel, p, m.size);
+    }
+    return;
+  }
+  if (m.size < 3 || p[2] > control::ServiceStatus::NO_SERVICE) {
+    protocolError();
+  } else if (e == call_entry_) {  // else late, or not ours
+    on_response_(this, p, m.size | kOwnChannel);
+  }
+}
+
 HWB_NODE void HWB_SELF::onControl(const uint8_t* p, size_t n, bool reliable) {
   // the fixed size of each opcode's fields (0: unknown); variable ones give their minimum
   // (board's view: 0 for what only a board sends); from the schema, in flash for opcodes 0..7
@@ -158,21 +203,7 @@ HWB_NODE void HWB_SELF::onControl(const uint8_t* p, size_t n, bool reliable) {
       time_.schedule(tick_, 0);  // the first time request right after CONNECTED
       break;
     case board::ServiceRequest::kOpcode:
-      if (!txFree()) {
-        // No room for the answer now (a message waits for the reliable window): the request is
-        // taken back unacknowledged, and the host sends it again after its RTO. Only a request
-        // of fragments (a board with reassembly) or one released from the held frames cannot
-        // be: counted, and the host's call times out.
-        // Until it comes again, the board's own reliable messages leave the buffer to its answer
-        // (a sketch publishing whenever a slot frees would otherwise take it first every time).
-        if (reasm_.unfeed() && rel_rx_.refuse()) {
-          flags_ |= kAnswerOwed;
-        } else {
-          ++stats_.tx_refused;
-        }
-        break;
-      }
-      flags_ &= static_cast<uint8_t>(~kAnswerOwed);
+      if (!admitRequest()) break;
       if (on_request_) {
         on_request_(this, p, n);
       } else {  // this board serves nothing: NO_SERVICE

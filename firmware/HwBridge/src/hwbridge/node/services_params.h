@@ -9,44 +9,56 @@
 // ---------------------------------------------------------------------------------------------
 // Services
 
-HWB_NODE void HWB_SELF::onServiceRequest(const uint8_t* p, size_t n) {
-  const uint8_t channel = board::ServiceRequest::channel(p);
-  const uint16_t id = board::ServiceRequest::request_id(p);
-  if (peer_max_ < 5) {  // no room to answer, ever (onControl took back a request while tx_ is busy): the host's call times out
+/** A request for the server on channel: p its request id and body (n bytes, at least 2), as
+ * on the service's own channel. With SERVICE_CHANNELS (2.8) the answer goes on that channel if
+ * it is a server's, else (also NO_SERVICE to a SERVICE_REQUEST for another channel) as a
+ * SERVICE_RESPONSE on channel 0. */
+HWB_NODE void HWB_SELF::onServiceRequest(uint8_t channel, const uint8_t* p, size_t n) {
+  const uint16_t id = wire::get16(p);
+  Entry* e = entries_;
+  while (e && e->channel_ != channel) e = e->next_;
+  if (e != nullptr && e->kind_ != kServiceServer) e = nullptr;
+  const bool own = e != nullptr && (features_ & control::Features::SERVICE_CHANNELS) != 0;
+  const size_t head = own ? 3 : board::ServiceResponse::kBody;  // request id, status (opcode, channel)
+  if (peer_max_ < head) {  // no room to answer, ever: the host's call times out
     ++stats_.tx_refused;
     return;
   }
-  Entry* e = state_ == kConnected ? entryOn(channel, kServiceServer) : nullptr;
-  uint8_t status = 2;  // NO_SERVICE
+  if (state_ != kConnected || (e != nullptr && !e->accepted_)) e = nullptr;
+  uint8_t status = control::ServiceStatus::NO_SERVICE;
   size_t len = 0;
+  uint8_t* const body = tx_ + head;
   if (e != nullptr) {
-    const size_t cap = Profile::kTxBuffer - 5;
-    const size_t limit = static_cast<size_t>(peer_max_) - 5 < cap ? static_cast<size_t>(peer_max_) - 5 : cap;
-    ServiceOut out = {tx_ + 5, limit};
-    len = n - board::ServiceRequest::kBody;
-    const char* err = e->hook_(e, Entry::kOpDeliver, p + board::ServiceRequest::kBody, &len, &out);
-    status = 0;
+    const size_t cap = Profile::kTxBuffer - head;
+    const size_t limit = static_cast<size_t>(peer_max_) - head < cap ? static_cast<size_t>(peer_max_) - head : cap;
+    ServiceOut out = {body, limit};
+    len = n - 2;
+    const char* err = e->hook_(e, Entry::kOpDeliver, p + 2, &len, &out);
+    status = control::ServiceStatus::OK;
     if (err != nullptr) {
-      status = 1;  // ERROR, with the reason as the body
-      uint8_t* end = detail::put_str(tx_ + 5, err, limit);
-      len = static_cast<size_t>(end - tx_ - 5);
+      status = control::ServiceStatus::ERROR;  // with the reason as the body
+      len = static_cast<size_t>(detail::put_str(body, err, limit) - body);
     }
   }
-  board::ServiceResponse::put(tx_, channel, id, status);
-  pending_ch_ = kControlChannel;
-  pending_len_ = static_cast<uint16_t>(board::ServiceResponse::kBody + len);
+  if (own) {
+    wire::put16(tx_, id);
+    tx_[2] = status;
+    pending_ch_ = channel;
+  } else {
+    board::ServiceResponse::put(tx_, channel, id, status);
+    pending_ch_ = kControlChannel;
+  }
+  pending_len_ = static_cast<uint16_t>(head + len);
 }
 
+/** The response to the pending call, on its entry's channel: p its request id, status and body
+ * (n bytes, at least 3), as on the service's own channel. */
 HWB_NODE void HWB_SELF::onServiceResponse(const uint8_t* p, size_t n) {
-  typedef board::ServiceResponse R;
-  if (call_state_ != 1 || R::request_id(p) != call_id_ || call_entry_ == nullptr ||
-      R::channel(p) != call_entry_->channel_) {
-    return;  // late, or not ours
-  }
-  call_status_ = R::status(p);
+  if (call_state_ != 1 || wire::get16(p) != call_id_) return;  // late, or not ours
+  call_status_ = p[2];
   if (call_status_ == kCallOk) {
-    size_t len = n - R::kBody;
-    if (call_entry_->hook_(call_entry_, Entry::kOpDeliver, p + R::kBody, &len, call_res_) != nullptr) {
+    size_t len = n - 3;
+    if (call_entry_->hook_(call_entry_, Entry::kOpDeliver, p + 3, &len, call_res_) != nullptr) {
       call_status_ = kCallBadResponse;
     }
   }
@@ -54,15 +66,25 @@ HWB_NODE void HWB_SELF::onServiceResponse(const uint8_t* p, size_t n) {
 }
 
 HWB_NODE uint8_t HWB_SELF::call(Entry& e, size_t len, uint16_t timeout_ms, void* res) {
+  // the request was serialized after room for SERVICE_REQUEST's opcode, channel and id; on the
+  // service's own channel (SERVICE_CHANNELS, 2.8) the id alone comes before it
+  const bool own = (features_ & control::Features::SERVICE_CHANNELS) != 0;
+  const size_t head = own ? 2 : board::ServiceRequest::kBody;
   if (state_ != kConnected || !e.accepted_ || call_state_ == 1 || flag(kInInput) ||
-      len + 4 > peer_max_) {
+      len + head > peer_max_) {
     ++stats_.tx_refused;
     return kCallNotConnected;
   }
   call_id_ = newRequestId();
-  board::ServiceRequest::put(tx_, e.channel_, call_id_);
-  pending_ch_ = kControlChannel;
-  pending_len_ = static_cast<uint16_t>(len + 4);
+  if (own) {
+    memmove(tx_ + 2, tx_ + board::ServiceRequest::kBody, len);
+    wire::put16(tx_, call_id_);
+    pending_ch_ = e.channel_;
+  } else {
+    board::ServiceRequest::put(tx_, e.channel_, call_id_);
+    pending_ch_ = kControlChannel;
+  }
+  pending_len_ = static_cast<uint16_t>(len + head);
   call_entry_ = &e;
   call_res_ = res;
   call_state_ = 1;

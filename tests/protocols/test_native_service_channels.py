@@ -338,20 +338,12 @@ def test_calls_go_on_their_own_channels_both_ways() -> None:
     to_host = link.device.call_service(CH_GET_TIME, b"time?")
     link.flush()
     assert link.run(2.0, until=both_answered(link))
-    (answer,) = of_type(link.host_events, ServiceResponse)
-    assert (answer.channel, answer.request_id, answer.payload, answer.ok) == (
-        CH_RESET,
-        to_board,
-        b"rping",
-        True,
-    )
-    (answer,) = of_type(link.device_events, ServiceResponse)
-    assert (answer.channel, answer.request_id, answer.payload, answer.ok) == (
-        CH_GET_TIME,
-        to_host,
-        b"ttime?",
-        True,
-    )
+    for events, call in (
+        (link.host_events, (CH_RESET, to_board, b"rping", True)),
+        (link.device_events, (CH_GET_TIME, to_host, b"ttime?", True)),
+    ):
+        (answer,) = of_type(events, ServiceResponse)
+        assert (answer.channel, answer.request_id, answer.payload, answer.ok) == call
     h2d, d2h = reliable_messages(link.h2d_log), reliable_messages(link.d2h_log)
     assert [m for m in h2d if m[0] in (CH_RESET, CH_GET_TIME)] == [
         ref_request(True, CH_RESET, to_board, b"ping"),

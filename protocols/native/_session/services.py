@@ -166,22 +166,14 @@ class Services(SessionCore[Any]):
         payload = delivery.payload
         if kind == self._SERVE_KIND:
             if len(payload) < CHANNEL_REQUEST_HEAD_SIZE:
-                self._protocol_error(
-                    f"service request on channel {delivery.channel} ({entry.name}) too short: "
-                    f"request id needs {CHANNEL_REQUEST_HEAD_SIZE} bytes, the message has "
-                    f"{len(payload)}"
-                )
+                self._too_short(delivery, entry, "request", "request id")
                 return True
             request_id = payload[0] | payload[1] << 8
             self._on_service_request(delivery.channel, request_id, payload[2:])
             return True
         if kind == self._CALL_KIND:
             if len(payload) < CHANNEL_RESPONSE_HEAD_SIZE:
-                self._protocol_error(
-                    f"service response on channel {delivery.channel} ({entry.name}) too short: "
-                    f"request id, status needs {CHANNEL_RESPONSE_HEAD_SIZE} bytes, the message "
-                    f"has {len(payload)}"
-                )
+                self._too_short(delivery, entry, "response", "request id, status")
                 return True
             request_id, status_byte = _CHANNEL_RESPONSE_HEAD.unpack_from(payload)
             status = _SERVICE_STATUS.get(status_byte)
@@ -194,6 +186,14 @@ class Services(SessionCore[Any]):
             self._on_service_response(delivery.channel, request_id, status, payload[3:])
             return True
         return False
+
+    def _too_short(self, delivery: Delivery, entry: TopicEntry, what: str, fields: str) -> None:
+        """A call on a service's channel shorter than its fixed fields: a protocol error."""
+        need = CHANNEL_REQUEST_HEAD_SIZE if what == "request" else CHANNEL_RESPONSE_HEAD_SIZE
+        self._protocol_error(
+            f"service {what} on channel {delivery.channel} ({entry.name}) too short: {fields} "
+            f"needs {need} bytes, the message has {len(delivery.payload)}"
+        )
 
     def _on_service_request(self, channel: int, request_id: int, body: bytes) -> None:
         entry = self._entry(channel) if self._state is CONNECTED else None

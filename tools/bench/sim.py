@@ -26,7 +26,8 @@ subscriber or service caller in this process. For each library and baud rate (11
   the host's load; ``board_answer_ratio`` is ros_lib's over HwBridge's (above 1, HwBridge
   answers sooner). (With the publish left in, ros_lib's answers queued behind a line full of
   its messages: the ratio read 1.3 to 2.5 where it reads 0.7 to 1.2 without, runs of the same
-  day on a shared machine.)
+  day on a shared machine.) The two answers differ: "N calls" is 5 bytes longer than "hello"
+  and takes the board a number's formatting, so ``wire_bytes_per_call`` reads 35 against 30.
 - ``sim_service_hello``: the like-for-like service: both servers answer "hello" (HwBridge:
   Trigger with ACK_IN_DATA and SERVICE_CHANNELS; ros_lib: Test to the request "x") and loop()
   is ``spinOnce()`` alone. Per call the line carries HwBridge's 10-byte request and 21-byte

@@ -280,6 +280,27 @@ def test_boards_bench_prints_one_line_a_run_with_ratios_to_its_one_board_baselin
     assert runs[3]["threads"] > runs[1]["threads"]  # three processes' threads, not one's
 
 
+def test_session_call_bench_times_both_host_sessions() -> None:
+    """``tools/bench/session_call.py``: each protocol's host session against its device session
+    in one process; a line with both per-call figures and their ratio, every call answered (the
+    bench raises otherwise). No timing checks."""
+    import json
+    import subprocess
+
+    done = subprocess.run(
+        [sys.executable, str(BENCH.with_name("session_call.py")), "--calls", "50", "--rounds", "3"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=True,
+    )
+    (line,) = [json.loads(text) for text in done.stdout.splitlines() if text.startswith("{")]
+    assert line["bench"] == "session_call" and line["peer"] == "rosserial_host"
+    assert line["calls"] == 50 and len(line["native_rounds_us"]) == 3
+    assert line["native_us"] > 0 and line["rosserial_us"] > 0
+    assert line["ratio"] == round(line["rosserial_us"] / line["native_us"], 3)
+
+
 def test_sim_bench_times_a_board_answer_from_the_line_pace() -> None:
     """``tools/bench/sim.py``'s ``board_answer_us``: the line's byte time is the pace of the
     answers' bursts (not the shortest gap: the UART takes a second byte at once), and each

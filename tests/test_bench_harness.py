@@ -280,21 +280,28 @@ def test_boards_bench_prints_one_line_a_run_with_ratios_to_its_one_board_baselin
     assert runs[3]["threads"] > runs[1]["threads"]  # three processes' threads, not one's
 
 
-def test_session_call_bench_times_both_host_sessions() -> None:
-    """``tools/bench/session_call.py``: each protocol's host session against its device session
-    in one process; a line with both per-call figures and their ratio, every call answered (the
-    bench raises otherwise). No timing checks."""
+def _one_line(script: str, *args: str) -> dict[str, Any]:
+    """Runs ``tools/bench/<script>`` with ``args``; the one JSON line it prints."""
     import json
     import subprocess
 
     done = subprocess.run(
-        [sys.executable, str(BENCH.with_name("session_call.py")), "--calls", "50", "--rounds", "3"],
+        [sys.executable, str(BENCH.with_name(script)), *args],
         capture_output=True,
         text=True,
-        timeout=120,
+        timeout=300,
         check=True,
     )
     (line,) = [json.loads(text) for text in done.stdout.splitlines() if text.startswith("{")]
+    assert isinstance(line, dict)
+    return line
+
+
+def test_session_call_bench_times_both_host_sessions() -> None:
+    """``tools/bench/session_call.py``: each protocol's host session against its device session
+    in one process; a line with both per-call figures and their ratio, every call answered (the
+    bench raises otherwise). No timing checks."""
+    line = _one_line("session_call.py", "--calls", "50", "--rounds", "3")
     assert line["bench"] == "session_call" and line["peer"] == "rosserial_host"
     assert line["calls"] == 50 and len(line["native_rounds_us"]) == 3
     assert line["native_us"] > 0 and line["rosserial_us"] > 0
@@ -342,17 +349,7 @@ def test_sim_profile_gives_a_call_as_the_functions_it_ran_through() -> None:
     each, in order from the request's last byte, among them the frame writer and the copy into
     the UART's ring; the per-function sums are there too. No timing checks (cycles differ with
     the firmware)."""
-    import json
-    import subprocess
-
-    done = subprocess.run(
-        [sys.executable, str(BENCH.with_name("sim_profile.py")), "--calls", "6", "--timeline", "3"],
-        capture_output=True,
-        text=True,
-        timeout=300,
-        check=True,
-    )
-    (line,) = [json.loads(text) for text in done.stdout.splitlines() if text.startswith("{")]
+    line = _one_line("sim_profile.py", "--calls", "6", "--timeline", "3")
     assert line["firmware"] == "HelloService" and line["calls"] >= 6
     timeline = line["timeline"]
     starts = [start for start, _cycles, _name in timeline]

@@ -41,8 +41,42 @@ def _exchange(host: Any, device: Any, now: float) -> None:
     host.receive_data(device.data_to_send(), now)
 
 
+def _timed(
+    host: Any,
+    device: Any,
+    now: float,
+    channel: int,
+    request: bytes,
+    answer: Callable[[list[Any]], None],
+) -> tuple[Callable[[], float], Callable[[], bool]]:
+    """One timed call of ``channel`` on a pair connected at ``now`` (``answer`` answers the
+    device's events of a request), and a check that calls were answered."""
+    from hwbridge.protocols.base import ServiceResponse
+
+    clock = [now]
+    answers = [0]
+
+    def call() -> float:
+        clock[0] += 0.001
+        t = clock[0]
+        started = time.perf_counter()
+        host.call_service(channel, request, now=t)
+        wire = host.chunks_to_send()
+        spent = time.perf_counter() - started
+        answer(device.receive_data(b"".join(wire), t))
+        back = device.data_to_send()
+        started = time.perf_counter()
+        events = host.receive_data(back, t + 0.0005)
+        host.next_deadline()
+        spent += time.perf_counter() - started
+        answers[0] += sum(isinstance(e, ServiceResponse) and e.ok for e in events)
+        return spent
+
+    return call, lambda: answers[0] > 0
+
+
 def native_pair() -> tuple[Callable[[], float], Callable[[], bool]]:
-    """A connected native host and board; returns (one timed call, a check it answered)."""
+    """A connected native host and board: (one timed call, a check it answered)."""
     from hwbridge import msg
     from hwbridge.protocols.native import session as ns
     from hwbridge.protocols.native.control import EntryKind
@@ -59,34 +93,19 @@ def native_pair() -> tuple[Callable[[], float], Callable[[], bool]]:
         if now > 10:
             raise RuntimeError("the native sessions did not connect")
         _exchange(host, device, now)
-    clock = [now]
-    answers = [0]
 
-    def call() -> float:
-        clock[0] += 0.001
-        t = clock[0]
-        started = time.perf_counter()
-        host.call_service(1, b"", now=t)
-        wire = host.chunks_to_send()
-        spent = time.perf_counter() - started
-        for event in device.receive_data(b"".join(wire), t):
+    def answer(events: list[Any]) -> None:
+        for event in events:
             if isinstance(event, ns.ServiceRequest):
                 device.respond_service(event.channel, event.request_id, HELLO)
-        back = device.data_to_send()
-        started = time.perf_counter()
-        events = host.receive_data(back, t + 0.0005)
-        host.next_deadline()
-        spent += time.perf_counter() - started
-        answers[0] += sum(isinstance(e, ns.ServiceResponse) and e.ok for e in events)
-        return spent
 
-    return call, lambda: answers[0] > 0
+    return _timed(host, device, now, 1, b"", answer)
 
 
 def rosserial_pair() -> tuple[Callable[[], float], Callable[[], bool]]:
-    """A connected rosserial host and device; returns (one timed call, a check it answered)."""
+    """A connected rosserial host and device (which answers by itself): (one timed call, a check
+    it answered)."""
     from hwbridge import msg
-    from hwbridge.protocols.base import ServiceResponse
     from hwbridge.protocols.rosserial import RosserialDevice, RosserialHost
 
     registry = msg.registry()
@@ -103,26 +122,7 @@ def rosserial_pair() -> tuple[Callable[[], float], Callable[[], bool]]:
     if table is None or "test_srv" not in table.service_servers:
         raise RuntimeError("the rosserial host did not take the device's service")
     channel = table.service_servers["test_srv"].request_topic_id
-    clock = [now]
-    answers = [0]
-
-    def call() -> float:
-        clock[0] += 0.001
-        t = clock[0]
-        started = time.perf_counter()
-        host.call_service(channel, b"\x01\x00\x00\x00x", now=t)
-        wire = host.chunks_to_send()
-        spent = time.perf_counter() - started
-        device.receive_data(b"".join(wire), t)
-        back = device.data_to_send()
-        started = time.perf_counter()
-        events = host.receive_data(back, t + 0.0005)
-        host.next_deadline()
-        spent += time.perf_counter() - started
-        answers[0] += sum(isinstance(e, ServiceResponse) and e.ok for e in events)
-        return spent
-
-    return call, lambda: answers[0] > 0
+    return _timed(host, device, now, channel, b"\x01\x00\x00\x00x", lambda _events: None)
 
 
 def measure(calls: int, rounds: int) -> dict[str, Any]:

@@ -513,7 +513,8 @@ class NodeHandle_ : public NodeBase {
   bool txFree() const { return pending_len_ == 0 && !rel_tx_.sending(); }
   bool waitTx();
   void spinFor();
-  Entry* entryOn(uint8_t channel, uint8_t kind);
+  Entry* entryAt(uint8_t channel);  // the entry on channel, accepted or not; nullptr if none
+  Entry* entryOn(uint8_t channel, uint8_t kind);  // the accepted entry of that kind on channel
   uint16_t newRequestId();
   void finishParam(uint8_t status, const ParamValue* v);
   bool blockingParam(const char* name, uint8_t type, void* out, uint16_t length, uint16_t timeout_ms,

@@ -193,11 +193,15 @@ HWB_NODE bool HWB_SELF::add(Entry& e) {
   return true;
 }
 
+HWB_NODE Entry* HWB_SELF::entryAt(uint8_t channel) {
+  Entry* e = entries_;
+  while (e && e->channel_ != channel) e = e->next_;
+  return e;
+}
+
 HWB_NODE Entry* HWB_SELF::entryOn(uint8_t channel, uint8_t kind) {
-  for (Entry* e = entries_; e; e = e->next_) {
-    if (e->channel_ == channel) return e->accepted_ && e->kind_ == kind ? e : nullptr;
-  }
-  return nullptr;
+  Entry* e = entryAt(channel);
+  return e && e->accepted_ && e->kind_ == kind ? e : nullptr;
 }
 
 // The rest of the bodies, by responsibility, in this order:

@@ -105,8 +105,7 @@ HWB_NODE bool HWB_SELF::admitRequest() {
  * SERVICE_CHANNELS (2.8) a service entry's channel carries its calls, a request on a server's
  * and a response on a client's; any other channel is a subscriber's. */
 HWB_NODE void HWB_SELF::onChannel(const Message& m) {
-  Entry* e = entries_;
-  while (e && e->channel_ != m.channel) e = e->next_;
+  Entry* e = entryAt(m.channel);
   if (e == nullptr || e->kind_ < kServiceServer || !(features_ & control::Features::SERVICE_CHANNELS)) {
     onData(m);
     return;
@@ -315,8 +314,7 @@ HWB_NODE void HWB_SELF::teardown() {
 HWB_NODE void HWB_SELF::onTopicAck(const uint8_t* p, size_t n) {
   typedef board::TopicAck A;
   const uint8_t status = A::status(p);
-  Entry* e = entries_;
-  while (e && e->channel_ != A::channel(p)) e = e->next_;
+  Entry* e = entryAt(A::channel(p));
   if (e == nullptr || status > control::TopicStatus::INVALID ||
       (status != control::TopicStatus::ACCEPTED && n < A::kHostMd5End)) {
     protocolError();

@@ -15,8 +15,7 @@
  * SERVICE_RESPONSE on channel 0. */
 HWB_NODE void HWB_SELF::onServiceRequest(uint8_t channel, const uint8_t* p, size_t n) {
   const uint16_t id = wire::get16(p);
-  Entry* e = entries_;
-  while (e && e->channel_ != channel) e = e->next_;
+  Entry* e = entryAt(channel);
   if (e != nullptr && e->kind_ != kServiceServer) e = nullptr;
   const bool own = e != nullptr && (features_ & control::Features::SERVICE_CHANNELS) != 0;
   const size_t head = own ? 3 : board::ServiceResponse::kBody;  // request id, status (opcode, channel)

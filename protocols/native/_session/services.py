@@ -166,14 +166,16 @@ class Services(SessionCore[Any]):
         payload = delivery.payload
         if kind == self._SERVE_KIND:
             if len(payload) < CHANNEL_REQUEST_HEAD_SIZE:
-                self._too_short(delivery, entry, "request", "request id")
+                self._too_short(delivery, entry, "request", "request id", CHANNEL_REQUEST_HEAD_SIZE)
                 return True
             request_id = payload[0] | payload[1] << 8
             self._on_service_request(delivery.channel, request_id, payload[2:])
             return True
         if kind == self._CALL_KIND:
             if len(payload) < CHANNEL_RESPONSE_HEAD_SIZE:
-                self._too_short(delivery, entry, "response", "request id, status")
+                self._too_short(
+                    delivery, entry, "response", "request id, status", CHANNEL_RESPONSE_HEAD_SIZE
+                )
                 return True
             request_id, status_byte = _CHANNEL_RESPONSE_HEAD.unpack_from(payload)
             status = _SERVICE_STATUS.get(status_byte)
@@ -187,9 +189,11 @@ class Services(SessionCore[Any]):
             return True
         return False
 
-    def _too_short(self, delivery: Delivery, entry: TopicEntry, what: str, fields: str) -> None:
-        """A call on a service's channel shorter than its fixed fields: a protocol error."""
-        need = CHANNEL_REQUEST_HEAD_SIZE if what == "request" else CHANNEL_RESPONSE_HEAD_SIZE
+    def _too_short(
+        self, delivery: Delivery, entry: TopicEntry, what: str, fields: str, need: int
+    ) -> None:
+        """A call on a service's channel shorter than its fixed ``fields`` (``need`` bytes): a
+        protocol error."""
         self._protocol_error(
             f"service {what} on channel {delivery.channel} ({entry.name}) too short: {fields} "
             f"needs {need} bytes, the message has {len(delivery.payload)}"

@@ -369,6 +369,30 @@ class ReliableSender:
         self.stats.rel_messages_sent += 1
         return True
 
+    def send_now(
+        self, channel: int, payload: bytes | bytearray | memoryview, now: float
+    ) -> Frame | None:
+        """One message sent at once, when it may skip the queue: nothing is queued before it,
+        it fits one frame and the window has room. Returns its frame, stamped as sent at
+        ``now`` (as :meth:`queue` then :meth:`transmit` would), or None: then nothing changed
+        and the caller queues it.
+
+        The path of a call on an idle link (a service request, its answer): no fragment list,
+        no queue entry, one frame.
+        """
+        seq = self._next_seq
+        if self._pending or len(payload) > self.mtu or (seq - self._base) & 0xFF >= self.window:
+            return None
+        # (a caller's bytearray must not change under the frame kept for retransmission)
+        data = payload if type(payload) is bytes else bytes(payload)
+        frame = make_frame(_RELIABLE, channel, seq, data)
+        self._next_seq = (seq + 1) & 0xFF
+        self._in_flight[seq] = _InFlight(frame, now, now, now + self.rtt.timeout(0))
+        stats = self.stats
+        stats.rel_messages_sent += 1
+        stats.rel_frames_sent += 1
+        return frame
+
     def transmit(self, now: float) -> list[Frame]:
         """Frames newly allowed into the window, stamped as sent at ``now``."""
         out: list[Frame] = []

@@ -356,6 +356,63 @@ def test_sender_respects_window_and_wraps_seq() -> None:
     assert [f.seq for f in tx.transmit(0.02)] == [255, 0, 1]
 
 
+def test_send_now_takes_the_queue_path_only_when_it_can() -> None:
+    """``send_now`` sends at once only with nothing queued, room in the window and a message
+    of one frame; otherwise it leaves the sender as it was, for ``queue``."""
+    tx = _sender(2, mtu=6)
+    assert tx.send_now(1, b"abcdefg", 0.0) is None  # over the MTU: fragments go through the queue
+    assert tx.in_flight == 0 and tx.stats.rel_messages_sent == 0
+    first = tx.send_now(1, bytearray(b"ab"), 0.0)
+    assert first is not None and (first.seq, first.payload) == (250, b"ab")
+    assert type(first.payload) is bytes
+    assert tx.queue(1, b"abcdefg")  # two fragments, one released now, one left queued
+    assert [f.seq for f in tx.transmit(0.0)] == [251]
+    tx.on_ack(Frame(FrameType.ACK, 0, 251, b""), 0.01)
+    assert tx.send_now(1, b"x", 0.01) is None  # one is queued: it goes first
+    assert [f.seq for f in tx.transmit(0.01)] == [252]
+    assert tx.send_now(1, b"x", 0.02) is not None
+    assert tx.send_now(1, b"y", 0.02) is None  # the window (2) is full
+    assert tx.in_flight == 2
+
+
+@settings(max_examples=200, deadline=None, derandomize=True)
+@given(
+    st.lists(
+        st.one_of(
+            st.tuples(st.just("send"), st.binary(max_size=12)),
+            st.tuples(st.just("ack"), st.integers(0, 3)),
+        ),
+        max_size=40,
+    ),
+    st.integers(1, 4),
+)
+def test_send_now_or_queue_is_queue_then_transmit(ops: list[tuple[str, Any]], window: int) -> None:
+    """A session's way of sending (``send_now``, else ``queue`` then ``transmit``) puts the
+    same frames on the wire at the same moments, with the same counters and timers, as always
+    queueing: the fast path is only a shortcut."""
+    fast, slow = _sender(window, mtu=8), _sender(window, mtu=8)
+    now = 0.0
+    for op, arg in ops:
+        now += 0.001
+        if op == "send":
+            frame = fast.send_now(3, arg, now)
+            if frame is None:
+                assert fast.queue(3, arg)
+                got = fast.transmit(now)
+            else:
+                got = [frame]
+            assert slow.queue(3, arg)
+            assert got == slow.transmit(now)
+        else:  # acknowledge the oldest frames in flight (arg of them), then release more
+            acked = (slow._base + arg - 1) & 0xFF
+            ack = Frame(FrameType.ACK, 0, acked, b"")
+            assert fast.on_ack(ack, now) == slow.on_ack(ack, now)
+            assert fast.transmit(now) == slow.transmit(now)
+        assert fast.stats == slow.stats
+        assert (fast.in_flight, fast.next_deadline()) == (slow.in_flight, slow.next_deadline())
+        assert fast.rtt.srtt == slow.rtt.srtt
+
+
 def test_sender_selective_ack_and_fast_retransmit() -> None:
     tx = _sender(4)
     for i in range(4):
@@ -1644,7 +1701,7 @@ def _ack_in_data_vectors() -> list[dict[str, Any]]:
         t,
         "ack_in_data",
         (
-            "first call: carries the ACK of the board's last reliable frame",
+            "first call: the board's frames before it are acknowledged, so it carries no ACK",
             "the next call, within ack_delay: carries the ACK of the board's last reliable frame",
             "the response carries the ACK of the request: no ACK frame",
         ),

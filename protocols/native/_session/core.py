@@ -511,10 +511,15 @@ class SessionCore(Generic[_E]):
 
     # ---- reliability glue: queueing, pumping the window, holding ACKs ----------------------
     def _send_reliable(self, channel: int, payload: bytes, *, force: bool = False) -> bool:
-        if self._rel_tx is None:
+        sender = self._rel_tx
+        if sender is None:
             self._c.tx_refused += 1
             return False
-        if not self._rel_tx.queue(channel, payload, force=force):
+        frame = sender.send_now(channel, payload, self._now)
+        if frame is not None:
+            self._send_frame(frame)
+            return True
+        if not sender.queue(channel, payload, force=force):
             self._c.tx_refused += 1
             return False
         self._pump()

@@ -180,17 +180,26 @@ class BoardEndpoints:
                 if refuse is not None:
                     self._tell_board(refuse, reason, name)
                 return
-            self._tell_board(answer, response, name)
+            failed = self._tell_board(answer, response, name)
+            if failed is not None and refuse is not None:
+                # Refused (too large for the board, say): the call is still open, so it fails
+                # now with the reason, not at the board's timeout.
+                self._tell_board(refuse, str(failed), name)
 
         self._workers.submit(work)
 
-    def _tell_board(self, action: Callable[[Any], None], outcome: Any, name: str) -> None:
+    def _tell_board(
+        self, action: Callable[[Any], None], outcome: Any, name: str
+    ) -> HwBridgeError | None:
+        """Run ``action(outcome)``; the error that kept it from the board (logged), or None."""
         try:
             action(outcome)
         except HwBridgeError as exc:
             self.log.error(
                 "%s: the answer of %s did not reach the board: %s", self.board_name, name, exc
             )
+            return exc
+        return None
 
     def log_line(self, level: int, text: str) -> None:
         """A board log line: Python logging and /rosout (rosgraph_msgs/Log)."""

@@ -321,3 +321,45 @@ def test_connect_service_timeout_reaches_the_graph_caller(tmp_path: Path, protoc
     finally:
         assert bridge.stop() == 0, bridge.output()
         board.stop()
+
+
+def test_board_call_answered_too_large_for_the_board_fails_at_once_with_the_reason(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A native board (max_message 64) calls a graph service whose answer is larger than it
+    takes: the bridge cannot hand the answer on, and the board's call fails at once with the
+    size limit as its reason, not at the board's own 30 s timeout."""
+    graph = Graph.embedded(listen=[f"tcp/127.0.0.1:{free_port()}"], domain="svcsize")
+    bridge = Bridge(graph)
+    path = tmp_path / "ttysmall"
+    md5 = msg.registry().service(TRIGGER).md5
+    session = ns.DeviceSession(
+        ns.BoardInfo("small", b"\x00\x03", "0.1.0"),
+        [ns.TopicEntry(LOOKUP_CH, EntryKind.SERVICE_CLIENT, "lookup", TRIGGER, md5)],
+        ns.DeviceConfig(service_timeout=30.0, max_message=64),
+    )
+    board = PtyBoard(path, session, "small").start()
+    caplog.set_level(logging.ERROR, logger="hwbridge.board.small")
+    try:
+        graph.node("lookup_small").service(
+            "/small/lookup", TRIGGER, lambda _request: trigger_response("x" * 200), raw=True
+        )
+        bridge.add_board(BoardSpec(str(path), protocol="native", namespace="/small", name="small"))
+        assert wait_for(lambda: bridge.boards["small"].state == "connected")
+        started = time.monotonic()
+        board.pump.call(lambda s: s.call_service(LOOKUP_CH, trigger_request()))
+
+        def outcomes() -> list[Any]:
+            return [e for e in board.of_type("ServiceResponse") if e.channel == LOOKUP_CH]
+
+        assert wait_for(lambda: bool(outcomes()), 10.0)
+        (outcome,) = outcomes()
+        assert time.monotonic() - started < 10.0
+        assert outcome.error is not None
+        # (the reason as the board's 64 bytes take it: the size and whose limit it broke)
+        assert "is 208 bytes but the board accepts" in str(outcome.error), outcome.error
+        assert "at most 64 bytes (its max_message)" in caplog.text
+    finally:
+        bridge.stop()
+        graph.close()
+        board.stop()

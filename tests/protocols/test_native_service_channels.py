@@ -21,7 +21,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from hwbridge.protocols.errors import HwBridgeTimeoutError, ProtocolError
+from hwbridge.protocols.errors import ProtocolError
 from hwbridge.protocols.native import control as ctl
 from hwbridge.protocols.native.control import (
     ALL_FEATURES,
@@ -434,16 +434,20 @@ def test_bodies_up_to_the_peers_max_message(dev_features: Features, heads: tuple
     assert (first_call.request_id, first_call.payload) == (first, big_request)
     big_response = bytes(range(host_max - response_head))
     assert device.respond_service(CH_RESET, first, big_response)
-    with pytest.raises(SessionError, match=f"at most {host_max} bytes"):
+    with pytest.raises(SessionError, match=f"at most {host_max} bytes") as refused:
         device.respond_service(
             CH_RESET, second_call.request_id, bytes(host_max - response_head + 1)
         )
+    # A refused answer leaves its call open, for the answerer to fail it with the reason.
+    assert device.respond_service(CH_RESET, second_call.request_id, error=str(refused.value))
+    assert not device.respond_service(CH_RESET, second_call.request_id, error="twice")
+    link.flush()
+    assert link.run(1.0, until=lambda: len(of_type(link.host_events, ServiceResponse)) == 2)
     assert link.run(1.0, until=lambda: bool(of_type(link.host_events, ServiceRequest)))
     (call,) = of_type(link.host_events, ServiceRequest)
     assert (call.request_id, call.payload) == (from_board, bytes(range(host_max - request_head)))
     with pytest.raises(SessionError, match=f"at most {device_max} bytes"):
         host.respond_service(CH_GET_TIME, from_board, bytes(device_max - response_head + 1))
-    # A refused answer takes its call with it (as before SERVICE_CHANNELS): it times out.
     again = device.call_service(CH_GET_TIME, b"again")
     link.flush()
     assert link.run(1.0, until=lambda: len(of_type(link.host_events, ServiceRequest)) == 2)
@@ -453,7 +457,8 @@ def test_bodies_up_to_the_peers_max_message(dev_features: Features, heads: tuple
     assert link.run(2.0, until=lambda: len(of_type(link.host_events, ServiceResponse)) == 2)
     by_id = {r.request_id: r for r in of_type(link.host_events, ServiceResponse)}
     assert by_id[first].payload == big_response and by_id[first].ok
-    assert isinstance(by_id[second].error, HwBridgeTimeoutError)  # its answer was refused
+    assert isinstance(by_id[second].error, SessionError)  # failed with its refusal's reason
+    assert f"at most {host_max} bytes" in str(by_id[second].error)
     assert link.run(1.0, until=lambda: bool(of_type(link.device_events, ServiceResponse)))
     (answer,) = of_type(link.device_events, ServiceResponse)
     assert answer.request_id == again

@@ -119,7 +119,6 @@ class Services(SessionCore[Any]):
         key = (channel, request_id)
         if key not in self._incoming_calls or not self._established:
             return False
-        self._incoming_calls.discard(key)
         # The key came from a decoded request, so channel and request id are in range; with
         # SERVICE_CHANNELS the channel is a service one (_on_service_request made sure).
         channels = self._service_channels
@@ -132,8 +131,9 @@ class Services(SessionCore[Any]):
             msg = encode_channel_response(request_id, status, body)
         else:
             msg = encode_service_response(channel, request_id, status, body)
-        if error is None:
+        if error is None:  # (an answer too large leaves the call pending: it may fail it)
             self._check_size(len(msg), "response on channel %d", channel)
+        self._incoming_calls.discard(key)
         return self._send_reliable(channel if channels else CONTROL_CHANNEL, msg, force=True)
 
     def _expire_calls(self, now: float) -> None:

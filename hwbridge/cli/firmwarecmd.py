@@ -135,9 +135,10 @@ def headers(
         typer.Option("--capacity", metavar="pkg/Type.field=N", help=_CAPACITY_HELP),
     ] = None,
 ) -> None:
-    """Write C++ headers: hwbridge_control.h (control messages), one per message type, and the
-    fixed hwbridge_msg.h and hwbridge_wire.h they include; hwbridge_msgdefs.h, the hash of
-    their definitions that a board sends (PROTOCOL.md 2.6.1)."""
+    """Write C++ headers: hwbridge_control.h (control messages) with the parts it includes
+    (hwbridge_control_base.h, _msgs.h, _board.h), one per message type, and the fixed
+    hwbridge_msg.h and hwbridge_wire.h they include; hwbridge_msgdefs.h, the hash of their
+    definitions that a board sends (PROTOCOL.md 2.6.1)."""
     _write_headers(ctx, outdir, types, msg_path, capacity)
 
 

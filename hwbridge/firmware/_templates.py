@@ -2,7 +2,8 @@
 
 ``hwbridge_wire.h`` (the byte helpers: little-endian loads and stores, the bounded Reader and
 Writer, the frame CRC) and ``hwbridge_msg.h`` (ROS 1 strings, arrays, time, float64 on top of
-them) are copied as they are; ``control_prelude.h`` is the fixed start of ``hwbridge_control.h``.
+them) are copied as they are; ``control_prelude.h`` is the fixed start of
+``hwbridge_control_base.h``, the part of ``hwbridge_control.h`` the other parts include.
 """
 
 from __future__ import annotations

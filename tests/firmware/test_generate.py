@@ -25,7 +25,12 @@ from hwbridge import msg
 from hwbridge.cli import main
 from hwbridge.errors import HwBridgeError
 from hwbridge.firmware.gen_control import (
+    BASE_NAME,
+    BOARD_NAME,
+    CONTROL_NAMES,
     HEADER_NAME,
+    MSGS_NAME,
+    PART_NAMES,
     generate_control_files,
     generate_control_header,
 )
@@ -291,6 +296,76 @@ def json_frames() -> list[tuple[str, bytes, framing.Frame | None]]:
 
 FLOATS = [0.0, 1.5, -2.25, 1e10, 6.103515625e-05, -3.0517578125e-05, 2.0**-149]
 """float32-exact values, so that the float-as-double (AVR) build gives the same bytes."""
+
+
+def syntax_check(tmp: Path, source: str, name: str) -> None:
+    """Compile ``source`` with the headers in ``tmp`` (syntax and warnings only)."""
+    assert GXX is not None
+    cpp = tmp / f"{name}.cpp"
+    cpp.write_text(source)
+    built = subprocess.run(
+        [GXX, *CXXFLAGS, "-fsyntax-only", f"-I{tmp}", str(cpp)],
+        capture_output=True,
+        text=True,
+        timeout=240,
+        check=False,
+    )
+    assert built.returncode == 0, f"{name}: {built.stderr[-4000:]}"
+
+
+def test_the_control_header_is_split_in_parts() -> None:
+    """hwbridge_control.h holds the identity macros and includes its parts in order: the base
+    (enums, constants, the frame header), then the messages and the board's view, each of which
+    includes the base only (no cycle). Each declaration is in one part."""
+    files = generate_control_files()
+    assert set(files) == {*CONTROL_NAMES, "hwbridge_wire.h"}
+    assert PART_NAMES == (BASE_NAME, MSGS_NAME, BOARD_NAME)
+    top = files[HEADER_NAME]
+    assert top == generate_control_header()
+    includes = [line for line in top.splitlines() if line.startswith("#include")]
+    assert includes == [f'#include "{name}"' for name in PART_NAMES]
+    for name in CONTROL_NAMES:
+        guard = name.removesuffix(".h").upper() + "_H"
+        assert f"#ifndef {guard}\n#define {guard}\n" in files[name], name
+        assert files[name].endswith("#endif\n"), name
+    base_includes = [line for line in files[BASE_NAME].splitlines() if line.startswith("#include")]
+    assert base_includes[-1] == '#include "hwbridge_wire.h"'
+    for name in (MSGS_NAME, BOARD_NAME):
+        own = [line for line in files[name].splitlines() if line.startswith("#include")]
+        assert own == [f'#include "{BASE_NAME}"'], name
+    where = {
+        "#define HWBRIDGE_SCHEMA_HASH": HEADER_NAME,
+        "struct Opcode {": BASE_NAME,
+        "struct FrameHeader {": BASE_NAME,
+        "inline size_t param_value_size(": BASE_NAME,
+        "struct HelloMsg {": MSGS_NAME,
+        "inline bool decode(const uint8_t* buf, size_t len, LogMsg* m)": MSGS_NAME,
+        "namespace board {": BOARD_NAME,
+        "struct Hello {": BOARD_NAME,
+    }
+    for text, name in where.items():
+        assert [n for n in CONTROL_NAMES if text in files[n]] == [name], text
+
+
+@needs_gxx
+def test_each_control_header_compiles_alone(tmp_path: Path) -> None:
+    """Each control header compiles as the only include, the parts in any order and twice."""
+    for name, text in generate_control_files().items():
+        (tmp_path / name).write_text(text)
+    for i, name in enumerate(CONTROL_NAMES):
+        syntax_check(tmp_path, f'#include "{name}"\n', f"alone{i}")
+    order = [*reversed(CONTROL_NAMES), *CONTROL_NAMES]
+    uses = (
+        "using namespace hwbridge::control;\n"
+        "uint8_t f(uint8_t* p) {\n"
+        "  LogMsg m;\n"
+        "  size_t n = 0;\n"
+        "  if (!encode(m, p, 8, &n)) return 0;\n"
+        "  uint8_t* end = board::Log::put(p, LogLevel::INFO);\n"
+        "  return static_cast<uint8_t>(end - p + n);\n"
+        "}\n"
+    )
+    syntax_check(tmp_path, "".join(f'#include "{n}"\n' for n in order) + uses, "all")
 
 
 @dataclass
@@ -638,6 +713,9 @@ def test_the_command_writes_the_headers(tmp_path: Path, capsys: pytest.CaptureFi
     )
     assert written == [
         "hwbridge_control.h",
+        "hwbridge_control_base.h",
+        "hwbridge_control_board.h",
+        "hwbridge_control_msgs.h",
         "hwbridge_msg.h",
         "hwbridge_msgdefs.h",
         "hwbridge_msgs/Bme280.h",
@@ -652,8 +730,10 @@ def test_the_command_writes_the_headers(tmp_path: Path, capsys: pytest.CaptureFi
         "std_msgs/Header.h",
         "std_msgs/String.h",
     ]
-    assert "14 headers written" in capsys.readouterr().out
+    assert "17 headers written" in capsys.readouterr().out
     assert (tmp_path / "a" / HEADER_NAME).read_text() == generate_control_header()
+    for name, text in generate_control_files().items():
+        assert (tmp_path / "a" / name).read_text() == text, name
     pkg = tmp_path / "msgs" / "my_pkg" / "msg"
     pkg.mkdir(parents=True)
     (pkg / "Thing.msg").write_text("string label\nint32[] values\n")

@@ -1,8 +1,9 @@
 """The generated headers committed into the HwBridge library never go stale.
 
 ``firmware/HwBridge/src`` holds the output of ``hwbridge firmware generate`` (``hwbridge_msg.h``,
-``hwbridge_control.h``, ``hwbridge_wire.h`` and one header per message or service type under
-``PKG/Type.h``) so that sketches build from the library alone, as Arduino users build. This test
+``hwbridge_control.h`` with its parts ``hwbridge_control_base.h``, ``_msgs.h`` and ``_board.h``,
+``hwbridge_wire.h`` and one header per message or service type under ``PKG/Type.h``) so that
+sketches build from the library alone, as Arduino users build. This test
 regenerates exactly those types into a temporary folder with the command and compares every file
 byte for byte; a difference names the file and says how to refresh the library.
 """
@@ -15,6 +16,14 @@ from hwbridge.cli import main
 
 LIBRARY_SRC = Path(__file__).resolve().parents[2] / "firmware" / "HwBridge" / "src"
 REFRESH = "hwbridge firmware generate firmware/HwBridge/src " + "TYPES (see this test)"
+TOP_HEADERS = ("hwbridge_msg.h", "hwbridge_wire.h", "hwbridge_msgdefs.h")
+CONTROL_HEADERS = (
+    "hwbridge_control.h",
+    "hwbridge_control_base.h",
+    "hwbridge_control_msgs.h",
+    "hwbridge_control_board.h",
+)
+"""hwbridge_control.h and the parts it includes, each of them generated."""
 
 
 def _committed() -> dict[str, Path]:
@@ -24,7 +33,7 @@ def _committed() -> dict[str, Path]:
         for p in LIBRARY_SRC.glob("*/*.h")
         if p.parent.name != "hwbridge"
     }
-    for name in ("hwbridge_msg.h", "hwbridge_control.h", "hwbridge_wire.h", "hwbridge_msgdefs.h"):
+    for name in (*TOP_HEADERS, *CONTROL_HEADERS):
         found[name] = LIBRARY_SRC / name
     return found
 
@@ -40,6 +49,18 @@ def test_generated_headers_are_current(tmp_path: Path) -> None:
         name for name in sorted(fresh) if fresh[name].read_bytes() != committed[name].read_bytes()
     ]
     assert not stale, f"stale in firmware/HwBridge/src: {stale}; regenerate with: {REFRESH}"
+
+
+def test_the_control_headers_are_the_generated_ones() -> None:
+    """The control headers compared above are the generator's, and hwbridge_control.h (what the
+    library and sketches include) includes each of its parts."""
+    from hwbridge.firmware.gen_control import CONTROL_NAMES, generate_control_files
+
+    assert set(CONTROL_NAMES) == set(CONTROL_HEADERS)
+    assert set(generate_control_files()) == {*CONTROL_HEADERS, "hwbridge_wire.h"}
+    control = (LIBRARY_SRC / "hwbridge_control.h").read_text()
+    for part in CONTROL_HEADERS[1:]:
+        assert f'#include "{part}"' in control, part
 
 
 def test_the_library_types_are_the_committed_headers() -> None:

@@ -49,7 +49,14 @@ def test_the_zip_is_one_library_folder(library_zip: Path) -> None:
         properties = archive.read("HwBridge/library.properties").decode("utf-8")
     assert {name.split("/", 1)[0] for name in names} == {"HwBridge"}
     assert "HwBridge/src/HwBridge.h" in names
-    assert "HwBridge/src/hwbridge_control.h" in names
+    for header in (
+        "hwbridge_control.h",
+        "hwbridge_control_base.h",
+        "hwbridge_control_msgs.h",
+        "hwbridge_control_board.h",
+        "hwbridge_wire.h",
+    ):
+        assert f"HwBridge/src/{header}" in names, header
     for example in EXAMPLES:
         assert f"HwBridge/examples/{example}/{example}.ino" in names, example
     inos = [name for name in names if name.endswith(".ino")]

@@ -1,4 +1,4 @@
-// The fixed start of hwbridge_control.h (copied by `hwbridge firmware generate` from
+// The fixed start of hwbridge_control_base.h (copied by `hwbridge firmware generate` from
 // hwbridge/firmware/templates/control_prelude.h): the control codec reads and writes with the
 // library's bounded Reader and Writer and checks frames with its CRC (hwbridge_wire.h).
 #include <stddef.h>

@@ -189,9 +189,16 @@ class Writer {
     return ok_;
   }
   // 32-bit words (no 64-bit shifts on an 8-bit board); 64-bit values as two words
+  // n is 2 or 4: plain stores, no loop over the bytes (on AVR some 30 cycles less a word)
   void le(uint32_t v, uint8_t n) {
     if (!room(n)) return;
-    for (uint8_t i = 0; i < n; ++i, v >>= 8) buf_[pos_++] = static_cast<uint8_t>(v);
+    uint8_t* const p = buf_ + pos_;
+    pos_ += n;
+    if (n == 4) {
+      put32(p, v);
+    } else {
+      put16(p, static_cast<uint16_t>(v));
+    }
   }
   void le64(uint64_t v) {
     if (!room(8)) return;

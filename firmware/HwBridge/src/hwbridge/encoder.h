@@ -246,12 +246,18 @@ struct CobsCursor {
   uint8_t run;
 };
 
-/** n bytes at r (n >= 1, no group reaching 254 bytes) COBS-encoded at the cursor, without a
- * CRC: 10 cycles a data byte. */
-__attribute__((noinline)) inline void avr_cobs_piece(CobsCursor& at, const uint8_t* r, uint8_t n) {
+/** n bytes at r, then n2 bytes at r2 (either count may be 0; no group reaching 254 bytes),
+ * COBS-encoded at the cursor, without a CRC: 10 cycles a data byte. With stop, it stops after
+ * the first zero of the second run (the end of a group) and returns the bytes of it not taken
+ * (else 0). */
+__attribute__((noinline)) inline uint8_t avr_cobs_piece(CobsCursor& at, const uint8_t* r, uint8_t n,
+                                                        const uint8_t* r2 = nullptr, uint8_t n2 = 0,
+                                                        uint8_t stop = 0) {
   uint8_t* w = at.w;
   uint8_t run = at.run, c;
   __asm__ volatile(
+      "tst %[n]\n\t"
+      "breq 4f\n"
       "1:\tld %[c], %a[r]+\n\t"
       "tst %[c]\n\t"
       "breq 2f\n\t"
@@ -259,7 +265,7 @@ __attribute__((noinline)) inline void avr_cobs_piece(CobsCursor& at, const uint8
       "inc %[run]\n\t"
       "dec %[n]\n\t"
       "brne 1b\n\t"
-      "rjmp 3f\n"
+      "rjmp 4f\n"
       "2:\tsub %A[w], %[run]\n\t"  // a zero: its group's code at w - run, the zero's place next
       "sbc %B[w], __zero_reg__\n\t"
       "st %a[w], %[run]\n\t"
@@ -268,26 +274,40 @@ __attribute__((noinline)) inline void avr_cobs_piece(CobsCursor& at, const uint8
       "adiw %A[w], 1\n\t"
       "ldi %[run], 1\n\t"
       "dec %[n]\n\t"
-      "brne 1b\n"
-      "3:"
-      : [r] "+x"(r), [w] "+z"(w), [run] "+d"(run), [n] "+r"(n), [c] "=&r"(c)
-      :
+      "breq 4f\n\t"
+      "sbrs %[stop], 1\n\t"  // bit 1: stop, in the second run
+      "rjmp 1b\n\t"
+      "rjmp 5f\n"
+      "4:\ttst %[n2]\n\t"  // a run done: the second one, once
+      "breq 5f\n\t"
+      "movw %A[r], %A[r2]\n\t"
+      "mov %[n], %[n2]\n\t"
+      "clr %[n2]\n\t"
+      "lsl %[stop]\n\t"
+      "rjmp 1b\n"
+      "5:"
+      : [r] "+x"(r), [w] "+z"(w), [run] "+d"(run), [n] "+r"(n), [n2] "+r"(n2), [stop] "+r"(stop),
+        [c] "=&r"(c)
+      : [r2] "r"(r2)
       : "memory");
   at.w = w;
   at.run = run;
+  return n;
 }
 
 /**
- * write_frame() on an AVR in a sketch that serves a service (EarlyWriter): the same
- * bytes, in two runs, so that the line starts before the CRC is summed. Only the group after
- * the body's last zero holds the CRC; every group before it is complete once its zero is found.
- * So one pass reads the body where it lies (header, p1, p2) and writes it encoded to a buffer on
- * the stack (each zero's place the code of the group before it), and all that precedes the
- * last zero goes to the sink at once (with an idle UART its first byte leaves at once too:
- * EagerWrites); then the CRC (crc16() of the same pieces, while the line sends) and the last
- * group with the CRC and the delimiter. A service's answer (its request id and status hold
- * zeros) starts some 450 cycles sooner than after encode_wire()'s copy and one pass. Bodies of
- * 254 bytes or more (a full group) are not taken.
+ * write_frame() on an AVR in a sketch that serves a service (EarlyWriter): the same bytes, in
+ * three runs, so that the line starts as soon as the first group is known, long before the CRC
+ * is summed. Only the group after the body's last zero holds the CRC; every group before it is
+ * complete once its zero is found. So the body is read where it lies (header, p1, p2) and
+ * written encoded to a buffer on the stack (each zero's place the code of the group before it):
+ * first the header and p1 as far as its first zero, and what that completed goes to the sink at
+ * once (with an idle UART its first byte leaves at once too: EagerWrites); then the rest of the
+ * body, and the groups it completed; then the CRC (crc16() of the same pieces, while the line
+ * sends) and the last group with the CRC and the delimiter. A service's answer (its request id
+ * and status hold zeros) starts once its header and two or three bytes are encoded: some 180
+ * cycles sooner than when every group before the last zero went first, 630 sooner than after
+ * encode_wire()'s copy and one pass. Bodies of 254 bytes or more (a full group) are not taken.
  */
 template <class Sink>
 __attribute__((noinline)) size_t write_frame_early(Sink& sink, const FrameHeader& h, const uint8_t* p1,
@@ -298,15 +318,23 @@ __attribute__((noinline)) size_t write_frame_early(Sink& sink, const FrameHeader
       static_cast<uint8_t>(header_byte0(h.type, h.frag) | (HWBRIDGE_ACK_IN_DATA ? opts >> 1 : 0)), h.channel,
       h.seq};
   buf[0] = 0;
-  uint8_t* const first = (opts & kLead) ? buf : buf + 1;
-  // The body, read where it lies (header, p1, p2) and written encoded after the first group's
-  // code byte (buf[1]).
+  uint8_t* const first = (opts & kLead) ? buf : buf + 1;  // the lead, or the first code byte
+  // The body, written encoded after the first group's code byte (buf[1]): the header and p1 as
+  // far as its first zero, and what is done goes out; then the rest of p1 and p2, and the same.
   CobsCursor at = {buf + 2, 1};
-  avr_cobs_piece(at, head, kHeaderSize);
-  if (n1 != 0) avr_cobs_piece(at, p1, static_cast<uint8_t>(n1));
-  if (n2 != 0) avr_cobs_piece(at, p2, static_cast<uint8_t>(n2));
-  uint8_t* const rest = at.w - at.run;  // the last group's code byte: all before it is done
-  if (rest != buf + 1) put_run(sink, first, static_cast<size_t>(rest - first), 0);
+  const uint8_t left = avr_cobs_piece(at, head, kHeaderSize, p1, static_cast<uint8_t>(n1), 1);
+  uint8_t* sent = first;
+  uint8_t* done = at.w - at.run;
+  if (done != sent) {
+    put_run(sink, sent, static_cast<size_t>(done - sent), 0);
+    sent = done;
+  }
+  avr_cobs_piece(at, p1 + (n1 - left), left, p2, static_cast<uint8_t>(n2));
+  done = at.w - at.run;
+  if (done != sent) {
+    put_run(sink, sent, static_cast<size_t>(done - sent), 0);
+    sent = done;
+  }
   // the CRC, of the header and the payload where they are, while the line sends; a byte of it
   // may be a zero too
   const uint16_t crc = crc16(p2, n2, crc16(p1, n1, crc16(head, kHeaderSize)));
@@ -315,8 +343,7 @@ __attribute__((noinline)) size_t write_frame_early(Sink& sink, const FrameHeader
   uint8_t* w = at.w;
   *(w - at.run) = at.run;
   *w++ = 0;  // the delimiter
-  const uint8_t* const again = rest != buf + 1 ? rest : first;
-  put_run(sink, again, static_cast<size_t>(w - again), 0);
+  put_run(sink, sent, static_cast<size_t>(w - sent), 0);
   return static_cast<size_t>(w - first);
 }
 
@@ -342,6 +369,19 @@ void use_early_writer(typename EnableIf<IsDatagramSink<Sink>::value, long>::type
 }  // namespace detail
 #endif
 
+namespace detail {
+/** write_frame()'s own encoder: encode_wire() into a buffer on the stack, handed to the sink in
+ * one run. */
+template <class Sink>
+__attribute__((noinline)) size_t write_wire(Sink& sink, const FrameHeader& h, const uint8_t* p1, size_t n1,
+                                            const uint8_t* p2, size_t n2, uint8_t opts) {
+  uint8_t* const out = static_cast<uint8_t*>(__builtin_alloca(wire_room(n1 + n2)));
+  const size_t n = encode_wire(out, h, p1, n1, p2, n2, opts);
+  put_run(sink, out, n, 0);
+  return n;
+}
+}  // namespace detail
+
 /**
  * Writes one frame to sink: an optional leading 0x00, COBS(body), the 0x00 delimiter. The
  * payload is p1 followed by p2 (either may be empty). The frame is encoded into a buffer on
@@ -351,19 +391,16 @@ void use_early_writer(typename EnableIf<IsDatagramSink<Sink>::value, long>::type
  * MTU.
  */
 template <class Sink>
-__attribute__((noinline))
 typename detail::EnableIf<!detail::IsDatagramSink<Sink>::value, size_t>::type write_frame(
     Sink& sink, const FrameHeader& h, const uint8_t* p1, size_t n1, const uint8_t* p2 = nullptr,
     size_t n2 = 0, uint8_t opts = 0) {
 #if defined(__AVR__)
+  // tested before write_wire() saves the registers its encoder needs (some 40 cycles sooner)
   if (detail::EarlyWriter<Sink>::fn != nullptr && n1 + n2 + kEnvelope < 254) {
     return detail::EarlyWriter<Sink>::fn(sink, h, p1, n1, p2, n2, opts);
   }
 #endif
-  uint8_t* const out = static_cast<uint8_t*>(__builtin_alloca(detail::wire_room(n1 + n2)));
-  const size_t n = detail::encode_wire(out, h, p1, n1, p2, n2, opts);
-  detail::put_run(sink, out, n, 0);
-  return n;
+  return detail::write_wire(sink, h, p1, n1, p2, n2, opts);
 }
 
 /**

@@ -59,8 +59,10 @@ struct Frame {
 
 /** Header byte 0 of a frame: 0x40 | type << 4 | frag << 2. */
 inline constexpr uint8_t header_byte0(FrameType type, Frag frag) {
-  return static_cast<uint8_t>(kVersion << 6 | static_cast<uint8_t>(type) << 4 |
-                              static_cast<uint8_t>(frag) << 2);
+  // (type << 2 | frag) << 2: short shifts of a byte on AVR (type << 4 alone is a multiply there)
+  return static_cast<uint8_t>(
+      kVersion << 6 |
+      static_cast<uint8_t>((static_cast<uint8_t>(type) << 2 | static_cast<uint8_t>(frag)) << 2));
 }
 
 /** Largest body for a payload MTU: header + payload + CRC. */
@@ -75,17 +77,11 @@ inline constexpr size_t max_frame(size_t max_payload) {
 inline constexpr size_t max_wire_size(size_t n) { return max_frame(n) + 1; }
 
 /**
- * Checks one decoded body (header, payload, CRC; steps 4-9 of PROTOCOL.md 1.6) and, when it is
- * a frame, fills *out (its payload points into body). This is also the whole check of a
- * datagram (1.13). acks: a data frame's flag bit 0 means an ACK byte (ACK_IN_DATA, 1.4); false
- * for an end that never announces the feature (its peer never sets the bit, and the code is
- * left out).
+ * parse_body() after its CRC check: the steps from the version on, of a body of n >= kEnvelope
+ * bytes whose CRC matched (a decoder that sums the CRC as the bytes arrive checks it itself).
  */
-inline FrameError parse_body(const uint8_t* body, size_t n, size_t max_payload, Frame* out,
-                             bool acks = true) {
-  if (n < kEnvelope) return FrameError::TooShort;
-  const uint16_t sent = wire::get16(body + n - kCrcSize);
-  if (crc16(body, n - kCrcSize) != sent) return FrameError::Crc;
+inline FrameError parse_checked(const uint8_t* body, size_t n, size_t max_payload, Frame* out,
+                                bool acks = true) {
   const uint8_t byte0 = body[0];
   if ((byte0 & 0xC0) != kVersion << 6) return FrameError::Version;  // bits, not shifts: AVR
   if ((byte0 & 0x30) == 0x30) return FrameError::ReservedType;      // type 3
@@ -109,6 +105,20 @@ inline FrameError parse_body(const uint8_t* body, size_t n, size_t max_payload, 
   out->payload = body + kHeaderSize;
   out->size = size;
   return FrameError::Ok;
+}
+
+/**
+ * Checks one decoded body (header, payload, CRC; steps 4-9 of PROTOCOL.md 1.6) and, when it is
+ * a frame, fills *out (its payload points into body). This is also the whole check of a
+ * datagram (1.13). acks: a data frame's flag bit 0 means an ACK byte (ACK_IN_DATA, 1.4); false
+ * for an end that never announces the feature (its peer never sets the bit, and the code is
+ * left out).
+ */
+inline FrameError parse_body(const uint8_t* body, size_t n, size_t max_payload, Frame* out,
+                             bool acks = true) {
+  if (n < kEnvelope) return FrameError::TooShort;
+  if (crc16(body, n - kCrcSize) != wire::get16(body + n - kCrcSize)) return FrameError::Crc;
+  return parse_checked(body, n, max_payload, out, acks);
 }
 
 /** The name PROTOCOL.md and the golden vectors give a result ("crc", "cobs", ...). */

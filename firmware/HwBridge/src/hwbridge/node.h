@@ -641,7 +641,7 @@ class NodeHandle_ : public NodeBase {
   Entry* call_entry_ = nullptr;
   uint32_t board_ref_ = 0, host_sec_ = 0, host_nsec_ = 0;  // time sync reference pair
   Reassembler<kReassembly> reasm_{};
-  FrameDecoder<Profile::kMtu, false, kAckInData> dec_{};
+  FrameDecoder<Profile::kMtu, false, kAckInData, kFixedMtu> dec_{};
   uint8_t tx_[Profile::kTxBuffer] = {};
 
   // kAnswerOwed: a service request was taken back (no room for its answer); until it comes

@@ -24,10 +24,26 @@ HWB_NODE void HWB_SELF::onServiceRequest(uint8_t channel, const uint8_t* p, size
     return;
   }
   if (state_ != kConnected || (e != nullptr && !e->accepted_)) e = nullptr;
+  // The answer is built in the reliable sender's slot when it is free (a window of one frame:
+  // SingleFrameSender::kInPlace; no copy before it goes out), else in tx_ to wait for the
+  // window (admitRequest made sure tx_ is free); either holds kTxBuffer bytes. Its head first
+  // (the status, its last byte, once known): less to keep across the service's callback.
+  static_assert(!RelTx::kInPlace || Profile::kTxBuffer <= Profile::kMtu, "the slot holds kMtu bytes");
+  const bool in_slot = RelTx::kInPlace && rel_tx_.free_slots() != 0;
+  uint8_t* const msg = in_slot ? rel_tx_.slot() : tx_;
+  uint8_t ch = kControlChannel;
+  if (own) {
+    wire::put16(msg, id);
+    ch = channel;
+  } else {
+    board::ServiceResponse::put(msg, channel, id, 0);
+  }
+  uint8_t* const body = msg + head;
   uint8_t status = control::ServiceStatus::NO_SERVICE;
   size_t len = 0;
-  uint8_t* const body = tx_ + head;
   if (e != nullptr) {
+    // (commit() skips send()'s MTU check: a board that does not fragment, the one-slot
+    // sender's, refuses a host whose MTU is below its own, so kTxBuffer <= kMtu <= the link's)
     const size_t cap = Profile::kTxBuffer - head;
     const size_t limit = static_cast<size_t>(peer_max_) - head < cap ? static_cast<size_t>(peer_max_) - head : cap;
     ServiceOut out = {body, limit};
@@ -39,15 +55,13 @@ HWB_NODE void HWB_SELF::onServiceRequest(uint8_t channel, const uint8_t* p, size
       len = static_cast<size_t>(detail::put_str(body, err, limit) - body);
     }
   }
-  if (own) {
-    wire::put16(tx_, id);
-    tx_[2] = status;
-    pending_ch_ = channel;
+  body[-1] = status;  // the head's last byte in both forms (SERVICE_RESPONSE: p[4] of 5)
+  if (in_slot) {
+    rel_tx_.commit(ch, head + len);
   } else {
-    board::ServiceResponse::put(tx_, channel, id, status);
-    pending_ch_ = kControlChannel;
+    pending_ch_ = ch;
+    pending_len_ = static_cast<uint16_t>(head + len);
   }
-  pending_len_ = static_cast<uint16_t>(head + len);
 }
 
 /** The response to the pending call, on its entry's channel: p its request id, status and body

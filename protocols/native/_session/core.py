@@ -258,15 +258,19 @@ class SessionCore(Generic[_E]):
         framing); returns the events it causes."""
         self._advance(now)
         if self._state is not CLOSED:
-            on_frame = self._on_frame
-            for item in self._framing.decode(data):
-                if isinstance(item, Frame):
-                    on_frame(item)
-                elif isinstance(item, NonFrameBytes):
-                    self._events.append(DebugOutput(item.data))
-                else:
-                    self._on_bad_frame(item)
-            self._flush()
+            items = self._framing.decode(data)
+            # (none: a frame's first bytes, as a service answer comes in several reads; then
+            # nothing changed that _flush() acts on)
+            if items:
+                on_frame = self._on_frame
+                for item in items:
+                    if isinstance(item, Frame):
+                        on_frame(item)
+                    elif isinstance(item, NonFrameBytes):
+                        self._events.append(DebugOutput(item.data))
+                    else:
+                        self._on_bad_frame(item)
+                self._flush()
         events: list[_E] = self._events  # _take_events(), inline: a per-read path
         self._events = []
         return events

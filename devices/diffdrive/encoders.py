@@ -321,8 +321,19 @@ class DiffDriveOdometry:
         return self._state
 
     def reset(self, pose: Pose2D = ORIGIN) -> None:
-        """Restart from ``pose`` with zero velocity; the next reading becomes the reference."""
+        """Restart from ``pose`` with zero velocity and no distance travelled; the next reading
+        becomes the reference."""
         self._state = OdomState(self._state.stamp, pose.x, pose.y, normalize_angle(pose.theta))
+        self._forget_counts()
+
+    def rereference(self) -> None:
+        """The counters began again (the board restarted): the next reading becomes the
+        reference, from the pose and distance travelled so far (odometry stays continuous),
+        with zero velocity."""
+        self._state = replace(self._state, linear=0.0, angular=0.0)
+        self._forget_counts()
+
+    def _forget_counts(self) -> None:
         self._last_counts = None
         self._window.clear()
         self._pending = (0.0, 0.0)

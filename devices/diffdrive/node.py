@@ -84,7 +84,7 @@ class DiffDriveNode:
             log.warning(
                 "%s: wheel counters jumped (board reset?); odometry re-referenced", self.node.name
             )
-            self.odometry.reset(self.odometry.state.pose)
+            self.odometry.rereference()
         self._last = (left, right, stamp)
         state = self.odometry.update(left, right, stamp)
         self.latest = self.odometry.to_odometry_msg(state)

@@ -184,6 +184,27 @@ def test_straight_line_uses_the_midpoint_heading() -> None:
     assert odom.state.theta == pytest.approx(math.pi / 6, abs=1e-15)
 
 
+def test_rereference_keeps_pose_and_distance_and_reset_starts_over() -> None:
+    """A board that restarted (its counters begin again) is taken from where the base is: the
+    pose and the distance travelled go on; reset() starts over from the pose it is given."""
+    odom = DiffDriveOdometry(0.05, 0.3, 1000)
+    step = 2 * math.pi * 0.05  # metres a wheel revolution (1000 counts)
+    odom.update(0, 0, 0.0)
+    odom.update(1000, 1000, 1.0)
+    assert (odom.state.x, odom.state.distance) == pytest.approx((step, step))
+    odom.rereference()
+    assert (odom.state.linear, odom.state.angular) == (0.0, 0.0)
+    odom.update(5, 5, 2.0)  # the new reference: no step from 1000 down to 5
+    assert (odom.state.x, odom.state.distance) == pytest.approx((step, step))
+    odom.update(1005, 1005, 3.0)
+    assert (odom.state.x, odom.state.distance) == pytest.approx((2 * step, 2 * step))
+    odom.reset(Pose2D(1.0, 0.0, 0.0))
+    assert (odom.state.x, odom.state.distance) == (1.0, 0.0)
+    odom.update(7, 7, 4.0)
+    odom.update(1007, 1007, 5.0)
+    assert (odom.state.x, odom.state.distance) == pytest.approx((1.0 + step, step))
+
+
 def test_turn_below_threshold_is_continuous_with_the_arc() -> None:
     # Separation so wide that one count of difference turns by less than ARC_THRESHOLD.
     counts, separation = 1_000_000, 1000.0

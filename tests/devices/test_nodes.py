@@ -262,6 +262,11 @@ def test_a_board_clock_set_back_by_a_time_sync_is_not_a_restart_and_loses_no_tra
         assert wait_until(reached(stamp - 0.35), 10)
         assert drive.rereferences == 1
         assert drive.odometry.state.x == pytest.approx(travelled, rel=1e-9)  # the pose is kept
+        assert drive.odometry.state.distance == pytest.approx(travelled, rel=1e-9)  # and distance
+        send(stamp - 0.33, 20)  # and counting goes on from the new reference
+        assert wait_until(reached(stamp - 0.33), 10)
+        step_m = 10 * 2 * math.pi * 0.033 / 1320
+        assert drive.odometry.state.distance == pytest.approx(travelled + step_m, rel=1e-9)
     finally:
         drive.close()
 

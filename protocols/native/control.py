@@ -24,6 +24,7 @@ from hwbridge.protocols.errors import ProtocolError
 from hwbridge.protocols.native._control.calls import (
     CHANNEL_REQUEST_HEAD_SIZE,
     CHANNEL_RESPONSE_HEAD_SIZE,
+    SERVICE_RESPONSE_HEAD_SIZE,
     LogMsg,
     ParamGetMsg,
     ParamValueMsg,
@@ -88,6 +89,7 @@ __all__ = [
     "MIN_MTU",
     "NO_SESSION",
     "PROTOCOL_VERSION",
+    "SERVICE_RESPONSE_HEAD_SIZE",
     "BoardInfoMsg",
     "ControlMessage",
     "EntryFlags",

@@ -39,6 +39,8 @@ CHANNEL_REQUEST_HEAD_SIZE: Final = 2
 """Bytes before the body of a request on its service's channel (SERVICE_CHANNELS): request id."""
 CHANNEL_RESPONSE_HEAD_SIZE: Final = _CHANNEL_RESPONSE_HEAD.size
 """Bytes before the body of a response on its service's channel: request id, status."""
+SERVICE_RESPONSE_HEAD_SIZE: Final = _SERVICE_RESPONSE_HEAD.size
+"""Bytes before the body of a SERVICE_RESPONSE: opcode, channel, request id, status."""
 
 
 def encode_service_request(channel: int, request_id: int, body: bytes) -> bytes:

@@ -29,15 +29,13 @@ from hwbridge.protocols.native._session.events import ServiceRequest, ServiceRes
 from hwbridge.protocols.native.control import (
     CHANNEL_REQUEST_HEAD_SIZE,
     CHANNEL_RESPONSE_HEAD_SIZE,
+    SERVICE_RESPONSE_HEAD_SIZE,
     encode_channel_request,
     encode_channel_response,
     encode_service_request,
     encode_service_response,
 )
 from hwbridge.protocols.native.reliable import Delivery
-
-_CONTROL_RESPONSE_HEAD_SIZE = 5
-"""SERVICE_RESPONSE's bytes before its body: opcode, channel, request id, status."""
 
 
 class Services(SessionCore[Any]):
@@ -123,7 +121,7 @@ class Services(SessionCore[Any]):
         # SERVICE_CHANNELS the channel is a service one (_on_service_request made sure).
         channels = self._service_channels
         if error is not None:
-            head = CHANNEL_RESPONSE_HEAD_SIZE if channels else _CONTROL_RESPONSE_HEAD_SIZE
+            head = CHANNEL_RESPONSE_HEAD_SIZE if channels else SERVICE_RESPONSE_HEAD_SIZE
             status, body = SERVICE_ERROR, _truncate(error, self._peer_max - head)
         else:
             status, body = SERVICE_OK, payload

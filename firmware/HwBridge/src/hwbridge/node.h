@@ -448,6 +448,12 @@ class NodeHandle_ : public NodeBase {
  private:
   enum State : uint8_t { kOff = 0, kHandshake, kConfiguring, kConnected };
   static const uint16_t kMinMtu = 24;
+  // On a service's own channel (SERVICE_CHANNELS, 2.8) a request is its id, then the body; an
+  // answer its id and status, then the body: SERVICE_REQUEST and SERVICE_RESPONSE without their
+  // opcode and channel (kToCall bytes).
+  static const uint8_t kCallHead = 2;
+  static const uint8_t kAnswerHead = 3;
+  static const uint8_t kToCall = control::board::ServiceRequest::kBody - kCallHead;
   static const uint32_t kMaxTimeAgeUs = 10000000UL;
   // The session's timers count 16-bit ticks of 1.024 ms, the microsecond clock shifted right by
   // 10 (no division on the board): deadlines up to 33 s ahead. Intervals are the protocol's
@@ -533,7 +539,7 @@ class NodeHandle_ : public NodeBase {
   // SERVICE_REQUEST (a control message): its channel, then the request id and body as on the
   // service's own channel
   static void requestThunk(NodeHandle_* n, const uint8_t* p, size_t len) {
-    n->onServiceRequest(control::board::ServiceRequest::channel(p), p + 2, len - 2);
+    n->onServiceRequest(control::board::ServiceRequest::channel(p), p + kToCall, len - kToCall);
   }
   // A response: a SERVICE_RESPONSE (a control message, len bytes), or with kOwnChannel added
   // to len the request id, status and body on the pending call's own channel (onChannel).
@@ -548,8 +554,8 @@ class NodeHandle_ : public NodeBase {
                  control::board::ServiceResponse::channel(p) != n->call_entry_->channel_) {
         return;  // not ours
       } else {
-        p += 2;
-        len -= 2;
+        p += kToCall;
+        len -= kToCall;
       }
       n->onServiceResponse(p, len);
     } else if (n->call_state_ == 1 && (len != kCallTimeout || reached(n->tick_, n->timer_))) {

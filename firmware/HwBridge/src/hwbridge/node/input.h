@@ -112,14 +112,14 @@ HWB_NODE void HWB_SELF::onChannel(const Message& m) {
   }
   const uint8_t* p = m.data;
   if (e->kind_ == kServiceServer) {
-    if (m.size < 2) {
+    if (m.size < kCallHead) {
       protocolError();
     } else if (admitRequest()) {
       onServiceRequest(m.channel, p, m.size);
     }
     return;
   }
-  if (m.size < 3 || p[2] > control::ServiceStatus::NO_SERVICE) {
+  if (m.size < kAnswerHead || p[kAnswerHead - 1] > control::ServiceStatus::NO_SERVICE) {
     protocolError();
   } else if (e == call_entry_) {  // else late, or not ours
     on_response_(this, p, m.size | kOwnChannel);

@@ -18,7 +18,7 @@ HWB_NODE void HWB_SELF::onServiceRequest(uint8_t channel, const uint8_t* p, size
   Entry* e = entryAt(channel);
   if (e != nullptr && e->kind_ != kServiceServer) e = nullptr;
   const bool own = e != nullptr && (features_ & control::Features::SERVICE_CHANNELS) != 0;
-  const size_t head = own ? 3 : board::ServiceResponse::kBody;  // request id, status (opcode, channel)
+  const size_t head = own ? kAnswerHead : board::ServiceResponse::kBody;
   if (peer_max_ < head) {  // no room to answer, ever: the host's call times out
     ++stats_.tx_refused;
     return;
@@ -47,8 +47,8 @@ HWB_NODE void HWB_SELF::onServiceRequest(uint8_t channel, const uint8_t* p, size
     const size_t cap = Profile::kTxBuffer - head;
     const size_t limit = static_cast<size_t>(peer_max_) - head < cap ? static_cast<size_t>(peer_max_) - head : cap;
     ServiceOut out = {body, limit};
-    len = n - 2;
-    const char* err = e->hook_(e, Entry::kOpDeliver, p + 2, &len, &out);
+    len = n - kCallHead;
+    const char* err = e->hook_(e, Entry::kOpDeliver, p + kCallHead, &len, &out);
     status = control::ServiceStatus::OK;
     if (err != nullptr) {
       status = control::ServiceStatus::ERROR;  // with the reason as the body
@@ -68,10 +68,10 @@ HWB_NODE void HWB_SELF::onServiceRequest(uint8_t channel, const uint8_t* p, size
  * (n bytes, at least 3), as on the service's own channel. */
 HWB_NODE void HWB_SELF::onServiceResponse(const uint8_t* p, size_t n) {
   if (call_state_ != 1 || wire::get16(p) != call_id_) return;  // late, or not ours
-  call_status_ = p[2];
+  call_status_ = p[kAnswerHead - 1];
   if (call_status_ == kCallOk) {
-    size_t len = n - 3;
-    if (call_entry_->hook_(call_entry_, Entry::kOpDeliver, p + 3, &len, call_res_) != nullptr) {
+    size_t len = n - kAnswerHead;
+    if (call_entry_->hook_(call_entry_, Entry::kOpDeliver, p + kAnswerHead, &len, call_res_) != nullptr) {
       call_status_ = kCallBadResponse;
     }
   }
@@ -82,7 +82,7 @@ HWB_NODE uint8_t HWB_SELF::call(Entry& e, size_t len, uint16_t timeout_ms, void*
   // the request was serialized after room for SERVICE_REQUEST's opcode, channel and id; on the
   // service's own channel (SERVICE_CHANNELS, 2.8) the id alone comes before it
   const bool own = (features_ & control::Features::SERVICE_CHANNELS) != 0;
-  const size_t head = own ? 2 : board::ServiceRequest::kBody;
+  const size_t head = own ? kCallHead : board::ServiceRequest::kBody;
   if (state_ != kConnected || !e.accepted_ || call_state_ == 1 || flag(kInInput) ||
       len + head > peer_max_) {
     ++stats_.tx_refused;
@@ -90,7 +90,7 @@ HWB_NODE uint8_t HWB_SELF::call(Entry& e, size_t len, uint16_t timeout_ms, void*
   }
   call_id_ = newRequestId();
   if (own) {
-    memmove(tx_ + 2, tx_ + board::ServiceRequest::kBody, len);
+    memmove(tx_ + kCallHead, tx_ + board::ServiceRequest::kBody, len);
     wire::put16(tx_, call_id_);
     pending_ch_ = e.channel_;
   } else {

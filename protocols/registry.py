@@ -22,6 +22,7 @@ from hwbridge.protocols.errors import HwBridgeError
 from hwbridge.protocols.plugins import NamedRegistry
 
 __all__ = [
+    "BOOTLOADER_QUIET",
     "BUILTIN_PROTOCOLS",
     "ENTRY_POINT_GROUP",
     "Detector",
@@ -35,6 +36,13 @@ __all__ = [
 ]
 
 ENTRY_POINT_GROUP: Final = "hwbridge.protocols"
+
+BOOTLOADER_QUIET: Final = 6.0
+"""Seconds of silence from the host that let a reset board out of a bootloader which takes any
+byte after the reset as the start of an upload and then waits for the next one: the Mega 2560's
+stk500v2 leaves for the application 5 s after the last byte it received (F_CPU/2 turns of its
+receive loop at 16 MHz; 5.0 s measured in simavr). A board with a ``start_delay`` is never
+spoken to more often than this while it does not answer (see :attr:`SessionContext.start_delay`)."""
 
 BUILTIN_PROTOCOLS: Final[dict[str, str]] = {
     "native": "hwbridge.protocols.native.spec:PROTOCOL",
@@ -71,7 +79,12 @@ class SessionContext:
     start_delay: float = 0.0
     """Seconds the user wants the board left alone after the link opens (a board whose
     bootloader dislikes bytes); a protocol that writes first waits this long, unless
-    ``board_spoke``."""
+    ``board_spoke``. Above 0 it also says the board resets into such a bootloader (a Mega's
+    stk500v2), where every byte keeps it waiting: the session must never keep talking to a board
+    that does not answer, or a board reset under it stays in its bootloader for good. A native
+    host then listens first (it answers the board's HELLOs and calls none of its own while the
+    board is silent); a rosserial host leaves :data:`BOOTLOADER_QUIET` between unanswered
+    requests."""
     options: dict[str, Any] = field(default_factory=dict)
     """Protocol options from the board's configuration."""
 

@@ -40,6 +40,7 @@ from hwbridge.links import Link, LinkClosedError, create_link
 from hwbridge.protocols.base import BoardSession
 from hwbridge.protocols.detect import ProtocolDetector, detectable_protocols
 from hwbridge.protocols.registry import (
+    BOOTLOADER_QUIET,
     ProtocolSpec,
     SessionContext,
     UnknownProtocolError,
@@ -594,7 +595,9 @@ class BoardConnection:
         seen = _Received(early)
         started = time.monotonic()
         probe_at = started + self.spec.start_delay
-        gap = _PROBE_FIRST
+        # A board with a start delay may sit in a bootloader that every byte keeps waiting (a
+        # Mega's stk500v2): its unanswered probes leave it the silence it needs to leave.
+        gap = BOOTLOADER_QUIET if self.spec.start_delay > 0 else _PROBE_FIRST
         warned_at = started
         pending = list(early)
         while not self._halted():
@@ -607,7 +610,9 @@ class BoardConnection:
             if probes and now >= probe_at:
                 for probe in probes:
                     link.write(probe)
-                probe_at, gap = now + gap, min(gap * 2, _PROBE_MAX)
+                probe_at = now + gap
+                if gap < _PROBE_MAX:
+                    gap = min(gap * 2, _PROBE_MAX)
             if now - warned_at >= 5.0:
                 warned_at = now
                 self.log.warning(

@@ -111,7 +111,9 @@ def connect(
             "--start-delay",
             min=0,
             help="Seconds of silence before probing a board that has not spoken (default: probe "
-            "at once, then again with backoff while a reset board boots).",
+            "at once, then again with backoff while a reset board boots). For boards whose "
+            "bootloader takes bytes after a reset as an upload (a Mega: 2): the bridge then "
+            "never keeps talking to a silent board, so a reset one is not held there.",
         ),
     ] = 0.0,
     service_timeout: Annotated[

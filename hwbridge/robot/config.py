@@ -44,8 +44,8 @@ problem at once, each as ``FILE:LINE: what is wrong``, in file order, in one
   ``usb:VID:PID[:SERIAL]`` and ``auto`` name a USB board, resolved to its port by ``hwbridge up``,
   see :mod:`hwbridge.links.discovery`); ``protocol``
   (default ``auto``), ``namespace`` (default ``/``, a graph name), ``baud`` (a whole number above
-  0), ``service_timeout`` (default 5 s), ``start_delay`` (default 0 s; 2 s with ``mcu: mega``),
-  ``devices`` (a list),
+  0), ``service_timeout`` (default 5 s), ``start_delay`` (default 0 s; 2 s with ``mcu: mega``;
+  above 0 the bridge never talks on to a silent board, a bootloader each byte holds), ``devices``,
   ``mcu`` (``uno``, ``nano`` or ``mega``, :mod:`hwbridge.firmware.boards`): when given, every
   device's wiring (:meth:`~hwbridge.robot.plugin.DevicePlugin.wiring`: its pins, I2C address,
   UART) is checked against that board's pins by :mod:`hwbridge.robot.wiring`, each problem at

@@ -61,10 +61,12 @@ class RegistryTypeCheck:
 
 def new_session(ctx: SessionContext) -> HostSession:
     """A host session for one board: stream or datagram framing per ``ctx.datagram``; the
-    first HELLO waits in ``chunks_to_send()`` at once."""
+    first HELLO waits in ``chunks_to_send()`` at once, but with a ``start_delay`` (a board whose
+    bootloader takes bytes as an upload) the host listens first: it answers the board's HELLOs
+    and calls none to a board it does not hear."""
     framing = NativeDatagramFraming() if ctx.datagram else NativeStreamFraming()
     return HostSession(
-        HostConfig(epoch_offset=ctx.wall_offset),
+        HostConfig(epoch_offset=ctx.wall_offset, listen_first=ctx.start_delay > 0),
         type_check=RegistryTypeCheck(ctx.registry),
         framing=framing,
         now=ctx.now,

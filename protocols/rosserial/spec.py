@@ -6,7 +6,7 @@ from __future__ import annotations
 from typing import Any, Final
 
 from hwbridge.protocols.errors import HwBridgeError
-from hwbridge.protocols.registry import ProtocolSpec, SessionContext
+from hwbridge.protocols.registry import BOOTLOADER_QUIET, ProtocolSpec, SessionContext
 from hwbridge.protocols.rosserial.framing import FrameParser, RosFrame
 from hwbridge.protocols.rosserial.host import REQUEST_TOPICS, RosserialHost
 
@@ -54,6 +54,10 @@ def new_session(ctx: SessionContext) -> RosserialHost:
             f"unknown rosserial option(s) {', '.join(unknown)}; known: {', '.join(sorted(OPTIONS))}"
         )
     options: dict[str, Any] = {"start_delay": ctx.start_delay, **ctx.options}
+    if ctx.start_delay > 0 and not {"request_retry", "request_retry_max"} & ctx.options.keys():
+        # A reset board in a bootloader that waits after each byte (a Mega's stk500v2) gets the
+        # silence it needs to leave between two unanswered requests.
+        options["request_retry"] = options["request_retry_max"] = BOOTLOADER_QUIET
     if ctx.board_spoke:
         options["start_delay"] = 0.0  # it is running: no bootloader to wait for
     return RosserialHost(ctx.registry, now=ctx.now, wall_offset=ctx.wall_offset, **options)

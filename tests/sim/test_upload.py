@@ -405,3 +405,41 @@ def test_mega_upload_through_the_stk500v2_bootloader(runner: Path, tmp_path: Pat
         assert sim.process.poll() is None, sim.errors
     finally:
         sim.stop()
+
+
+def test_a_mega_reset_under_the_bridge_comes_back(runner: Path, tmp_path: Path) -> None:
+    """Pressing a Mega's reset button while the bridge is connected: the stk500v2 bootloader
+    takes the bridge's next bytes as an upload and waits 5 s after each one. A bridge that kept
+    calling the silent board (HELLOs every 0.25 s) held it there for good; with a start delay
+    (a Mega's default) the bridge listens first, the bootloader gives up, and HelloWorld is
+    back on the graph."""
+    del runner
+    _needs("atmega2560")
+    from hwbridge.firmware.build import build_sketch
+    from hwbridge.firmware.sim import SimAvr
+
+    sketch = tmp_path / "HelloWorld"
+    shutil.copytree(HELLO, sketch, ignore=shutil.ignore_patterns("build"))
+    elf = build_sketch(sketch, "mega", tmp_path / "out")
+    sim = SimAvr(
+        elf.with_suffix(".hex"), bootloader=bootloader_hex("atmega2560"), mcu="atmega2560"
+    ).start()
+    try:
+        sim.go()
+        bridge = BridgeProcess(
+            sim.url.removeprefix("serial://"), tmp_path, "mega_reset", "--start-delay", "2"
+        )
+        try:
+            bridge.wait_ready()
+            assert "data: hello world!" in _chatter(bridge)
+            sim.reset()
+            assert wait_until(lambda: "session ended" in bridge.output(), 30), bridge.output()
+            assert wait_until(lambda: bridge.output().count("connected (native") >= 2, 60), (
+                bridge.output()
+            )
+            assert "data: hello world!" in _chatter(bridge)
+            assert sim.resets >= 1
+        finally:
+            bridge.stop()
+    finally:
+        sim.close()

@@ -143,6 +143,12 @@ class HostConfig(SessionConfig):
 
     epoch_offset: float = 0.0
     """Added to ``now`` to get the host time sent in time sync (e.g. ``time() - monotonic()``)."""
+    listen_first: bool = False
+    """Call no HELLO of this end's to a board that is not heard (PROTOCOL.md 2.5, listening
+    first): while no session is established, HELLOs go only in answer to the board's and, as
+    retries, for a ``link_timeout`` after the board's last HELLO. For boards whose bootloader
+    takes any byte after a reset as an upload and waits for the next one (a Mega's stk500v2):
+    a host calling every ``hello_interval`` would hold a reset board there for good."""
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -10,6 +10,7 @@ topic table and parameters of each end); the hooks they fill in are declared her
 
 from __future__ import annotations
 
+import math
 import random
 from collections import deque
 from collections.abc import Iterable
@@ -159,6 +160,10 @@ class SessionCore(Generic[_E]):
         self._next_hello = 0.0
         self._hello_wait = min(HELLO_FIRST_RETRY, config.hello_interval)
         """Wait before the next HELLO retry: doubles from HELLO_FIRST_RETRY to hello_interval."""
+        self._listen_first: bool = getattr(config, "listen_first", False)
+        """HELLO retries only to a peer heard lately (HostConfig.listen_first)."""
+        self._heard_at = -math.inf
+        """When the peer's last HELLO came (listen_first's retries run for a link_timeout)."""
         self._waiting_since = 0.0
         """When the current wait for a connected session began."""
         self._wait_reported = False
@@ -313,7 +318,8 @@ class SessionCore(Generic[_E]):
         return chunks[0] if len(chunks) == 1 else b"".join(chunks)
 
     def next_deadline(self) -> float | None:
-        """The time at which ``tick`` has work next, or None (closed)."""
+        """The time at which ``tick`` has work next, or None (closed, or nothing timed: a
+        listening-first host waiting for its quiet board's HELLO)."""
         state = self._state
         if state is CLOSED:
             return None
@@ -322,7 +328,8 @@ class SessionCore(Generic[_E]):
         if not self._wait_reported and state is not CONNECTED:
             times.append(self._waiting_since + cfg.handshake_timeout)
         if not self._established:
-            times.append(self._next_hello)
+            if self._may_call():
+                times.append(self._next_hello)
         else:
             times.append(self._last_rx + cfg.link_timeout)
             times.append(self._last_tx + cfg.heartbeat_interval)
@@ -340,7 +347,7 @@ class SessionCore(Generic[_E]):
                 times.extend(self._other_deadlines())
                 if self._time_sync:
                     times.append(self._time_next)
-        return min(times)
+        return min(times) if times else None  # (listen_first, quiet: data will come first)
 
     def publish(self, channel: int, payload: bytes) -> bool:
         """Send one topic message; False when not connected or the queue is full.
@@ -482,6 +489,11 @@ class SessionCore(Generic[_E]):
 
     def _alive(self) -> None:
         self._last_rx = self._now
+
+    def _may_call(self) -> bool:
+        """Whether a HELLO retry may go out now: always, but with ``listen_first`` only for a
+        ``link_timeout`` after the peer's last HELLO."""
+        return not self._listen_first or self._now < self._heard_at + self._cfg.link_timeout
 
     def _advance_opt(self, now: float | None) -> None:
         if now is not None:

@@ -66,6 +66,7 @@ class Handshake(SessionCore[Any]):
                     f"the peer is also a {role}: connect a host to a board", key="role"
                 )
             return
+        self._heard_at = self._now
         if self._established and (msg.session != self._peer_id or msg.peer_session != self._id):
             self._c.peer_resets += 1
             peer = _role_name(msg.role)
@@ -88,6 +89,8 @@ class Handshake(SessionCore[Any]):
             self._alive()
         if not msg.flags & HelloFlags.ESTABLISHED:
             self._send_hello()
+            if self._listen_first:  # this answer is the HELLO the retry timer would send now
+                self._next_hello = max(self._next_hello, self._now + self._hello_wait)
 
     def _check_peer_limits(self, msg: HelloMsg) -> str:
         peer = _role_name(msg.role)
@@ -221,7 +224,7 @@ class Handshake(SessionCore[Any]):
             self._wait_reported = True
             self._error(HwBridgeTimeoutError(self._handshake_timeout_text()))
         if not self._established:
-            if now >= self._next_hello:
+            if now >= self._next_hello and self._may_call():
                 self._send_hello()
                 self._next_hello = now + self._hello_wait
                 self._hello_wait = min(2 * self._hello_wait, cfg.hello_interval)

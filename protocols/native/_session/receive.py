@@ -71,8 +71,9 @@ class Receiver(SessionCore[Any]):
             self._on_best_effort(frame)
             return
         receiver = self._rel_rx
-        if receiver is None:
+        if receiver is None:  # the peer holds a session this end has not established (yet)
             self._c.ignored_frames += 1
+            self._heard_at = self._now  # (listen_first: HELLO retries go to a peer that talks)
             return
         self._last_rx = self._now
         for delivery in receiver.receive(frame):

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 from typing import Any, Final, Protocol
 
 from hwbridge.protocols.base import BoardSession
+from hwbridge.protocols.calling import BOOTLOADER_QUIET
 from hwbridge.protocols.errors import HwBridgeError
 from hwbridge.protocols.plugins import NamedRegistry
 
@@ -36,13 +37,6 @@ __all__ = [
 ]
 
 ENTRY_POINT_GROUP: Final = "hwbridge.protocols"
-
-BOOTLOADER_QUIET: Final = 6.0
-"""Seconds of silence from the host that let a reset board out of a bootloader which takes any
-byte after the reset as the start of an upload and then waits for the next one: the Mega 2560's
-stk500v2 leaves for the application 5 s after the last byte it received (F_CPU/2 turns of its
-receive loop at 16 MHz; 5.0 s measured in simavr). A board with a ``start_delay`` is never
-spoken to more often than this while it does not answer (see :attr:`SessionContext.start_delay`)."""
 
 BUILTIN_PROTOCOLS: Final[dict[str, str]] = {
     "native": "hwbridge.protocols.native.spec:PROTOCOL",

@@ -38,9 +38,9 @@ from hwbridge.graph import Node, resolve_name
 from hwbridge.graph.names import encode_segment
 from hwbridge.links import Link, LinkClosedError, create_link
 from hwbridge.protocols.base import BoardSession
+from hwbridge.protocols.calling import BOOTLOADER_QUIET, CALL_BURST, may_call, next_call
 from hwbridge.protocols.detect import ProtocolDetector, detectable_protocols
 from hwbridge.protocols.registry import (
-    BOOTLOADER_QUIET,
     ProtocolSpec,
     SessionContext,
     UnknownProtocolError,
@@ -594,7 +594,7 @@ class BoardConnection:
         probes = [spec.probe for spec in specs if spec.probe]
         seen = _Received(early)
         started = time.monotonic()
-        probe_at = started + self.spec.start_delay
+        probe_at = first_probe = started + self.spec.start_delay
         # A board with a start delay may sit in a bootloader that every byte keeps waiting (a
         # Mega's stk500v2): its unanswered probes leave it the silence it needs to leave.
         gap = BOOTLOADER_QUIET if self.spec.start_delay > 0 else _PROBE_FIRST
@@ -608,11 +608,16 @@ class BoardConnection:
                     return get_protocol(found), seen.chunks
             now = time.monotonic()
             if probes and now >= probe_at:
-                for probe in probes:
-                    link.write(probe)
-                probe_at = now + gap
-                if gap < _PROBE_MAX:
-                    gap = min(gap * 2, _PROBE_MAX)
+                # In bursts with pauses (hwbridge.protocols.calling): a Mega's bootloader that
+                # took a probe goes on to the sketch in a pause.
+                if may_call(now, first_probe, CALL_BURST, BOOTLOADER_QUIET):
+                    for probe in probes:
+                        link.write(probe)
+                    probe_at = now + gap
+                    if gap < _PROBE_MAX:
+                        gap = min(gap * 2, _PROBE_MAX)
+                else:
+                    probe_at = next_call(now, first_probe, CALL_BURST, BOOTLOADER_QUIET)
             if now - warned_at >= 5.0:
                 warned_at = now
                 self.log.warning(
@@ -623,7 +628,11 @@ class BoardConnection:
                     now - started,
                     seen.total,
                     " or ".join(spec.name for spec in specs),
-                    ": wrong baud rate?" if seen.total else "",
+                    ": wrong baud rate?"
+                    if seen.total
+                    # (silent: a Mega's bootloader may hold it, and lets go in a pause)
+                    else "; probes pause 6 s after every 5 s, so that a bootloader that took "
+                    "them (a Mega's) starts the sketch",
                 )
             data = link.read(4096, timeout=0.05)
             pending = [data] if data else []

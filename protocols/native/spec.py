@@ -10,6 +10,7 @@ from __future__ import annotations
 import logging
 from typing import Any
 
+from hwbridge.protocols.calling import CALL_BURST
 from hwbridge.protocols.errors import HwBridgeError
 from hwbridge.protocols.native.framing import (
     BadFrame,
@@ -63,10 +64,16 @@ def new_session(ctx: SessionContext) -> HostSession:
     """A host session for one board: stream or datagram framing per ``ctx.datagram``; the
     first HELLO waits in ``chunks_to_send()`` at once, but with a ``start_delay`` (a board whose
     bootloader takes bytes as an upload) the host listens first: it answers the board's HELLOs
-    and calls none to a board it does not hear."""
+    and calls none to a board it does not hear. On a stream link it calls a silent board in
+    bursts with pauses (:mod:`hwbridge.protocols.calling`), so that a Mega's bootloader that took
+    a HELLO goes on to the sketch in a pause."""
     framing = NativeDatagramFraming() if ctx.datagram else NativeStreamFraming()
     return HostSession(
-        HostConfig(epoch_offset=ctx.wall_offset, listen_first=ctx.start_delay > 0),
+        HostConfig(
+            epoch_offset=ctx.wall_offset,
+            listen_first=ctx.start_delay > 0,
+            call_burst=0.0 if ctx.datagram else CALL_BURST,
+        ),
         type_check=RegistryTypeCheck(ctx.registry),
         framing=framing,
         now=ctx.now,

@@ -60,6 +60,7 @@ from hwbridge.protocols.base import (
     ServiceResponse,
     SessionStats,
 )
+from hwbridge.protocols.calling import BOOTLOADER_QUIET, check_bursts
 from hwbridge.protocols.errors import (
     ProtocolError,
     ProtocolMismatchError,
@@ -165,6 +166,12 @@ class RosserialHost(NegotiationMixin):
             announced no buffer at all (150 bytes, the smallest stock one: ATmega168).
         old_protocol_threshold: protocol v1 headers in a row (without a valid v2 frame between
             them) before the "old firmware" error; a single one is usually line noise.
+        call_burst: seconds of unanswered "request topics" (and silence probes) after which the
+            host leaves the device ``call_pause`` seconds of silence, and so on
+            (:mod:`hwbridge.protocols.calling`; 0, the default: no pauses). The runtime's
+            sessions use CALL_BURST: a Mega whose bootloader took a request goes on to the
+            sketch in a pause.
+        call_pause: the silence after each ``call_burst``.
     """
 
     def __init__(
@@ -184,6 +191,8 @@ class RosserialHost(NegotiationMixin):
         max_payload: int = DEFAULT_MAX_PAYLOAD,
         fallback_input_buffer: int = 150,
         old_protocol_threshold: int = 2,
+        call_burst: float = 0.0,
+        call_pause: float = BOOTLOADER_QUIET,
     ) -> None:
         if not 0 < request_retry <= request_retry_max:
             raise ValueError(
@@ -200,6 +209,9 @@ class RosserialHost(NegotiationMixin):
         self._retry_max = request_retry_max
         self._probe_after = probe_after
         self._next_probe = 0.0
+        check_bursts(call_burst, call_pause)
+        self._call_burst = call_burst
+        self._call_pause = call_pause
         self._max_payload = max_payload
         self._fallback_input_buffer = fallback_input_buffer
         self._old_threshold = max(1, old_protocol_threshold)

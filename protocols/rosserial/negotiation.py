@@ -49,6 +49,7 @@ from enum import Enum
 from typing import Final
 
 from hwbridge.protocols.base import Connected, Disconnected, Error, Event
+from hwbridge.protocols.calling import may_call, next_call
 from hwbridge.protocols.errors import (
     HwBridgeError,
     HwBridgeTimeoutError,
@@ -117,6 +118,8 @@ class NegotiationMixin:
     _retry_max: float
     _probe_after: float
     _next_probe: float
+    _call_burst: float
+    _call_pause: float
     _max_payload: int
     _opened_at: float
     _start_delay: float
@@ -142,11 +145,17 @@ class NegotiationMixin:
             and now >= self._next_probe
         ):
             # Silent for longer than the library's time-sync period: it may have reset (it then
-            # waits to be asked). A configured device just sends its table again.
-            self._send_request(now)
-            self._probed = True
-            self.stats.silence_probes += 1
-            self._next_probe = now + self._retry_max
+            # waits to be asked). A configured device just sends its table again. Probes go in
+            # bursts with pauses (hwbridge.protocols.calling): a Mega's bootloader that took one
+            # goes on to the sketch in a pause.
+            since = self._sync_ref + self._probe_after
+            if may_call(now, since, self._call_burst, self._call_pause):
+                self._send_request(now)
+                self._probed = True
+                self.stats.silence_probes += 1
+                self._next_probe = now + self._retry_max
+            else:
+                self._next_probe = next_call(now, since, self._call_burst, self._call_pause)
         elif (
             state is State.CONNECTED
             and self._want_topics
@@ -196,6 +205,9 @@ class NegotiationMixin:
                 )
             )
         if now >= neg.retry_at:
+            if not may_call(now, neg.started, self._call_burst, self._call_pause):
+                neg.retry_at = next_call(now, neg.started, self._call_burst, self._call_pause)
+                return
             self._send_request(now)
             neg.retry_gap = min(neg.retry_gap * 2, self._retry_max)
             neg.retry_at = now + neg.retry_gap

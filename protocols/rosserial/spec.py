@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from typing import Any, Final
 
+from hwbridge.protocols.calling import CALL_BURST
 from hwbridge.protocols.errors import HwBridgeError
 from hwbridge.protocols.registry import BOOTLOADER_QUIET, ProtocolSpec, SessionContext
 from hwbridge.protocols.rosserial.framing import FrameParser, RosFrame
@@ -22,6 +23,8 @@ OPTIONS: Final = frozenset(
         "max_payload",
         "fallback_input_buffer",
         "old_protocol_threshold",
+        "call_burst",
+        "call_pause",
     }
 )
 """The board options a rosserial session takes (keyword arguments of :class:`RosserialHost`)."""
@@ -53,7 +56,11 @@ def new_session(ctx: SessionContext) -> RosserialHost:
         raise HwBridgeError(
             f"unknown rosserial option(s) {', '.join(unknown)}; known: {', '.join(sorted(OPTIONS))}"
         )
-    options: dict[str, Any] = {"start_delay": ctx.start_delay, **ctx.options}
+    options: dict[str, Any] = {
+        "start_delay": ctx.start_delay,
+        "call_burst": CALL_BURST,
+        **ctx.options,
+    }
     if ctx.start_delay > 0 and not {"request_retry", "request_retry_max"} & ctx.options.keys():
         # A reset board in a bootloader that waits after each byte (a Mega's stk500v2) gets the
         # silence it needs to leave between two unanswered requests.

@@ -9,6 +9,7 @@ from __future__ import annotations
 import random
 from typing import Any
 
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -20,6 +21,7 @@ from hwbridge.protocols.native.session import (
     HostSession,
 )
 from tests.protocols.lossy import Faults, SimLink
+from tests.protocols.stk500v2 import Stk500v2
 from tests.protocols.test_native_session import BOARD, TOPICS, errors
 
 LISTEN = HostConfig(listen_first=True)
@@ -143,3 +145,62 @@ def test_the_host_talks_only_to_a_board_it_hears_and_connects_after_each_outage(
     connected = link.run(60.0, until=lambda: link.host.connected and link.device.connected)
     assert connected, errors(link.host_events + link.device_events)
     _talked_only_when_heard(watched, link.host.config.link_timeout)
+
+
+# ---------------------------------------------------------------------------------------------
+# calls in bursts (HostConfig.call_burst), and a Mega reset under the runtime's hosts
+
+
+def test_a_silent_board_is_called_in_bursts_with_pauses() -> None:
+    """A host with ``call_burst`` sends HELLOs to a board it never hears only in the first 5 s
+    of every 11: the pauses are what a Mega's bootloader needs to give up on the bytes it took."""
+    watched = Watched(HostSession(HostConfig(call_burst=5.0, call_pause=6.0)))
+    device = DeviceSession(BOARD, TOPICS, rng=random.Random(2))
+    link = SimLink(watched, device, d2h=Faults(cut=True))  # type: ignore[arg-type]
+    link.run(60.0)
+    assert watched.said and watched.heard == []
+    bursts = {int(t // 11.0) for t in watched.said}
+    assert bursts == set(range(6)), "a burst every 11 s"
+    for t in watched.said:
+        assert t % 11.0 < 5.0 + 1e-9, f"a HELLO at {t:.3f} s, in a pause"
+
+
+def _session_from_the_runtime(start_delay: float) -> HostSession:
+    from hwbridge import msg
+    from hwbridge.protocols.native.spec import new_session
+    from hwbridge.protocols.registry import SessionContext
+
+    context = SessionContext(msg.registry(), False, 0.0, 0.0, start_delay=start_delay)
+    return new_session(context)
+
+
+def _reset_under(host: HostSession) -> tuple[bool, Stk500v2]:
+    """Connect ``host`` to a board, reset the board into its bootloader a second later; whether
+    the sketch and the host are connected again within a minute, and the bootloader."""
+    link = SimLink(host, DeviceSession(BOARD, TOPICS, rng=random.Random(7)), seed=7)
+    assert link.run(10.0, until=lambda: link.host.connected and link.device.connected)
+    link.run(1.0)
+
+    def sketch(_now: float) -> DeviceSession:
+        return DeviceSession(BOARD, TOPICS, rng=random.Random(8))
+
+    bootloader = Stk500v2(sketch, reset_at=link.device_time(link.now))
+    link.reset_device(bootloader)  # type: ignore[arg-type]
+    back = link.run(60.0, until=lambda: bootloader.connected and link.host.connected)
+    assert bootloader.bytes_taken > 0, "the host said nothing in the bootloader's first second"
+    return back, bootloader
+
+
+@pytest.mark.parametrize("start_delay", [0.0, 2.0])
+def test_a_mega_reset_under_the_runtimes_host_comes_back(start_delay: float) -> None:
+    """The board resets into its stk500v2 bootloader while connected; the host's heartbeats (and
+    HELLOs) reach the bootloader in its first second. The runtime's stream host pauses (with a
+    start delay it listens first) and the sketch is back."""
+    back, bootloader = _reset_under(_session_from_the_runtime(start_delay))
+    assert back and bootloader.running
+
+
+def test_a_host_calling_without_pause_holds_a_reset_mega_in_its_bootloader() -> None:
+    """Why the runtime's stream hosts pause: without (``call_burst`` 0), never back."""
+    back, bootloader = _reset_under(HostSession())
+    assert not back and not bootloader.running

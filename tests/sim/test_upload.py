@@ -407,34 +407,39 @@ def test_mega_upload_through_the_stk500v2_bootloader(runner: Path, tmp_path: Pat
         sim.stop()
 
 
-def test_a_mega_reset_under_the_bridge_comes_back(runner: Path, tmp_path: Path) -> None:
-    """Pressing a Mega's reset button while the bridge is connected: the stk500v2 bootloader
-    takes the bridge's next bytes as an upload and waits 5 s after each one. A bridge that kept
-    calling the silent board (HELLOs every 0.25 s) held it there for good; with a start delay
-    (a Mega's default) the bridge listens first, the bootloader gives up, and HelloWorld is
-    back on the graph."""
+@pytest.mark.parametrize(
+    ("board", "mcu", "start_delay"),
+    [("uno", "atmega328p", "0"), ("mega", "atmega2560", "2"), ("mega", "atmega2560", "0")],
+)
+def test_a_board_reset_under_the_bridge_comes_back(
+    runner: Path, tmp_path: Path, board: str, mcu: str, start_delay: str
+) -> None:
+    """Pressing the reset button while the bridge is connected. The Uno's Optiboot gives up on
+    the first byte that is no upload (its watchdog starts the sketch). A Mega's stk500v2 takes
+    the bridge's next bytes as an upload and waits 5 s after each one: a bridge that kept
+    calling the silent board (HELLOs every 0.25 s) held it there for good. With a start delay
+    (a Mega's default in a robot file) the bridge listens first; without one (``hwbridge
+    connect`` as a user first types it) it calls in bursts with pauses, its first probes at the
+    open's reset included. Either way the bootloader gives up, and HelloWorld is back."""
     del runner
-    _needs("atmega2560")
+    _needs(mcu)
     from hwbridge.firmware.build import build_sketch
     from hwbridge.firmware.sim import SimAvr
 
     sketch = tmp_path / "HelloWorld"
     shutil.copytree(HELLO, sketch, ignore=shutil.ignore_patterns("build"))
-    elf = build_sketch(sketch, "mega", tmp_path / "out")
-    sim = SimAvr(
-        elf.with_suffix(".hex"), bootloader=bootloader_hex("atmega2560"), mcu="atmega2560"
-    ).start()
+    elf = build_sketch(sketch, board, tmp_path / "out")
+    sim = SimAvr(elf.with_suffix(".hex"), bootloader=bootloader_hex(mcu), mcu=mcu).start()
     try:
         sim.go()
-        bridge = BridgeProcess(
-            sim.url.removeprefix("serial://"), tmp_path, "mega_reset", "--start-delay", "2"
-        )
+        port = sim.url.removeprefix("serial://")
+        bridge = BridgeProcess(port, tmp_path, f"{board}_reset", "--start-delay", start_delay)
         try:
             bridge.wait_ready()
             assert "data: hello world!" in _chatter(bridge)
             sim.reset()
             assert wait_until(lambda: "session ended" in bridge.output(), 30), bridge.output()
-            assert wait_until(lambda: bridge.output().count("connected (native") >= 2, 60), (
+            assert wait_until(lambda: bridge.output().count("connected (native") >= 2, 90), (
                 bridge.output()
             )
             assert "data: hello world!" in _chatter(bridge)

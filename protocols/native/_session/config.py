@@ -8,6 +8,7 @@ from enum import Enum
 from typing import Final, TypeAlias
 
 from hwbridge.protocols.base import Endpoint, FirmwareIdentity
+from hwbridge.protocols.calling import BOOTLOADER_QUIET, check_bursts
 from hwbridge.protocols.errors import HwBridgeError, ProtocolMismatchError
 from hwbridge.protocols.native._control.common import (
     ALL_FEATURES,
@@ -146,9 +147,20 @@ class HostConfig(SessionConfig):
     listen_first: bool = False
     """Call no HELLO of this end's to a board that is not heard (PROTOCOL.md 2.5, listening
     first): while no session is established, HELLOs go only in answer to the board's and, as
-    retries, for a ``link_timeout`` after the board's last HELLO. For boards whose bootloader
+    retries, for a ``link_timeout`` after the board was last heard. For boards whose bootloader
     takes any byte after a reset as an upload and waits for the next one (a Mega's stk500v2):
     a host calling every ``hello_interval`` would hold a reset board there for good."""
+    call_burst: float = 0.0
+    """Seconds this end calls (HELLO retries) a board it does not hear before it leaves it
+    ``call_pause`` seconds of silence, and so on (:mod:`hwbridge.protocols.calling`; 0: calls
+    without pause). Stream links use CALL_BURST: a Mega whose bootloader took a HELLO goes on
+    to its sketch in a pause."""
+    call_pause: float = BOOTLOADER_QUIET
+    """The silence after each ``call_burst``."""
+
+    def __post_init__(self) -> None:
+        SessionConfig.__post_init__(self)  # (no zero-argument super() in a slots dataclass)
+        check_bursts(self.call_burst, self.call_pause)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -17,6 +17,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any, ClassVar, Generic, TypeVar
 
+from hwbridge.protocols.calling import BOOTLOADER_QUIET, may_call, next_call
 from hwbridge.protocols.errors import HwBridgeError, ProtocolError
 from hwbridge.protocols.native._control.common import (
     CONTROL_CHANNEL,
@@ -162,8 +163,12 @@ class SessionCore(Generic[_E]):
         """Wait before the next HELLO retry: doubles from HELLO_FIRST_RETRY to hello_interval."""
         self._listen_first: bool = getattr(config, "listen_first", False)
         """HELLO retries only to a peer heard lately (HostConfig.listen_first)."""
+        self._call_burst: float = getattr(config, "call_burst", 0.0)
+        self._call_pause: float = getattr(config, "call_pause", BOOTLOADER_QUIET)
+        """HELLO retries to a silent peer in bursts, with pauses (HostConfig.call_burst)."""
         self._heard_at = -math.inf
-        """When the peer's last HELLO came (listen_first's retries run for a link_timeout)."""
+        """When the peer last sent a HELLO, or a reliable frame before this end established
+        (listen_first's HELLO retries run for a link_timeout after it)."""
         self._waiting_since = 0.0
         """When the current wait for a connected session began."""
         self._wait_reported = False
@@ -328,8 +333,9 @@ class SessionCore(Generic[_E]):
         if not self._wait_reported and state is not CONNECTED:
             times.append(self._waiting_since + cfg.handshake_timeout)
         if not self._established:
-            if self._may_call():
-                times.append(self._next_hello)
+            hello = self._next_call()
+            if hello is not None:
+                times.append(hello)
         else:
             times.append(self._last_rx + cfg.link_timeout)
             times.append(self._last_tx + cfg.heartbeat_interval)
@@ -491,9 +497,25 @@ class SessionCore(Generic[_E]):
         self._last_rx = self._now
 
     def _may_call(self) -> bool:
-        """Whether a HELLO retry may go out now: always, but with ``listen_first`` only for a
-        ``link_timeout`` after the peer's last HELLO."""
-        return not self._listen_first or self._now < self._heard_at + self._cfg.link_timeout
+        """Whether a HELLO retry may go out now: to a peer heard within a ``link_timeout``
+        (``_heard_at``); else never with ``listen_first``, and with ``call_burst`` only in the
+        bursts that began when this end started waiting for a session."""
+        now = self._now
+        if now < self._heard_at + self._cfg.link_timeout:
+            return True
+        if self._listen_first:
+            return False
+        return may_call(now, self._waiting_since, self._call_burst, self._call_pause)
+
+    def _next_call(self) -> float | None:
+        """When the next HELLO retry is due: ``_next_hello``, or later the start of the next
+        burst; None with ``listen_first`` and a silent peer (only its HELLO wakes this end)."""
+        if self._may_call():
+            return self._next_hello
+        if self._listen_first:
+            return None
+        start = next_call(self._now, self._waiting_since, self._call_burst, self._call_pause)
+        return max(self._next_hello, start)
 
     def _advance_opt(self, now: float | None) -> None:
         if now is not None:

@@ -1,0 +1,52 @@
+"""How a host calls a board that does not answer: in bursts, with silence between them.
+
+Some boards reset into a bootloader that takes any byte it receives as the start of an upload
+and then waits for the next one: the Mega 2560's stk500v2 goes on to the sketch only 5 s after
+the last byte. A host that kept calling a silent board (detection probes, native HELLOs,
+rosserial's "request topics") every second or faster would hold such a board in its bootloader
+for as long as it runs: after the port's open resets it, or its reset button, or a brown-out.
+So on stream links a host calls a silent board for at most :data:`CALL_BURST` seconds, then
+leaves it :data:`BOOTLOADER_QUIET` seconds of silence, then calls again, and so on. Answers to
+what the board says are never held back, and a board that speaks ends the silence.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Final
+
+__all__ = ["BOOTLOADER_QUIET", "CALL_BURST", "check_bursts", "may_call", "next_call"]
+
+CALL_BURST: Final = 5.0
+"""Seconds a host calls a board that does not answer before it falls silent."""
+
+BOOTLOADER_QUIET: Final = 6.0
+"""Seconds of silence that let a reset board out of a bootloader that waits after each byte: the
+Mega 2560's stk500v2 leaves for the sketch 5 s after the last byte it received (F_CPU/2 turns of
+its receive loop at 16 MHz; 5.0 s measured in simavr)."""
+
+
+def check_bursts(burst: float, pause: float) -> None:
+    """Raise ValueError unless ``burst`` is at least 0 (0: no pauses) and ``pause`` above 0."""
+    if not (burst >= 0 and pause > 0):
+        raise ValueError(f"need call_burst >= 0 and call_pause > 0, not {burst}, {pause}")
+
+
+def may_call(now: float, since: float, burst: float, pause: float) -> bool:
+    """Whether a host that began calling a silent board at ``since`` may call it at ``now``:
+    during the first ``burst`` seconds of every ``burst + pause`` (always with ``burst`` 0)."""
+    if burst <= 0 or now < since:
+        return True
+    period = burst + pause
+    phase = (now - since) % period
+    slack = 1e-9 * max(1.0, now - since)  # a burst's start as next_call() computes it, rounded
+    return phase < burst + slack or period - phase < slack
+
+
+def next_call(now: float, since: float, burst: float, pause: float) -> float:
+    """The earliest time from ``now`` on at which :func:`may_call` is true: ``now`` itself
+    within a burst, else the start of the next one."""
+    if may_call(now, since, burst, pause):
+        return now
+    period = burst + pause
+    return since + (math.floor((now - since) / period) + 1) * period

@@ -631,8 +631,8 @@ class BoardConnection:
                     ": wrong baud rate?"
                     if seen.total
                     # (silent: a Mega's bootloader may hold it, and lets go in a pause)
-                    else "; probes pause 6 s after every 5 s, so that a bootloader that took "
-                    "them (a Mega's) starts the sketch",
+                    else "; probes pause after every 5 s (6 s, then longer), so that a "
+                    "bootloader that took them (a Mega's) starts the sketch",
                 )
             data = link.read(4096, timeout=0.05)
             pending = [data] if data else []

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import itertools
+
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -9,6 +11,8 @@ from hypothesis import strategies as st
 from hwbridge.protocols.calling import (
     BOOTLOADER_QUIET,
     CALL_BURST,
+    PAUSE_GROWTH,
+    PAUSE_MAX,
     check_bursts,
     may_call,
     next_call,
@@ -27,24 +31,58 @@ def test_next_call_is_the_first_moment_a_call_may_go(
     at = next_call(now, since, burst, pause)
     assert at >= now
     assert may_call(at, since, burst, pause)
-    if at > now:  # a pause: it lasts until then, and is no longer than ``pause``
+    if at > now:  # a pause: it lasts until then, and no pause is longer than the cap
         assert not may_call(now, since, burst, pause)
-        assert at - now <= pause + 1e-6
+        assert at - now <= max(pause, PAUSE_MAX) + 1e-6
         for k in range(1, 8):
             assert not may_call(now + (at - now) * k / 8 * 0.999, since, burst, pause)
 
 
-@settings(max_examples=200, derandomize=True)
-@given(since=times, offset=st.floats(0.0, 1000.0, allow_nan=False))
-def test_the_runtime_calls_at_most_a_burst_then_leaves_the_bootloader_its_quiet(
-    since: float, offset: float
+def _runs(
+    since: float, burst: float, pause: float, span: float, step: float
+) -> list[tuple[bool, float]]:
+    """(calling?, length) of the runs of may_call sampled every ``step`` over ``span``."""
+    runs: list[tuple[bool, float]] = []
+    for i in range(round(span / step)):
+        allowed = may_call(since + i * step, since, burst, pause)
+        if runs and runs[-1][0] == allowed:
+            runs[-1] = (allowed, runs[-1][1] + step)
+        else:
+            runs.append((allowed, step))
+    return runs[:-1]  # the last run is cut off by the span
+
+
+@settings(max_examples=25, derandomize=True)
+@given(
+    since=st.floats(-50.0, 1000.0),
+    burst=st.floats(0.5, 8.0),
+    pause=st.floats(0.5, 30.0),
+)
+def test_bursts_last_burst_and_pauses_grow_from_pause_to_the_cap(
+    since: float, burst: float, pause: float
 ) -> None:
-    """Within any 11 s (burst + quiet) from ``since`` on, calls are allowed for 5 s at most and
-    there is a silence of 6 s: more than the stk500v2's 5 s wait after a byte."""
-    now = since + offset
-    allowed = [may_call(now + i * 0.01, since, CALL_BURST, BOOTLOADER_QUIET) for i in range(1100)]
-    assert 499 <= sum(allowed) <= 501
-    assert BOOTLOADER_QUIET > 5.0
+    step = 0.02
+    runs = _runs(since, burst, pause, 12 * (burst + max(pause, PAUSE_MAX)), step)
+    assert runs[0][0], "calls start at once"
+    quiet = [length for calling, length in runs if not calling]
+    loud = [length for calling, length in runs if calling]
+    assert len(quiet) >= 6
+    assert all(abs(length - burst) <= 2 * step for length in loud)
+    assert abs(quiet[0] - pause) <= 2 * step
+    longest = max(pause, PAUSE_MAX)
+    for before, after in itertools.pairwise(quiet):
+        expected = min(before * PAUSE_GROWTH, longest) if before < longest - 2 * step else before
+        assert abs(after - expected) <= 3 * step * PAUSE_GROWTH
+    assert abs(quiet[-1] - longest) <= 3 * step * PAUSE_GROWTH
+
+
+def test_the_runtime_leaves_the_stk500v2_more_than_its_5_s() -> None:
+    """The runtime's figures: 5 s of calls, then 6, 9, 13.5, 20, 20 ... s of silence; the Mega's
+    bootloader needs 5 s after a byte."""
+    runs = _runs(0.0, CALL_BURST, BOOTLOADER_QUIET, 150.0, 0.01)
+    quiet = [round(length, 1) for calling, length in runs if not calling]
+    assert quiet[:5] == [6.0, 9.0, 13.5, 20.0, 20.0]
+    assert min(quiet) > 5.0
 
 
 def test_no_burst_means_always() -> None:

@@ -2,7 +2,9 @@
 bootloader takes any byte after a reset as the start of an upload and waits for the next one (a
 Mega's stk500v2, 5 s after each byte), the host never keeps talking to a board it does not hear.
 It answers the board's HELLOs, retries its own only for a ``link_timeout`` after it last heard
-the board, and still connects through loss, duplication, reordering and board resets."""
+the board, and still connects through loss, duplication, reordering and board resets. Without a
+start delay, the runtime's stream host calls a silent board in bursts with pauses
+(``HostConfig.call_burst``), which let a reset Mega out of its bootloader too."""
 
 from __future__ import annotations
 
@@ -10,7 +12,7 @@ import random
 from typing import Any
 
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import given
 from hypothesis import strategies as st
 
 from hwbridge.protocols.calling import may_call
@@ -23,7 +25,7 @@ from hwbridge.protocols.native.session import (
 )
 from tests.protocols.lossy import Faults, SimLink
 from tests.protocols.stk500v2 import Stk500v2
-from tests.protocols.test_native_session import BOARD, TOPICS, errors
+from tests.protocols.test_native_session import BOARD, SETTINGS, TOPICS, errors
 
 LISTEN = HostConfig(listen_first=True)
 
@@ -100,14 +102,6 @@ def test_the_board_speaks_first_and_the_host_answers_at_once() -> None:
     assert link.run(5.0, until=lambda: link.host.connected and link.device.connected)
     # the first byte the host wrote answered the board's first HELLO, at the moment it came
     assert watched.said[0] == watched.heard[0]
-
-
-SETTINGS = settings(
-    max_examples=15,
-    deadline=None,
-    derandomize=True,
-    suppress_health_check=[HealthCheck.too_slow],
-)
 
 
 @SETTINGS

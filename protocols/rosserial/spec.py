@@ -5,9 +5,9 @@ from __future__ import annotations
 
 from typing import Any, Final
 
-from hwbridge.protocols.calling import CALL_BURST
+from hwbridge.protocols.calling import BOOTLOADER_QUIET, CALL_BURST
 from hwbridge.protocols.errors import HwBridgeError
-from hwbridge.protocols.registry import BOOTLOADER_QUIET, ProtocolSpec, SessionContext
+from hwbridge.protocols.registry import ProtocolSpec, SessionContext
 from hwbridge.protocols.rosserial.framing import FrameParser, RosFrame
 from hwbridge.protocols.rosserial.host import REQUEST_TOPICS, RosserialHost
 

@@ -61,20 +61,24 @@ def _cycle(now: float, since: float, burst: float, pause: float) -> tuple[float,
     return start, quiet
 
 
+def _in_burst(now: float, since: float, burst: float, start: float, quiet: float) -> bool:
+    """Whether ``now`` falls in the burst of the cycle that begins at ``start`` (``_cycle``)."""
+    slack = 1e-9 * max(1.0, now - since)  # a burst's start as next_call() computes it, rounded
+    return now - start < burst + slack or start + burst + quiet - now < slack
+
+
 def may_call(now: float, since: float, burst: float, pause: float) -> bool:
     """Whether a host that began calling a silent board at ``since`` may call it at ``now``:
     in the first ``burst`` seconds of each cycle (always with ``burst`` 0)."""
     if burst <= 0 or now < since:
         return True
-    start, quiet = _cycle(now, since, burst, pause)
-    slack = 1e-9 * max(1.0, now - since)  # a burst's start as next_call() computes it, rounded
-    return now - start < burst + slack or start + burst + quiet - now < slack
+    return _in_burst(now, since, burst, *_cycle(now, since, burst, pause))
 
 
 def next_call(now: float, since: float, burst: float, pause: float) -> float:
     """The earliest time from ``now`` on at which :func:`may_call` is true: ``now`` itself
     within a burst, else the start of the next one."""
-    if may_call(now, since, burst, pause):
+    if burst <= 0 or now < since:
         return now
     start, quiet = _cycle(now, since, burst, pause)
-    return start + burst + quiet
+    return now if _in_burst(now, since, burst, start, quiet) else start + burst + quiet

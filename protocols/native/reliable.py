@@ -387,7 +387,8 @@ class ReliableSender:
         data = payload if type(payload) is bytes else bytes(payload)
         frame = make_frame(_RELIABLE, channel, seq, data)
         self._next_seq = (seq + 1) & 0xFF
-        self._in_flight[seq] = _InFlight(frame, now, now, now + self.rtt.timeout(0))
+        # (rtt.timeout(0), inline: sample() and __init__ keep rto within rto_max)
+        self._in_flight[seq] = _InFlight(frame, now, now, now + self.rtt.rto)
         stats = self.stats
         stats.rel_messages_sent += 1
         stats.rel_frames_sent += 1
@@ -411,26 +412,10 @@ class ReliableSender:
 
     def on_ack(self, ack: Frame, now: float) -> list[Frame]:
         """Process one ACK frame; returns frames to retransmit at once (SACK holes)."""
-        self.stats.acks_received += 1
-        in_flight = self._in_flight
-        if not in_flight:
-            return []
-        base = self._base
-        acked_seq = ack.seq
-        acked_to = (acked_seq - base) & 0xFF  # seq_diff(acked_seq, base), inline
-        if acked_to < (self._next_sent() - base) & 0xFF:
-            # Karn's rule: no RTT sample when any newly acknowledged frame was retransmitted.
-            retransmitted = False
-            last = in_flight[base]  # acked_to >= 0: the loop below pops at least this one
-            for i in range(acked_to + 1):
-                last = in_flight.pop((base + i) & 0xFF)
-                if last.retries:
-                    retransmitted = True
-            if not retransmitted and not last.sacked:
-                self.rtt.sample(now - last.first_sent)
-            self._base = (acked_seq + 1) & 0xFF
+        self.acknowledge(ack.seq, now)
         bitmap = ack.payload
-        if not bitmap:  # no selective acknowledgement (an in-order receiver)
+        in_flight = self._in_flight
+        if not bitmap or not in_flight:  # no selective acknowledgement, or nothing to ask
             return []
         highest_sacked: int | None = None
         for byte_index, byte in enumerate(bitmap[: (MAX_WINDOW + 7) // 8]):
@@ -447,9 +432,29 @@ class ReliableSender:
             return []
         return self._fast_retransmit(highest_sacked, now)
 
-    def _next_sent(self) -> int:
-        """Seq after the last frame released into the window."""
-        return self._pending[0][0].seq if self._pending else self._next_seq
+    def acknowledge(self, acked_seq: int, now: float) -> None:
+        """A cumulative ACK of ``acked_seq`` without a bitmap: an ACK frame's first part, and all
+        of an ACK carried in a data frame (ACK_IN_DATA), which never asks for a retransmission.
+        """
+        self.stats.acks_received += 1
+        in_flight = self._in_flight
+        if not in_flight:
+            return
+        base = self._base
+        acked_to = (acked_seq - base) & 0xFF  # seq_diff(acked_seq, base), inline
+        pending = self._pending
+        next_sent = pending[0][0].seq if pending else self._next_seq  # after the last one sent
+        if acked_to < (next_sent - base) & 0xFF:
+            # Karn's rule: no RTT sample when any newly acknowledged frame was retransmitted.
+            retransmitted = False
+            last = in_flight[base]  # acked_to >= 0: the loop below pops at least this one
+            for i in range(acked_to + 1):
+                last = in_flight.pop((base + i) & 0xFF)
+                if last.retries:
+                    retransmitted = True
+            if not retransmitted and not last.sacked:
+                self.rtt.sample(now - last.first_sent)
+            self._base = (acked_seq + 1) & 0xFF
 
     def _fast_retransmit(self, highest_sacked: int, now: float) -> list[Frame]:
         """Resend holes below a selectively acknowledged frame, at most once per RTT each."""
@@ -581,6 +586,12 @@ class ReliableReceiver:
             if self._unacked >= self.ack_every:
                 self.ack_urgent = True
             self.expected = (self.expected + 1) & 0xFF
+            reassembler = self._reassembler
+            if frame.frag is _WHOLE and not reassembler.in_progress:
+                # _deliver()'s common case, inline: one message per frame (a service call)
+                self._first_seq = seq = frame.seq
+                self.stats.rel_messages_received += 1
+                return [_delivery(frame.channel, reassembler.whole(frame), seq)]
             delivery = self._deliver(frame)
             return [] if delivery is None else [delivery]
         self.ack_urgent = True  # the gap is filled: tell the peer
@@ -611,6 +622,17 @@ class ReliableReceiver:
             return None
         self.stats.rel_messages_received += 1
         return _delivery(frame.channel, payload, self._first_seq)
+
+    def carried_ack(self) -> int | None:
+        """The ACK as the byte a data frame carries (ACK_IN_DATA), clearing the flag as
+        :meth:`ack_frame` does; None, and nothing changed, while out-of-order frames are held
+        (their bitmap needs an ACK frame of its own)."""
+        if self._buffer:
+            return None
+        self.ack_needed = self.ack_urgent = False
+        self._unacked = 0
+        self.stats.acks_sent += 1
+        return (self.expected - 1) & 0xFF
 
     def ack_frame(self) -> Frame:
         """The ACK for the current state: cumulative seq plus a selective bitmap; clears the flag.

@@ -329,6 +329,26 @@ class SessionCore(Generic[_E]):
         if state is CLOSED:
             return None
         cfg = self._cfg
+        if state is CONNECTED and self._established:
+            # The pump asks after every read, a few times per service call: the connected
+            # session's timers are compared one by one, without the list below (PROTOCOL.md
+            # 2.11's timers, as there; a connected end has no handshake timer).
+            t = min(self._last_rx + cfg.link_timeout, self._last_tx + cfg.heartbeat_interval)
+            due = self._ack_due
+            if due is not None and due < t:
+                t = due
+            sender = self._rel_tx
+            if sender is not None:
+                rel = sender.next_deadline()
+                if rel is not None and rel < t:
+                    t = rel
+            for call in self._calls.values():
+                t = min(t, call.deadline)
+            for other in self._other_deadlines():
+                t = min(t, other)
+            if self._time_sync and self._time_next < t:
+                t = self._time_next
+            return t
         times: list[float] = []
         if not self._wait_reported and state is not CONNECTED:
             times.append(self._waiting_since + cfg.handshake_timeout)
@@ -609,13 +629,15 @@ class SessionCore(Generic[_E]):
             or link is None
             or frame.type is ACK
             or frame.ack is not None
-            or receiver.buffered
             or len(frame.payload) >= link.mtu
         ):
             return None
+        ack = receiver.carried_ack()
+        if ack is None:
+            return None
         self._ack_due = None
         self._seq.acks_carried += 1
-        return with_ack(frame, receiver.ack_frame().seq)
+        return with_ack(frame, ack)
 
     def _carry_in_out(self) -> bool:
         """Put the due ACK into the last data frame already queued for this write, if one can

@@ -34,7 +34,7 @@ from hwbridge.protocols.native.control import (
     ServiceResponseMsg,
     decode_control,
 )
-from hwbridge.protocols.native.reliable import _BARE_ACKS, Delivery
+from hwbridge.protocols.native.reliable import Delivery
 
 
 class Receiver(SessionCore[Any]):
@@ -65,8 +65,14 @@ class Receiver(SessionCore[Any]):
             for again in sender.on_ack(frame, self._now):
                 self._send_frame(again)
             return
-        if frame.ack is not None:  # an ACK in a data frame (ACK_IN_DATA): first, as if before it
-            self._on_carried_ack(frame.ack)
+        ack = frame.ack
+        if ack is not None:
+            # An ACK in a data frame (ACK_IN_DATA, PROTOCOL.md 2.4): the cumulative ACK of that
+            # seq, handled first, as if before the frame, so that an answer to the frame finds
+            # the window it freed. Outside a session it is ignored with the frame.
+            sender = self._rel_tx
+            if sender is not None:
+                sender.acknowledge(ack, self._now)
         if ftype is BEST_EFFORT:
             self._on_best_effort(frame)
             return
@@ -83,15 +89,6 @@ class Receiver(SessionCore[Any]):
                 self._on_data(delivery)
             if self._rel_rx is not receiver:  # the session ended while handling it
                 break
-
-    def _on_carried_ack(self, ack: int) -> None:
-        """The cumulative ACK a data frame carries (PROTOCOL.md 2.4): handled as an ACK frame of
-        that seq without a bitmap, before the frame itself, so that an answer to the frame finds
-        the window it freed. Outside a session it is ignored with the frame."""
-        sender = self._rel_tx
-        if sender is not None:
-            for again in sender.on_ack(_BARE_ACKS[ack], self._now):
-                self._send_frame(again)
 
     def _on_best_effort(self, frame: Frame) -> None:
         payload = frame.payload

@@ -593,11 +593,12 @@ def build_host_sketch(
     return exe
 
 
-_SECTION: Final = re.compile(r"^\.(text|data|bss)\s+(\d+)", re.M)
+_SECTION: Final = re.compile(r"^\.(text|data|bss|noinit)\s+(\d+)", re.M)
 
 
 def _measure(elf: Path, size: str, nm: str, owner_of: Callable[[str, str], str]) -> FirmwareSize:
-    """Flash (.text + .data) and static RAM (.data + .bss) of ``elf`` by ``size -A``, and its
+    """Flash (.text + .data) and static RAM (.data + .bss + .noinit, the RAM a reset leaves as
+    it was) of ``elf`` by ``size -A``, and its
     data symbols by ``nm``, each given an owner ("hwbridge", "core" or "sketch") by
     ``owner_of(name, nm_type)``."""
     if not elf.is_file():
@@ -606,7 +607,7 @@ def _measure(elf: Path, size: str, nm: str, owner_of: Callable[[str, str], str])
     if done.returncode != 0:
         raise HwBridgeError(f"{elf}: {Path(size).name} failed: {done.stderr.strip()}")
     sections = {name: int(value) for name, value in _SECTION.findall(done.stdout)}
-    text, data, bss = (sections.get(k, 0) for k in ("text", "data", "bss"))
+    text, data, bss, noinit = (sections.get(k, 0) for k in ("text", "data", "bss", "noinit"))
     listed = subprocess.run(
         [nm, "-C", "--size-sort", "-S", str(elf)], capture_output=True, text=True, check=False
     ).stdout
@@ -620,7 +621,7 @@ def _measure(elf: Path, size: str, nm: str, owner_of: Callable[[str, str], str])
     objects.sort(key=lambda item: (-item[1], item[0]))
     return FirmwareSize(
         flash=text + data,
-        sram=data + bss,
+        sram=data + bss + noinit,
         library_sram=sum(n for _, n, owner in objects if owner == "hwbridge"),
         core_sram=sum(n for _, n, owner in objects if owner == "core"),
         objects=tuple(objects),

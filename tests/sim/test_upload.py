@@ -448,6 +448,10 @@ def test_a_board_reset_under_the_bridge_comes_back(
             )
             assert "data: hello world!" in _chatter(bridge)
             assert sim.resets >= 1
+            # The simulated AVR reads the same clock and A0 at every boot: the count of boots
+            # it keeps in SRAM through the reset gives the new boot a new session id
+            # (PROTOCOL.md 2.10), and the bridge does not take it for the old session resumed.
+            assert "session resumed" not in bridge.output(), bridge.output()
         finally:
             bridge.stop()
     finally:

@@ -71,6 +71,7 @@ def test_hello_world_and_reset(run_example: Callable[..., Running]) -> None:
     assert wait_until(lambda: bridge.output().count("connected") > sessions, 60), bridge.output()
     assert "data: hello world!" in _echo(bridge, "/chatter")
     assert board.running
+    assert "session resumed" not in bridge.output(), bridge.output()  # a new boot, a new id
 
 
 def test_service_server(run_example: Callable[..., Running]) -> None:

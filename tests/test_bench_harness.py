@@ -336,6 +336,12 @@ def test_sim_bench_times_a_board_answer_from_the_line_pace() -> None:
     trace += [UartBytes(False, 95_000, bytes(4)), UartBytes(True, 99_000, bytes(1))]
     assert sim.call_bytes(trace) == 17
     assert sim.call_bytes(trace[:6]) is None  # no answer ended by a next request yet
+    # ratio_rounds: calls per second (hwbridge / ros_lib) of each quarter, in order; a call left
+    # over after the quarters is in none of them
+    ours = [1.0] * 4 + [2.0] * 4 + [1.0] * 4 + [4.0] * 4 + [9.0]
+    theirs = [2.0] * 8 + [1.0] * 8 + [9.0]
+    assert sim._ratio_rounds(ours, theirs) == [2.0, 1.0, 1.0, 0.25]
+    assert sim._ratio_rounds([1.0], [1.0]) == []
 
 
 @pytest.mark.skipif(

@@ -39,6 +39,10 @@ subscriber or service caller in this process. For each library and baud rate (11
 ``ratio`` is hwbridge / rosserial: above 1, hwbridge delivers more messages per second; for the
 service lines the figure compared is calls per second (1 / mean round trip), and ``ratio_p50``
 compares the median round trips (peer / hwbridge: above 1, hwbridge answers faster).
+``ratio_rounds`` is ``ratio`` for each quarter of the calls, in order. On this 2-core machine
+(two simulators and the bridges share it), five runs of sim_service_hello at 1 Mbaud on two
+neighbouring commits read 0.92 to 1.02, and the quarters of three of them 0.89 to 1.07: the
+rounds show how much of a run's figure is its own moment's load.
 
 At 1 Mbaud, the AVR's own count of the cycles of library work (``sim_cycles_*``; simulated
 cycles, deterministic but for the host's traffic, which the wall clock paces):
@@ -629,10 +633,30 @@ def service_line(
         ratio_p50=round(_percentile(theirs_t, 0.5) / _percentile(ours_t, 0.5), 3)
         if theirs_t
         else None,
+        ratio_rounds=_ratio_rounds(ours_t, theirs_t) if theirs_t else None,
         calls=len(ours_t),
         alternating=theirs_t is not None,
         **(_answer_fields(*traces) if theirs_t is not None else {}),
     )
+
+
+ROUNDS = 4
+"""Parts of a sim_service* run whose ratios ``ratio_rounds`` lists (the spread within a run)."""
+
+
+def _ratio_rounds(ours: list[float], theirs: list[float]) -> list[float]:
+    """``ratio`` (calls per second, hwbridge / ros_lib) of each of ROUNDS consecutive parts of
+    the alternating calls: how far one run's figure moves with the machine's load."""
+    size = min(len(ours), len(theirs)) // ROUNDS
+    return [
+        round(
+            statistics.mean(theirs[i * size : (i + 1) * size])
+            / statistics.mean(ours[i * size : (i + 1) * size]),
+            3,
+        )
+        for i in range(ROUNDS)
+        if size
+    ]
 
 
 def _answer_fields(ours: Path, theirs: Path) -> dict[str, Any]:

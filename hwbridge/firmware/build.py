@@ -651,8 +651,9 @@ def firmware_size(elf: Path) -> FirmwareSize:
 
 def arm_firmware_size(elf: Path) -> FirmwareSize:
     """Flash and static RAM of an ELF built for an ARM board (``arm-none-eabi-size -A``): flash =
-    .text + .data (the vector table, code, constants, initial values), RAM = .data + .bss (the
-    stack comes on top); the library's share from the symbols in namespace hwbridge."""
+    .text + .data (the vector table, code, constants, initial values), RAM = .data + .bss +
+    .noinit (the stack comes on top); the library's share from the symbols in namespace
+    hwbridge."""
 
     def owner_of(name: str, kind: str) -> str:
         del kind

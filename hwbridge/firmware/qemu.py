@@ -158,8 +158,10 @@ class QemuBoard:
                 self._stderr.append(line)
                 log.info("qemu: %s", line.rstrip())
 
-    def qmp(self, command: str, timeout: float = 10.0) -> dict[str, object]:
-        """Runs one QMP command; returns its answer (``{"return": ...}``)."""
+    def qmp(
+        self, command: str, timeout: float = 10.0, arguments: dict[str, object] | None = None
+    ) -> dict[str, object]:
+        """Runs one QMP command (with ``arguments``); returns its answer (``{"return": ...}``)."""
         if self._folder is None or self._process is None or self._process.poll() is not None:
             raise QemuError("QEMU is not running")
         path = str(Path(self._folder) / "qmp.sock")
@@ -168,7 +170,10 @@ class QemuBoard:
             sock.connect(path)
             reader = sock.makefile("r", encoding="utf-8")
             json.loads(reader.readline())  # the greeting
-            for text in ({"execute": "qmp_capabilities"}, {"execute": command}):
+            call: dict[str, object] = {"execute": command}
+            if arguments is not None:
+                call["arguments"] = arguments
+            for text in ({"execute": "qmp_capabilities"}, call):
                 sock.sendall((json.dumps(text) + "\n").encode())
                 while True:
                     answer: dict[str, object] = json.loads(reader.readline())
@@ -181,6 +186,21 @@ class QemuBoard:
     def reset(self) -> None:
         """A board reset (QMP ``system_reset``): the firmware starts again; the pty stays."""
         self.qmp("system_reset")
+
+    def peek(self, address: int, size: int) -> bytes:
+        """``size`` bytes of the board's memory from the physical ``address`` (the monitor's
+        ``xp``), read while it runs."""
+        answer = self.qmp(
+            "human-monitor-command", arguments={"command-line": f"xp /{size}xb {address:#x}"}
+        )
+        text = answer.get("return")
+        if not isinstance(text, str):
+            raise QemuError(f"xp at {address:#x}: no answer ({answer})")
+        # lines such as "0000000020000154: 0x01 0x00 ..."
+        values = [int(word, 16) for line in text.splitlines() for word in line.split()[1:]]
+        if len(values) != size:
+            raise QemuError(f"xp at {address:#x}: {size} bytes asked, got {text!r}")
+        return bytes(values)
 
     def close(self) -> None:
         """Stops QEMU (SIGTERM, then SIGKILL after 5 s) and removes its socket folder."""

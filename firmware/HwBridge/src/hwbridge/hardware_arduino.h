@@ -4,6 +4,8 @@
 
 #include <Arduino.h>
 
+#include "boot_count.h"
+
 namespace hwbridge {
 
 #if !defined(HWBRIDGE_SERIAL_RING) && defined(ARDUINO_ARCH_AVR) && defined(UDRIE0) && \
@@ -85,14 +87,6 @@ struct SerialRing : HardwareSerial {
     return c;
   }
 };
-#ifdef __AVR__
-/** Boots since power-on, counted from whatever the RAM held then (ArduinoHardware::seed). In
- * .noinit, which the C runtime never clears, so a reset keeps it; weak, so that every file that
- * includes this header names the one variable. (A function's static would do neither: gcc puts
- * an inline function's statics in .bss whatever section they name.) */
-__attribute__((weak, section(".noinit"))) uint8_t boot_count;
-#endif
-
 }  // namespace detail
 #endif
 
@@ -136,21 +130,15 @@ class ArduinoHardware {
   }
   void flush() {}
   uint32_t micros() { return ::micros(); }
-  /** Entropy for the session id: the floating analog input 0 and the clock; on AVR also a
-   * count of boots. */
+  /** Entropy for the session id: the floating analog input 0 and the clock; on AVR also the
+   * count of boots (boot_count.h: a steady A0 and the clock read the same at every boot). */
   uint32_t seed() {
     uint32_t s = ::micros();
 #ifdef A0
     for (uint8_t i = 0; i < 8; ++i) s = (s << 3) ^ static_cast<uint32_t>(analogRead(A0)) ^ (s >> 29);
 #endif
 #ifdef __AVR__
-    // The clock reads the same at every boot, and so does A0 when a steady voltage is on it
-    // (or in a simulator): each reset would bring the same session id back, and the host would
-    // take the new boot for the old session (PROTOCOL.md 2.10 needs a new id per boot). SRAM
-    // keeps its contents through a reset, so the count of boots there tells them apart: one
-    // byte (a boot's id differs from the one before), mixed into a byte of s that the node's
-    // "| 1" leaves alone.
-    s ^= static_cast<uint32_t>(++detail::boot_count) << 8;
+    s ^= detail::count_boot();
 #endif
     return s;
   }

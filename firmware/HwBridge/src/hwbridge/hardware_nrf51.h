@@ -14,6 +14,8 @@
 
 #include <stdint.h>
 
+#include "boot_count.h"
+
 extern "C" uint32_t hwbridge_board_micros(void);
 
 namespace hwbridge {
@@ -86,10 +88,11 @@ class Nrf51Hardware {
   }
   void flush() {}
   uint32_t micros() { return hwbridge_board_micros(); }
-  /** Entropy for the session id: the clock at the first spin, mixed (no noise source is read). */
+  /** Entropy for the session id: the clock at the first spin, mixed (no noise source is read),
+   * and the count of boots (boot_count.h: the clock alone reads the same at every boot). */
   uint32_t seed() {
     uint32_t s = hwbridge_board_micros() * 2654435761u;
-    return s ^ (s >> 15);
+    return (s ^ (s >> 15)) ^ detail::count_boot();
   }
 };
 

@@ -586,12 +586,6 @@ class ReliableReceiver:
             if self._unacked >= self.ack_every:
                 self.ack_urgent = True
             self.expected = (self.expected + 1) & 0xFF
-            reassembler = self._reassembler
-            if frame.frag is _WHOLE and not reassembler.in_progress:
-                # _deliver()'s common case, inline: one message per frame (a service call)
-                self._first_seq = seq = frame.seq
-                self.stats.rel_messages_received += 1
-                return [_delivery(frame.channel, reassembler.whole(frame), seq)]
             delivery = self._deliver(frame)
             return [] if delivery is None else [delivery]
         self.ack_urgent = True  # the gap is filled: tell the peer
@@ -627,8 +621,10 @@ class ReliableReceiver:
         """The ACK as the byte a data frame carries (ACK_IN_DATA), clearing the flag as
         :meth:`ack_frame` does; None, and nothing changed, while out-of-order frames are held
         (their bitmap needs an ACK frame of its own)."""
-        if self._buffer:
-            return None
+        return None if self._buffer else self._acked()
+
+    def _acked(self) -> int:
+        """An ACK goes out: the flags are cleared and it is counted; returns its cumulative seq."""
         self.ack_needed = self.ack_urgent = False
         self._unacked = 0
         self.stats.acks_sent += 1
@@ -640,15 +636,11 @@ class ReliableReceiver:
         Bit ``i`` of the bitmap (byte ``i // 8``, LSB first) reports seq ``ack + 2 + i`` as
         received; trailing zero bytes are left out, so an in-order receiver sends an empty one.
         """
-        self.ack_needed = self.ack_urgent = False
-        self._unacked = 0
-        self.stats.acks_sent += 1
+        acked = self._acked()
         if not self._buffer:
-            return _BARE_ACKS[(self.expected - 1) & 0xFF]
+            return _BARE_ACKS[acked]
         bitmap = bytearray(math.ceil((self.window - 1) / 8))
         for seq in self._buffer:
             i = seq_diff(seq, self.expected) - 1
             bitmap[i // 8] |= 1 << (i % 8)
-        return Frame(
-            FrameType.ACK, ACK_CHANNEL, (self.expected - 1) & 0xFF, bytes(bitmap).rstrip(b"\0")
-        )
+        return Frame(FrameType.ACK, ACK_CHANNEL, acked, bytes(bitmap).rstrip(b"\0"))

@@ -325,55 +325,39 @@ class SessionCore(Generic[_E]):
     def next_deadline(self) -> float | None:
         """The time at which ``tick`` has work next, or None (closed, or nothing timed: a
         listening-first host waiting for its quiet board's HELLO)."""
+        # The pump asks after every read, a few times per service call: the timers are compared
+        # as they come, without a list.
         state = self._state
         if state is CLOSED:
             return None
         cfg = self._cfg
-        if state is CONNECTED and self._established:
-            # The pump asks after every read, a few times per service call: the connected
-            # session's timers are compared one by one, without the list below (PROTOCOL.md
-            # 2.11's timers, as there; a connected end has no handshake timer).
-            t = min(self._last_rx + cfg.link_timeout, self._last_tx + cfg.heartbeat_interval)
-            due = self._ack_due
-            if due is not None and due < t:
-                t = due
-            sender = self._rel_tx
-            if sender is not None:
-                rel = sender.next_deadline()
-                if rel is not None and rel < t:
-                    t = rel
-            for call in self._calls.values():
-                t = min(t, call.deadline)
-            for other in self._other_deadlines():
-                t = min(t, other)
-            if self._time_sync and self._time_next < t:
-                t = self._time_next
-            return t
-        times: list[float] = []
+        t = math.inf
         if not self._wait_reported and state is not CONNECTED:
-            times.append(self._waiting_since + cfg.handshake_timeout)
+            t = self._waiting_since + cfg.handshake_timeout
         if not self._established:
             hello = self._next_call()
             if hello is not None:
-                times.append(hello)
+                t = min(t, hello)
         else:
-            times.append(self._last_rx + cfg.link_timeout)
-            times.append(self._last_tx + cfg.heartbeat_interval)
-            if self._ack_due is not None:
-                times.append(self._ack_due)
-            if self._rel_tx is not None:
-                rel = self._rel_tx.next_deadline()
+            t = min(t, self._last_rx + cfg.link_timeout, self._last_tx + cfg.heartbeat_interval)
+            due = self._ack_due
+            if due is not None:
+                t = min(t, due)
+            sender = self._rel_tx
+            if sender is not None:
+                rel = sender.next_deadline()
                 if rel is not None:
-                    times.append(rel)
+                    t = min(t, rel)
             if state is CONFIGURING:
-                times.append(self._configuring_since + cfg.handshake_timeout)
+                t = min(t, self._configuring_since + cfg.handshake_timeout)
             else:
                 for call in self._calls.values():
-                    times.append(call.deadline)
-                times.extend(self._other_deadlines())
+                    t = min(t, call.deadline)
+                for other in self._other_deadlines():
+                    t = min(t, other)
                 if self._time_sync:
-                    times.append(self._time_next)
-        return min(times) if times else None  # (listen_first, quiet: data will come first)
+                    t = min(t, self._time_next)
+        return None if t == math.inf else t  # (listen_first, quiet: data will come first)
 
     def publish(self, channel: int, payload: bytes) -> bool:
         """Send one topic message; False when not connected or the queue is full.

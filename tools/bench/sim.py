@@ -40,7 +40,7 @@ subscriber or service caller in this process. For each library and baud rate (11
 service lines the figure compared is calls per second (1 / mean round trip), and ``ratio_p50``
 compares the median round trips (peer / hwbridge: above 1, hwbridge answers faster).
 ``ratio_rounds`` is ``ratio`` for each quarter of the calls, in order. On this 2-core machine
-(two simulators and the bridges share it), seven runs of sim_service_hello at 1 Mbaud on three
+(two simulators and the bridges share it), eight runs of sim_service_hello at 1 Mbaud on four
 neighbouring commits of one day read 0.905 to 1.03, and the quarters of five of them 0.86 to
 1.07: the rounds show how much of a run's figure is its own moment's load.
 

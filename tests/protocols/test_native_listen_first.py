@@ -25,7 +25,7 @@ from hwbridge.protocols.native.session import (
 )
 from tests.protocols.lossy import Faults, SimLink
 from tests.protocols.stk500v2 import Stk500v2
-from tests.protocols.test_native_session import BOARD, SETTINGS, TOPICS, errors
+from tests.protocols.test_native_session import BOARD, LINK_FAULTS, SETTINGS, TOPICS, errors
 
 LISTEN = HostConfig(listen_first=True)
 
@@ -106,10 +106,7 @@ def test_the_board_speaks_first_and_the_host_answers_at_once() -> None:
 
 @SETTINGS
 @given(
-    seed=st.integers(0, 2**16),
-    loss=st.floats(0.0, 0.3),
-    duplicate=st.floats(0.0, 0.2),
-    reorder=st.floats(0.0, 0.3),
+    **LINK_FAULTS,
     outages=st.lists(
         st.tuples(st.floats(0.1, 4.0), st.floats(0.1, 8.0), st.booleans()), max_size=4
     ),

@@ -1,8 +1,8 @@
-"""A board that reboots with the session id it had: session ids are random per boot, but an AVR
-draws its entropy from a floating analog pin and the clock, and a robot with a steady voltage on
-that pin (or the simulator) gets the same id again. Its best-effort sequence numbers start over
-all the same: once the host's session ended, it must take the board's HELLOs rather than drop
-them as late frames."""
+"""A board that reboots with the session id it had: session ids are new per boot, but a port
+that seeds them from the clock and an analog pin alone (with a steady voltage on it), without the
+library's boot count (firmware ``hwbridge/boot_count.h``), gets the same id again. Its
+best-effort sequence numbers start over all the same: once the host's session ended, it must
+take the board's HELLOs rather than drop them as late frames."""
 
 from __future__ import annotations
 

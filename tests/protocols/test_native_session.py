@@ -121,6 +121,15 @@ SETTINGS = settings(
     suppress_health_check=[HealthCheck.too_slow],
 )
 
+LINK_FAULTS: dict[str, st.SearchStrategy[Any]] = {
+    "seed": st.integers(0, 2**16),
+    "loss": st.floats(0.0, 0.3),
+    "duplicate": st.floats(0.0, 0.2),
+    "reorder": st.floats(0.0, 0.3),
+}
+"""``@given`` arguments of the property tests of a session over a lossy link: the link's seed
+and its fault rates."""
+
 
 # ---------------------------------------------------------------------------------------------
 # helpers
@@ -742,10 +751,7 @@ def test_silent_board_is_reported_once_after_handshake_timeout() -> None:
 
 @SETTINGS
 @given(
-    seed=st.integers(0, 2**16),
-    loss=st.floats(0.0, 0.3),
-    duplicate=st.floats(0.0, 0.2),
-    reorder=st.floats(0.0, 0.3),
+    **LINK_FAULTS,
     window=st.integers(1, 12),
     ack_delay=st.sampled_from([0.0, 0.005, 0.01]),
     mtu=st.sampled_from([24, 32, 64, 100]),

@@ -169,8 +169,9 @@ class Handshake(SessionCore[Any]):
             self._last_peer_id = self._peer_id
         if self._be_peer == self._peer_id:
             # The peer's next HELLO starts its best-effort seq space afresh even if it names the
-            # same session: a board that rebooted without entropy for a new id (a steady analog
-            # pin, the simulator) counts from 0 again, and its HELLOs would be dropped as late.
+            # same session: a board that rebooted without entropy for a new id (a port with no
+            # noise source and no boot count, firmware hwbridge/boot_count.h) counts from 0
+            # again, and its HELLOs would be dropped as late.
             self._be_peer = NO_SESSION
         self._rel_tx = None
         self._rel_rx = None

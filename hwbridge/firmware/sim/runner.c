@@ -87,7 +87,16 @@
 #define MAX_ENC 8
 #define MAX_SONAR 4
 #define MAX_I2C 4
-#define TICK_US 1000
+/* The pacing quantum: every TICK_US of simulated time the runner sleeps off whatever the
+   simulation gained on the wall clock past AHEAD_US. Between two sleeps the simulation runs
+   several times faster than real time, so a request that reaches the pty while the runner
+   sleeps waits for the next burst: up to a quantum more than a real board would take. With a
+   1 ms quantum, as long as a service call at 1 Mbaud, a call's round trip depended on where it
+   fell in the quantum, and two runners of one firmware answered 11 % apart over 600 calls
+   (tools/bench/sim.py's service sketches); with 100 us they are within 1-3 %, for some 5 % more
+   of a core. */
+#define TICK_US 100
+#define AHEAD_US 100
 #define PTY_US 50
 
 typedef struct pin_ref {
@@ -784,10 +793,10 @@ static int pty_open(void) {
 /* The auto-reset of an Uno: opening its port pulls DTR and resets the AVR at once, before the
    host can send a byte. A pty has no DTR, so a thread waits on inotify for opens of the slave
    and raises open_seen the moment one happens; the main loop looks at it after every
-   instruction. Looking only in the 1 ms tick was not enough on a busy machine: with the runner
-   descheduled for longer than avrdude's 300 ms pause after the open, its first bytes reached
-   the bootloader that was running before the reset, which then cut the exchange in the middle
-   ("protocol expects OK byte 0x10 but got 0x04"). */
+   instruction. Looking only in the pacing tick (1 ms then) was not enough on a busy machine:
+   with the runner descheduled for longer than avrdude's 300 ms pause after the open, its first
+   bytes reached the bootloader that was running before the reset, which then cut the exchange
+   in the middle ("protocol expects OK byte 0x10 but got 0x04"). */
 static char watched_slave[64];
 
 #define MAX_HOLDERS 16
@@ -990,7 +999,7 @@ static avr_cycle_count_t tick(avr_t *a, avr_cycle_count_t when, void *param) {
     double sim = (double)(avr->cycle - cycle_start) / (double)avr->frequency / speed;
     double wall = wall_seconds();
     double ahead = sim - wall;
-    if (ahead > 0.0002) {
+    if (ahead > AHEAD_US * 1e-6) {
       // What the firmware sent goes out now, not after the pause (the host waits for it).
       if (uart.out_len) pty_write_out();
       usleep((useconds_t)(ahead * 1e6));

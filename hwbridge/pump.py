@@ -11,6 +11,8 @@ action and flushes the bytes it produced, so the session is never used by two th
 While a pump's thread hands events on (its callback may block: a graph publish behind a lagging
 subscriber), one keeper thread for all pumps runs the session's timers through its
 ``keepalive`` (sessions that have one: native), so that the peer keeps hearing from this end.
+A session that announces its timers (``next_deadline``) is asked for them between reads, except
+after a read it calls ``settled`` (native: one that held the first bytes of a frame).
 
 The bridge uses it on the host side, the emulator on the device side.
 """
@@ -50,6 +52,11 @@ class SansIOSession(Protocol):
     def tick(self, now: float, /) -> list[Any]: ...
 
     def chunks_to_send(self) -> list[bytes]: ...
+
+
+def _unsettled() -> bool:
+    """A session without ``settled``: every read may have moved its deadline."""
+    return False
 
 
 class SessionPump:
@@ -97,6 +104,9 @@ class SessionPump:
         self._handing_since: float | None = None
         self._kept_at = 0.0
         self._kept_events: list[Any] = []
+        self._acted = False
+        """Another thread ran the session (call(), the keeper) since the pump thread last asked
+        for its next deadline."""
 
     # ------------------------------------------------------------------ control
     def start(self) -> SessionPump:
@@ -125,6 +135,7 @@ class SessionPump:
     def call(self, action: Callable[[Any], T]) -> T:
         """Run ``action(session)`` under the lock, dispatch its events, flush its bytes."""
         with self._lock:
+            self._acted = True
             result = action(self.session)
             self._flush()
         if isinstance(result, list):
@@ -198,6 +209,7 @@ class SessionPump:
         with self._lock:
             if self._handing_since is None:
                 return
+            self._acted = True
             try:
                 self._kept_events += keepalive(now)
                 self._flush()
@@ -211,14 +223,21 @@ class SessionPump:
         session, lock, clock = self.session, self._lock, self._clock
         found = getattr(session, "next_deadline", None)
         deadline_of = cast("Callable[[], float | None] | None", found if callable(found) else None)
+        settled = _settled_of(session)
+        deadline: float | None = None
+        fresh = False  # ``deadline`` holds: only reads the session called settled ran since
         try:
             with lock:  # what the session queued before the thread started goes out now
                 self._flush()
             while not self._stop.is_set():
                 # A session that announces its next deadline is ticked only when one is due;
-                # others are ticked after every read and at least every _IDLE_TICK.
-                with lock:
-                    deadline: float | None = deadline_of() if deadline_of is not None else None
+                # others are ticked after every read and at least every _IDLE_TICK. The
+                # deadline is asked again unless nothing but settled reads ran the session
+                # since (a frame's first bytes: a service answer comes in several reads).
+                if not fresh or self._acted:
+                    with lock:
+                        self._acted = False
+                        deadline = deadline_of() if deadline_of is not None else None
                 timeout = (
                     _IDLE_TICK
                     if deadline is None
@@ -229,7 +248,9 @@ class SessionPump:
                 with lock:
                     now = clock()
                     events = session.receive_data(data, now) if data else []
+                    fresh = bool(data) and not events and settled()
                     if deadline is None or now >= deadline:
+                        fresh = False
                         if now - read_at > _LOCK_WAIT:
                             # Another thread held the lock meanwhile (a long write under call(),
                             # say): take what arrived since the read before the timers judge
@@ -256,6 +277,17 @@ class SessionPump:
                 self._on_exit(error)
             except Exception:
                 log.exception("%s: exit handler failed", self.name)
+
+
+def _settled_of(session: object) -> Callable[[], bool]:
+    """How the pump asks ``session`` whether its last ``receive_data`` left its timers as they
+    were (it only held a frame's first bytes), so that its deadline need not be asked again: the
+    session's ``settled`` (native sessions), or always no."""
+    found = getattr(type(session), "settled", None)  # (a wrapper's __getattr__ does not count)
+    getter = found.fget if isinstance(found, property) else None
+    if getter is None:
+        return _unsettled
+    return lambda: bool(getter(session))
 
 
 class _Keeper:

@@ -28,7 +28,8 @@ runs of 10^6, timeit's loop included on both sides):
 * **Inlined code** (written out where it runs, each place marked with a comment): the session's
   ``receive_data`` and ``tick`` take their events without calling ``_take_events``; its
   ``_on_frame``, ``_on_best_effort`` and ``_on_control`` set ``_last_rx`` instead of calling
-  ``_alive``; the stream decoder's loop binds its globals to locals and builds frames inline.
+  ``_alive``; the stream decoder's loop binds its globals to locals and builds frames inline;
+  ``encode_frame`` checks and appends a carried ACK and computes CRC and COBS itself.
   Each saves one Python method call per frame or per read: ~17 ns on Python 3.11 (24 ns for
   ``self._alive(now)`` against 7 ns for the attribute set, measured once; not in the bench).
 

@@ -224,3 +224,111 @@ def test_one_long_event_does_not_silence_the_link_nor_hide_a_dead_peer() -> None
         ), host_events
     finally:
         stop()
+
+
+class _AskCountingHost(ns.HostSession):
+    """A native host session that counts how often it is asked for its next deadline."""
+
+    asks = 0
+
+    def next_deadline(self) -> float | None:
+        self.asks += 1
+        return super().next_deadline()
+
+
+def test_reads_that_complete_no_frame_do_not_ask_for_the_deadline_again() -> None:
+    """The host pump reads one byte at a time (a service answer comes in many reads, as from a
+    board on a slow line): it asks the session for its next deadline only after the reads that
+    complete a frame (and after ticks and calls), and every call is answered."""
+    host_link, device_link = open_link("memory://pump-settled"), open_link("memory://pump-settled")
+    host = _AskCountingHost(ns.HostConfig(time_sync_interval=0))
+    sketch = native_sketch()
+    device = ns.DeviceSession(
+        sketch.board, list(sketch.topics.values()), ns.DeviceConfig(time_sync_interval=0)
+    )
+    answers: list[Any] = []
+    host_pump = SessionPump(
+        host_link,
+        host,
+        lambda e: answers.append(e) if isinstance(e, ns.ServiceResponse) else None,
+        name="host",
+        read_size=1,
+    ).start()
+
+    def answer(event: Any) -> None:
+        if isinstance(event, ns.ServiceRequest):
+            device_pump.call(
+                lambda s: s.respond_service(event.channel, event.request_id, b"\x01" + _string(""))
+            )
+
+    device_pump = SessionPump(device_link, device, answer, name="device").start()
+    try:
+        assert wait_for(lambda: host_pump.call(lambda s: s.connected), 10)
+        calls = 20
+        for n in range(calls):
+            host_pump.call(lambda s: s.call_service(3, b""))
+            assert wait_for(lambda n=n: len(answers) > n, 10)
+        assert all(e.ok for e in answers)
+        reads, asks = host_link.stats.reads, host.asks
+        assert reads > 20 * calls  # (an answer is 19 bytes; the board's heartbeats add more)
+        assert asks * 3 < reads, (asks, reads)
+    finally:
+        host_pump.stop()
+        device_pump.stop()
+        host_link.close()
+        device_link.close()
+
+
+class _SettledSession:
+    """A session whose every read is settled and whose deadline only moves by ``call()``."""
+
+    def __init__(self) -> None:
+        self.deadline = time.monotonic() + 1000.0
+        self.ticks: list[float] = []
+
+    @property
+    def settled(self) -> bool:
+        return True
+
+    def receive_data(self, data: bytes, now: float, /) -> list[Any]:
+        return []
+
+    def tick(self, now: float, /) -> list[Any]:
+        if now >= self.deadline:
+            self.ticks.append(now)
+            self.deadline = now + 1000.0
+        return []
+
+    def next_deadline(self) -> float | None:
+        return self.deadline
+
+    def chunks_to_send(self) -> list[bytes]:
+        return []
+
+
+def test_a_call_between_settled_reads_is_asked_for_its_deadline() -> None:
+    """Bytes keep coming (every read settled), and another thread moves the session's deadline
+    near through ``call()``: the pump asks again and ticks at it, instead of keeping the far one
+    it had."""
+    link, peer = open_link("memory://pump-acted"), open_link("memory://pump-acted")
+    session = _SettledSession()
+    pump = SessionPump(link, session, lambda _e: None, name="settled").start()
+    stop = threading.Event()
+
+    def trickle() -> None:
+        while not stop.is_set():
+            peer.write(b"x")
+            time.sleep(0.002)
+
+    writer = threading.Thread(target=trickle, daemon=True)
+    writer.start()
+    try:
+        assert wait_for(lambda: link.stats.reads > 20, 10)
+        pump.call(lambda s: setattr(s, "deadline", time.monotonic() + 0.05))
+        assert wait_for(lambda: len(session.ticks) == 1, 10)
+    finally:
+        stop.set()
+        writer.join(5)
+        pump.stop()
+        link.close()
+        peer.close()

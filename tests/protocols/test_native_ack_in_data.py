@@ -80,8 +80,10 @@ def test_ack_only_in_data_frames() -> None:
     """An ACK frame cannot carry an ACK byte, nor can an ACK be outside 0..255."""
     with pytest.raises(FramingError, match="only BEST_EFFORT"):
         encode_frame(Frame(FrameType.ACK, 0, 1, b"", Frag.WHOLE, 2))
-    with pytest.raises(FramingError, match="only BEST_EFFORT"):
-        encode_frame(Frame(FrameType.RELIABLE, 0, 1, b"", Frag.WHOLE, 256))
+    for ack in (256, -1):  # (-1 would index the last byte value, were it not checked)
+        for encode in (encode_frame, encode_datagram):
+            with pytest.raises(FramingError, match="only BEST_EFFORT"):
+                encode(Frame(FrameType.RELIABLE, 0, 1, b"", Frag.WHOLE, ack))
 
 
 @pytest.mark.parametrize(

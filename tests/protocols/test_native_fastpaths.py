@@ -47,9 +47,11 @@ from hwbridge.protocols.native.session import (
     DeviceConfig,
     HostConfig,
     Message,
+    NativeStreamFraming,
+    ServiceRequest,
 )
 from tests.protocols.test_native_framing import ref_body, ref_cobs_encode
-from tests.protocols.test_native_session import connect, make_link
+from tests.protocols.test_native_session import CH_CHATTER, CH_RESET, connect, make_link
 
 SETTINGS = settings(
     max_examples=300,
@@ -363,3 +365,45 @@ def test_next_deadline_is_the_earliest_timer() -> None:
         host.tick(deadline)
         assert host.next_deadline() != deadline or host.stats.heartbeats_sent > heartbeats
         link.flush()
+
+
+@SETTINGS
+@given(seed=st.integers(0, 2**32 - 1), most=st.integers(1, 40))
+def test_a_settled_read_leaves_next_deadline_as_it_was(seed: int, most: int) -> None:
+    """``settled`` (a pump skips asking next_deadline again after such a read) is True exactly
+    after a read that completed no frame, and then the deadline is the one before the read;
+    the board's bytes come in chunks of 1 to ``most`` bytes while calls, messages and timers
+    run both ways."""
+    link = make_link(seed % 1000)
+    connect(link)
+    host, device = link.host, link.device
+    rng = random.Random(seed)
+    now, settled_reads = link.now, 0
+    for step in range(60):
+        now += rng.choice([0.0005, 0.004, 0.03, 0.12])
+        host.tick(now)
+        device.tick(now)
+        if step % 3 == 0:
+            host.call_service(CH_RESET, b"", now=now)
+        if step % 4 == 1:
+            device.publish(CH_CHATTER, b"\x05\x00\x00\x00hello")
+        for event in device.receive_data(host.data_to_send(), now):
+            if isinstance(event, ServiceRequest):
+                device.respond_service(event.channel, event.request_id, b"\x01\x00\x00\x00\x00")
+        wire = device.data_to_send()
+        while wire:
+            size = rng.randint(1, most)
+            chunk, wire = wire[:size], wire[size:]
+            framing = host.framing
+            assert isinstance(framing, NativeStreamFraming)
+            pending = framing.decoder.buffered
+            before = host.next_deadline()
+            host.receive_data(chunk, now)
+            runs = chunk.split(b"\x00")[:-1]  # the runs a delimiter in the chunk ends
+            completes = bool(runs) and (pending > 0 or any(runs))
+            assert host.settled is (not completes)
+            if host.settled:
+                settled_reads += 1
+                assert host.next_deadline() == before
+        host.tick(now)
+    assert host.connected and settled_reads > 0

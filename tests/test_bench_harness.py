@@ -336,12 +336,12 @@ def test_sim_bench_times_a_board_answer_from_the_line_pace() -> None:
     trace += [UartBytes(False, 95_000, bytes(4)), UartBytes(True, 99_000, bytes(1))]
     assert sim.call_bytes(trace) == 17
     assert sim.call_bytes(trace[:6]) is None  # no answer ended by a next request yet
-    # ratio_rounds: calls per second (hwbridge / ros_lib) of each quarter, in order; a call left
-    # over after the quarters is in none of them
-    ours = [1.0] * 4 + [2.0] * 4 + [1.0] * 4 + [4.0] * 4 + [9.0]
-    theirs = [2.0] * 8 + [1.0] * 8 + [9.0]
-    assert sim._ratio_rounds(ours, theirs) == [2.0, 1.0, 1.0, 0.25]
-    assert sim._ratio_rounds([1.0], [1.0]) == []
+    # the calls of a service line spread over the pairs of runners: every call in one share,
+    # shares one apart at most, none empty; a pair's ratio is calls per second, hwbridge / ros_lib
+    assert sim._shares(1000, 4) == [250] * 4
+    assert sim._shares(10, 4) == [3, 3, 2, 2]
+    assert sim._shares(2, 4) == [1, 1]
+    assert sim._ratio([1.0, 3.0], [4.0, 4.0]) == 2.0
 
 
 @pytest.mark.skipif(

@@ -39,12 +39,14 @@ subscriber or service caller in this process. For each library and baud rate (11
 ``ratio`` is hwbridge / rosserial: above 1, hwbridge delivers more messages per second; for the
 service lines the figure compared is calls per second (1 / mean round trip), and ``ratio_p50``
 compares the median round trips (peer / hwbridge: above 1, hwbridge answers faster).
-``ratio_rounds`` is ``ratio`` for each quarter of the calls, in order. On this 2-core machine
-(two simulators and the bridges share it), five runs of sim_service_hello at 1 Mbaud on one
-commit read 0.942 to 1.082, their quarters 0.842 to 1.113: the rounds show how much of a run's
-figure is its own moment's load. Two runners of one firmware, their calls alternating as here,
-read 0.969 to 1.014 against each other (four pairs, 600 calls each); with the runner's former
-pacing quantum of 1 ms, one pair read 1.115 (see ``runner.c``, TICK_US).
+A runner keeps a bias of its own for its whole life: two runners of one firmware, their calls
+alternating as here, read 0.969 to 1.014 against each other (four pairs, 600 calls each; with
+the runner's former pacing quantum of 1 ms, one pair read 1.115: see ``runner.c``, TICK_US). So
+the calls of a service line are spread over ``PAIRS`` (4) pairs of runners started one after
+the other, each pair's calls alternating, and ``ratio_pairs`` is ``ratio`` for each pair. On
+this 2-core machine (two simulators and the bridges share it), five runs of sim_service_hello at
+1 Mbaud with one pair of 1000 calls each, on one commit, read 0.942 to 1.082 (the quarters of
+their calls 0.842 to 1.113).
 
 At 1 Mbaud, the AVR's own count of the cycles of library work (``sim_cycles_*``; simulated
 cycles, deterministic but for the host's traffic, which the wall clock paces):
@@ -604,25 +606,37 @@ def service_line(
     With ros_lib, both firmwares run at once (two simavr processes, two bridges) and the calls
     alternate between them, one each in turn: both meet the machine's load of the same moment,
     so the ratio no longer depends on which of two short windows a burst of other work fell in
-    (back to back, 200 calls each, the ratio read 0.92 to 1.48 across runs of one commit)."""
+    (back to back, 200 calls each, the ratio read 0.92 to 1.48 across runs of one commit). The
+    calls are spread over PAIRS pairs of runners, one pair after the other."""
     name = "ServiceServer" if ours_source is None else "HelloService"
     ours_elf = build_hwbridge_sketch(name, ours_source, baud, tmp)
     ours_call = ("/bench/count", "std_srvs/Trigger", b"")
     theirs_call = ("/bench/test_srv", "rosserial_arduino/Test", REQUEST_X)
     theirs_t: list[float] | None = None
+    by_pair: list[float] = []
     traces = (tmp / f"{line}-{baud}-ours.uart", tmp / f"{line}-{baud}-theirs.uart")
     if ros_lib is None:
         ours_t = _measure(ours_elf, "native", baud, lambda r: service_times(r, *ours_call, calls))
     else:
         elf = build_ros_lib_sketch(ros_lib, f"Ros{name}", ros_source, baud, tmp)
-        ours_t, theirs_t = _measure_pair(
-            (ours_elf, "native", traces[0]),
-            (elf, "rosserial", traces[1]),
-            baud,
-            lambda ours, theirs: alternating_service_times(
-                (ours, *ours_call), (theirs, *theirs_call), calls
-            ),
-        )
+        ours_t, theirs_t = [], []
+        for index, share in enumerate(_shares(calls, PAIRS)):
+            logged = index == 0  # (the first pair's UART logs give the boards' own part)
+
+            def alternate(
+                ours: Running, theirs: Running, share: int = share
+            ) -> tuple[list[float], list[float]]:
+                return alternating_service_times((ours, *ours_call), (theirs, *theirs_call), share)
+
+            mine, peer = _measure_pair(
+                (ours_elf, "native", traces[0] if logged else None),
+                (elf, "rosserial", traces[1] if logged else None),
+                baud,
+                alternate,
+            )
+            ours_t += mine
+            theirs_t += peer
+            by_pair.append(_ratio(mine, peer))
     emit(
         line,
         {"baud": baud},
@@ -636,30 +650,27 @@ def service_line(
         ratio_p50=round(_percentile(theirs_t, 0.5) / _percentile(ours_t, 0.5), 3)
         if theirs_t
         else None,
-        ratio_rounds=_ratio_rounds(ours_t, theirs_t) if theirs_t else None,
+        ratio_pairs=by_pair if theirs_t else None,
         calls=len(ours_t),
         alternating=theirs_t is not None,
         **(_answer_fields(*traces) if theirs_t is not None else {}),
     )
 
 
-ROUNDS = 4
-"""Parts of a sim_service* run whose ratios ``ratio_rounds`` lists (the spread within a run)."""
+PAIRS = 4
+"""Pairs of runners a sim_service* line's calls are spread over, each pair started afresh for its
+share: a runner keeps a bias of its own for its whole life (one or two percent either way, see
+the module's docstring), which a single pair would put into the ratio whole."""
 
 
-def _ratio_rounds(ours: list[float], theirs: list[float]) -> list[float]:
-    """``ratio`` (calls per second, hwbridge / ros_lib) of each of ROUNDS consecutive parts of
-    the alternating calls: how far one run's figure moves with the machine's load."""
-    size = min(len(ours), len(theirs)) // ROUNDS
-    return [
-        round(
-            statistics.mean(theirs[i * size : (i + 1) * size])
-            / statistics.mean(ours[i * size : (i + 1) * size]),
-            3,
-        )
-        for i in range(ROUNDS)
-        if size
-    ]
+def _shares(calls: int, parts: int) -> list[int]:
+    """``calls`` split into at most ``parts`` shares, none empty, that differ by one at most."""
+    return [calls // parts + (i < calls % parts) for i in range(min(parts, calls))]
+
+
+def _ratio(ours: list[float], theirs: list[float]) -> float:
+    """Calls per second of round trips ``ours`` over those of ``theirs`` (hwbridge / ros_lib)."""
+    return round(statistics.mean(theirs) / statistics.mean(ours), 3)
 
 
 def _answer_fields(ours: Path, theirs: Path) -> dict[str, Any]:
@@ -843,13 +854,13 @@ def _measure(elf: Path, protocol: str, baud: int, measure: Callable[[Running], T
 
 
 def _measure_pair(
-    ours: tuple[Path, str, Path],
-    theirs: tuple[Path, str, Path],
+    ours: tuple[Path, str, Path | None],
+    theirs: tuple[Path, str, Path | None],
     baud: int,
     measure: Callable[[Running, Running], T],
 ) -> T:
-    """``measure`` on two firmwares (ELF, protocol, UART log) running at once, retried ATTEMPTS
-    times."""
+    """``measure`` on two firmwares (ELF, protocol, UART log or None) running at once, retried
+    ATTEMPTS times."""
     return _measure_all([ours, theirs], baud, lambda started: measure(*started))
 
 

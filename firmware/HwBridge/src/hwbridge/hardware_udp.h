@@ -21,6 +21,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "boot_count.h"
 #include "frame.h"
 
 #if defined(HWBRIDGE_HOST)
@@ -163,7 +164,9 @@ class UdpHardware {
   int read() { return -1; }  // the node reads datagrams with receive()
 
   uint32_t micros() { return ::micros(); }
-  /** Entropy for the session id. */
+  /** Entropy for the session id: the ESPs' random number generator, a host's pid, or else the
+   * clock and the floating analog input 0, with on AVR (an Ethernet shield's Uno, say) the
+   * count of boots, as ArduinoHardware::seed() (boot_count.h). */
   uint32_t seed() {
 #if defined(ESP32) || defined(ESP8266)
     return static_cast<uint32_t>(esp_random()) ^ ::micros();
@@ -173,6 +176,9 @@ class UdpHardware {
     uint32_t s = ::micros();
 #ifdef A0
     for (uint8_t i = 0; i < 8; ++i) s = (s << 3) ^ static_cast<uint32_t>(analogRead(A0)) ^ (s >> 29);
+#endif
+#ifdef __AVR__
+    s ^= detail::count_boot();
 #endif
     return s;
 #endif

@@ -86,6 +86,13 @@ class QemuBoard:
         return f"serial://{self.pty}"
 
     @property
+    def pid(self) -> int | None:
+        """The QEMU process's id, None when it is not running (a test stops it with SIGSTOP to
+        stand for a busy machine)."""
+        process = self._process
+        return None if process is None or process.poll() is not None else process.pid
+
+    @property
     def running(self) -> bool:
         return self._process is not None and self._process.poll() is None
 

@@ -50,6 +50,16 @@ typedef NullCounter TrafficCounter;
 #endif
 #endif
 
+#ifndef HWBRIDGE_QEMU_CLOCK
+/** The ARM boards' builds are for QEMU's models (their clocks are QEMU's: see the firmware
+ * README), whose guest clock runs on the host's time: when the host's scheduler leaves QEMU
+ * out, the board's clock jumps on as the host's does, and the board would take that time for
+ * its peer's silence. With 1 (the default) Stm32f4Hardware and Nrf51Hardware declare
+ * kSharesCpu, and the node applies PROTOCOL.md 2.9's stall rule as on a host build. Define it
+ * as 0 for real silicon, which never stops. */
+#define HWBRIDGE_QEMU_CLOCK 1
+#endif
+
 namespace detail {
 /** Whether a write of several bytes puts its first byte straight into an idle UART, where the
  * hardware can (ArduinoHardware on Serial): it leaves while the rest is stored, some 300 cycles

@@ -15,6 +15,7 @@
 #include <stdint.h>
 
 #include "boot_count.h"
+#include "config.h"
 
 extern "C" uint32_t hwbridge_board_micros(void);
 
@@ -61,6 +62,10 @@ inline uint32_t baud_value(uint32_t baud) {
 /** UART0 at init(baud), 8N1, polled. */
 class Nrf51Hardware {
  public:
+#if HWBRIDGE_QEMU_CLOCK
+  /** In QEMU the board shares the host's CPU: the stall rule applies (config.h). */
+  static const bool kSharesCpu = true;
+#endif
   bool init(uint32_t baud) {
     using namespace nrf51;
     reg(kUart0 + kPselTxd) = HWBRIDGE_NRF51_TX_PIN;

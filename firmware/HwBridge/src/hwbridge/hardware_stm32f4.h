@@ -16,6 +16,7 @@
 #include <stdint.h>
 
 #include "boot_count.h"
+#include "config.h"
 
 extern "C" uint32_t hwbridge_board_micros(void);
 
@@ -55,6 +56,10 @@ inline volatile uint32_t& reg(uint32_t address) {
 /** USART1 at init(baud), 8N1, polled. */
 class Stm32f4Hardware {
  public:
+#if HWBRIDGE_QEMU_CLOCK
+  /** In QEMU the board shares the host's CPU: the stall rule applies (config.h). */
+  static const bool kSharesCpu = true;
+#endif
   bool init(uint32_t baud) {
     using namespace stm32f4;
     reg(kRccAhb1Enr) |= 1u;

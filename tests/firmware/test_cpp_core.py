@@ -235,6 +235,33 @@ def test_node_parts_refuse_to_be_included_alone(header: str, tmp_path: Path) -> 
 
 
 @needs_gxx
+def test_a_hardware_trait_declared_false_is_off(tmp_path: Path) -> None:
+    """A Hardware that declares kSharesCpu, kDatagram or kNoAckInData as false gets what one that
+    leaves the member out gets: the feature off (only true turns it on)."""
+    source = tmp_path / "traits.cpp"
+    checks = []
+    for trait, member in (
+        ("SharesCpu", "kSharesCpu"),
+        ("IsDatagramSink", "kDatagram"),
+        ("NoAckInData", "kNoAckInData"),
+    ):
+        checks.append(
+            f"struct Yes{member} {{ static const bool {member} = true; }};\n"
+            f"struct No{member} {{ static const bool {member} = false; }};\n"
+            f'static_assert(hwbridge::detail::{trait}<Yes{member}>::value, "{trait} true");\n'
+            f'static_assert(!hwbridge::detail::{trait}<No{member}>::value, "{trait} false");\n'
+            f'static_assert(!hwbridge::detail::{trait}<Empty>::value, "{trait} absent");\n'
+        )
+    source.write_text(
+        '#include "hwbridge/encoder.h"\nstruct Empty {};\n'
+        + "".join(checks)
+        + "int main() { return 0; }\n"
+    )
+    result = _syntax_check(source)
+    assert result.returncode == 0, result.stderr
+
+
+@needs_gxx
 @pytest.mark.parametrize("timeout_ms", [30000, 40000])
 def test_profile_timeouts_above_30_s_do_not_compile(timeout_ms: int, tmp_path: Path) -> None:
     """The session's 16-bit ticks compare within 32.7 s: a profile asking more is an error."""

@@ -66,11 +66,15 @@ struct Body {
 }  // namespace detail
 
 namespace detail {
+// The traits below look for a `static const bool` member: where it is true the first test()
+// takes a pointer to char[1]; where it is false the array would have size -1, which takes that
+// test() out (SFINAE), as a missing member does. (With `? 1 : 2` false counted as true.)
+
 /** Whether a sink is a datagram link: it declares `static const bool kDatagram = true` (the
  * UdpHardware does). Any other sink is a byte stream. */
 template <class Sink>
 struct IsDatagramSink {
-  template <class S> static char test(char (*)[S::kDatagram ? 1 : 2]);
+  template <class S> static char test(char (*)[S::kDatagram ? 1 : -1]);
   template <class S> static long test(...);
   static const bool value = sizeof(test<Sink>(nullptr)) == 1;
 };
@@ -80,7 +84,7 @@ struct IsDatagramSink {
  * rule compiles to nothing. */
 template <class H>
 struct SharesCpu {
-  template <class S> static char test(char (*)[S::kSharesCpu ? 1 : 2]);
+  template <class S> static char test(char (*)[S::kSharesCpu ? 1 : -1]);
   template <class S> static long test(...);
   static const bool value = sizeof(test<H>(nullptr)) == 1;
 };
@@ -88,7 +92,7 @@ struct SharesCpu {
  * `static const bool kNoAckInData = true`, and the node then leaves ACK_IN_DATA out. */
 template <class H>
 struct NoAckInData {
-  template <class S> static char test(char (*)[S::kNoAckInData ? 1 : 2]);
+  template <class S> static char test(char (*)[S::kNoAckInData ? 1 : -1]);
   template <class S> static long test(...);
   static const bool value = sizeof(test<H>(nullptr)) == 1;
 };

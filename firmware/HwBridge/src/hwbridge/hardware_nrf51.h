@@ -62,10 +62,8 @@ inline uint32_t baud_value(uint32_t baud) {
 /** UART0 at init(baud), 8N1, polled. */
 class Nrf51Hardware {
  public:
-#if HWBRIDGE_QEMU_CLOCK
   /** In QEMU the board shares the host's CPU: the stall rule applies (config.h). */
-  static const bool kSharesCpu = true;
-#endif
+  static const bool kSharesCpu = HWBRIDGE_QEMU_CLOCK != 0;
   bool init(uint32_t baud) {
     using namespace nrf51;
     reg(kUart0 + kPselTxd) = HWBRIDGE_NRF51_TX_PIN;

@@ -31,7 +31,7 @@ HEADERS = sorted(p.relative_to(INCLUDE).as_posix() for p in INCLUDE.rglob("*.h")
 HOST_SHIM = {h for h in HEADERS if h.startswith("hwbridge/host/")}
 """The Arduino stand-in of host builds (--board host), built by test_session_e2e.py."""
 HOST_ONLY = {"hwbridge/hardware_posix.h"} | HOST_SHIM
-ARDUINO_ONLY = {"hwbridge/hardware_arduino.h", "hwbridge/hardware_udp.h"}
+ARDUINO_ONLY = {"hwbridge/hardware_arduino.h", "hwbridge/hardware_udp.h", "hwbridge/arduino_seed.h"}
 """Needs the Arduino core: built by the sketch builds (tests/firmware/test_session_build.py;
 hardware_udp.h by the host build of examples/UdpNode, tests/firmware/test_udp_board.py)."""
 ARM_ONLY = {"hwbridge/hardware_stm32f4.h", "hwbridge/hardware_nrf51.h"}

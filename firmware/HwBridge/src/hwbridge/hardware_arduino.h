@@ -4,7 +4,7 @@
 
 #include <Arduino.h>
 
-#include "boot_count.h"
+#include "arduino_seed.h"
 
 namespace hwbridge {
 
@@ -130,18 +130,9 @@ class ArduinoHardware {
   }
   void flush() {}
   uint32_t micros() { return ::micros(); }
-  /** Entropy for the session id: the floating analog input 0 and the clock; on AVR also the
-   * count of boots (boot_count.h: a steady A0 and the clock read the same at every boot). */
-  uint32_t seed() {
-    uint32_t s = ::micros();
-#ifdef A0
-    for (uint8_t i = 0; i < 8; ++i) s = (s << 3) ^ static_cast<uint32_t>(analogRead(A0)) ^ (s >> 29);
-#endif
-#ifdef __AVR__
-    s ^= detail::count_boot();
-#endif
-    return s;
-  }
+  /** Entropy for the session id: the clock, A0 and on AVR the count of boots
+   * (detail::arduino_seed()). */
+  uint32_t seed() { return detail::arduino_seed(); }
 
  private:
   HardwareSerial* serial_ = nullptr;

@@ -21,7 +21,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
-#include "boot_count.h"
+#include "arduino_seed.h"
 #include "frame.h"
 
 #if defined(HWBRIDGE_HOST)
@@ -164,23 +164,16 @@ class UdpHardware {
   int read() { return -1; }  // the node reads datagrams with receive()
 
   uint32_t micros() { return ::micros(); }
-  /** Entropy for the session id: the ESPs' random number generator, a host's pid, or else the
-   * clock and the floating analog input 0, with on AVR (an Ethernet shield's Uno, say) the
-   * count of boots, as ArduinoHardware::seed() (boot_count.h). */
+  /** Entropy for the session id: the ESPs' random number generator, a host's pid, or else
+   * ArduinoHardware's (detail::arduino_seed(): on AVR, an Ethernet shield's Uno say, with the
+   * count of boots). */
   uint32_t seed() {
 #if defined(ESP32) || defined(ESP8266)
     return static_cast<uint32_t>(esp_random()) ^ ::micros();
 #elif defined(HWBRIDGE_HOST)
     return ::micros() ^ static_cast<uint32_t>(getpid()) * 2654435761u;
 #else
-    uint32_t s = ::micros();
-#ifdef A0
-    for (uint8_t i = 0; i < 8; ++i) s = (s << 3) ^ static_cast<uint32_t>(analogRead(A0)) ^ (s >> 29);
-#endif
-#ifdef __AVR__
-    s ^= detail::count_boot();
-#endif
-    return s;
+    return detail::arduino_seed();
 #endif
   }
 

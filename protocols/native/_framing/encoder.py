@@ -51,7 +51,7 @@ def encode_frame(frame: Frame, *, lead: bool = False) -> bytes:
     ack = frame.ack
     if ack is not None:  # (a service request or answer with ACK_IN_DATA)
         if ftype is ACK or not 0 <= ack <= 0xFF:
-            _checked_ack(frame)  # (raises)
+            _check_ack(frame)  # (raises)
         byte0 |= ACK_FLAG
     try:
         body = _HEAD.pack(byte0, frame.channel, frame.seq)
@@ -71,23 +71,15 @@ def encode_frame(frame: Frame, *, lead: bool = False) -> bytes:
     return _ZERO + wire if lead else wire
 
 
-def _checked_ack(frame: Frame) -> int:
-    """``frame``'s ACK if it may carry one (PROTOCOL.md 1.4: a BEST_EFFORT or RELIABLE frame,
-    an ACK of 0..255); FramingError if not."""
+def _check_ack(frame: Frame) -> None:
+    """FramingError unless ``frame`` may carry its ACK (PROTOCOL.md 1.4: a BEST_EFFORT or
+    RELIABLE frame, an ACK of 0..255)."""
     ack = frame.ack
     if frame.type is ACK or ack is None or not 0 <= ack <= 0xFF:
         raise FramingError(
             f"cannot encode an ACK of {ack!r} in a {frame.type.name} frame: only BEST_EFFORT "
             "and RELIABLE frames carry one, of 0..255"
         )
-    return ack
-
-
-def _with_ack(header: bytes, payload: bytes, frame: Frame) -> bytes:
-    """Header and payload of a frame that carries an ACK (PROTOCOL.md 1.4): flag bit 0 set in
-    byte 0 and the ACK's byte after the payload."""
-    ack = _checked_ack(frame)
-    return bytes((header[0] | ACK_FLAG,)) + header[1:] + payload + _ONE_BYTE[ack]
 
 
 def _encode_body(body: bytes, lead: bool) -> bytes:
@@ -136,9 +128,13 @@ def encode_datagram(frame: Frame) -> bytes:
             f"cannot encode frame type {ftype!r} frag {frag!r}: type must be 0..2, frag 0..3"
         )
     byte0 = _VERSION_BITS | ftype << 4 | frag << 2
+    ack = frame.ack
+    if ack is not None:  # (PROTOCOL.md 1.4: the flag in byte 0, the ACK's byte after the payload)
+        _check_ack(frame)
+        byte0 |= ACK_FLAG
     try:
-        head = _HEAD.pack(byte0, frame.channel, frame.seq)
+        body = _HEAD.pack(byte0, frame.channel, frame.seq)
     except struct.error:  # channel or seq is not a byte
-        head = _checked_header(byte0, frame.channel, frame.seq)
-    body = head + frame.payload if frame.ack is None else _with_ack(head, frame.payload, frame)
+        body = _checked_header(byte0, frame.channel, frame.seq)
+    body += frame.payload if ack is None else frame.payload + _ONE_BYTE[ack]
     return body + _CRC.pack(crc_hqx(body, CRC_INIT))

@@ -25,6 +25,8 @@ from hwbridge.protocols.native._control.calls import (
     CHANNEL_REQUEST_HEAD_SIZE,
     CHANNEL_RESPONSE_HEAD_SIZE,
     SERVICE_RESPONSE_HEAD_SIZE,
+    SHORT_ID_MAX,
+    SHORT_STATUS_FOLLOWS,
     LogMsg,
     ParamGetMsg,
     ParamValueMsg,
@@ -34,6 +36,8 @@ from hwbridge.protocols.native._control.calls import (
     encode_channel_response,
     encode_service_request,
     encode_service_response,
+    encode_short_request,
+    encode_short_response,
 )
 from hwbridge.protocols.native._control.common import (
     ALL_FEATURES,
@@ -90,6 +94,8 @@ __all__ = [
     "NO_SESSION",
     "PROTOCOL_VERSION",
     "SERVICE_RESPONSE_HEAD_SIZE",
+    "SHORT_ID_MAX",
+    "SHORT_STATUS_FOLLOWS",
     "BoardInfoMsg",
     "ControlMessage",
     "EntryFlags",
@@ -128,6 +134,8 @@ __all__ = [
     "encode_channel_response",
     "encode_service_request",
     "encode_service_response",
+    "encode_short_request",
+    "encode_short_response",
     "is_best_effort_opcode",
 ]
 

@@ -3,6 +3,10 @@ as reliable messages on the service's own channel, ``request_id u16`` then the b
 or ``request_id u16``, ``status u8``, body (response), instead of SERVICE_REQUEST and
 SERVICE_RESPONSE on channel 0.
 
+Here the board (or the scripted peer) has SERVICE_CHANNELS without SHORT_CALLS, as a board
+built before SHORT_CALLS: the heads are the two- and three-byte ones. The one-byte heads of
+SHORT_CALLS are tested in ``test_native_short_calls.py``.
+
 Real sessions talk to each other over ``lossy.SimLink``, or to :class:`Scripted`, a peer the
 test writes out frame by frame for what no session sends at that moment (a request before the
 server is CONNECTED, a message shorter than its fields, an old-form call in a SERVICE_CHANNELS
@@ -12,10 +16,12 @@ here with ``struct``, not against the session's own encoders.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import random
 import struct
 from collections.abc import Callable
+from typing import Any
 
 import pytest
 from hypothesis import given
@@ -69,15 +75,24 @@ from tests.protocols.test_native_session import (
     connect,
     errors,
     lossy,
-    make_link,
     of_type,
 )
+from tests.protocols.test_native_session import make_link as make_any_link
 from tests.strategies import bounded
 
-HOST_FEATURES = HostConfig().features
-DEVICE_FEATURES = DeviceConfig().features
+HOST_FEATURES = HostConfig().features & ~Features.SHORT_CALLS
+DEVICE_FEATURES = DeviceConfig().features & ~Features.SHORT_CALLS
+"""A board's features before SHORT_CALLS: with it, the calls of a session have the heads of
+SERVICE_CHANNELS alone."""
 OK, ERROR, NO_SERVICE = 0, 1, 2
 """The status bytes of PROTOCOL.md 2.8."""
+
+
+def make_link(seed: int = 0, *, dev_cfg: DeviceConfig | None = None, **kwargs: Any) -> SimLink:
+    """``test_native_session.make_link`` with a board without SHORT_CALLS."""
+    cfg = dev_cfg or DeviceConfig()
+    cfg = dataclasses.replace(cfg, features=cfg.features & ~Features.SHORT_CALLS)
+    return make_any_link(seed, dev_cfg=cfg, **kwargs)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -143,7 +158,9 @@ class Scripted:
     there are no timers, and the session is never ticked after its first HELLO.
     """
 
-    def __init__(self, end: HostSession | DeviceSession, features: Features = ALL_FEATURES) -> None:
+    def __init__(
+        self, end: HostSession | DeviceSession, features: Features = DEVICE_FEATURES
+    ) -> None:
         self.end = end
         self.role = Role.DEVICE if isinstance(end, HostSession) else Role.HOST
         self.features = features

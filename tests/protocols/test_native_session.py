@@ -922,7 +922,7 @@ def test_device_limits_are_honoured() -> None:
     with pytest.raises(SessionError, match="at most 48 bytes"):
         link.host.publish(CH_CONFIG, bytes(49))
     with pytest.raises(SessionError, match="at most 48 bytes"):
-        link.host.call_service(CH_RESET, bytes(47))  # + the request id (SERVICE_CHANNELS)
+        link.host.call_service(CH_RESET, bytes(48))  # + the request id (SHORT_CALLS: 1 byte)
     link.host.log(LogLevel.INFO, "x" * 500)  # HOST_LOG is off on this board: refused
     link.run(1.0)
     assert messages(link.device_events, CH_CONFIG) == [bytes(48)]
@@ -1714,12 +1714,19 @@ def _ack_in_data_vectors() -> list[dict[str, Any]]:
     )
 
 
+DEVICE_FEATURES_BEFORE_SHORT_CALLS = DEVICE_FEATURES_BEFORE_SERVICE_CHANNELS | (
+    Features.SERVICE_CHANNELS
+)
+"""DeviceConfig's features before SHORT_CALLS (the SERVICE_CHANNELS vectors' board)."""
+
+
 def _service_channel_vectors() -> list[dict[str, Any]]:
-    """The ACK_IN_DATA vectors' two calls between a host and a board with their defaults, which
-    have SERVICE_CHANNELS too: each request and response goes on the service's channel (2)
-    as request id [status] body, without opcode and channel (PROTOCOL.md 2.8)."""
-    host, device, t = _connected_vector_pair(None, None)
+    """The ACK_IN_DATA vectors' two calls between a host with its defaults and a board that has
+    SERVICE_CHANNELS too, but not SHORT_CALLS: each request and response goes on the service's
+    channel (2) as request id [status] body, without opcode and channel (PROTOCOL.md 2.8)."""
+    host, device, t = _connected_vector_pair(None, DEVICE_FEATURES_BEFORE_SHORT_CALLS)
     assert host.link is not None and host.link.features & Features.SERVICE_CHANNELS
+    assert not host.link.features & Features.SHORT_CALLS
     return _service_call_vectors(
         host,
         device,
@@ -1730,6 +1737,26 @@ def _service_channel_vectors() -> list[dict[str, Any]]:
             "the next call, within ack_delay: request id 2; carries the ACK of the response",
             "on the same channel: request id, status OK, the body; carries the ACK of the "
             "request: no ACK frame",
+        ),
+    )
+
+
+def _short_call_vectors() -> list[dict[str, Any]]:
+    """The same two calls between a host and a board with their defaults, which have
+    SHORT_CALLS too: a request's head is its id, one byte, and an OK response's too
+    (PROTOCOL.md 2.8)."""
+    host, device, t = _connected_vector_pair(None, None)
+    assert host.link is not None and host.link.features & Features.SHORT_CALLS
+    return _service_call_vectors(
+        host,
+        device,
+        t,
+        "short_call",
+        (
+            "first call, on /reset's own channel 2: request id 1 in one byte, the empty request",
+            "the next call, within ack_delay: request id 2; carries the ACK of the response",
+            "on the same channel: the request id (bit 7 clear: OK, no status byte), the body; "
+            "carries the ACK of the request: no ACK frame",
         ),
     )
 
@@ -1793,6 +1820,7 @@ def build_vectors() -> dict[str, Any]:
             _old_board_info_vector(),
             *_ack_in_data_vectors(),
             *_service_channel_vectors(),
+            *_short_call_vectors(),
         ],
     }
 

@@ -12,7 +12,7 @@
 // The firmware identity (PROTOCOL.md 2.6.1): this schema's hash (a test build may
 // define another before including the library) and the key of each item.
 #ifndef HWBRIDGE_SCHEMA_HASH
-#define HWBRIDGE_SCHEMA_HASH "13f55068"
+#define HWBRIDGE_SCHEMA_HASH "4d37152e"
 #endif
 #define HWBRIDGE_ID_KEY_SCHEMA_HASH "s"
 #define HWBRIDGE_ID_KEY_MESSAGES_HASH "m"

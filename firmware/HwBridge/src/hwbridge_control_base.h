@@ -351,6 +351,7 @@ struct Features {
     HOST_LOG = 0x04,
     ACK_IN_DATA = 0x08,
     SERVICE_CHANNELS = 0x10,
+    SHORT_CALLS = 0x20,
   };
 };
 

@@ -40,7 +40,7 @@ inline bool encode(const HelloMsg& m, uint8_t* buf, size_t cap, size_t* len) {
   w.u32(m.max_message);
   w.u8(m.window);
   w.u8(m.isn);
-  w.u8(static_cast<uint8_t>(m.features & 0x1f));
+  w.u8(static_cast<uint8_t>(m.features & 0x3f));
   return detail::finish(w, len);
 }
 
@@ -61,7 +61,7 @@ inline bool decode(const uint8_t* buf, size_t len, HelloMsg* m) {
   m->window = r.u8();
   m->isn = r.u8();
   m->features = r.u8();
-  m->features = static_cast<uint8_t>(m->features & 0x1f);
+  m->features = static_cast<uint8_t>(m->features & 0x3f);
   return r.ok();
 }
 

@@ -78,6 +78,29 @@ def encode_channel_response(request_id: int, status: ServiceStatus, body: bytes)
     return _CHANNEL_RESPONSE_HEAD.pack(request_id, status) + body
 
 
+SHORT_ID_MAX: Final = 0x7F
+"""The largest request id of a call in a SHORT_CALLS session (PROTOCOL.md 2.8)."""
+SHORT_STATUS_FOLLOWS: Final = 0x80
+"""Bit 7 of a short response's first byte: a status byte follows the id (not OK)."""
+_SHORT_HEADS: Final = tuple(bytes((n,)) for n in range(256))
+
+
+def encode_short_request(request_id: int, body: bytes) -> bytes:
+    """A service request on its service's channel in a SHORT_CALLS session (PROTOCOL.md 2.8):
+    the request id (1..127) as one byte, then the body. For callers that know the id is in
+    range (``IndexError`` beyond 255)."""
+    return _SHORT_HEADS[request_id] + body
+
+
+def encode_short_response(request_id: int, status: ServiceStatus, body: bytes) -> bytes:
+    """A service response on its service's channel in a SHORT_CALLS session (PROTOCOL.md 2.8):
+    OK is the request id (1..127) and the body; another status sets the id's bit 7 and follows
+    it with the status byte. Numbers unchecked as in :func:`encode_short_request`."""
+    if status == ServiceStatus.OK:
+        return _SHORT_HEADS[request_id] + body
+    return bytes((request_id | SHORT_STATUS_FOLLOWS, status)) + body
+
+
 @dataclass(frozen=True, slots=True)
 class ServiceRequestMsg(_Control):
     """SERVICE_REQUEST (0x20, either way, reliable): call the service on ``channel``."""

@@ -96,6 +96,10 @@ class Features(IntFlag):
     SERVICE_CHANNELS = 0x10
     """Service requests and responses travel on the service's own channel, without the opcode
     and channel bytes of SERVICE_REQUEST and SERVICE_RESPONSE (PROTOCOL.md 2.8)."""
+    SHORT_CALLS = 0x20
+    """With SERVICE_CHANNELS: a call on a service's channel has a one-byte head, the request id
+    (1..127), and an OK response none more; another status sets the id's bit 7 and follows it
+    (PROTOCOL.md 2.8). Three bytes less a call."""
 
 
 ALL_FEATURES: Final = (
@@ -104,6 +108,7 @@ ALL_FEATURES: Final = (
     | Features.HOST_LOG
     | Features.ACK_IN_DATA
     | Features.SERVICE_CHANNELS
+    | Features.SHORT_CALLS
 )
 FEATURES_BEFORE_ACK_IN_DATA: Final = Features.TIME_SYNC | Features.PARAM_PUSH | Features.HOST_LOG
 """Every feature a host had before ACK_IN_DATA: the golden transcript's (PROTOCOL.md 2.12)."""

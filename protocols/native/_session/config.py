@@ -171,7 +171,11 @@ class DeviceConfig(SessionConfig):
     max_message: int = 64
     window: int = 1
     features: Features = (
-        Features.TIME_SYNC | Features.PARAM_PUSH | Features.ACK_IN_DATA | Features.SERVICE_CHANNELS
+        Features.TIME_SYNC
+        | Features.PARAM_PUSH
+        | Features.ACK_IN_DATA
+        | Features.SERVICE_CHANNELS
+        | Features.SHORT_CALLS
     )
     tx_queue_limit: int = 128
 

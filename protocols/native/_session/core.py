@@ -160,6 +160,9 @@ class SessionCore(Generic[_E]):
         self._service_channels = False
         """Both ends have SERVICE_CHANNELS: service calls travel on their services' own channels,
         not as SERVICE_REQUEST and SERVICE_RESPONSE on channel 0 (PROTOCOL.md 2.8)."""
+        self._short_calls = False
+        """Both ends have SERVICE_CHANNELS and SHORT_CALLS: a call on a service's channel has a
+        one-byte head, and this end's call ids are 1..127 (PROTOCOL.md 2.8)."""
         self._next_hello = 0.0
         self._hello_wait = min(HELLO_FIRST_RETRY, config.hello_interval)
         """Wait before the next HELLO retry: doubles from HELLO_FIRST_RETRY to hello_interval."""
@@ -663,13 +666,15 @@ class SessionCore(Generic[_E]):
                 f"bytes (its max_message): send less, or raise max_message on the {peer}"
             )
 
-    def _new_request_id(self) -> int:
-        for _ in range(0x10000):
-            request_id = self._next_request_id
+    def _new_request_id(self, top: int = 0xFFFF) -> int:
+        """A request id in 1..``top`` that no pending call or role request of this end uses
+        (``top`` 127 for a service call in a SHORT_CALLS session, PROTOCOL.md 2.8)."""
+        for _ in range(top):
+            request_id = (self._next_request_id - 1) % top + 1
             self._next_request_id = request_id % 0xFFFF + 1
             if request_id not in self._calls and not self._request_id_in_use(request_id):
                 return request_id
-        raise SessionError("65535 requests are pending: no request id is free")
+        raise SessionError(f"{top} requests are pending: no request id is free")
 
     def _random_session_id(self) -> int:
         return self._rng.randrange(1, _U32)

@@ -119,6 +119,7 @@ class Handshake(SessionCore[Any]):
         self._time_sync = cfg.time_sync_interval > 0 and bool(link.features & Features.TIME_SYNC)
         self._ack_in_data = bool(link.features & Features.ACK_IN_DATA)
         self._service_channels = bool(link.features & Features.SERVICE_CHANNELS)
+        self._short_calls = self._service_channels and bool(link.features & Features.SHORT_CALLS)
         self._established = True
         self._reported.clear()
         self._c.sessions += 1
@@ -178,6 +179,7 @@ class Handshake(SessionCore[Any]):
         self._ack_due = None
         self._ack_in_data = False
         self._service_channels = False
+        self._short_calls = False
         self._established = False
         self._peer_id = NO_SESSION
         self._link = None

@@ -3,11 +3,13 @@
 A call travels in one of two forms, chosen once per session from the negotiated features: as
 SERVICE_REQUEST and SERVICE_RESPONSE control messages on channel 0, or, when both ends have
 SERVICE_CHANNELS, as reliable messages on the service's own channel without the opcode and
-channel bytes (``request_id u16`` [``status u8``] ``body``). On a service channel the board's
-table says which of the two a message is: a request on an entry of the kind this end serves, a
-response on one of the kind it calls. Both forms meet in ``_on_service_request`` and
-``_on_service_response``; in a SERVICE_CHANNELS session every answer goes in the channel form,
-also to a request that came in the old one.
+channel bytes (``request_id u16`` [``status u8``] ``body``); when both also have SHORT_CALLS,
+with a one-byte head (``request_id u8``, bit 7 set when ``status u8`` follows: not OK). On a
+service channel the board's table says which of the two a message is: a request on an entry of
+the kind this end serves, a response on one of the kind it calls. All forms meet in
+``_on_service_request`` and ``_on_service_response``; in a SERVICE_CHANNELS session every answer
+goes in the channel form, also to a request that came in the old one (but for an id above 127 in
+a SHORT_CALLS session, which no end sends: NO_SERVICE as a SERVICE_RESPONSE).
 """
 
 from __future__ import annotations
@@ -30,12 +32,19 @@ from hwbridge.protocols.native.control import (
     CHANNEL_REQUEST_HEAD_SIZE,
     CHANNEL_RESPONSE_HEAD_SIZE,
     SERVICE_RESPONSE_HEAD_SIZE,
+    SHORT_ID_MAX,
+    SHORT_STATUS_FOLLOWS,
     encode_channel_request,
     encode_channel_response,
     encode_service_request,
     encode_service_response,
+    encode_short_request,
+    encode_short_response,
 )
 from hwbridge.protocols.native.reliable import Delivery
+
+_SHORT_ERROR_HEAD_SIZE = 2
+"""Bytes before the body of a short response that is not OK (SHORT_CALLS): id | 0x80, status."""
 
 
 class Services(SessionCore[Any]):
@@ -62,7 +71,8 @@ class Services(SessionCore[Any]):
         """
         if now is not None:
             self._advance(now)
-        request_id = self._new_request_id()
+        short = self._short_calls
+        request_id = self._new_request_id(SHORT_ID_MAX if short else 0xFFFF)
         deadline = self._now + (self._cfg.service_timeout if timeout is None else timeout)
         if self._state is not CONNECTED:
             self._c.tx_refused += 1
@@ -79,7 +89,10 @@ class Services(SessionCore[Any]):
         if entry is None or entry.kind != self._CALL_KIND:
             raise SessionError(self._wrong_channel(channel, entry, "call a service on"))
         # An accepted entry's channel and a request id of ours: both are in range.
-        if self._service_channels:
+        if short:
+            msg = encode_short_request(request_id, request)
+            send_on = channel
+        elif self._service_channels:
             msg = encode_channel_request(request_id, request)
             send_on = channel
         else:
@@ -120,12 +133,18 @@ class Services(SessionCore[Any]):
         # The key came from a decoded request, so channel and request id are in range; with
         # SERVICE_CHANNELS the channel is a service one (_on_service_request made sure).
         channels = self._service_channels
+        short = self._short_calls
         if error is not None:
-            head = CHANNEL_RESPONSE_HEAD_SIZE if channels else SERVICE_RESPONSE_HEAD_SIZE
+            if short:
+                head = _SHORT_ERROR_HEAD_SIZE
+            else:
+                head = CHANNEL_RESPONSE_HEAD_SIZE if channels else SERVICE_RESPONSE_HEAD_SIZE
             status, body = SERVICE_ERROR, _truncate(error, self._peer_max - head)
         else:
             status, body = SERVICE_OK, payload
-        if channels:
+        if short:
+            msg = encode_short_response(request_id, status, body)
+        elif channels:
             msg = encode_channel_response(request_id, status, body)
         else:
             msg = encode_service_response(channel, request_id, status, body)
@@ -162,6 +181,8 @@ class Services(SessionCore[Any]):
                 return False
         kind = entry.kind
         payload = delivery.payload
+        if self._short_calls:
+            return self._on_short_call(delivery, entry)
         if kind == self._SERVE_KIND:
             if len(payload) < CHANNEL_REQUEST_HEAD_SIZE:
                 self._too_short(delivery, entry, "request", "request id", CHANNEL_REQUEST_HEAD_SIZE)
@@ -187,6 +208,38 @@ class Services(SessionCore[Any]):
             return True
         return False
 
+    def _on_short_call(self, delivery: Delivery, entry: TopicEntry) -> bool:
+        """A message on a service's channel in a SHORT_CALLS session (PROTOCOL.md 2.8): a
+        request ``request_id u8`` (bit 7 reserved), ``body``; a response ``request_id u8``,
+        then ``status u8`` when the id's bit 7 is set (else OK), ``body``."""
+        payload = delivery.payload
+        if not payload:
+            what = "request" if entry.kind == self._SERVE_KIND else "response"
+            self._too_short(delivery, entry, what, "request id", 1)
+            return True
+        head = payload[0]
+        if entry.kind == self._SERVE_KIND:
+            self._on_service_request(delivery.channel, head & SHORT_ID_MAX, payload[1:])
+            return True
+        if entry.kind != self._CALL_KIND:
+            return False
+        request_id = head & SHORT_ID_MAX
+        if not head & SHORT_STATUS_FOLLOWS:
+            self._on_service_response(delivery.channel, request_id, SERVICE_OK, payload[1:])
+            return True
+        if len(payload) < _SHORT_ERROR_HEAD_SIZE:
+            self._too_short(delivery, entry, "response", "request id, status", 2)
+            return True
+        status = _SERVICE_STATUS.get(payload[1])
+        if status is None:
+            self._protocol_error(
+                f"service response on channel {delivery.channel} ({entry.name}) request "
+                f"{request_id}: unknown status {payload[1]}"
+            )
+            return True
+        self._on_service_response(delivery.channel, request_id, status, payload[2:])
+        return True
+
     def _too_short(
         self, delivery: Delivery, entry: TopicEntry, what: str, fields: str, need: int
     ) -> None:
@@ -202,6 +255,15 @@ class Services(SessionCore[Any]):
         if entry is None or entry.kind != self._SERVE_KIND:
             self._answer_no_service(channel, request_id)
             return
+        if request_id > SHORT_ID_MAX and self._short_calls:
+            # A SERVICE_REQUEST with an id the short answer cannot echo (no end sends one in
+            # such a session): a clear error for its caller rather than a timeout.
+            self._send_reliable(
+                CONTROL_CHANNEL,
+                encode_service_response(channel, request_id, SERVICE_NO_SERVICE, b""),
+                force=True,
+            )
+            return
         self._incoming_calls.add((channel, request_id))
         self._events.append(ServiceRequest(channel, request_id, body))
 
@@ -211,10 +273,13 @@ class Services(SessionCore[Any]):
         has a service this end serves there; otherwise (an old-form request for any other
         channel) as a SERVICE_RESPONSE on channel 0, which the caller always reads as the
         answer (PROTOCOL.md 2.8): a clear error instead of a timeout."""
-        if self._service_channels:
+        if self._service_channels and (request_id <= SHORT_ID_MAX or not self._short_calls):
             entry = self._board_entry(channel)
             if entry is not None and entry.kind == self._SERVE_KIND:
-                msg = encode_channel_response(request_id, SERVICE_NO_SERVICE, b"")
+                if self._short_calls:
+                    msg = encode_short_response(request_id, SERVICE_NO_SERVICE, b"")
+                else:
+                    msg = encode_channel_response(request_id, SERVICE_NO_SERVICE, b"")
                 self._send_reliable(channel, msg, force=True)
                 return
         self._send_reliable(

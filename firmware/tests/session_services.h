@@ -1,7 +1,7 @@
 // Part of test_session.cpp (included once, after its using-declarations): the tests of service
 // calls. A board's service client, ACKs carried in service exchanges (ACK_IN_DATA) and calls on
-// the services' own channels (SERVICE_CHANNELS), in both forms; the golden vectors of
-// PROTOCOL.md 2.12 P and Q replayed byte for byte.
+// the services' own channels (SERVICE_CHANNELS, and SHORT_CALLS), in every form; the golden
+// vectors of PROTOCOL.md 2.12 P, Q and R replayed byte for byte.
 #ifndef HWBRIDGE_TESTS_SESSION_SERVICES_H
 #define HWBRIDGE_TESTS_SESSION_SERVICES_H
 
@@ -21,16 +21,50 @@ struct OwnChannelProfile : harness::GoldenProfile {
   static const uint8_t kFeatures = 3 | hwbridge::control::Features::SERVICE_CHANNELS;
 };
 
+/** The golden profile with SERVICE_CHANNELS and SHORT_CALLS (PROTOCOL.md 2.8): one-byte heads
+ * when the host has both too. */
+struct ShortCallsProfile : harness::GoldenProfile {
+  static const uint8_t kFeatures =
+      3 | hwbridge::control::Features::SERVICE_CHANNELS | hwbridge::control::Features::SHORT_CALLS;
+};
+
 /** Whether a board of profile P and a host that announces P's features speak SERVICE_CHANNELS. */
 template <class P>
 bool own_channels() {
   return (P::kFeatures & hwbridge::control::Features::SERVICE_CHANNELS) != 0;
 }
 
-/** A service message as P's session sends it: on the service's channel without the opcode and
- * channel (SERVICE_CHANNELS), else as the control message op on channel 0. */
+/** Whether they speak SHORT_CALLS too. */
+template <class P>
+bool short_calls() {
+  return own_channels<P>() && (P::kFeatures & hwbridge::control::Features::SHORT_CALLS) != 0;
+}
+
+/** The form P's calls take, for the tests' lines. */
+template <class P>
+const char* call_form() {
+  return short_calls<P>() ? " (SHORT_CALLS)" : own_channels<P>() ? " (SERVICE_CHANNELS)" : "";
+}
+
+/** A service message as P's session sends it, from its fields as on a service's channel
+ * (request id u16, [status u8,] body): there with SERVICE_CHANNELS, with the one-byte head of
+ * SHORT_CALLS (the id's low byte; bit 7 and the status when it is not OK) too, else as the
+ * control message op on channel 0. */
 template <class P>
 std::pair<uint8_t, Bytes> call_message(uint8_t op, uint8_t channel, const Bytes& fields) {
+  if (short_calls<P>()) {
+    Bytes m{fields[0]};
+    size_t from = 2;
+    if (op == 0x21) {
+      from = 3;
+      if (fields[2] != 0) {
+        m[0] = static_cast<uint8_t>(m[0] | 0x80);
+        m.push_back(fields[2]);
+      }
+    }
+    m.insert(m.end(), fields.begin() + static_cast<std::ptrdiff_t>(from), fields.end());
+    return std::make_pair(channel, m);
+  }
   if (own_channels<P>()) return std::make_pair(channel, fields);
   Bytes m{op, channel};
   m.insert(m.end(), fields.begin(), fields.end());
@@ -115,8 +149,7 @@ void service_client() {
   st = b.client.call(req, res);
   CHECK(st == hwbridge::kCallSessionReset && !b.node.connected(), "call at link loss: %u", st);
   CHECK(b.node.stats().protocol_errors == 0, "service client: %u protocol errors", b.node.stats().protocol_errors);
-  printf("service client%s: answered, NO_SERVICE, bad response, timeout, session reset\n",
-         own_channels<P>() ? " (SERVICE_CHANNELS)" : "");
+  printf("service client%s: answered, NO_SERVICE, bad response, timeout, session reset\n", call_form<P>());
 }
 
 
@@ -243,6 +276,13 @@ struct AckInDataOwnChannelProfile : harness::GoldenProfile {
       3 | hwbridge::control::Features::ACK_IN_DATA | hwbridge::control::Features::SERVICE_CHANNELS;
 };
 
+/** The same with SHORT_CALLS too (2.12 R). */
+struct AckInDataShortProfile : harness::GoldenProfile {
+  static const uint8_t kFeatures = 3 | hwbridge::control::Features::ACK_IN_DATA |
+                                   hwbridge::control::Features::SERVICE_CHANNELS |
+                                   hwbridge::control::Features::SHORT_CALLS;
+};
+
 template <class P>
 void replay_calls(const Transcript& tr, const char* prefix, uint8_t host_features) {
   CallBoard<P> b(host_features, false);
@@ -310,7 +350,58 @@ void service_channels(const Transcript& tr) {
         "without the feature a message on the service's channel was taken for a call");
   CHECK(b.node.stats().link_losses == 0 && old.node.stats().protocol_errors == 0, "service channels: losses, errors");
   printf("service channels: the vectors' answers, calls on the service's channel, SERVICE_REQUEST still "
-         "answered, short calls refused, subscribers served; old hosts get SERVICE_RESPONSE\n");
+         "answered, calls shorter than their head refused, subscribers served; old hosts get SERVICE_RESPONSE\n");
+}
+
+/** SHORT_CALLS (PROTOCOL.md 2.8): the vectors' calls answered byte for byte (2.12 R); a request
+ * is its id in one byte (bit 7 ignored) and the body, an OK answer the id and the body, another
+ * status id | 0x80 and the status; a SERVICE_REQUEST is answered in the short form when its id
+ * fits in 7 bits, else NO_SERVICE as a SERVICE_RESPONSE; an empty request is a protocol error;
+ * a host with SERVICE_CHANNELS alone gets the two- and three-byte heads. */
+void short_call_heads(const Transcript& tr) {
+  replay_calls<AckInDataShortProfile>(tr, "short_call", 63);
+
+  CallBoard<ShortCallsProfile> b(3 | 4 | 16 | 32, false);
+  const hwbridge::Counter errors = b.node.stats().protocol_errors;
+  const Bytes trigger_ok{1, 2, 0, 0, 0, 'o', 'k'};  // success, "ok"
+  Bytes want{7};
+  want.insert(want.end(), trigger_ok.begin(), trigger_ok.end());
+  std::vector<std::pair<hwbridge::Frame, Bytes> > fr = b.exchange(b.host.rel(2, Bytes{7}));
+  CHECK(fr.size() == 2 && fr[1].first.type == FrameType::Reliable && fr[1].first.channel == 2 && fr[1].second == want,
+        "short call: %zu frames, the answer %s", fr.size(), fr.empty() ? "" : check::hex(fr.back().second).c_str());
+  b.node.getHardware().feed(b.host.ack(fr[1].first.seq));
+  // bit 7 of a request's byte is reserved: ignored, the answer echoes the id
+  fr = b.exchange(b.host.rel(2, Bytes{0x80 | 9}));
+  want[0] = 9;
+  CHECK(fr.size() == 2 && fr[1].first.channel == 2 && fr[1].second == want, "a request with bit 7: %s",
+        fr.empty() ? "" : check::hex(fr.back().second).c_str());
+  b.node.getHardware().feed(b.host.ack(fr[1].first.seq));
+  // a SERVICE_REQUEST with an id of 7 bits: answered on the channel, short
+  fr = b.exchange(b.host.rel(0, Bytes{0x20, 2, 100, 0}));
+  want[0] = 100;
+  CHECK(fr.size() == 2 && fr[1].first.channel == 2 && fr[1].second == want, "SERVICE_REQUEST, id 100: %s",
+        fr.empty() ? "" : check::hex(fr.back().second).c_str());
+  b.node.getHardware().feed(b.host.ack(fr[1].first.seq));
+  // ... with a larger id, which the short answer cannot carry: NO_SERVICE as a SERVICE_RESPONSE
+  fr = b.exchange(b.host.rel(0, Bytes{0x20, 2, 0x2c, 0x01}));
+  CHECK(fr.size() == 2 && fr[1].first.channel == 0 && fr[1].second == (Bytes{0x21, 2, 0x2c, 0x01, 2}),
+        "SERVICE_REQUEST, id 300: %s", fr.empty() ? "" : check::hex(fr.back().second).c_str());
+  b.node.getHardware().feed(b.host.ack(fr[1].first.seq));
+  // an empty message on the server's channel: a protocol error, acknowledged, no answer
+  fr = b.exchange(b.host.rel(2, Bytes{}));
+  CHECK(fr.size() == 1 && fr[0].first.type == FrameType::Ack && b.node.stats().protocol_errors == errors + 1,
+        "an empty request: %zu frames, %u errors", fr.size(), b.node.stats().protocol_errors);
+  CHECK(b.node.stats().link_losses == 0, "short calls: link lost");
+
+  CallBoard<ShortCallsProfile> old(3 | 4 | 16, false);  // a host with SERVICE_CHANNELS alone
+  fr = old.exchange(old.host.rel(2, Bytes{5, 0}));
+  want = Bytes{5, 0, 0};
+  want.insert(want.end(), trigger_ok.begin(), trigger_ok.end());
+  CHECK(fr.size() == 2 && fr[1].first.channel == 2 && fr[1].second == want, "a host without SHORT_CALLS: %s",
+        fr.empty() ? "" : check::hex(fr.back().second).c_str());
+  CHECK(old.node.stats().protocol_errors == 0, "a host without SHORT_CALLS: errors");
+  printf("short calls: the vectors' answers, one-byte heads, bit 7 ignored in requests, SERVICE_REQUEST "
+         "answered short or NO_SERVICE, empty calls refused; hosts without it get the long heads\n");
 }
 
 }  // namespace

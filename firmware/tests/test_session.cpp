@@ -449,7 +449,7 @@ void busy_tx_request() {
   hw.take();
   CHECK(b.rel.publish(m), "reliable publishing did not resume once the request was answered");
   printf("busy transmit buffer%s: a service request is taken back unacknowledged, keeps the buffer for its "
-         "answer, and is answered when repeated\n", own_channels<P>() ? " (SERVICE_CHANNELS)" : "");
+         "answer, and is answered when repeated\n", call_form<P>());
 }
 
 /** Time sync (2.8): of its last 4 answers the board follows the newest whose round trip is
@@ -642,10 +642,12 @@ int main() {
   restarts(tr);
   service_client<harness::GoldenProfile>();
   service_client<OwnChannelProfile>();
+  service_client<ShortCallsProfile>();
   early_frames();
   tx_ready();
   busy_tx_request<harness::GoldenProfile>();
   busy_tx_request<OwnChannelProfile>();
+  busy_tx_request<ShortCallsProfile>();
   small_mtu_host();
   time_samples();
   send_times();
@@ -654,6 +656,7 @@ int main() {
   long_round_trip();
   ack_in_data();
   service_channels(tr);
+  short_call_heads(tr);
   printf("test_session: %lu checks passed\n", check::count());
   return 0;
 }

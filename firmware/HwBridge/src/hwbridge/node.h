@@ -48,9 +48,9 @@ struct HelloWorldProfile {
   static const uint16_t kMaxMessage = 64;    ///< largest message received (reassembly above kMtu)
   static const uint8_t kWindow = 1;          ///< reliable frames in flight (1..64)
   static const uint16_t kTxBuffer = 64;      ///< largest message sent (serialization buffer)
-  /// TIME_SYNC | PARAM_PUSH (| 4 = HOST_LOG) | 16 = SERVICE_CHANNELS; | 8 = ACK_IN_DATA with
-  /// HWBRIDGE_ACK_IN_DATA defined
-  static const uint8_t kFeatures = 19 | (HWBRIDGE_ACK_IN_DATA ? 8 : 0);
+  /// TIME_SYNC | PARAM_PUSH (| 4 = HOST_LOG) | 16 = SERVICE_CHANNELS | 32 = SHORT_CALLS; | 8 =
+  /// ACK_IN_DATA with HWBRIDGE_ACK_IN_DATA defined
+  static const uint8_t kFeatures = 51 | (HWBRIDGE_ACK_IN_DATA ? 8 : 0);
   static const uint16_t kTimeSyncMs = 0;     ///< own time requests every this many ms (0: none)
   static const uint16_t kParamTimeoutMs = 2000;
   static const uint16_t kServiceTimeoutMs = 5000;
@@ -64,7 +64,7 @@ struct ComfortableProfile {
   static const uint16_t kMaxMessage = 192;
   static const uint8_t kWindow = 2;
   static const uint16_t kTxBuffer = 192;
-  static const uint8_t kFeatures = 23 | (HWBRIDGE_ACK_IN_DATA ? 8 : 0);
+  static const uint8_t kFeatures = 55 | (HWBRIDGE_ACK_IN_DATA ? 8 : 0);
   static const uint16_t kTimeSyncMs = 5000;
   static const uint16_t kParamTimeoutMs = 2000;
   static const uint16_t kServiceTimeoutMs = 5000;
@@ -454,6 +454,10 @@ class NodeHandle_ : public NodeBase {
   static const uint8_t kCallHead = 2;
   static const uint8_t kAnswerHead = 3;
   static const uint8_t kToCall = control::board::ServiceRequest::kBody - kCallHead;
+  // With SHORT_CALLS too (2.8) the head is one byte: the request id (1..127), and in a response
+  // bit 7 set when a status byte follows (any status but OK).
+  static const uint8_t kShortIdMask = 0x7F;
+  static const uint8_t kStatusFollows = 0x80;
   static const uint32_t kMaxTimeAgeUs = 10000000UL;
   // The session's timers count 16-bit ticks of 1.024 ms, the microsecond clock shifted right by
   // 10 (no division on the board): deadlines up to 33 s ahead. Intervals are the protocol's
@@ -494,8 +498,8 @@ class NodeHandle_ : public NodeBase {
   void onTopicAck(const uint8_t* p, size_t n);
   void onChannel(const Message& m);
   bool admitRequest();
-  void onServiceRequest(uint8_t channel, const uint8_t* p, size_t n);
-  void onServiceResponse(const uint8_t* p, size_t n);
+  void onServiceRequest(uint8_t channel, uint16_t id, const uint8_t* body, size_t n);
+  void onServiceResponse(uint16_t id, uint8_t status, const uint8_t* body, size_t n);
   void onParamValue(const uint8_t* p, size_t n);
   void onTimeResponse(const uint8_t* p);
   __attribute__((noinline)) void establish(const uint8_t* hello);
@@ -536,18 +540,33 @@ class NodeHandle_ : public NodeBase {
   static void dataThunk(NodeHandle_* n, const Message& m) { n->onData(m); }
   // with a service server or client: a message on a service's channel is a call (2.8)
   static void channelThunk(NodeHandle_* n, const Message& m) { n->onChannel(m); }
-  // SERVICE_REQUEST (a control message): its channel, then the request id and body as on the
-  // service's own channel
+  // SERVICE_REQUEST (a control message): its channel, request id and body
   static void requestThunk(NodeHandle_* n, const uint8_t* p, size_t len) {
-    n->onServiceRequest(control::board::ServiceRequest::channel(p), p + kToCall, len - kToCall);
+    n->onServiceRequest(control::board::ServiceRequest::channel(p), control::board::ServiceRequest::request_id(p),
+                        p + control::board::ServiceRequest::kBody, len - control::board::ServiceRequest::kBody);
   }
   // A response: a SERVICE_RESPONSE (a control message, len bytes), or with kOwnChannel added
-  // to len the request id, status and body on the pending call's own channel (onChannel).
+  // to len the request id, status and body on the pending call's own channel (onChannel), or
+  // with kShortHead added too the one-byte head of SHORT_CALLS (2.8: the id, bit 7 set when the
+  // status follows it). onChannel checked the lengths and the status.
   // p nullptr: the pending call, if any, ends with the status len (a session reset; a timeout
   // once its deadline passed)
   static const size_t kOwnChannel = static_cast<size_t>(1) << (sizeof(size_t) * 8 - 1);
+  static const size_t kShortHead = kOwnChannel >> 1;
   static void responseThunk(NodeHandle_* n, const uint8_t* p, size_t len) {
     if (p != nullptr) {
+      if (len & kShortHead) {
+        len &= ~(kOwnChannel | kShortHead);
+        const uint8_t head = *p++;
+        uint8_t status = control::ServiceStatus::OK;
+        --len;
+        if (head & kStatusFollows) {
+          status = *p++;
+          --len;
+        }
+        n->onServiceResponse(head & kShortIdMask, status, p, len);
+        return;
+      }
       if (len & kOwnChannel) {
         len &= ~kOwnChannel;
       } else if (n->call_entry_ == nullptr ||
@@ -557,7 +576,7 @@ class NodeHandle_ : public NodeBase {
         p += kToCall;
         len -= kToCall;
       }
-      n->onServiceResponse(p, len);
+      n->onServiceResponse(wire::get16(p), p[kAnswerHead - 1], p + kAnswerHead, len - kAnswerHead);
     } else if (n->call_state_ == 1 && (len != kCallTimeout || reached(n->tick_, n->timer_))) {
       n->call_status_ = static_cast<uint8_t>(len);
       n->call_state_ = 2;

@@ -103,7 +103,8 @@ HWB_NODE bool HWB_SELF::admitRequest() {
 
 /** A message on a channel other than 0 in a sketch with a service (channelThunk): with
  * SERVICE_CHANNELS (2.8) a service entry's channel carries its calls, a request on a server's
- * and a response on a client's; any other channel is a subscriber's. */
+ * and a response on a client's (with SHORT_CALLS their heads are one byte); any other channel
+ * is a subscriber's. */
 HWB_NODE void HWB_SELF::onChannel(const Message& m) {
   Entry* e = entryAt(m.channel);
   if (e == nullptr || e->kind_ < kServiceServer || !(features_ & control::Features::SERVICE_CHANNELS)) {
@@ -111,18 +112,24 @@ HWB_NODE void HWB_SELF::onChannel(const Message& m) {
     return;
   }
   const uint8_t* p = m.data;
+  const size_t n = m.size;
+  // The head: the request id, in one byte with SHORT_CALLS (where a response's bit 7 says its
+  // status follows; none: OK), else in two (a response's status after it).
+  const bool brief = (features_ & control::Features::SHORT_CALLS) != 0;
+  size_t h = brief ? 1 : kCallHead;
   if (e->kind_ == kServiceServer) {
-    if (m.size < kCallHead) {
+    if (n < h) {
       protocolError();
     } else if (admitRequest()) {
-      onServiceRequest(m.channel, p, m.size);
+      onServiceRequest(m.channel, brief ? (p[0] & kShortIdMask) : wire::get16(p), p + h, n - h);
     }
     return;
   }
-  if (m.size < kAnswerHead || p[kAnswerHead - 1] > control::ServiceStatus::NO_SERVICE) {
+  if (!brief || (n != 0 && (p[0] & kStatusFollows))) ++h;  // the status's place, h - 1
+  if (n < h || (h > 1 && p[h - 1] > control::ServiceStatus::NO_SERVICE)) {
     protocolError();
   } else if (e == call_entry_) {  // else late, or not ours
-    on_response_(this, p, m.size | kOwnChannel);
+    on_response_(this, p, n | kOwnChannel | (brief ? kShortHead : 0));
   }
 }
 

@@ -9,16 +9,19 @@
 // ---------------------------------------------------------------------------------------------
 // Services
 
-/** A request for the server on channel: p its request id and body (n bytes, at least 2), as
- * on the service's own channel. With SERVICE_CHANNELS (2.8) the answer goes on that channel if
- * it is a server's, else (also NO_SERVICE to a SERVICE_REQUEST for another channel) as a
- * SERVICE_RESPONSE on channel 0. */
-HWB_NODE void HWB_SELF::onServiceRequest(uint8_t channel, const uint8_t* p, size_t n) {
-  const uint16_t id = wire::get16(p);
+/** A request with this id for the server on channel, its body n bytes at body. With
+ * SERVICE_CHANNELS (2.8) the answer goes on that channel if it is a server's (with SHORT_CALLS
+ * too, its head is one byte), else (also NO_SERVICE to a SERVICE_REQUEST for another channel,
+ * or in a SHORT_CALLS session to one whose id does not fit in 7 bits) as a SERVICE_RESPONSE on
+ * channel 0. */
+HWB_NODE void HWB_SELF::onServiceRequest(uint8_t channel, uint16_t id, const uint8_t* body_in, size_t n) {
   Entry* e = entryAt(channel);
-  if (e != nullptr && e->kind_ != kServiceServer) e = nullptr;
+  const uint8_t kBoth = control::Features::SERVICE_CHANNELS | control::Features::SHORT_CALLS;
+  const bool brief = (features_ & kBoth) == kBoth;
+  if (e != nullptr && (e->kind_ != kServiceServer || (brief && id > kShortIdMask))) e = nullptr;
   const bool own = e != nullptr && (features_ & control::Features::SERVICE_CHANNELS) != 0;
-  const size_t head = own ? kAnswerHead : board::ServiceResponse::kBody;
+  const bool short_head = own && brief;
+  const size_t head = short_head ? 1 : own ? kAnswerHead : board::ServiceResponse::kBody;
   if (peer_max_ < head) {  // no room to answer, ever: the host's call times out
     ++stats_.tx_refused;
     return;
@@ -33,29 +36,35 @@ HWB_NODE void HWB_SELF::onServiceRequest(uint8_t channel, const uint8_t* p, size
   uint8_t* const msg = in_slot ? rel_tx_.slot() : tx_;
   uint8_t ch = kControlChannel;
   if (own) {
-    wire::put16(msg, id);
+    wire::put16(msg, id);  // (a short head is the low byte: the body overwrites the other)
     ch = channel;
   } else {
     board::ServiceResponse::put(msg, channel, id, 0);
   }
   uint8_t* const body = msg + head;
   uint8_t status = control::ServiceStatus::NO_SERVICE;
-  size_t len = 0;
+  size_t len = short_head;  // (NO_SERVICE with a short head: the status is the body)
   if (e != nullptr) {
     // (commit() skips send()'s MTU check: a board that does not fragment, the one-slot
     // sender's, refuses a host whose MTU is below its own, so kTxBuffer <= kMtu <= the link's)
     const size_t cap = Profile::kTxBuffer - head;
     const size_t limit = static_cast<size_t>(peer_max_) - head < cap ? static_cast<size_t>(peer_max_) - head : cap;
     ServiceOut out = {body, limit};
-    len = n - kCallHead;
-    const char* err = e->hook_(e, Entry::kOpDeliver, p + kCallHead, &len, &out);
+    len = n;
+    const char* err = e->hook_(e, Entry::kOpDeliver, body_in, &len, &out);
     status = control::ServiceStatus::OK;
     if (err != nullptr) {
       status = control::ServiceStatus::ERROR;  // with the reason as the body
-      len = static_cast<size_t>(detail::put_str(body, err, limit) - body);
+      // (a short head takes the status as the body's first byte: the text after it)
+      len = static_cast<size_t>(detail::put_str(body + short_head, err, limit - short_head) - body);
     }
   }
-  body[-1] = status;  // the head's last byte in both forms (SERVICE_RESPONSE: p[4] of 5)
+  if (!short_head) {
+    body[-1] = status;  // the head's last byte in both long forms (SERVICE_RESPONSE: p[4] of 5)
+  } else if (status != control::ServiceStatus::OK) {
+    msg[0] |= kStatusFollows;  // id | 0x80, then the status (2.8)
+    body[0] = status;
+  }
   if (in_slot) {
     rel_tx_.commit(ch, head + len);
   } else {
@@ -64,14 +73,14 @@ HWB_NODE void HWB_SELF::onServiceRequest(uint8_t channel, const uint8_t* p, size
   }
 }
 
-/** The response to the pending call, on its entry's channel: p its request id, status and body
- * (n bytes, at least 3), as on the service's own channel. */
-HWB_NODE void HWB_SELF::onServiceResponse(const uint8_t* p, size_t n) {
-  if (call_state_ != 1 || wire::get16(p) != call_id_) return;  // late, or not ours
-  call_status_ = p[kAnswerHead - 1];
+/** The response to the pending call, on its entry's channel: its request id and status, and
+ * its body (n bytes at body). */
+HWB_NODE void HWB_SELF::onServiceResponse(uint16_t id, uint8_t status, const uint8_t* body, size_t n) {
+  if (call_state_ != 1 || id != call_id_) return;  // late, or not ours
+  call_status_ = status;
   if (call_status_ == kCallOk) {
-    size_t len = n - kAnswerHead;
-    if (call_entry_->hook_(call_entry_, Entry::kOpDeliver, p + kAnswerHead, &len, call_res_) != nullptr) {
+    size_t len = n;
+    if (call_entry_->hook_(call_entry_, Entry::kOpDeliver, body, &len, call_res_) != nullptr) {
       call_status_ = kCallBadResponse;
     }
   }
@@ -80,9 +89,11 @@ HWB_NODE void HWB_SELF::onServiceResponse(const uint8_t* p, size_t n) {
 
 HWB_NODE uint8_t HWB_SELF::call(Entry& e, size_t len, uint16_t timeout_ms, void* res) {
   // the request was serialized after room for SERVICE_REQUEST's opcode, channel and id; on the
-  // service's own channel (SERVICE_CHANNELS, 2.8) the id alone comes before it
+  // service's own channel (SERVICE_CHANNELS, 2.8) the id alone comes before it, in one byte with
+  // SHORT_CALLS (every id of this board fits: newRequestId)
   const bool own = (features_ & control::Features::SERVICE_CHANNELS) != 0;
-  const size_t head = own ? kCallHead : board::ServiceRequest::kBody;
+  const bool short_head = own && (features_ & control::Features::SHORT_CALLS) != 0;
+  const size_t head = short_head ? 1 : own ? kCallHead : board::ServiceRequest::kBody;
   if (state_ != kConnected || !e.accepted_ || call_state_ == 1 || flag(kInInput) ||
       len + head > peer_max_) {
     ++stats_.tx_refused;
@@ -90,8 +101,12 @@ HWB_NODE uint8_t HWB_SELF::call(Entry& e, size_t len, uint16_t timeout_ms, void*
   }
   call_id_ = newRequestId();
   if (own) {
-    memmove(tx_ + kCallHead, tx_ + board::ServiceRequest::kBody, len);
-    wire::put16(tx_, call_id_);
+    memmove(tx_ + head, tx_ + board::ServiceRequest::kBody, len);
+    if (short_head) {
+      tx_[0] = static_cast<uint8_t>(call_id_);
+    } else {
+      wire::put16(tx_, call_id_);
+    }
     pending_ch_ = e.channel_;
   } else {
     board::ServiceRequest::put(tx_, e.channel_, call_id_);
@@ -111,10 +126,12 @@ HWB_NODE uint8_t HWB_SELF::call(Entry& e, size_t len, uint16_t timeout_ms, void*
   return call_status_;
 }
 
+/** The next request id, for a call or a parameter: 1..127 (a valid id in every form, the
+ * one-byte head of SHORT_CALLS too), none that a pending request holds. */
 HWB_NODE uint16_t HWB_SELF::newRequestId() {
   uint16_t id;
   do {
-    id = ++next_request_;
+    id = static_cast<uint8_t>(++next_request_ & kShortIdMask);
   } while (id == 0 || id == param_id_ || (call_state_ == 1 && id == call_id_));
   return id;
 }

@@ -101,6 +101,14 @@ def test_the_defaults_negotiate_short_calls() -> None:
     connect(link)
     for end in (link.host, link.device):
         assert end.link is not None and end.link.features & Features.SHORT_CALLS
+    # what 'hwbridge board info' shows of the session: the features both ends have
+    assert link.host.describe()["features"] == [
+        "TIME_SYNC",
+        "PARAM_PUSH",
+        "ACK_IN_DATA",
+        "SERVICE_CHANNELS",
+        "SHORT_CALLS",
+    ]
 
 
 def test_calls_go_with_one_byte_heads_both_ways() -> None:

@@ -161,6 +161,11 @@ def test_service_server(run_example: Callable[..., Running]) -> None:
     assert done.returncode == 0, done.stderr + bridge.output()
     assert "LED on" in done.stdout
     assert wait_until(lambda: running.led_at_least(since, 1.0), 20)
+    # the library and the host negotiated one-byte call heads (PROTOCOL.md 2.8)
+    info = bridge.cli("board", "info", "--json")
+    assert info.returncode == 0, info.stderr
+    features = json.loads(info.stdout)["session"]["features"]
+    assert {"SERVICE_CHANNELS", "SHORT_CALLS"} <= set(features), info.stdout
     done = bridge.cli("service", "call", "/count", "{}", "--timeout", "20")
     assert done.returncode == 0, done.stderr
     assert "2 calls" in done.stdout

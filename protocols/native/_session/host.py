@@ -87,6 +87,7 @@ class HostSession(
             "firmware_version": board.identity.version if board is not None else None,
             "mtu": link.mtu if link is not None else None,
             "window": link.window if link is not None else None,
+            "features": _feature_names(link.features) if link is not None else None,
             "host_session": self._id,
             "device_session": self.peer_session_id or None,
             "rtt": self._rtt.srtt,
@@ -124,3 +125,8 @@ class HostSession(
             " (is the board connected, powered, flashed with hwbridge firmware, and is the baud "
             "rate right?)"
         )
+
+
+def _feature_names(features: Features) -> list[str]:
+    """The names of the features a session negotiated (PROTOCOL.md 2.14), lowest bit first."""
+    return [f.name for f in Features if f and f & features and f.name is not None]

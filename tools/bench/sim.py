@@ -27,14 +27,15 @@ subscriber or service caller in this process. For each library and baud rate (11
   answers sooner). (With the publish left in, ros_lib's answers queued behind a line full of
   its messages: the ratio read 1.3 to 2.5 where it reads 0.7 to 1.2 without, runs of the same
   day on a shared machine.) The two answers differ: "N calls" is 5 bytes longer than "hello"
-  and takes the board a number's formatting, so ``wire_bytes_per_call`` reads 35 against 30.
+  and takes the board a number's formatting, so ``wire_bytes_per_call`` reads 32 against 30.
 - ``sim_service_hello``: the like-for-like service: both servers answer "hello" (HwBridge:
   Trigger with ACK_IN_DATA and SERVICE_CHANNELS; ros_lib: Test to the request "x") and loop()
-  is ``spinOnce()`` alone. Per call the line carries HwBridge's 10-byte request and 21-byte
+  is ``spinOnce()`` alone. Per call the line carries HwBridge's 9-byte request and 19-byte
   answer against ros_lib's 13 and 17 bytes: the answer's native frame (header, request id,
-  status, CRC-16, COBS and the Trigger's bool) is 4 bytes longer than rosserial's, its request
-  3 shorter, 1 byte a call: 11 us at 1 Mbaud, 87 us at 115200 (before SERVICE_CHANNELS, PROTOCOL.md
-  2.8, 5 bytes a call).
+  CRC-16, COBS, the carried ACK and the Trigger's bool) is 2 bytes longer than rosserial's, its
+  request 4 shorter, 2 bytes a call fewer: 22 us at 1 Mbaud, 174 us at 115200 (with
+  SERVICE_CHANNELS alone, before SHORT_CALLS, PROTOCOL.md 2.8, 1 byte a call more; before both,
+  5 bytes more).
 
 ``ratio`` is hwbridge / rosserial: above 1, hwbridge delivers more messages per second; for the
 service lines the figure compared is calls per second (1 / mean round trip), and ``ratio_p50``

@@ -46,6 +46,7 @@ from tests.protocols.test_native_service_channels import (
 )
 from tests.protocols.test_native_session import (
     CH_CHATTER,
+    CH_CMD,
     CH_GET_TIME,
     CH_RESET,
     PATIENT,
@@ -325,6 +326,11 @@ def test_malformed_short_messages_are_protocol_errors(peer_role: str) -> None:
         assert not of_type(events, ServiceResponse) and not of_type(events, ServiceRequest)
     assert "too short" in str(errors(peer.events)[0])
     assert "unknown status 3" in str(errors(peer.events)[-1])
+    # an empty message on a topic this end sends is on the wrong channel, not a short call
+    wrong = CH_CMD if peer_role == "board" else CH_CHATTER
+    (error,) = errors(peer.write(peer.reliable(wrong, b"")))
+    assert "too short" not in str(error) and f"channel {wrong}" in str(error)
+    assert end.stats.protocol_errors == len(bad) + 1
     events = peer.write(peer.reliable(calls, ref_response(request_id, OK, b"a")))
     (answer,) = of_type(events, ServiceResponse)
     assert (answer.request_id, answer.payload, answer.ok) == (request_id, b"a", True)

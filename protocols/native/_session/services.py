@@ -179,10 +179,10 @@ class Services(SessionCore[Any]):
             entry = self._board_entry(delivery.channel)
             if entry is None:
                 return False
-        kind = entry.kind
-        payload = delivery.payload
         if self._short_calls:
             return self._on_short_call(delivery, entry)
+        kind = entry.kind
+        payload = delivery.payload
         if kind == self._SERVE_KIND:
             if len(payload) < CHANNEL_REQUEST_HEAD_SIZE:
                 self._too_short(delivery, entry, "request", "request id", CHANNEL_REQUEST_HEAD_SIZE)
@@ -213,16 +213,16 @@ class Services(SessionCore[Any]):
         request ``request_id u8`` (bit 7 reserved), ``body``; a response ``request_id u8``,
         then ``status u8`` when the id's bit 7 is set (else OK), ``body``."""
         payload = delivery.payload
+        serves = entry.kind == self._SERVE_KIND
+        if not serves and entry.kind != self._CALL_KIND:
+            return False
         if not payload:
-            what = "request" if entry.kind == self._SERVE_KIND else "response"
-            self._too_short(delivery, entry, what, "request id", 1)
+            self._too_short(delivery, entry, "request" if serves else "response", "request id", 1)
             return True
         head = payload[0]
-        if entry.kind == self._SERVE_KIND:
+        if serves:
             self._on_service_request(delivery.channel, head & SHORT_ID_MAX, payload[1:])
             return True
-        if entry.kind != self._CALL_KIND:
-            return False
         request_id = head & SHORT_ID_MAX
         if not head & SHORT_STATUS_FOLLOWS:
             self._on_service_response(delivery.channel, request_id, SERVICE_OK, payload[1:])

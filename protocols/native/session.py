@@ -43,7 +43,7 @@ from hwbridge.protocols.native._session.config import (
     TopicMismatchError,
     TypeCheck,
 )
-from hwbridge.protocols.native._session.core import HELLO_FIRST_RETRY
+from hwbridge.protocols.native._session.core import HELLO_FIRST_RETRY, RETIRED_ID_HOLD
 from hwbridge.protocols.native._session.device import DeviceSession
 from hwbridge.protocols.native._session.events import (
     Connected,
@@ -68,6 +68,7 @@ from hwbridge.protocols.native._session.stats import NativeStats, SessionCounter
 __all__ = [
     "ACK_DELAY_MAX",
     "HELLO_FIRST_RETRY",
+    "RETIRED_ID_HOLD",
     "RTO_MIN_FLOOR",
     "BoardInfo",
     "Connected",

@@ -18,10 +18,11 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from hwbridge.protocols.errors import ProtocolError
+from hwbridge.protocols.errors import HwBridgeTimeoutError, ProtocolError
 from hwbridge.protocols.native import control as ctl
 from hwbridge.protocols.native.control import ALL_FEATURES, Features, ServiceStatus
 from hwbridge.protocols.native.session import (
+    RETIRED_ID_HOLD,
     DeviceConfig,
     DeviceSession,
     Error,
@@ -201,6 +202,40 @@ def test_127_pending_calls_use_every_id_and_the_next_is_refused(caller: str) -> 
     assert end.call_service(calls, b"again") == ids[40]
     peer.read()
     assert peer.sent(calls)[-1] == ref_request(ids[40], b"again")
+
+
+@pytest.mark.parametrize("freed_by", ["its late answer", "the hold's end"])
+def test_the_id_of_a_call_that_timed_out_waits_for_its_late_answer(freed_by: str) -> None:
+    """With 127 ids a late answer could meet a newer call that drew its id: the id of a call
+    that timed out is not drawn again until its late answer came (which is ignored) or
+    RETIRED_ID_HOLD passed, and a caller with every other id pending is told why."""
+    peer = short_board()
+    end = peer.end
+    _, calls = serve_and_call_channels(peer)
+    first = end.call_service(calls, b"", timeout=0.5)
+    peer.read()
+    peer.now += 1.0
+    (timed_out,) = of_type(end.tick(peer.now), ServiceResponse)
+    assert timed_out.request_id == first and isinstance(timed_out.error, HwBridgeTimeoutError)
+    ids = []
+    for _ in range(126):
+        ids.append(end.call_service(calls, b"", timeout=1000.0))
+        peer.read()
+    assert sorted([first, *ids]) == list(range(1, 128))
+    with pytest.raises(SessionError, match="1 that timed out are held for their late answers"):
+        end.call_service(calls, b"")
+    if freed_by == "its late answer":
+        events = peer.write(peer.reliable(calls, ref_response(first, OK, b"late")))
+        assert not of_type(events, ServiceResponse)  # taken for no call
+    else:
+        steps = int(RETIRED_ID_HOLD / 0.2) + 1
+        for _ in range(steps):  # the link kept alive, the id held all along
+            peer.write(peer.best_effort(0, ctl.HeartbeatMsg().encode()))
+            peer.now += 0.2
+            end.tick(peer.now)
+        assert end.connected
+    assert end.call_service(calls, b"", timeout=1000.0) == first
+    assert end.stats.protocol_errors == 0
 
 
 @pytest.mark.parametrize("peer_role", ["board", "host"])

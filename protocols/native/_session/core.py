@@ -66,6 +66,9 @@ _E = TypeVar("_E")
 HELLO_FIRST_RETRY = 0.05
 """The first HELLO goes out at once; the next after this long, each wait doubling up to
 ``hello_interval`` (PROTOCOL.md 2.5)."""
+RETIRED_ID_HOLD = 60.0
+"""Seconds a SHORT_CALLS caller keeps the id of a call that timed out from new calls, unless
+its late answer comes first (PROTOCOL.md 2.8)."""
 
 
 @dataclass(slots=True)
@@ -182,6 +185,10 @@ class SessionCore(Generic[_E]):
         self._reported: set[str] = set()
         """Keys of errors already reported this session (to avoid floods)."""
         self._calls: dict[int, _Pending] = {}
+        self._retired_ids: dict[int, float] = {}
+        """In a SHORT_CALLS session, the ids of calls that timed out, each with the time it may
+        be drawn again: with 127 ids, a late answer must not be taken for a newer call that got
+        its id (PROTOCOL.md 2.8). An id is free again once its late answer came."""
         self._incoming_calls: set[tuple[int, int]] = set()
         self._next_request_id = 1
         self._time_next = 0.0
@@ -669,11 +676,22 @@ class SessionCore(Generic[_E]):
     def _new_request_id(self, top: int = 0xFFFF) -> int:
         """A request id in 1..``top`` that no pending call or role request of this end uses
         (``top`` 127 for a service call in a SHORT_CALLS session, PROTOCOL.md 2.8)."""
+        retired = self._retired_ids
         for _ in range(top):
             request_id = (self._next_request_id - 1) % top + 1
             self._next_request_id = request_id % 0xFFFF + 1
+            if request_id in retired:
+                if retired[request_id] > self._now:
+                    continue
+                del retired[request_id]
             if request_id not in self._calls and not self._request_id_in_use(request_id):
                 return request_id
+        if retired:
+            raise SessionError(
+                f"no request id is free: {len(self._calls)} calls are pending and the ids of "
+                f"{len(retired)} that timed out are held for their late answers (at most "
+                f"{RETIRED_ID_HOLD:g} s)"
+            )
         raise SessionError(f"{top} requests are pending: no request id is free")
 
     def _random_session_id(self) -> int:

@@ -163,6 +163,7 @@ class Handshake(SessionCore[Any]):
                 )
             )
         self._calls.clear()
+        self._retired_ids.clear()
         self._incoming_calls.clear()
         self._fail_role_pending(reason)
         self._on_teardown()

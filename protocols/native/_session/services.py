@@ -26,7 +26,12 @@ from hwbridge.protocols.native._hotpath import (
     SERVICE_OK,
 )
 from hwbridge.protocols.native._session.config import SessionError, TopicEntry
-from hwbridge.protocols.native._session.core import SessionCore, _Pending, _truncate
+from hwbridge.protocols.native._session.core import (
+    RETIRED_ID_HOLD,
+    SessionCore,
+    _Pending,
+    _truncate,
+)
 from hwbridge.protocols.native._session.events import ServiceRequest, ServiceResponse
 from hwbridge.protocols.native.control import (
     CHANNEL_REQUEST_HEAD_SIZE,
@@ -157,6 +162,8 @@ class Services(SessionCore[Any]):
         for request_id, call in list(self._calls.items()):
             if now >= call.deadline:
                 del self._calls[request_id]
+                if self._short_calls:
+                    self._retired_ids[request_id] = now + RETIRED_ID_HOLD
                 self._events.append(
                     ServiceResponse(
                         call.channel,
@@ -293,7 +300,9 @@ class Services(SessionCore[Any]):
     ) -> None:
         call = self._calls.get(request_id)
         if call is None or call.channel != channel:
-            return  # answered after its timeout: the caller already got an error
+            # answered after its timeout: the caller already got an error, and the id is free
+            self._retired_ids.pop(request_id, None)
+            return
         del self._calls[request_id]
         error: HwBridgeError | None = None
         if status is SERVICE_ERROR:

@@ -8,8 +8,8 @@ Timed is the host's part alone: ``call_service`` with ``chunks_to_send``, then `
 with ``next_deadline`` (what the bridge's pump runs per call). Each of ``--rounds`` rounds times
 ``--calls`` calls of one protocol, then of the other; the figures are the medians over the rounds.
 Prints one JSON line: ``native_us`` and ``rosserial_us`` per call, and ``ratio`` (rosserial /
-native: above 1, the native session costs less). With ``ACK_IN_DATA`` and ``SERVICE_CHANNELS``
-(both defaults) a native call is one frame each way, as on the bridge with a board.
+native: above 1, the native session costs less). With ``ACK_IN_DATA``, ``SERVICE_CHANNELS`` and
+``SHORT_CALLS`` (the defaults) a native call is one frame each way, as on the bridge with a board.
 
 This is the part of a call's host time that differs between the two protocols (issue 29: at
 1 Mbaud the AVR boards' part is at parity, and ``sim_service_hello`` is left with the

@@ -29,11 +29,11 @@ subscriber or service caller in this process. For each library and baud rate (11
   day on a shared machine.) The two answers differ: "N calls" is 5 bytes longer than "hello"
   and takes the board a number's formatting, so ``wire_bytes_per_call`` reads 32 against 30.
 - ``sim_service_hello``: the like-for-like service: both servers answer "hello" (HwBridge:
-  Trigger with ACK_IN_DATA and SERVICE_CHANNELS; ros_lib: Test to the request "x") and loop()
-  is ``spinOnce()`` alone. Per call the line carries HwBridge's 9-byte request and 19-byte
-  answer against ros_lib's 13 and 17 bytes: the answer's native frame (header, request id,
-  CRC-16, COBS, the carried ACK and the Trigger's bool) is 2 bytes longer than rosserial's, its
-  request 4 shorter, 2 bytes a call fewer: 22 us at 1 Mbaud, 174 us at 115200 (with
+  Trigger with ACK_IN_DATA, SERVICE_CHANNELS and SHORT_CALLS; ros_lib: Test to the request "x")
+  and loop() is ``spinOnce()`` alone. Per call the line carries HwBridge's 9-byte request and
+  19-byte answer against ros_lib's 13 and 17 bytes: the answer's native frame (header, request
+  id, CRC-16, COBS, the carried ACK and the Trigger's bool) is 2 bytes longer than rosserial's,
+  its request 4 shorter, 2 bytes a call fewer: 22 us at 1 Mbaud, 174 us at 115200 (with
   SERVICE_CHANNELS alone, before SHORT_CALLS, PROTOCOL.md 2.8, 1 byte a call more; before both,
   5 bytes more).
 

@@ -365,3 +365,20 @@ def test_sim_profile_gives_a_call_as_the_functions_it_ran_through() -> None:
     assert "write_frame" in names and "put_block" in names, names
     assert sum(cycles for _start, cycles, _name in timeline) > 1000
     assert "write_frame" in " ".join(line["per_call_by_function"])
+
+
+def test_zenoh_reply_bench_times_each_way_of_replying() -> None:
+    """``tools/bench/zenoh_reply.py`` with a few calls: one line with the p50 of each way of
+    replying (inline, from another thread, from a woken one) and the extras over inline. Fields
+    only, no timing checks."""
+    (line,) = _run_json("zenoh_reply.py", "--calls", "60", timeout=120)
+    assert line["bench"] == "zenoh_reply" and line["peer"] == "inline_reply"
+    assert line["calls"] == 60
+    for kind in ("inline", "other_thread", "other_thread_woken"):
+        assert line[f"{kind}_p50_us"] > 0
+    assert line["other_thread_extra_us"] == pytest.approx(
+        line["other_thread_p50_us"] - line["inline_p50_us"], abs=0.2
+    )
+    assert line["woken_extra_us"] == pytest.approx(
+        line["other_thread_woken_p50_us"] - line["inline_p50_us"], abs=0.2
+    )

@@ -49,7 +49,11 @@ how much one window of calls says: on the 2-core machine of issue 29 the rounds 
 1.03 to 1.57, the bridged p50 of 500 calls moving from 338 to 623 us between rounds while the
 floors moved from 325 to 442 us; one pass (all calls, then the floors) read 1.06 to 1.50 over
 four runs of one commit within an hour. ``rtt_over_zenoh_plus_link`` leaves the board's
-handling out of the floor (it charges the board's time to the bridge).
+handling out of the floor (it charges the board's time to the bridge). The floor's Zenoh part is
+a queryable that replies inside Zenoh's callback; a bridge reads the board's answer on its own
+thread and replies from there, which Zenoh makes dearer: ``zenoh_reply.py`` measures 21 to 31
+us more per call at the p50 on the machine above (bare Zenoh, no hwbridge code), a part of
+what ``rtt_over_floor`` counts as the bridge's.
 
 Runs with no arguments in about a minute; prints one JSON object per line. ``--cases latency``
 runs only the service calls.

@@ -332,6 +332,25 @@ def both_answered(link: SimLink, host_calls: int = 1, board_calls: int = 1) -> C
     )
 
 
+def call_both_ways(link: SimLink) -> tuple[int, int]:
+    """On a connected ``link`` the host calls /reset with "ping" and the board /get_time with
+    "time?", answered "r" + request by the board and "t" + request by the host; both answers
+    arrive, OK, each to its call. Returns the two request ids (the host's, the board's)."""
+    answer_on(link, "board", lambda p: b"r" + p)
+    answer_on(link, "host", lambda p: b"t" + p)
+    to_board = link.host.call_service(CH_RESET, b"ping")
+    to_host = link.device.call_service(CH_GET_TIME, b"time?")
+    link.flush()
+    assert link.run(2.0, until=both_answered(link))
+    for events, call in (
+        (link.host_events, (CH_RESET, to_board, b"rping", True)),
+        (link.device_events, (CH_GET_TIME, to_host, b"ttime?", True)),
+    ):
+        (answer,) = of_type(events, ServiceResponse)
+        assert (answer.channel, answer.request_id, answer.payload, answer.ok) == call
+    return to_board, to_host
+
+
 def test_the_defaults_negotiate_service_channels() -> None:
     assert HOST_FEATURES & Features.SERVICE_CHANNELS
     assert DEVICE_FEATURES & Features.SERVICE_CHANNELS
@@ -349,18 +368,7 @@ def test_calls_go_on_their_own_channels_both_ways() -> None:
     SERVICE_REQUEST or SERVICE_RESPONSE goes either way."""
     link = make_link(21)
     connect(link)
-    answer_on(link, "board", lambda p: b"r" + p)
-    answer_on(link, "host", lambda p: b"t" + p)
-    to_board = link.host.call_service(CH_RESET, b"ping")
-    to_host = link.device.call_service(CH_GET_TIME, b"time?")
-    link.flush()
-    assert link.run(2.0, until=both_answered(link))
-    for events, call in (
-        (link.host_events, (CH_RESET, to_board, b"rping", True)),
-        (link.device_events, (CH_GET_TIME, to_host, b"ttime?", True)),
-    ):
-        (answer,) = of_type(events, ServiceResponse)
-        assert (answer.channel, answer.request_id, answer.payload, answer.ok) == call
+    to_board, to_host = call_both_ways(link)
     h2d, d2h = reliable_messages(link.h2d_log), reliable_messages(link.d2h_log)
     assert [m for m in h2d if m[0] in (CH_RESET, CH_GET_TIME)] == [
         ref_request(True, CH_RESET, to_board, b"ping"),
@@ -818,8 +826,36 @@ def refused(request: bytes) -> bool:
     return len(request) % 4 == 1
 
 
-@bounded(20)
-@given(
+LOSSY_MAX = (160, 96)
+"""The max_message of the host and of the board in :func:`lossy_link`."""
+
+
+def lossy_link(
+    make: Callable[..., SimLink],
+    seed: int,
+    faults: tuple[float, float, float],
+    window: int,
+    queue_limit: int,
+) -> SimLink:
+    """A host and a board (``make``'s, with LOSSY_MAX, the board's ``window`` and transmit
+    ``queue_limit``, patient timers), connected over a link that loses, duplicates and
+    reorders frames at the ``faults`` rates, both ways, in chunks of up to 13 bytes."""
+    loss, duplicate, reorder = faults
+    host_max, device_max = LOSSY_MAX
+    link: SimLink = make(
+        seed,
+        host_cfg=HostConfig(max_message=host_max, **PATIENT),
+        dev_cfg=DeviceConfig(
+            window=window, max_message=device_max, tx_queue_limit=queue_limit, **PATIENT
+        ),
+        h2d=lossy(loss, duplicate=duplicate, reorder=reorder, max_chunk=13),
+        d2h=lossy(loss, duplicate=duplicate, reorder=reorder, max_chunk=13),
+    )
+    connect(link, 60.0)
+    return link
+
+
+lossy_calls = given(
     seed=st.integers(0, 2**16),
     loss=st.floats(0.0, 0.3),
     duplicate=st.floats(0.0, 0.2),
@@ -827,6 +863,12 @@ def refused(request: bytes) -> bool:
     window=st.sampled_from([1, 2, 4]),
     data=st.data(),
 )
+"""The arguments of a test of calls over a lossy link: its seed, loss, duplication and
+reordering rates, the board's window, and draws of the test's own."""
+
+
+@bounded(20)
+@lossy_calls
 def test_calls_both_ways_over_a_lossy_duplicating_link_end_once_each(
     seed: int, loss: float, duplicate: float, reorder: float, window: int, data: st.DataObject
 ) -> None:
@@ -834,27 +876,35 @@ def test_calls_both_ways_over_a_lossy_duplicating_link_end_once_each(
     ERROR, both ways, over a link that loses, corrupts, duplicates and reorders frames: each
     call ends with exactly one response, its own, and only the services' channels carried
     them."""
-    host_max, device_max = 160, 96
-    link = make_link(
-        seed,
-        host_cfg=HostConfig(max_message=host_max, **PATIENT),
-        dev_cfg=DeviceConfig(window=window, max_message=device_max, tx_queue_limit=4096, **PATIENT),
-        h2d=lossy(loss, duplicate=duplicate, reorder=reorder, max_chunk=13),
-        d2h=lossy(loss, duplicate=duplicate, reorder=reorder, max_chunk=13),
-    )
-    connect(link, 60.0)
-    answer_on(link, "board", _echo_or_refuse(host_max - 3))
-    answer_on(link, "host", _echo_or_refuse(device_max - 3))
+    host_max, device_max = LOSSY_MAX
+    link = lossy_link(make_link, seed, (loss, duplicate, reorder), window, 4096)
     host_bodies = data.draw(_bodies_of_sizes(device_max - 2), label="the host's requests")
     board_bodies = data.draw(_bodies_of_sizes(host_max - 2), label="the board's requests")
+    calls_end_once_each(link, host_bodies, board_bodies, (host_max - 3, device_max - 3), 300.0)
+
+
+def calls_end_once_each(
+    link: SimLink,
+    host_bodies: list[bytes],
+    board_bodies: list[bytes],
+    max_bodies: tuple[int, int],
+    seconds: float,
+) -> tuple[list[int], list[int]]:
+    """The host calls /reset with each of ``host_bodies`` and the board /get_time with each of
+    ``board_bodies``, all at once on the connected ``link``; the answers (:func:`_echo_or_refuse`
+    cut to ``max_bodies``: the host's largest answer body, then the board's) come within
+    ``seconds``, one for each call, its own, and only on the services' channels. Returns the
+    request ids of the host's calls and the board's."""
+    answer_on(link, "board", _echo_or_refuse(max_bodies[0]))
+    answer_on(link, "host", _echo_or_refuse(max_bodies[1]))
     host_ids = {link.host.call_service(CH_RESET, b): b for b in host_bodies}
     board_ids = {link.device.call_service(CH_GET_TIME, b): b for b in board_bodies}
     link.flush()
-    assert link.run(300.0, until=both_answered(link, len(host_ids), len(board_ids)))
+    assert link.run(seconds, until=both_answered(link, len(host_ids), len(board_ids)))
     link.run(1.0)  # a second answer to any call would come now
     for events, ids, max_body in (
-        (link.host_events, host_ids, host_max - 3),
-        (link.device_events, board_ids, device_max - 3),
+        (link.host_events, host_ids, max_bodies[0]),
+        (link.device_events, board_ids, max_bodies[1]),
     ):
         responses = of_type(events, ServiceResponse)
         assert sorted(r.request_id for r in responses) == sorted(ids)
@@ -870,3 +920,4 @@ def test_calls_both_ways_over_a_lossy_duplicating_link_end_once_each(
     assert service_control_messages(link.d2h_log) == []
     assert link.host.stats.protocol_errors == link.device.stats.protocol_errors == 0
     assert not [e for e in link.host_events + link.device_events if isinstance(e, Error)]
+    return list(host_ids), list(board_ids)

@@ -25,7 +25,6 @@ from hwbridge.protocols.native.session import (
     RETIRED_ID_HOLD,
     DeviceConfig,
     DeviceSession,
-    Error,
     HostConfig,
     HostSession,
     ServiceRequest,
@@ -34,10 +33,14 @@ from hwbridge.protocols.native.session import (
 )
 from tests.protocols.lossy import SimLink
 from tests.protocols.test_native_service_channels import (
-    Answer,
+    LOSSY_MAX,
     Scripted,
     answer_on,
     both_answered,
+    call_both_ways,
+    calls_end_once_each,
+    lossy_calls,
+    lossy_link,
     ref_cut,
     reliable_messages,
     scripted_board,
@@ -50,10 +53,8 @@ from tests.protocols.test_native_session import (
     CH_CMD,
     CH_GET_TIME,
     CH_RESET,
-    PATIENT,
     connect,
     errors,
-    lossy,
     make_link,
     of_type,
 )
@@ -118,18 +119,7 @@ def test_calls_go_with_one_byte_heads_both_ways() -> None:
     body on the service's channel, each OK response its id and body; nothing on channel 0."""
     link = make_link(41)
     connect(link)
-    answer_on(link, "board", lambda p: b"r" + p)
-    answer_on(link, "host", lambda p: b"t" + p)
-    to_board = link.host.call_service(CH_RESET, b"ping")
-    to_host = link.device.call_service(CH_GET_TIME, b"time?")
-    link.flush()
-    assert link.run(2.0, until=both_answered(link))
-    for events, call in (
-        (link.host_events, (CH_RESET, to_board, b"rping", True)),
-        (link.device_events, (CH_GET_TIME, to_host, b"ttime?", True)),
-    ):
-        (answer,) = of_type(events, ServiceResponse)
-        assert (answer.channel, answer.request_id, answer.payload, answer.ok) == call
+    to_board, to_host = call_both_ways(link)
     h2d, d2h = reliable_messages(link.h2d_log), reliable_messages(link.d2h_log)
     assert [m for m in h2d if m[0] in (CH_RESET, CH_GET_TIME)] == [
         (CH_RESET, ref_request(to_board, b"ping")),
@@ -515,68 +505,27 @@ def test_any_id_and_body_round_trips_in_the_short_form(
     assert end.stats.protocol_errors == 0
 
 
-def _refused(request: bytes) -> bool:
-    return len(request) % 4 == 1
-
-
 @bounded(20)
-@given(
-    seed=st.integers(0, 2**16),
-    loss=st.floats(0.0, 0.3),
-    duplicate=st.floats(0.0, 0.2),
-    reorder=st.floats(0.0, 0.2),
-    window=st.sampled_from([1, 2, 4]),
-    data=st.data(),
-)
+@lossy_calls
 def test_short_calls_over_a_lossy_duplicating_link_end_once_each(
     seed: int, loss: float, duplicate: float, reorder: float, window: int, data: st.DataObject
 ) -> None:
     """1, 5, 40 or 127 calls each way at once (127: every id of an end pending together),
-    bodies up to 40 bytes, answered OK or ERROR, over a link that loses, corrupts,
-    duplicates and reorders: each call ends with exactly one response, its own."""
-    host_max, device_max = 160, 96
-    link = make_link(
-        seed,
-        host_cfg=HostConfig(max_message=host_max, **PATIENT),
-        dev_cfg=DeviceConfig(window=window, max_message=device_max, tx_queue_limit=8192, **PATIENT),
-        h2d=lossy(loss, duplicate=duplicate, reorder=reorder, max_chunk=13),
-        d2h=lossy(loss, duplicate=duplicate, reorder=reorder, max_chunk=13),
-    )
-    connect(link, 60.0)
-
-    def echo(limit: int) -> Answer:
-        return lambda p: f"refused {len(p)}" if _refused(p) else (p * 3)[:limit]
-
-    answer_on(link, "board", echo(host_max - 1))
-    answer_on(link, "host", echo(device_max - 1))
+    bodies up to 40 bytes, answered OK (up to the caller's max_message, after the one-byte
+    head) or ERROR, over a link that loses, corrupts, duplicates and reorders: each call ends
+    with exactly one response, its own."""
+    host_max, device_max = LOSSY_MAX
+    link = lossy_link(make_link, seed, (loss, duplicate, reorder), window, 8192)
     sizes = st.integers(0, 40)
     body = sizes.flatmap(lambda n: st.binary(min_size=n, max_size=n))
     count = data.draw(st.sampled_from([1, 5, 40, 127]), label="calls each way")
     host_bodies = data.draw(st.lists(body, min_size=count, max_size=count))
     board_bodies = data.draw(st.lists(body, min_size=count, max_size=count))
-    host_ids = {link.host.call_service(CH_RESET, b): b for b in host_bodies}
-    board_ids = {link.device.call_service(CH_GET_TIME, b): b for b in board_bodies}
-    assert len(host_ids) == len(board_ids) == count  # every id a different one
+    host_ids, board_ids = calls_end_once_each(
+        link, host_bodies, board_bodies, (host_max - 1, device_max - 1), 900.0
+    )
+    assert len(set(host_ids)) == len(set(board_ids)) == count  # every id a different one
     assert all(1 <= i <= 127 for i in [*host_ids, *board_ids])
-    link.flush()
-    assert link.run(900.0, until=both_answered(link, count, count))
-    link.run(1.0)  # a second answer to any call would come now
-    for events, ids, limit in (
-        (link.host_events, host_ids, host_max - 1),
-        (link.device_events, board_ids, device_max - 1),
-    ):
-        responses = of_type(events, ServiceResponse)
-        assert sorted(r.request_id for r in responses) == sorted(ids)
-        for r in responses:
-            sent = ids[r.request_id]
-            if _refused(sent):
-                assert str(r.error).endswith(f"failed: refused {len(sent)}")
-            else:
-                assert r.ok and r.payload == (sent * 3)[:limit], r.error
-    assert service_control_messages(link.h2d_log) == []
-    assert service_control_messages(link.d2h_log) == []
-    assert link.host.stats.protocol_errors == link.device.stats.protocol_errors == 0
-    assert not [e for e in link.host_events + link.device_events if isinstance(e, Error)]
 
 
 def test_no_topic_channel_is_taken_for_a_call() -> None:

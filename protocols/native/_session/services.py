@@ -204,16 +204,23 @@ class Services(SessionCore[Any]):
                 )
                 return True
             request_id, status_byte = _CHANNEL_RESPONSE_HEAD.unpack_from(payload)
-            status = _SERVICE_STATUS.get(status_byte)
-            if status is None:
-                self._protocol_error(
-                    f"service response on channel {delivery.channel} ({entry.name}) request "
-                    f"{request_id}: unknown status {status_byte}"
-                )
-                return True
-            self._on_service_response(delivery.channel, request_id, status, payload[3:])
+            self._on_channel_response(delivery, entry, request_id, status_byte, payload[3:])
             return True
         return False
+
+    def _on_channel_response(
+        self, delivery: Delivery, entry: TopicEntry, request_id: int, status_byte: int, body: bytes
+    ) -> None:
+        """A response read on its service's channel, in either form: taken, or a protocol error
+        when its status is none of PROTOCOL.md 2.8's."""
+        status = _SERVICE_STATUS.get(status_byte)
+        if status is None:
+            self._protocol_error(
+                f"service response on channel {delivery.channel} ({entry.name}) request "
+                f"{request_id}: unknown status {status_byte}"
+            )
+            return
+        self._on_service_response(delivery.channel, request_id, status, body)
 
     def _on_short_call(self, delivery: Delivery, entry: TopicEntry) -> bool:
         """A message on a service's channel in a SHORT_CALLS session (PROTOCOL.md 2.8): a
@@ -237,14 +244,7 @@ class Services(SessionCore[Any]):
         if len(payload) < _SHORT_ERROR_HEAD_SIZE:
             self._too_short(delivery, entry, "response", "request id, status", 2)
             return True
-        status = _SERVICE_STATUS.get(payload[1])
-        if status is None:
-            self._protocol_error(
-                f"service response on channel {delivery.channel} ({entry.name}) request "
-                f"{request_id}: unknown status {payload[1]}"
-            )
-            return True
-        self._on_service_response(delivery.channel, request_id, status, payload[2:])
+        self._on_channel_response(delivery, entry, request_id, payload[1], payload[2:])
         return True
 
     def _too_short(

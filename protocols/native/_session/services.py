@@ -259,27 +259,25 @@ class Services(SessionCore[Any]):
 
     def _on_service_request(self, channel: int, request_id: int, body: bytes) -> None:
         entry = self._entry(channel) if self._state is CONNECTED else None
-        if entry is None or entry.kind != self._SERVE_KIND:
+        # (an id above 127 in a SHORT_CALLS session came in a SERVICE_REQUEST, which no end
+        # sends in one: the short answer cannot echo it, so it is not served)
+        if (
+            entry is None
+            or entry.kind != self._SERVE_KIND
+            or (request_id > SHORT_ID_MAX and self._short_calls)
+        ):
             self._answer_no_service(channel, request_id)
-            return
-        if request_id > SHORT_ID_MAX and self._short_calls:
-            # A SERVICE_REQUEST with an id the short answer cannot echo (no end sends one in
-            # such a session): a clear error for its caller rather than a timeout.
-            self._send_reliable(
-                CONTROL_CHANNEL,
-                encode_service_response(channel, request_id, SERVICE_NO_SERVICE, b""),
-                force=True,
-            )
             return
         self._incoming_calls.add((channel, request_id))
         self._events.append(ServiceRequest(channel, request_id, body))
 
     def _answer_no_service(self, channel: int, request_id: int) -> None:
-        """NO_SERVICE for a request this end cannot take (not CONNECTED, or the channel is no
-        service it serves). With SERVICE_CHANNELS it goes on the channel when the board's table
-        has a service this end serves there; otherwise (an old-form request for any other
-        channel) as a SERVICE_RESPONSE on channel 0, which the caller always reads as the
-        answer (PROTOCOL.md 2.8): a clear error instead of a timeout."""
+        """NO_SERVICE for a request this end cannot take (not CONNECTED, the channel is no
+        service it serves, or an id the short answer cannot echo). With SERVICE_CHANNELS it
+        goes on the channel when the board's table has a service this end serves there and the
+        id fits its form; otherwise (an old-form request for any other channel, or with an id
+        above 127 in a SHORT_CALLS session) as a SERVICE_RESPONSE on channel 0, which the caller
+        always reads as the answer (PROTOCOL.md 2.8): a clear error instead of a timeout."""
         if self._service_channels and (request_id <= SHORT_ID_MAX or not self._short_calls):
             entry = self._board_entry(channel)
             if entry is not None and entry.kind == self._SERVE_KIND:

@@ -673,6 +673,12 @@ class NodeHandle_ : public NodeBase {
   // again, messages of the board's own do not take the transmit buffer (sendOn)
   enum Flag : uint8_t { kFixed = 1, kInInput = 2, kTimeSynced = 4, kLead = 8, kAnswerOwed = 16 };
   bool flag(uint8_t f) const { return (flags_ & f) != 0; }
+  /** Calls on the services' channels have one-byte heads: both ends have SERVICE_CHANNELS and
+   * SHORT_CALLS (2.8; SHORT_CALLS alone changes nothing). */
+  bool shortCalls() const {
+    return (features_ & (control::Features::SERVICE_CHANNELS | control::Features::SHORT_CALLS)) ==
+           (control::Features::SERVICE_CHANNELS | control::Features::SHORT_CALLS);
+  }
   void setFlag(uint8_t f, bool on) { flags_ = static_cast<uint8_t>(on ? flags_ | f : flags_ & ~f); }
 };
 

@@ -115,7 +115,7 @@ HWB_NODE void HWB_SELF::onChannel(const Message& m) {
   const size_t n = m.size;
   // The head: the request id, in one byte with SHORT_CALLS (where a response's bit 7 says its
   // status follows; none: OK), else in two (a response's status after it).
-  const bool brief = (features_ & control::Features::SHORT_CALLS) != 0;
+  const bool brief = shortCalls();
   size_t h = brief ? 1 : kCallHead;
   if (e->kind_ == kServiceServer) {
     if (n < h) {

@@ -16,8 +16,7 @@
  * channel 0. */
 HWB_NODE void HWB_SELF::onServiceRequest(uint8_t channel, uint16_t id, const uint8_t* body_in, size_t n) {
   Entry* e = entryAt(channel);
-  const uint8_t kBoth = control::Features::SERVICE_CHANNELS | control::Features::SHORT_CALLS;
-  const bool brief = (features_ & kBoth) == kBoth;
+  const bool brief = shortCalls();
   if (e != nullptr && (e->kind_ != kServiceServer || (brief && id > kShortIdMask))) e = nullptr;
   const bool own = e != nullptr && (features_ & control::Features::SERVICE_CHANNELS) != 0;
   const bool short_head = own && brief;
@@ -92,7 +91,7 @@ HWB_NODE uint8_t HWB_SELF::call(Entry& e, size_t len, uint16_t timeout_ms, void*
   // service's own channel (SERVICE_CHANNELS, 2.8) the id alone comes before it, in one byte with
   // SHORT_CALLS (every id of this board fits: newRequestId)
   const bool own = (features_ & control::Features::SERVICE_CHANNELS) != 0;
-  const bool short_head = own && (features_ & control::Features::SHORT_CALLS) != 0;
+  const bool short_head = shortCalls();
   const size_t head = short_head ? 1 : own ? kCallHead : board::ServiceRequest::kBody;
   if (state_ != kConnected || !e.accepted_ || call_state_ == 1 || flag(kInInput) ||
       len + head > peer_max_) {

@@ -511,9 +511,9 @@ def run_protocol(
         if calls:
             _latency(board, graph, endpoint, protocol, transport, tmp, calls, echo_rtt)
     finally:
+        bridge.stop()  # first: a board that quits under a running bridge is a lost link to it
         _ask(board, "quit")
         board.wait(10)
-        bridge.stop()
         graph.close()
 
 

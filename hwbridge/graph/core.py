@@ -511,8 +511,13 @@ class Node:
         attachment = _attachment(md5 or self.graph.registry.service(srv_type).md5, srv_type)
         key = self.graph.service_key(resolved)
         # Express: a query that waits for Zenoh's batching can wait its whole time limit (1 ms).
+        # No consolidation: Zenoh's default (AUTO, which is LATEST here) holds every reply
+        # until the server's final message, sent when it lets the query go; a service has one
+        # answer, which this takes as it arrives (a server answering from another thread, as
+        # the bridge does, lets go of the query after its reply: the caller no longer waits).
         options: dict[str, Any] = {
             "target": zenoh.QueryTarget.BEST_MATCHING,
+            "consolidation": zenoh.ConsolidationMode.NONE,
             "timeout": timeout,
             "express": True,
         }

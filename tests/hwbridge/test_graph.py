@@ -294,6 +294,54 @@ def test_deferred_service_answers_from_another_thread(router: Graph, client: Gra
         node.call_raw("/later", "std_srvs/Trigger", b"\x01", timeout=5)
 
 
+def test_a_call_has_its_answer_before_the_server_lets_the_query_go(
+    router: Graph, client: Graph
+) -> None:
+    """A server that replies and holds on to the query (a bridge replies from its pump thread,
+    then lets go): the caller returns with the reply, not when Zenoh's final message comes. With
+    Zenoh's default consolidation the call waited for that message (here the fallback 10 s
+    later)."""
+    import threading
+
+    answer = b"\x01\x02\x00\x00\x00ok"
+    held: list[Any] = []
+
+    def serve(query: Any) -> None:
+        query.reply(query.key_expr, answer, express=True)
+        payload = query.payload
+        if payload is None or payload.to_bytes() != b"ping":
+            held.append(query)  # its final message waits for drop()
+
+    def answers_ping() -> bool:
+        try:
+            return node.call_raw("/held", "std_srvs/Trigger", b"ping", timeout=0.5) == answer
+        except HwBridgeError:
+            return False
+
+    queryable = router.session.declare_queryable(router.service_key("/held"), serve)
+    node = client.node("caller")
+    returned = threading.Event()
+    fell_back: list[bool] = []
+
+    def let_go() -> None:
+        fell_back.append(not returned.wait(10))
+        for query in held:
+            query.drop()
+
+    releaser = threading.Thread(target=let_go)
+    try:
+        assert wait_until(answers_ping)
+        releaser.start()
+        assert node.call_raw("/held", "std_srvs/Trigger", b"", timeout=30) == answer
+        returned.set()
+        releaser.join(15)
+        assert fell_back == [False]
+        assert len(held) == 1
+    finally:
+        returned.set()
+        queryable.undeclare()
+
+
 def test_a_publish_after_close_from_a_callback_is_dropped_and_counted(
     router: Graph, client: Graph
 ) -> None:

@@ -373,11 +373,13 @@ def caller_main(endpoint: str, calls: int, targets: list[str]) -> None:
             name, _, pause_text = target.partition("@")
             pause = float(pause_text or 0.0)
             if name.startswith("zenoh:"):
-                # The graph's own querier options (express: no wait for Zenoh's batching).
+                # The graph's own querier options (express: no wait for Zenoh's batching; no
+                # consolidation: the reply is taken as it comes, not at the query's end).
                 querier = graph.keep(
                     graph.session.declare_querier(
                         name[len("zenoh:") :],
                         target=zenoh.QueryTarget.BEST_MATCHING,
+                        consolidation=zenoh.ConsolidationMode.NONE,
                         timeout=2.0,
                         express=True,
                     )

@@ -124,6 +124,7 @@ def call_all(endpoint: str, calls: int, pause: float) -> dict[str, list[float]]:
             kind: session.declare_querier(
                 f"bench_reply/{kind}",
                 target=zenoh.QueryTarget.BEST_MATCHING,
+                consolidation=zenoh.ConsolidationMode.NONE,
                 timeout=2.0,
                 express=True,
             )

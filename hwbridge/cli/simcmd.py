@@ -5,6 +5,7 @@ pty."""
 from __future__ import annotations
 
 import contextlib
+import signal
 import sys
 import threading
 import time
@@ -17,6 +18,8 @@ __all__ = ["ARM_MCUS", "sim"]
 
 ARM_MCUS = {"stm32f405": "stm32f405", "nrf51822": "microbit", "microbit": "microbit"}
 """--mcu values run in QEMU, and the build board of each."""
+_SIM_MCUS = ("atmega328p", "atmega2560", "stm32f405", "nrf51822")
+"""The MCUs an ELF may be built for (``elf_mcu``) that ``--mcu`` runs."""
 
 
 def _sim_arm(
@@ -38,6 +41,7 @@ def _sim_arm(
         path = build_sketch_for_sim(EXAMPLES_DIR / firmware, board)
     elif not path.exists():
         raise HwBridgeError(f"{firmware}: no such ELF, sketch folder or example")
+    _check_elf(path, "stm32f405" if board == "stm32f405" else "nrf51822")
     with QemuBoard(path, board) as machine:
         url = machine.link_url
         if symlink is not None:
@@ -141,9 +145,13 @@ def sim(
             path = build_sketch_for_sim(path, board_name)
         elif not path.exists() and (EXAMPLES_DIR / firmware).is_dir():
             path = build_sketch_for_sim(EXAMPLES_DIR / firmware, board_name)
+        _check_elf(path, mcu)
     simulation = SimAvr(
         path, bootloader=boot, mcu=mcu, frequency=frequency, speed=speed, symlink=symlink
     )
+    stopped = threading.Event()
+    # set before the AVR runs, so that one that stops at once is not missed
+    simulation.on_exit.append(lambda state: stopped.set())
     try:
         simulation.start(hold=True)
         if robot is not None:
@@ -152,15 +160,36 @@ def sim(
         simulation.go()
         sys.stdout.write(simulation.link_url + "\n")
         sys.stdout.flush()
-        stopped = threading.Event()
-        simulation.on_exit.append(lambda state: stopped.set())
         try:
-            while not stopped.wait(0.5):
-                if not simulation.running:
-                    break
+            while simulation.exited is None and simulation.running:
+                stopped.wait(0.5)
         except KeyboardInterrupt:
-            pass
+            return
         if simulation.exited is not None:
             raise HwBridgeError(f"the AVR stopped ({simulation.exited})")
+        raise HwBridgeError(f"the simulator stopped ({_status(simulation.exit_code)})")
     finally:
         simulation.close()
+
+
+def _status(code: int | None) -> str:
+    """A process's exit status in words: ``exit code 3``, ``killed by SIGSEGV``."""
+    if code is not None and code < 0:
+        with contextlib.suppress(ValueError):
+            return f"killed by {signal.Signals(-code).name}"
+    return f"exit code {code}"
+
+
+def _check_elf(path: Path, mcu: str) -> None:
+    """Refuse an ELF built for another MCU than ``mcu``: in the simulator it crashes at once."""
+    from hwbridge.errors import HwBridgeError
+    from hwbridge.firmware.build import elf_mcu
+
+    built_for = elf_mcu(path)
+    if built_for is None or built_for == mcu:
+        return
+    if built_for in _SIM_MCUS:
+        raise HwBridgeError(
+            f"{path} was built for the {built_for}, not the {mcu}: give --mcu {built_for}"
+        )
+    raise HwBridgeError(f"{path} was built for {built_for}, not the {mcu}")

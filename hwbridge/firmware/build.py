@@ -62,6 +62,7 @@ __all__ = [
     "build_arm_sketch",
     "build_host_sketch",
     "build_sketch",
+    "elf_mcu",
     "firmware_size",
 ]
 
@@ -662,6 +663,35 @@ def arm_firmware_size(elf: Path) -> FirmwareSize:
         return "sketch"
 
     return _measure(elf, _arm_tool("arm-none-eabi-size"), _arm_tool("arm-none-eabi-nm"), owner_of)
+
+
+_AVR_ARCHITECTURES: Final = {5: "atmega328p", 6: "atmega2560"}
+"""avr-gcc's architecture (``e_flags``: avr5, avr6) of the MCUs of :data:`BOARDS`."""
+_STM32_FLASH: Final = 0x0800_0000
+"""Where the STM32F405's flash begins (``stm32f405.ld``; the nRF51822's is at 0)."""
+
+
+def elf_mcu(path: Path) -> str | None:
+    """The MCU an ELF was built for, read from its header: ``atmega328p`` or ``atmega2560`` (the
+    AVR architecture avr-gcc records: avr5, avr6), ``stm32f405`` or ``nrf51822`` (an ARM ELF, by
+    the flash its entry point lies in: 0x08000000 or 0), or what else it is (``an AVR of
+    architecture avrN``, ``a program for machine N``); None when the file is not a 32-bit ELF (an
+    Intel HEX, a folder)."""
+    try:
+        with path.open("rb") as file:
+            header = file.read(52)
+    except OSError:
+        return None
+    if len(header) < 52 or header[:5] != b"\x7fELF\x01":
+        return None
+    machine = int.from_bytes(header[18:20], "little")
+    entry = int.from_bytes(header[24:28], "little")
+    flags = int.from_bytes(header[36:40], "little")
+    if machine == 83:  # EM_AVR
+        return _AVR_ARCHITECTURES.get(flags & 0x7F, f"an AVR of architecture avr{flags & 0x7F}")
+    if machine == 40:  # EM_ARM
+        return "stm32f405" if entry >= _STM32_FLASH else "nrf51822"
+    return f"a program for machine {machine}"
 
 
 def _core_statics() -> frozenset[str]:

@@ -94,6 +94,7 @@ def prepare_image(
         image = elf.with_suffix(".hex")
         progress(f"built {image}")
     elif suffix == ".elf":
+        _check_elf(target, board)
         objcopy = shutil.which("avr-objcopy")
         if objcopy is None:
             raise UploadError("avr-objcopy is not installed (apt-get install binutils-avr)")
@@ -121,6 +122,19 @@ def prepare_image(
             f"{room} bytes of flash the {board}'s bootloader leaves"
         )
     return image
+
+
+def _check_elf(elf: Path, board: str) -> None:
+    """Refuse an ELF built for another MCU than the board's: avrdude would write it, and the
+    board would run garbage."""
+    built_for = build.elf_mcu(elf)
+    part = PROGRAMMERS[board].part
+    if built_for is None or built_for == part:
+        return
+    boards = [name for name, programmer in PROGRAMMERS.items() if programmer.part == built_for]
+    hint = f": give --board {boards[0]}" if boards else ""
+    mcu = built_for if built_for.startswith(("a ", "an ")) else f"the {built_for}"
+    raise UploadError(f"refusing to upload {elf}: built for {mcu}, not the {board}'s {part}{hint}")
 
 
 def _port_path(port: str) -> Path:

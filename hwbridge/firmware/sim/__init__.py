@@ -371,6 +371,12 @@ class SimAvr:
     def running(self) -> bool:
         return self._process is not None and self._process.poll() is None
 
+    @property
+    def exit_code(self) -> int | None:
+        """The runner's exit status once it has ended (negative: the signal that ended it), else
+        None."""
+        return self._process.poll() if self._process is not None else None
+
     def command(self, line: str) -> None:
         """Send one command line to the runner (see ``runner.c``)."""
         process = self._process

@@ -1,0 +1,145 @@
+"""``hwbridge firmware sim`` and ``upload`` given an ELF a user could mix up: one built for
+another MCU is refused at once, naming the option that runs it (a Mega's ELF on the default
+Uno crashed in simavr, an ARM ELF in simavr hung after its crash, and an upload wrote a Mega's
+ELF to an Uno); an AVR that stops at once ends the command with the reason; a simulator that dies
+ends it with an error instead of exit status 0."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from hwbridge.errors import HwBridgeError
+from hwbridge.firmware.build import elf_mcu
+from hwbridge.firmware.sim.examples import build_example
+from tests.netutil import wait_until
+
+
+def _hwbridge(*argv: str, timeout: float = 120) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "hwbridge", *argv],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        check=False,
+    )
+
+
+def _example(board: str) -> Path:
+    try:
+        return build_example("HelloWorld", board)
+    except HwBridgeError as exc:
+        pytest.skip(f"HelloWorld does not build for {board} here: {str(exc).splitlines()[0]}")
+
+
+def test_elf_mcu_reads_the_target_from_the_header(tmp_path: Path) -> None:
+    assert elf_mcu(_example("uno")) == "atmega328p"
+    assert elf_mcu(_example("mega")) == "atmega2560"
+    hex_file = tmp_path / "x.hex"
+    hex_file.write_text(":00000001FF\n")
+    assert elf_mcu(hex_file) is None
+    assert elf_mcu(tmp_path) is None
+
+
+def test_sim_refuses_an_elf_built_for_another_mcu(runner: Path) -> None:
+    del runner
+    mega = _example("mega")
+    done = _hwbridge("firmware", "sim", str(mega))  # --mcu atmega328p by default
+    assert done.returncode == 1, done.stderr
+    assert done.stdout == "", done.stdout  # no simulator started
+    assert (
+        f"error: {mega} was built for the atmega2560, not the atmega328p: give --mcu atmega2560"
+        in (done.stderr)
+    ), done.stderr
+    uno = _example("uno")
+    done = _hwbridge("firmware", "sim", str(uno), "--mcu", "stm32f405")
+    assert done.returncode == 1, done.stderr
+    assert "was built for the atmega328p, not the stm32f405: give --mcu atmega328p" in done.stderr
+
+
+def test_upload_refuses_an_elf_built_for_another_mcu(tmp_path: Path) -> None:
+    mega = _example("mega")
+    done = _hwbridge("firmware", "upload", str(mega), "--port", str(tmp_path / "ttyNONE"))
+    assert done.returncode == 1, done.stderr
+    assert (
+        f"error: refusing to upload {mega}: built for the atmega2560, not the uno's atmega328p: "
+        "give --board mega"
+    ) in done.stderr, done.stderr
+
+
+def _sleeper(tmp_path: Path) -> Path:
+    """An ATmega328P program that sleeps with interrupts off at once: simavr stops it ("done")."""
+    compiler = shutil.which("avr-gcc")
+    if compiler is None:
+        pytest.skip("avr-gcc is not installed (apt-get install gcc-avr avr-libc)")
+    source = tmp_path / "sleeper.c"
+    source.write_text(
+        'int main(void) {\n  __asm__ volatile("cli\\n\\tsleep");\n  for (;;) {\n  }\n}\n'
+    )
+    elf = tmp_path / "sleeper.elf"
+    subprocess.run(
+        [
+            compiler,
+            "-mmcu=atmega328p",
+            "-Os",
+            "-Wall",
+            "-Wextra",
+            "-Werror",
+            "-o",
+            str(elf),
+            str(source),
+        ],
+        check=True,
+    )
+    return elf
+
+
+def test_an_avr_that_stops_at_once_ends_the_command(runner: Path, tmp_path: Path) -> None:
+    """The AVR stopping is listened for before it runs (a stop reported before the command
+    listened for it was missed, and the command waited forever)."""
+    del runner
+    elf = _sleeper(tmp_path)
+    for _ in range(3):  # the report races the command's start: each run is a new chance
+        done = _hwbridge("firmware", "sim", str(elf), timeout=60)
+        assert done.returncode == 1, done.stderr
+        assert "error: the AVR stopped (done)" in done.stderr, done.stderr
+
+
+def test_a_simulator_that_dies_is_an_error(runner: Path) -> None:
+    del runner
+    _example("uno")  # built before the clock
+    process = subprocess.Popen(
+        [sys.executable, "-m", "hwbridge", "firmware", "sim", "HelloWorld"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert process.stdout is not None and process.stderr is not None
+        first = process.stdout.readline().strip()
+        assert first.startswith("serial:///dev/pts/"), first + process.stderr.read()
+        children: list[int] = []
+
+        def runner_found() -> bool:
+            found = subprocess.run(
+                ["pgrep", "-P", str(process.pid)], capture_output=True, text=True, check=False
+            )
+            children[:] = [int(pid) for pid in found.stdout.split()]
+            return len(children) == 1
+
+        assert wait_until(runner_found, 10), children
+        time.sleep(0.5)
+        os.kill(children[0], signal.SIGSEGV)
+        assert process.wait(30) == 1
+        assert "error: the simulator stopped (killed by SIGSEGV)" in process.stderr.read()
+    finally:
+        if process.poll() is None:
+            process.send_signal(signal.SIGINT)
+            process.wait(30)

@@ -18,8 +18,6 @@ __all__ = ["ARM_MCUS", "sim"]
 
 ARM_MCUS = {"stm32f405": "stm32f405", "nrf51822": "microbit", "microbit": "microbit"}
 """--mcu values run in QEMU, and the build board of each."""
-_SIM_MCUS = ("atmega328p", "atmega2560", "stm32f405", "nrf51822")
-"""The MCUs an ELF may be built for (``elf_mcu``) that ``--mcu`` runs."""
 
 
 def _sim_arm(
@@ -183,12 +181,12 @@ def _status(code: int | None) -> str:
 def _check_elf(path: Path, mcu: str) -> None:
     """Refuse an ELF built for another MCU than ``mcu``: in the simulator it crashes at once."""
     from hwbridge.errors import HwBridgeError
-    from hwbridge.firmware.build import elf_mcu
+    from hwbridge.firmware.build import ELF_MCUS, elf_mcu
 
     built_for = elf_mcu(path)
     if built_for is None or built_for == mcu:
         return
-    if built_for in _SIM_MCUS:
+    if built_for in ELF_MCUS:  # each one an --mcu value
         raise HwBridgeError(
             f"{path} was built for the {built_for}, not the {mcu}: give --mcu {built_for}"
         )

@@ -52,6 +52,7 @@ __all__ = [
     "ARM_BOARDS",
     "BOARDS",
     "CORE_DIR",
+    "ELF_MCUS",
     "LIBRARY_DIR",
     "ArmBoard",
     "Board",
@@ -665,33 +666,44 @@ def arm_firmware_size(elf: Path) -> FirmwareSize:
     return _measure(elf, _arm_tool("arm-none-eabi-size"), _arm_tool("arm-none-eabi-nm"), owner_of)
 
 
+ELF_MCUS: Final = ("atmega328p", "atmega2560", "stm32f405", "nrf51822")
+"""The MCUs :func:`elf_mcu` names (anything else it describes in words)."""
 _AVR_ARCHITECTURES: Final = {5: "atmega328p", 6: "atmega2560"}
 """avr-gcc's architecture (``e_flags``: avr5, avr6) of the MCUs of :data:`BOARDS`."""
 _STM32_FLASH: Final = 0x0800_0000
 """Where the STM32F405's flash begins (``stm32f405.ld``; the nRF51822's is at 0)."""
+_STM32_FLASH_SIZE: Final = 0x10_0000
+_NRF51_FLASH_SIZE: Final = 0x4_0000
+"""The two boards' flash sizes (1 MB, 256 KB): an entry point outside both is another ARM."""
 
 
 def elf_mcu(path: Path) -> str | None:
     """The MCU an ELF was built for, read from its header: ``atmega328p`` or ``atmega2560`` (the
     AVR architecture avr-gcc records: avr5, avr6), ``stm32f405`` or ``nrf51822`` (an ARM ELF, by
-    the flash its entry point lies in: 0x08000000 or 0), or what else it is (``an AVR of
-    architecture avrN``, ``a program for machine N``); None when the file is not a 32-bit ELF (an
-    Intel HEX, a folder)."""
+    the flash its entry point lies in: from 0x08000000 or from 0), or what else it is (``an AVR of
+    architecture avrN``, ``another ARM chip``, ``ELF machine N``, a 64-bit computer); None when the
+    file is no ELF (an Intel HEX, a folder)."""
     try:
         with path.open("rb") as file:
             header = file.read(52)
     except OSError:
         return None
-    if len(header) < 52 or header[:5] != b"\x7fELF\x01":
+    if len(header) < 52 or header[:4] != b"\x7fELF":
         return None
+    if header[4] != 1:  # not ELFCLASS32
+        return "a 64-bit computer (a host build?)"
     machine = int.from_bytes(header[18:20], "little")
     entry = int.from_bytes(header[24:28], "little")
     flags = int.from_bytes(header[36:40], "little")
     if machine == 83:  # EM_AVR
         return _AVR_ARCHITECTURES.get(flags & 0x7F, f"an AVR of architecture avr{flags & 0x7F}")
     if machine == 40:  # EM_ARM
-        return "stm32f405" if entry >= _STM32_FLASH else "nrf51822"
-    return f"a program for machine {machine}"
+        if _STM32_FLASH <= entry < _STM32_FLASH + _STM32_FLASH_SIZE:
+            return "stm32f405"
+        if entry < _NRF51_FLASH_SIZE:
+            return "nrf51822"
+        return "another ARM chip"
+    return f"ELF machine {machine}"
 
 
 def _core_statics() -> frozenset[str]:

@@ -133,7 +133,7 @@ def _check_elf(elf: Path, board: str) -> None:
         return
     boards = [name for name, programmer in PROGRAMMERS.items() if programmer.part == built_for]
     hint = f": give --board {boards[0]}" if boards else ""
-    mcu = built_for if built_for.startswith(("a ", "an ")) else f"the {built_for}"
+    mcu = f"the {built_for}" if built_for in build.ELF_MCUS else built_for
     raise UploadError(f"refusing to upload {elf}: built for {mcu}, not the {board}'s {part}{hint}")
 
 

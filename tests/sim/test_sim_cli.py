@@ -48,6 +48,42 @@ def test_elf_mcu_reads_the_target_from_the_header(tmp_path: Path) -> None:
     assert elf_mcu(tmp_path) is None
 
 
+def _elf_header(machine: int, entry: int, flags: int = 0) -> bytes:
+    """The 52 bytes of a 32-bit little-endian ELF header that ``elf_mcu`` reads."""
+    header = bytearray(52)
+    header[:6] = b"\x7fELF\x01\x01"
+    header[18:20] = machine.to_bytes(2, "little")
+    header[24:28] = entry.to_bytes(4, "little")
+    header[36:40] = flags.to_bytes(4, "little")
+    return bytes(header)
+
+
+@pytest.mark.parametrize(
+    ("machine", "entry", "flags", "mcu"),
+    [
+        (40, 0x0800_0189, 0, "stm32f405"),
+        (40, 0x0000_00C1, 0, "nrf51822"),
+        (40, 0x2000_0100, 0, "another ARM chip"),  # an entry point in RAM
+        (83, 0, 5, "atmega328p"),
+        (83, 0, 0x80 | 6, "atmega2560"),  # bit 7: avr-gcc's linker-relaxation flag
+        (83, 0, 2, "an AVR of architecture avr2"),
+        (62, 0x40_1000, 0, "ELF machine 62"),  # x86-64 (a host build)
+    ],
+)
+def test_elf_mcu_by_machine_entry_and_flags(
+    tmp_path: Path, machine: int, entry: int, flags: int, mcu: str
+) -> None:
+    elf = tmp_path / "x.elf"
+    elf.write_bytes(_elf_header(machine, entry, flags))
+    assert elf_mcu(elf) == mcu
+
+
+def test_elf_mcu_calls_a_64_bit_elf_a_host_program(tmp_path: Path) -> None:
+    elf = tmp_path / "x.elf"
+    elf.write_bytes(b"\x7fELF\x02\x01" + bytes(58))
+    assert elf_mcu(elf) == "a 64-bit computer (a host build?)"
+
+
 def test_sim_refuses_an_elf_built_for_another_mcu(runner: Path) -> None:
     del runner
     mega = _example("mega")

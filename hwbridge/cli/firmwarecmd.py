@@ -32,8 +32,8 @@ def build(
         typer.Option(
             "--board",
             "-b",
-            help="uno, mega, stm32f405 or microbit (bare ARM, run in QEMU), or host (a native "
-            "program).",
+            help="uno, nano, mega, stm32f405 or microbit (bare ARM, run in QEMU), or host (a "
+            "native program).",
         ),
     ] = "uno",
     out: Annotated[
@@ -56,6 +56,12 @@ def build(
         build_sketch,
         firmware_size,
     )
+
+    known = [*BOARDS, *ARM_BOARDS, HOST_BOARD]
+    if board not in known:
+        raise typer.BadParameter(
+            f"unknown board {board!r}; use one of {', '.join(known)}", param_hint="--board"
+        )
 
     def progress(line: str) -> None:
         sys.stderr.write(f"hwbridge: {line}\n")

@@ -14,24 +14,40 @@ from typing import Annotated
 
 import typer
 
-__all__ = ["ARM_MCUS", "sim"]
+from hwbridge.cli.shell import UsageError
+
+__all__ = ["ARM_MCUS", "AVR_MCUS", "sim"]
 
 ARM_MCUS = {"stm32f405": "stm32f405", "nrf51822": "microbit", "microbit": "microbit"}
 """--mcu values run in QEMU, and the build board of each."""
+AVR_MCUS = ("atmega328p", "atmega2560")
+"""--mcu values run in simavr."""
 
 
 def _sim_arm(
-    firmware: str | None, board: str, *, symlink: Path | None, robot: str | None, bootloader: bool
+    firmware: str | None,
+    mcu: str,
+    *,
+    symlink: Path | None,
+    robot: str | None,
+    bootloader: bool,
 ) -> None:
     """An ARM firmware in QEMU until Ctrl-C (QEMU stopped on the way out)."""
     from hwbridge.errors import HwBridgeError
     from hwbridge.firmware.qemu import QemuBoard
     from hwbridge.firmware.sim.examples import EXAMPLES_DIR, build_sketch_for_sim
 
-    if robot is not None or bootloader:
-        raise HwBridgeError("--robot and --bootloader are for the AVR boards in simavr only")
+    given = [
+        name for name, on in (("--robot", robot is not None), ("--bootloader", bootloader)) if on
+    ]
+    if given:
+        raise UsageError(
+            f"{' and '.join(given)} {'is' if len(given) == 1 else 'are'} for the AVR boards in "
+            f"simavr only, not --mcu {mcu}"
+        )
     if firmware is None:
         raise HwBridgeError("give the firmware to run (an ELF, a sketch, an example's name)")
+    board = ARM_MCUS[mcu]
     path = Path(firmware)
     if path.is_dir():
         path = build_sketch_for_sim(path, board)
@@ -127,8 +143,13 @@ def sim(
     from hwbridge.firmware.sim.bootloader import bootloader_hex
     from hwbridge.firmware.sim.examples import EXAMPLES_DIR, build_sketch_for_sim
 
+    if mcu not in AVR_MCUS and mcu not in ARM_MCUS:
+        raise typer.BadParameter(
+            f"unknown MCU {mcu!r}; use one of {', '.join([*AVR_MCUS, *ARM_MCUS])}",
+            param_hint="--mcu",
+        )
     if mcu in ARM_MCUS:
-        _sim_arm(firmware, ARM_MCUS[mcu], symlink=symlink, robot=robot, bootloader=bootloader)
+        _sim_arm(firmware, mcu, symlink=symlink, robot=robot, bootloader=bootloader)
         return
     board_name = "mega" if mcu == "atmega2560" else "uno"
     boot: Path | None = None

@@ -51,7 +51,18 @@ def upload(
     upload (asked on a terminal, or --pause-bridge) and takes the board back afterwards; any
     other program that has it is named."""
     from hwbridge.cli.stopping import STOP, on_signal
-    from hwbridge.firmware.upload import PortBusyError, Upload, check_port, prepare_image
+    from hwbridge.firmware.upload import (
+        PROGRAMMERS,
+        PortBusyError,
+        Upload,
+        check_port,
+        prepare_image,
+    )
+
+    if board not in PROGRAMMERS:
+        raise typer.BadParameter(
+            f"unknown board {board!r}; use {' or '.join(PROGRAMMERS)}", param_hint="--board"
+        )
 
     def progress(line: str) -> None:
         sys.stderr.write(f"hwbridge: {line}\n")

@@ -179,3 +179,32 @@ def test_a_simulator_that_dies_is_an_error(runner: Path) -> None:
         if process.poll() is None:
             process.send_signal(signal.SIGINT)
             process.wait(30)
+
+
+@pytest.mark.parametrize(
+    ("argv", "said"),
+    [
+        (
+            ("firmware", "build", "HelloWorld", "--board", "due"),
+            "unknown board 'due'; use one of uno, nano, mega, stm32f405, microbit, host",
+        ),
+        (
+            ("firmware", "upload", "HelloWorld", "--port", "/nonexistent", "--board", "due"),
+            "unknown board 'due'; use uno or mega",
+        ),
+        (
+            ("firmware", "sim", "HelloWorld", "--mcu", "atmega32u4"),
+            "unknown MCU 'atmega32u4'; use one of atmega328p, atmega2560, stm32f405, nrf51822",
+        ),
+        (
+            ("firmware", "sim", "HelloWorld", "--mcu", "stm32f405", "--bootloader"),
+            "error: --bootloader is for the AVR boards in simavr only, not --mcu stm32f405",
+        ),
+    ],
+)
+def test_an_unknown_board_or_mcu_is_a_usage_error(argv: tuple[str, ...], said: str) -> None:
+    """Status 2, as for any usage error, before anything is built or started."""
+    done = _hwbridge(*argv, timeout=60)
+    assert done.returncode == 2, done.stderr
+    assert said in done.stderr, done.stderr
+    assert "Traceback" not in done.stderr

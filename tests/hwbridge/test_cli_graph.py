@@ -242,6 +242,16 @@ def test_params(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
     assert "no parameter /lab" in err
 
 
+def test_param_dump_to_a_file_that_cannot_be_written(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    blocker = tmp_path / "a_file"
+    blocker.write_text("")
+    code, out, err = run(capsys, "param", "dump", str(blocker / "params.yaml"))
+    assert (code, out) == (1, "")
+    assert err == f"error: {blocker / 'params.yaml'}: Not a directory\n"
+
+
 def test_node_list_in_a_subprocess(endpoint: str) -> None:
     done = subprocess.run(
         [

@@ -278,3 +278,22 @@ def test_no_bridge_is_reported(capsys: pytest.CaptureFixture[str]) -> None:
     code, _, err = run(capsys, "--endpoint", f"tcp/127.0.0.1:{free_port()}", "topic", "list")
     assert code == 1
     assert "is a bridge running" in err
+
+
+@pytest.mark.parametrize(
+    ("argv", "said"),
+    [
+        (["--endpoint", "127.0.0.1:7447", "topic", "list"], "tcp/127.0.0.1:7447"),
+        (["graph", "--listen", "localhost:7447"], "tcp/localhost:7447"),
+        (["--endpoint", "robot", "topic", "list"], "tcp/127.0.0.1:7447"),
+    ],
+)
+def test_an_endpoint_without_its_protocol(
+    capsys: pytest.CaptureFixture[str], argv: list[str], said: str
+) -> None:
+    code, _, err = run(capsys, *argv)
+    endpoint = argv[argv.index("--endpoint" if "--endpoint" in argv else "--listen") + 1]
+    assert code == 1
+    assert err == (
+        f"error: {endpoint!r} is not a Zenoh endpoint: write PROTOCOL/ADDRESS, e.g. {said}\n"
+    )

@@ -104,6 +104,21 @@ def test_topic_echo(capsys: pytest.CaptureFixture[str]) -> None:
     assert "no message on /silent" in err
 
 
+def test_topic_echo_of_an_index_past_a_fixed_length_list(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    code, out, _ = run(capsys, "topic", "echo", "/diffbot/odom/pose/covariance/35", "-n", "1")
+    assert (code, out) == (0, "0.0\n---\n")
+    # A covariance has 36 elements in every message: index 36 is refused before any arrives,
+    # not skipped in each message until -n is reached (status 0, nothing printed).
+    code, out, err = run(capsys, "topic", "echo", "/diffbot/odom/pose/covariance/36", "-n", "1")
+    assert (code, out) == (1, "")
+    assert err == (
+        "error: /diffbot/odom: nav_msgs/Odometry pose.covariance has 36 elements: no index 36 "
+        "(0 to 35)\n"
+    )
+
+
 def test_topic_hz_and_bw(capsys: pytest.CaptureFixture[str]) -> None:
     code, out, _ = run(capsys, "topic", "hz", "/diffbot/chatter", "--duration", "1.5", "--json")
     assert code == 0

@@ -329,10 +329,14 @@ def check_field_path(type_name: str, path: Sequence[str], reg: TypeRegistry | No
                 raise MessageTypeError(f"no field {part!r} in {what}; its fields are {known}")
             desc = fields[part]
         else:  # an array: an index comes next
-            element, _size = arg
+            element, size = arg
             if not part.isdigit():
                 raise MessageTypeError(
                     f"{here} is a list: expected an index (0, 1, ...), got {part!r}"
+                )
+            if kind == 3 and int(part) >= size:  # Nodetype.ARRAY: its length is fixed
+                raise MessageTypeError(
+                    f"{here} has {size} elements: no index {part} (0 to {size - 1})"
                 )
             desc = (int(element[0]), element[1])
         walked.append(part)

@@ -313,6 +313,9 @@ def _run(argv: list[str] | None) -> int:
     except HwBridgeError as exc:
         _error(str(exc))
         return 1
+    except OSError as exc:  # a file to write where none can be: no such folder, a full disk...
+        _error(f"{exc.filename}: {exc.strerror}" if exc.filename and exc.strerror else str(exc))
+        return 1
     except typer.Abort as exc:  # Click turns a KeyboardInterrupt into Abort
         if isinstance(exc.__context__, KeyboardInterrupt) or stopping.STOP.is_set():
             return _interrupted()

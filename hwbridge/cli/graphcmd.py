@@ -210,7 +210,7 @@ def topic_echo(
     done = threading.Event()
     lock = threading.Lock()
     seen = [0]
-    failed: list[HwBridgeError] = []
+    failed: list[Exception] = []
 
     def show(message: RawMessage) -> None:
         with lock:
@@ -218,13 +218,15 @@ def topic_echo(
                 return
             try:
                 text = renderer.render(message)
-            except ProtocolMismatchError as exc:
+                if text is not None:
+                    sys.stdout.write(text)
+                    sys.stdout.flush()
+            except (ProtocolMismatchError, BrokenPipeError) as exc:
+                # A closed stdout (``| head -1``) ends the command as in the main thread: the
+                # error is raised there, where Click ends a broken pipe quietly with status 1.
                 failed.append(exc)
                 done.set()
                 return
-            if text is not None:
-                sys.stdout.write(text)
-                sys.stdout.flush()
             seen[0] += 1
             if count is not None and seen[0] >= count:
                 done.set()

@@ -162,6 +162,8 @@ _RUST_PLACE = re.compile(r"\s*\bat \S+\.rs:\d+\.?")
 """Where in Zenoh's Rust source an error was raised (`` at /root/.cargo/.../tcp.rs:61.``)."""
 _BUSY = re.compile(r"bound to (?P<endpoint>\S+?):?\s*\[.*address already in use", re.I | re.S)
 _UNREACHABLE = re.compile(r"unable to connect to any of", re.I)
+_MALFORMED = re.compile(r"Endpoints must be of the form [^:]*: (?P<endpoint>[^\"]*)")
+"""Zenoh's words for an endpoint without its protocol (``127.0.0.1:7447``)."""
 
 
 _PARSE_PLACE = re.compile(r"-->\s*(?P<line>\d+):(?P<column>\d+)")
@@ -189,6 +191,13 @@ def open_error(config: GraphConfig, exc: BaseException) -> HwBridgeError:
             f"{endpoint} is already in use (another 'hwbridge up', 'connect' or 'graph' "
             f"is running?); stop it, or run this one on another endpoint with "
             f"--listen {_next_port(endpoint)}"
+        )
+    malformed = _MALFORMED.search(_RUST_PLACE.sub("", raw))
+    if malformed is not None:
+        endpoint = malformed.group("endpoint")
+        example = f"tcp/{endpoint}" if re.fullmatch(r"[\w.-]+:\d+", endpoint) else DEFAULT_ENDPOINT
+        return HwBridgeError(
+            f"{endpoint!r} is not a Zenoh endpoint: write PROTOCOL/ADDRESS, e.g. {example}"
         )
     where = ", ".join(config.listen or config.connect) or "the endpoints of the config file"
     if config.mode == "client" and _UNREACHABLE.search(raw):

@@ -66,3 +66,21 @@ def test_a_malformed_robot_file_for_the_emulator(tmp_path: Path) -> None:
     robot.write_text("robot: x\nboards: [\n")
     line = _one_error(_hwbridge("emulate", str(robot)))
     assert line.startswith(f"error: {robot}:") and "not valid YAML" in line
+
+
+ROBOTS = Path(__file__).resolve().parents[2] / "examples" / "robots"
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["firmware", "headers", "{out}", "sensor_msgs/Range"],
+        ["firmware", "generate", str(ROBOTS / "diffbot_uno.yaml"), "--out", "{out}", "--no-build"],
+    ],
+)
+def test_an_output_folder_that_cannot_be_made(argv: list[str], tmp_path: Path) -> None:
+    blocker = tmp_path / "a_file"
+    blocker.write_text("")  # a file where the output's parent folder should be
+    out = blocker / "out"
+    line = _one_error(_hwbridge(*(part.format(out=out) for part in argv)))
+    assert line == f"error: {out}: Not a directory"

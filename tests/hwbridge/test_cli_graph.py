@@ -104,6 +104,21 @@ def test_topic_echo(capsys: pytest.CaptureFixture[str]) -> None:
     assert "no message on /silent" in err
 
 
+def test_topic_echo_of_an_index_past_a_fixed_length_list(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    code, out, _ = run(capsys, "topic", "echo", "/diffbot/odom/pose/covariance/35", "-n", "1")
+    assert (code, out) == (0, "0.0\n---\n")
+    # A covariance has 36 elements in every message: index 36 is refused before any arrives,
+    # not skipped in each message until -n is reached (status 0, nothing printed).
+    code, out, err = run(capsys, "topic", "echo", "/diffbot/odom/pose/covariance/36", "-n", "1")
+    assert (code, out) == (1, "")
+    assert err == (
+        "error: /diffbot/odom: nav_msgs/Odometry pose.covariance has 36 elements: no index 36 "
+        "(0 to 35)\n"
+    )
+
+
 def test_topic_hz_and_bw(capsys: pytest.CaptureFixture[str]) -> None:
     code, out, _ = run(capsys, "topic", "hz", "/diffbot/chatter", "--duration", "1.5", "--json")
     assert code == 0
@@ -242,6 +257,16 @@ def test_params(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
     assert "no parameter /lab" in err
 
 
+def test_param_dump_to_a_file_that_cannot_be_written(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    blocker = tmp_path / "a_file"
+    blocker.write_text("")
+    code, out, err = run(capsys, "param", "dump", str(blocker / "params.yaml"))
+    assert (code, out) == (1, "")
+    assert err == f"error: {blocker / 'params.yaml'}: Not a directory\n"
+
+
 def test_node_list_in_a_subprocess(endpoint: str) -> None:
     done = subprocess.run(
         [
@@ -268,3 +293,22 @@ def test_no_bridge_is_reported(capsys: pytest.CaptureFixture[str]) -> None:
     code, _, err = run(capsys, "--endpoint", f"tcp/127.0.0.1:{free_port()}", "topic", "list")
     assert code == 1
     assert "is a bridge running" in err
+
+
+@pytest.mark.parametrize(
+    ("argv", "said"),
+    [
+        (["--endpoint", "127.0.0.1:7447", "topic", "list"], "tcp/127.0.0.1:7447"),
+        (["graph", "--listen", "localhost:7447"], "tcp/localhost:7447"),
+        (["--endpoint", "robot", "topic", "list"], "tcp/127.0.0.1:7447"),
+    ],
+)
+def test_an_endpoint_without_its_protocol(
+    capsys: pytest.CaptureFixture[str], argv: list[str], said: str
+) -> None:
+    code, _, err = run(capsys, *argv)
+    endpoint = argv[argv.index("--endpoint" if "--endpoint" in argv else "--listen") + 1]
+    assert code == 1
+    assert err == (
+        f"error: {endpoint!r} is not a Zenoh endpoint: write PROTOCOL/ADDRESS, e.g. {said}\n"
+    )

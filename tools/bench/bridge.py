@@ -51,9 +51,13 @@ floors moved from 325 to 442 us; one pass (all calls, then the floors) read 1.06
 four runs of one commit within an hour. ``rtt_over_zenoh_plus_link`` leaves the board's
 handling out of the floor (it charges the board's time to the bridge). The floor's Zenoh part is
 a queryable that replies inside Zenoh's callback; a bridge reads the board's answer on its own
-thread and replies from there, which Zenoh makes dearer: ``zenoh_reply.py`` measures 21 to 31
+thread and replies from there, which Zenoh makes dearer: ``zenoh_reply.py`` measures 19 to 31
 us more per call at the p50 on the machine above (bare Zenoh, no hwbridge code), a part of
-what ``rtt_over_floor`` counts as the bridge's.
+what ``rtt_over_floor`` counts as the bridge's. The floor's querier has the graph's options:
+since graph calls stopped waiting for the query's final message (no consolidation), five runs
+alternating with five of the commit before read a bridged p50 of 457-561 us against 484-573
+and a Zenoh floor of 194-241 us against 241-275: the ratio stayed where it was (1.17-1.37
+against 1.04-1.33), the floor having fallen with the calls.
 
 Runs with no arguments in about a minute; prints one JSON object per line. ``--cases latency``
 runs only the service calls.

@@ -17,16 +17,16 @@ queryables in a child process:
 
 Each reply is express and the query is dropped at once, as ``DeferredReply.ok`` does; the
 querier has the graph's options (express, no consolidation: the reply is taken as it comes, not
-at the query's end). The calls go in blocks of 50, the three kinds in turn. One JSON line: ``hwbridge_per_s`` is calls per
-second with the reply from the other thread, ``peer_per_s`` with the inline reply; the p50
-round trips of each kind, ``other_thread_extra_us`` (what the thread alone adds to the p50)
-and ``woken_extra_us``. Measured on the 2-core machine of issue 29, five runs: the other thread
-added 21 to 31 us to an inline p50 of 215 to 264 us (8 to 12 %), the woken one 16 to 32 us.
-The same through hwbridge's graph (a ``deferred_service`` answered from another thread against
-a plain ``service``) read 30 to 38 us more over four runs. Those runs had Zenoh's default
-consolidation, which holds a reply until the query's final message; without it (three runs,
-alternating with three of the old querier) the inline p50 fell from 255-268 to 229-244 us and
-the other thread still added 19 to 28 us.
+at the query's end). The calls go in blocks of 50, the three kinds in turn. One JSON line:
+``hwbridge_per_s`` is calls per second with the reply from the other thread, ``peer_per_s`` with
+the inline reply; the p50 round trips of each kind, ``other_thread_extra_us`` (what the thread
+alone adds to the p50) and ``woken_extra_us``. Measured on the 2-core machine of issue 29, five
+runs: the other thread added 21 to 31 us to an inline p50 of 215 to 264 us (8 to 12 %), the
+woken one 16 to 32 us. The same through hwbridge's graph (a ``deferred_service`` answered from
+another thread against a plain ``service``) read 30 to 38 us more over four runs. Those runs had
+Zenoh's default consolidation, which holds a reply until the query's final message; without it
+(three runs, alternating with three of the old querier) the inline p50 fell from 255-268 to
+229-244 us and the other thread still added 19 to 28 us.
 
 Runs in about 10 seconds with the defaults.
 """

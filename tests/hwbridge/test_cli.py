@@ -164,6 +164,19 @@ def test_a_msg_path_that_is_no_folder(tmp_path: Path) -> None:
     assert f"HWBRIDGE_MSG_PATH entry {typo} does not exist" in done.stderr
 
 
+def test_an_unknown_type_names_the_folders_searched(tmp_path: Path) -> None:
+    (tmp_path / "lab_msgs" / "msg").mkdir(parents=True)
+    (tmp_path / "lab_msgs" / "msg" / "Ping.msg").write_text("uint32 count\n")
+    done = hwbridge("--msg-path", str(tmp_path), "msg", "show", "lab_msgs/Pong")
+    assert done.returncode == 1
+    assert (
+        f"unknown message type 'lab_msgs/Pong' (searched {tmp_path.resolve()} and the built-in "
+        "types); did you mean lab_msgs/Ping"
+    ) in done.stderr
+    done = hwbridge("msg", "show", "lab_msgs/Ping")  # no search path: nothing to name
+    assert "error: unknown message type 'lab_msgs/Ping'; did you mean" in done.stderr
+
+
 def test_bad_definition_on_path_is_reported(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -11,13 +11,14 @@ A thin layer over ``rosbags`` (through :class:`hwbridge.protocols.msgtypes.TypeR
     msg.md5("geometry_msgs/Twist")              # '9f195f881246fdfa2798d1d3eebca84a'
 
 User packages are found on a search path: directories laid out ``PKG/msg/*.msg`` and
-``PKG/srv/*.srv``, from the ``HWBRIDGE_MSG_PATH`` environment variable (``os.pathsep``-separated)
-or passed explicitly to :func:`registry`.
+``PKG/srv/*.srv``, from the ``HWBRIDGE_MSG_PATH`` environment variable (``os.pathsep``-separated;
+an entry that is no folder is skipped with a warning) or passed explicitly to :func:`registry`.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 import os
 from collections.abc import Iterable, Mapping, Sequence
@@ -61,6 +62,8 @@ __all__ = [
 
 ENV_VAR: Final = "HWBRIDGE_MSG_PATH"
 
+log = logging.getLogger("hwbridge.msg")
+
 _NUMPY_TYPES: Final[dict[str, type[np.generic]]] = {
     "bool": np.bool_,
     "byte": np.int8,
@@ -87,8 +90,24 @@ SEC_LIMITS: Final = {
 
 
 @lru_cache(maxsize=16)
+def _env_path(env_value: str) -> tuple[Path, ...]:
+    """The folders of ``HWBRIDGE_MSG_PATH``'s value; an entry that is none is left out with a
+    warning (once per value: like PATH, the variable tolerates it, but a typo is told)."""
+    found = []
+    for entry in env_value.split(os.pathsep):
+        if not entry:
+            continue
+        if Path(entry).is_dir():
+            found.append(Path(entry))
+        else:
+            problem = "is not a folder" if Path(entry).exists() else "does not exist"
+            log.warning("%s entry %s %s; skipped", ENV_VAR, entry, problem)
+    return tuple(found)
+
+
+@lru_cache(maxsize=16)
 def _cached_registry(env_value: str, extra: tuple[str, ...]) -> TypeRegistry:
-    path = (*(Path(p) for p in extra), *(Path(p) for p in env_value.split(os.pathsep) if p))
+    path = (*(Path(p) for p in extra), *_env_path(env_value))
     return TypeRegistry(p.resolve() for p in path)
 
 

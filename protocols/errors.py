@@ -8,6 +8,12 @@ re-exports it for users.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+    from pathlib import Path
+
 
 class HwBridgeError(Exception):
     """Root of every error hwbridge raises on purpose."""
@@ -18,14 +24,27 @@ class MessageTypeError(HwBridgeError):
 
 
 class UnknownTypeError(MessageTypeError, KeyError):
-    """A type name was not found; ``suggestions`` holds the closest known names."""
+    """A type name was not found; ``suggestions`` holds the closest known names, ``searched``
+    the folders of the search path (named in the message: a misplaced package shows)."""
 
-    def __init__(self, name: str, suggestions: list[str], kind: str = "message type") -> None:
+    def __init__(
+        self,
+        name: str,
+        suggestions: list[str],
+        kind: str = "message type",
+        searched: Sequence[Path] = (),
+    ) -> None:
         self.name = name
         self.suggestions = suggestions
         self.kind = kind
+        self.searched = tuple(searched)
+        where = (
+            f" (searched {', '.join(map(str, searched))} and the built-in types)"
+            if searched
+            else ""
+        )
         hint = f"; did you mean {', '.join(suggestions)}?" if suggestions else ""
-        super().__init__(f"unknown {kind} {name!r}{hint}")
+        super().__init__(f"unknown {kind} {name!r}{where}{hint}")
 
     def __str__(self) -> str:  # KeyError would otherwise quote the whole message
         return str(self.args[0])

@@ -345,7 +345,7 @@ class TypeRegistry:
             candidate = f"{pkg}/msg/{base}"
             if candidate in self._store.fielddefs and candidate not in _TIME_TYPES:
                 return candidate
-        raise UnknownTypeError(name, suggest(name, self.message_names()))
+        raise UnknownTypeError(name, suggest(name, self.message_names()), searched=self.search_path)
 
     def _message_by_store(self, store_name: str) -> MessageType:
         name = ros1_name(store_name)
@@ -368,7 +368,9 @@ class TypeRegistry:
         """The service type called ``name`` (``pkg/Srv``); UnknownTypeError with suggestions."""
         found = self._services.get(name)
         if found is None:
-            raise UnknownTypeError(name, suggest(name, self.service_names()), "service type")
+            raise UnknownTypeError(
+                name, suggest(name, self.service_names()), "service type", self.search_path
+            )
         return found
 
     def md5(self, name: str) -> str:

@@ -191,6 +191,7 @@ def build_app() -> typer.Typer:
                 "--msg-path",
                 help="Directory of message packages (PKG/msg/*.msg, PKG/srv/*.srv); repeatable. "
                 "Searched before HWBRIDGE_MSG_PATH.",
+                exists=True,
                 file_okay=False,
             ),
         ] = None,

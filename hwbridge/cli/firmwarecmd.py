@@ -119,7 +119,15 @@ _TYPES_HELP = (
     "Message or service types (pkg/Type); default: hwbridge_msgs' types, std_msgs/String, Bool, "
     "Float64 and sensor_msgs/JointState."
 )
-_MSG_PATH_HELP = "Directory of message packages (PKG/msg/*.msg, PKG/srv/*.srv); repeatable."
+MsgPathOpt = Annotated[
+    list[Path] | None,
+    typer.Option(
+        "--msg-path",
+        help="Directory of message packages (PKG/msg/*.msg, PKG/srv/*.srv); repeatable.",
+        exists=True,
+        file_okay=False,
+    ),
+]
 _CAPACITY_HELP = (
     "Elements of a variable-length array or bytes of a string field (default 8 and 32); "
     "pkg/Type.field[]=N for each string of a string array. Repeatable."
@@ -133,9 +141,7 @@ def headers(
     types: Annotated[
         list[str] | None, typer.Argument(metavar="[TYPES]...", help=_TYPES_HELP)
     ] = None,
-    msg_path: Annotated[
-        list[Path] | None, typer.Option("--msg-path", help=_MSG_PATH_HELP, file_okay=False)
-    ] = None,
+    msg_path: MsgPathOpt = None,
     capacity: Annotated[
         list[str] | None,
         typer.Option("--capacity", metavar="pkg/Type.field=N", help=_CAPACITY_HELP),
@@ -223,9 +229,7 @@ def generate(
     no_build: Annotated[
         bool, typer.Option("--no-build", help="Write the sketch only; do not build it.")
     ] = False,
-    msg_path: Annotated[
-        list[Path] | None, typer.Option("--msg-path", help=_MSG_PATH_HELP, file_okay=False)
-    ] = None,
+    msg_path: MsgPathOpt = None,
     capacity: Annotated[
         list[str] | None,
         typer.Option("--capacity", metavar="pkg/Type.field=N", help=_CAPACITY_HELP),

@@ -28,7 +28,9 @@ def _check_package(reg: msg.TypeRegistry, package: str | None, names: list[str])
     if package is not None and not names:
         from hwbridge.protocols.msgtypes import suggest
 
-        raise UnknownTypeError(package, suggest(package, reg.packages()), "package")
+        raise UnknownTypeError(
+            package, suggest(package, reg.packages()), "package", reg.search_path
+        )
 
 
 @msg_app.command("list")

@@ -25,7 +25,7 @@ if TYPE_CHECKING:
     from rich.console import RenderableType
 
     from hwbridge.graph import Graph
-    from hwbridge.recorder import ChannelStats, PlayerStats, RecorderStats
+    from hwbridge.recorder import ChannelStats, PlayerStats, Recorder, RecorderStats
 
 __all__ = ["CompressionChoice", "app", "play", "record"]
 
@@ -90,7 +90,11 @@ def record(
     endpoint: EndpointOpt = None,
     quiet: QuietOpt = False,
 ) -> None:
-    """Record topics to an MCAP file (ROS 1 profile) until Ctrl-C, --duration or --limit."""
+    """Record topics to an MCAP file (ROS 1 profile) until Ctrl-C, --duration or --limit.
+
+    A named topic that nothing publishes after 2 s of discovery gets a warning naming the
+    published topics spelt alike, and is still recorded if a publisher appears.
+    """
     from hwbridge.recorder import Recorder
 
     if topics and all_topics:
@@ -101,6 +105,7 @@ def record(
     # command at once (130) before any file exists. From creating the file on, a signal ends
     # the recording through ``interrupted`` and the file is finished properly.
     with _open(ctx, endpoint) as graph:
+        check = _PublisherCheck(graph) if topics else None
         recorder = Recorder(
             graph,
             path,
@@ -114,25 +119,78 @@ def record(
             recorder.start()
             try:
                 with _progress(
-                    lambda: _record_table(recorder.stats),
-                    lambda: _record_line(recorder.stats),
+                    lambda: _record_table(recorder.stats, recorder.topics),
+                    lambda: _record_line(recorder.stats, recorder.topics),
                     quiet,
                 ):
                     while not interrupted.is_set() and not recorder.done:
                         interrupted.wait(0.1)
+                        if check is not None:
+                            check.after_grace(recorder)
+                if check is not None:  # ended within the grace: what discovery has seen by now
+                    check.now(recorder)
                 if interrupted.is_set() and not quiet:
                     stderr_console().print(f"finishing {path}...", highlight=False)
             finally:
                 stats = recorder.stop()
     if not quiet:
-        _print_summary("recorded", "to", stats.path, stats.elapsed, stats.channels)
+        channels = _with_named(stats.channels, recorder.topics)
+        _print_summary("recorded", "to", stats.path, stats.elapsed, channels)
         if stats.dropped:
             typer.echo(
                 f"warning: dropped {stats.dropped} messages (the disk did not keep up)", err=True
             )
 
 
-def _record_table(stats: RecorderStats) -> RenderableType:
+class _PublisherCheck:
+    """Warns of named topics that nothing publishes, once: when discovery has had GRACE
+    seconds (as ``topic echo`` gives it), or when the recording ends before that. One line per
+    topic, naming the published topics spelt alike; recording goes on (a publisher may come)."""
+
+    def __init__(self, graph: Graph) -> None:
+        from hwbridge.graph.discovery import LiveGraph
+
+        self.live = LiveGraph(graph)
+        self.started = time.monotonic()
+        self.done = False
+
+    def after_grace(self, recorder: Recorder) -> None:
+        """Warn if GRACE seconds have passed (and not yet warned)."""
+        from hwbridge.cli.livetopics import GRACE
+
+        if time.monotonic() - self.started >= GRACE:
+            self.now(recorder)
+
+    def now(self, recorder: Recorder) -> None:
+        """Warn of the topics unpublished now (unless already done)."""
+        from hwbridge.cli.livetopics import note
+        from hwbridge.graph.discovery import did_you_mean
+
+        if self.done:
+            return
+        self.done = True
+        # a topic heard is published, whether or not discovery has told yet
+        published = self.live.published() | {c.topic for c in recorder.stats.channels}
+        for topic in recorder.topics:
+            if topic not in published:
+                note(
+                    f"warning: no publisher of {topic} yet{did_you_mean(topic, published)} "
+                    "(recording it if one appears)"
+                )
+
+
+def _with_named(
+    channels: tuple[ChannelStats, ...], topics: tuple[str, ...]
+) -> tuple[ChannelStats, ...]:
+    """``channels`` and, for each of the named ``topics`` with no message yet, an empty one (so
+    a misspelt or silent topic shows as 0 messages, not as nothing)."""
+    from hwbridge.recorder import ChannelStats
+
+    heard = {c.topic for c in channels}
+    return channels + tuple(ChannelStats(t, "", "") for t in topics if t not in heard)
+
+
+def _record_table(stats: RecorderStats, topics: tuple[str, ...]) -> RenderableType:
     from rich.table import Table
 
     table = Table(
@@ -147,14 +205,14 @@ def _record_table(stats: RecorderStats) -> RenderableType:
     table.add_column("type")
     table.add_column("messages", justify="right")
     table.add_column("size", justify="right")
-    for channel in stats.channels:
+    for channel in _with_named(stats.channels, topics):
         kind = channel.type if channel.has_schema else f"{channel.type or '?'} (no schema)"
         table.add_row(channel.topic, kind, str(channel.messages), _size(channel.bytes))
     return table
 
 
-def _record_line(stats: RecorderStats) -> str:
-    topics = ", ".join(f"{c.topic} {c.messages}" for c in stats.channels)
+def _record_line(stats: RecorderStats, named: tuple[str, ...]) -> str:
+    topics = ", ".join(f"{c.topic} {c.messages}" for c in _with_named(stats.channels, named))
     dropped = f", {stats.dropped} dropped" if stats.dropped else ""
     return (
         f"recording {stats.path}: {stats.elapsed:.1f} s, {stats.messages} messages, "
@@ -302,7 +360,7 @@ def _print_summary(
 ) -> None:
     messages = sum(c.messages for c in channels)
     size = sum(c.bytes for c in channels)
-    topics = len({c.topic for c in channels})
+    topics = len({c.topic for c in channels if c.messages})
     lines = [
         f"{verb} {messages} messages ({_size(size)}) on {topics} topic{'s' * (topics != 1)} "
         f"in {elapsed:.1f} s {preposition} {path}"

@@ -123,6 +123,60 @@ def test_msg_path_option_and_env(
     assert (code, out) == (0, "uint32 count\n")
 
 
+def hwbridge(*argv: str, env: dict[str, str] | None = None) -> subprocess.CompletedProcess[str]:
+    """``hwbridge ARGV`` in a real process (with ``env`` over this one's environment)."""
+    environ = {k: v for k, v in os.environ.items() if k != "HWBRIDGE_MSG_PATH"}
+    return subprocess.run(
+        [sys.executable, "-m", "hwbridge", *argv],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+        env={**environ, "COLUMNS": "200", **(env or {})},
+    )
+
+
+def test_a_msg_path_that_is_no_folder(tmp_path: Path) -> None:
+    """An explicit --msg-path that is no folder is a usage error naming it; a missing
+    HWBRIDGE_MSG_PATH entry a warning naming it (the other entries still count)."""
+    (tmp_path / "msgs" / "lab_msgs" / "msg").mkdir(parents=True)
+    (tmp_path / "msgs" / "lab_msgs" / "msg" / "Ping.msg").write_text("uint32 count\n")
+    msgs, typo, a_file = tmp_path / "msgs", tmp_path / "msgz", tmp_path / "Ping.msg"
+    a_file.write_text("uint32 count\n")
+
+    done = hwbridge("--msg-path", str(msgs), "msg", "show", "lab_msgs/Ping")
+    assert (done.returncode, done.stdout, done.stderr) == (0, "uint32 count\n", "")
+    for bad in (typo, a_file):
+        done = hwbridge("--msg-path", str(bad), "msg", "show", "lab_msgs/Ping")
+        assert (done.returncode, done.stdout) == (2, ""), done.stderr
+        assert f"'--msg-path': Directory '{bad}'" in done.stderr
+    outdir = tmp_path / "headers"
+    for command in ("headers", "generate"):
+        done = hwbridge("firmware", command, str(outdir), "--msg-path", str(typo), "lab_msgs/Ping")
+        assert done.returncode == 2, done.stderr
+        assert f"'--msg-path': Directory '{typo}' does not exist" in done.stderr
+        assert not outdir.exists()
+
+    path = os.pathsep.join([str(typo), str(msgs)])
+    done = hwbridge("msg", "show", "lab_msgs/Ping", env={"HWBRIDGE_MSG_PATH": path})
+    assert (done.returncode, done.stdout) == (0, "uint32 count\n"), done.stderr
+    assert done.stderr.count("\n") == 1, done.stderr
+    assert f"HWBRIDGE_MSG_PATH entry {typo} does not exist" in done.stderr
+
+
+def test_an_unknown_type_names_the_folders_searched(tmp_path: Path) -> None:
+    (tmp_path / "lab_msgs" / "msg").mkdir(parents=True)
+    (tmp_path / "lab_msgs" / "msg" / "Ping.msg").write_text("uint32 count\n")
+    done = hwbridge("--msg-path", str(tmp_path), "msg", "show", "lab_msgs/Pong")
+    assert done.returncode == 1
+    assert (
+        f"unknown message type 'lab_msgs/Pong' (searched {tmp_path.resolve()} and the built-in "
+        "types); did you mean lab_msgs/Ping"
+    ) in done.stderr
+    done = hwbridge("msg", "show", "lab_msgs/Ping")  # no search path: nothing to name
+    assert "error: unknown message type 'lab_msgs/Ping'; did you mean" in done.stderr
+
+
 def test_bad_definition_on_path_is_reported(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

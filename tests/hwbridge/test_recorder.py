@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -519,6 +520,90 @@ def test_cli_record_interrupted_leaves_a_valid_file(
     assert {c.topic for c in summary.channels.values()} == {"/talk", "/other"}
     for schema, _, message in messages:
         decode_with_schema(schema, message.data)
+
+
+def test_cli_record_warns_of_a_topic_nothing_publishes(
+    endpoint: str, router: Graph, tmp_path: Path
+) -> None:
+    """A misspelt topic gets one warning naming the published one spelt alike; recording goes
+    on, and takes the misspelt topic too once something publishes it."""
+    path = tmp_path / "misspelt.mcap"
+    node = router.node("odom_talker")
+    odom = node.publisher("/t/odom", "std_msgs/String")
+    late: list[Any] = []
+    stop = threading.Event()
+
+    def run() -> None:
+        while not stop.is_set():
+            odom.publish({"data": "odom"})
+            for pub in late[:1]:
+                pub.publish({"data": "late"})
+            stop.wait(0.005)
+
+    talking = threading.Thread(target=run, daemon=True)
+    talking.start()
+    process = subprocess.Popen(
+        cli(endpoint, "record", "-o", str(path), "/t/odm", "/t/odom"),
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    lines: list[str] = []
+    assert process.stderr is not None
+    reading = threading.Thread(target=lambda: lines.extend(process.stderr or ()), daemon=True)
+    reading.start()
+
+    def warned() -> list[str]:
+        return [line for line in list(lines) if line.startswith("warning:")]
+
+    try:
+        assert wait_until(lambda: bool(warned()) or process.poll() is not None, timeout=30)
+        assert process.poll() is None, "".join(lines)  # the warning did not end the recording
+        late.append(node.publisher("/t/odm", "std_msgs/String"))
+        # the plain progress lines (stderr is no terminal) count the late topic's messages
+        assert wait_until(
+            lambda: any(re.search(r"/t/odm [1-9]", line) for line in list(lines)), timeout=30
+        ), "".join(lines)
+        process.send_signal(signal.SIGINT)
+        process.wait(timeout=30)
+        reading.join(timeout=30)
+    finally:
+        stop.set()
+        talking.join()
+        for pub in (odom, *late):
+            pub.close()
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+    err = "".join(lines)
+    assert process.returncode == 0, err
+    assert len(warned()) == 1, err  # /t/odom is published: no warning of it
+    assert "no publisher of /t/odm" in warned()[0]
+    assert "did you mean /t/odom?" in warned()[0]
+    _, summary, messages = read_mcap(path)
+    counts = {c.topic: 0 for c in summary.channels.values()}
+    for _, channel, _ in messages:
+        counts[channel.topic] += 1
+    assert counts["/t/odom"] > 0 and counts["/t/odm"] > 0
+
+
+def test_cli_record_summary_shows_a_silent_topic(
+    endpoint: str, talker: Callable[[], int], tmp_path: Path
+) -> None:
+    """A recording that ends before the discovery grace still warns, and its summary lists
+    the named topic that got nothing."""
+    path = tmp_path / "silent.mcap"
+    done = subprocess.run(
+        cli(endpoint, "record", "-o", str(path), "/talk", "/tlak", "--limit", "20"),
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert done.returncode == 0, done.stderr
+    assert "warning: no publisher of /tlak yet; did you mean /talk?" in done.stderr
+    assert "recorded 20 messages" in done.stderr and " on 1 topic " in done.stderr
+    assert re.search(r"^  /tlak +\? +0 messages", done.stderr, re.MULTILINE), done.stderr
 
 
 def test_cli_play(endpoint: str, client: Graph, tmp_path: Path) -> None:

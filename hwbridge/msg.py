@@ -353,9 +353,10 @@ def check_field_path(type_name: str, path: Sequence[str], reg: TypeRegistry | No
                 raise MessageTypeError(
                     f"{here} is a list: expected an index (0, 1, ...), got {part!r}"
                 )
-            if kind == 3 and int(part) >= size:  # Nodetype.ARRAY: its length is fixed
+            length = int(size)
+            if kind == 3 and int(part) >= length:  # Nodetype.ARRAY: its length is fixed
                 raise MessageTypeError(
-                    f"{here} has {size} elements: no index {part} (0 to {size - 1})"
+                    f"{here} has {length} elements: no index {part} (0 to {length - 1})"
                 )
             desc = (int(element[0]), element[1])
         walked.append(part)

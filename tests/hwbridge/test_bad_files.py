@@ -2,21 +2,15 @@
 
 from __future__ import annotations
 
+import functools
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
+from tests.cliutil import run_hwbridge
 
-def _hwbridge(*argv: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "hwbridge", *argv],
-        capture_output=True,
-        text=True,
-        timeout=60,
-        check=False,
-    )
+_hwbridge = functools.partial(run_hwbridge, timeout=60)
 
 
 def _one_error(done: subprocess.CompletedProcess[str]) -> str:

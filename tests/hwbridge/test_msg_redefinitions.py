@@ -4,19 +4,12 @@ refused with the file."""
 
 from __future__ import annotations
 
-import subprocess
-import sys
+import functools
 from pathlib import Path
 
+from tests.cliutil import run_hwbridge
 
-def _hwbridge(*argv: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "hwbridge", *argv],
-        capture_output=True,
-        text=True,
-        timeout=60,
-        check=False,
-    )
+_hwbridge = functools.partial(run_hwbridge, timeout=60)
 
 
 def test_the_real_std_msgs_definitions_are_accepted(tmp_path: Path) -> None:

@@ -19,17 +19,10 @@ import pytest
 from hwbridge.errors import HwBridgeError
 from hwbridge.firmware.build import elf_mcu
 from hwbridge.firmware.sim.examples import build_example
+from tests.cliutil import run_hwbridge
 from tests.netutil import wait_until
 
-
-def _hwbridge(*argv: str, timeout: float = 120) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "hwbridge", *argv],
-        capture_output=True,
-        text=True,
-        timeout=timeout,
-        check=False,
-    )
+_hwbridge = run_hwbridge
 
 
 def _example(board: str) -> Path:

@@ -5,6 +5,7 @@ firmware in flash keeps running) and a port that does not exist give their clear
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 import shutil
@@ -21,19 +22,13 @@ from hwbridge.firmware.build import LIBRARY_DIR
 from hwbridge.firmware.sim.bootloader import bootloader_hex
 from hwbridge.firmware.upload import Upload
 from tests.bridgeproc import BridgeProcess
+from tests.cliutil import run_hwbridge
 from tests.netutil import wait_until
 
 HELLO = LIBRARY_DIR / "examples" / "HelloWorld"
 
 
-def _hwbridge(*argv: str, timeout: float = 300) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "hwbridge", *argv],
-        capture_output=True,
-        text=True,
-        timeout=timeout,
-        check=False,
-    )
+_hwbridge = functools.partial(run_hwbridge, timeout=300)
 
 
 class SimProcess:

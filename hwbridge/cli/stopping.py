@@ -125,23 +125,65 @@ def _on_signal_in_main(signum: int, frame: FrameType | None) -> None:
     """Python's handler (main thread): break out of start-up unless shielded. The watcher
     thread does the rest (it may run first or second: both read only plain flags).
 
-    Where an exception would only be printed and dropped ("Exception ignored in ..."): the
-    import system's lock clean-up, a ``__del__``, the handler raises nothing; the watcher
-    interrupts the main thread again a moment later (:func:`_nudge`)."""
+    In the import system's own code (where an exception may be dropped, "Exception ignored
+    in ...", or leave its locks taken) and in a ``__del__``, the handler raises nothing: it has
+    the KeyboardInterrupt raised as the next function (or module body) outside them starts
+    (:func:`_raise_on_next_call`), a few microseconds to milliseconds later. The watcher also
+    interrupts the main thread again every 50 ms (:func:`_nudge`), for a main thread already
+    traced by someone else (a debugger, coverage)."""
     if _state.signum is None:
         _state.signum = signum
-    if _state.shield or _state.raised or _swallowing(frame):
+    if _state.shield or _state.raised:
+        return
+    if _swallowing(frame):
+        _raise_on_next_call()
         return
     _state.raised = True
     raise KeyboardInterrupt
 
 
 def _swallowing(frame: FrameType | None) -> bool:
-    """Whether an exception raised in ``frame`` would be printed and dropped, not propagated."""
+    """Whether ``frame`` is where a KeyboardInterrupt must not be raised: the import system's
+    code, or a ``__del__`` (the frame's or a caller's: the exception would be printed and
+    dropped where the ``__del__`` was called)."""
     if frame is None:
         return False
-    code = frame.f_code
-    return code.co_filename.startswith("<frozen importlib") or code.co_name == "__del__"
+    if frame.f_code.co_filename.startswith("<frozen importlib"):
+        return True
+    caller: FrameType | None = frame
+    while caller is not None:
+        if caller.f_code.co_name == "__del__":
+            return True
+        caller = caller.f_back
+    return False
+
+
+def _raise_on_next_call() -> None:
+    """Main thread, from its signal handler: trace it until a function or module body starts
+    outside the import system's code, and raise the KeyboardInterrupt there. Most of an import
+    is spent in C (compiling, reading, stat) called from the import system, where a handler
+    runs right after; waiting for a later interruption to land elsewhere took 0.2-1.1 s of
+    start-up on a 2-core machine (``hwbridge emulate``'s imports). Nothing is done when the
+    thread is traced already (a debugger, coverage): :func:`_nudge` does it then."""
+    current = sys.gettrace()
+    if current is None:
+        sys.settrace(_interrupt_on_call)
+    elif current is not _interrupt_on_call:
+        return
+
+
+def _interrupt_on_call(frame: FrameType, event: str, _arg: object) -> None:
+    """The main thread's trace function after a signal (:func:`_raise_on_next_call`); only
+    "call" events reach it (it sets no local trace function). An exception raised here is
+    raised in the frame that starts, and ends the tracing."""
+    if _state.raised or _state.shield or _state.settled:
+        sys.settrace(None)
+        return
+    if event != "call" or _swallowing(frame):
+        return
+    sys.settrace(None)
+    _state.raised = True
+    raise KeyboardInterrupt
 
 
 def _nudge(deadline: float) -> None:

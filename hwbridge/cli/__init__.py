@@ -325,7 +325,10 @@ def _run(argv: list[str] | None) -> int:
     except KeyboardInterrupt:
         return _interrupted()
     # Without standalone mode, typer.Exit(code) comes back as its code; a command's own return
-    # value (None) means success.
+    # value (None) means success. Typer turns a KeyboardInterrupt (start-up cut short by a
+    # signal) into Exit(130), which comes back here as 130 with nothing said.
+    if result == 130 and stopping.signalled() is not None:
+        return _interrupted()
     return result if isinstance(result, int) else 0
 
 

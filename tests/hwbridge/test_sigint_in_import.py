@@ -121,3 +121,4 @@ def test_sigint_while_emulate_imports_stops_it_without_the_forced_exit(tmp_path:
     assert "Traceback" not in errors, errors
     assert out == b"", out  # no URL: the command did not go on starting
     assert process.returncode == 130, (process.returncode, errors)
+    assert "interrupted" in errors.splitlines(), errors  # as design.md's Stopping says

@@ -55,7 +55,7 @@ def _sim_arm(
         path = build_sketch_for_sim(EXAMPLES_DIR / firmware, board)
     elif not path.exists():
         raise HwBridgeError(f"{firmware}: no such ELF, sketch folder or example")
-    _check_elf(path, "stm32f405" if board == "stm32f405" else "nrf51822")
+    _check_elf(path, "nrf51822" if mcu == "microbit" else mcu)  # elf_mcu's names
     with QemuBoard(path, board) as machine:
         url = machine.link_url
         if symlink is not None:

@@ -165,11 +165,8 @@ def _raise_on_next_call() -> None:
     runs right after; waiting for a later interruption to land elsewhere took 0.2-1.1 s of
     start-up on a 2-core machine (``hwbridge emulate``'s imports). Nothing is done when the
     thread is traced already (a debugger, coverage): :func:`_nudge` does it then."""
-    current = sys.gettrace()
-    if current is None:
+    if sys.gettrace() is None:  # (already _interrupt_on_call after an earlier signal: kept)
         sys.settrace(_interrupt_on_call)
-    elif current is not _interrupt_on_call:
-        return
 
 
 def _interrupt_on_call(frame: FrameType, event: str, _arg: object) -> None:

@@ -22,6 +22,7 @@ def _ephemeral_low() -> int:
         return 32768
 
 
+_EPHEMERAL_LOW = _ephemeral_low()
 _PORTS = random.Random()
 """Seeded from the OS: the xdist workers draw apart."""
 
@@ -31,9 +32,9 @@ def free_port() -> int:
     ephemeral range: a port the kernel hands out (to ``bind(("", 0))``, or as the local port of
     a connection the many Zenoh clients of a parallel run open) could be taken again before the
     test binds it, and a process of the suite then failed with "already in use"."""
-    low = _ephemeral_low()
-    for _ in range(100):
-        port = _PORTS.randrange(10_000, low) if low > 11_000 else 0
+    draws = 100 if _EPHEMERAL_LOW > 11_000 else 0  # (else the kernel's choice, below)
+    for _ in range(draws):
+        port = _PORTS.randrange(10_000, _EPHEMERAL_LOW)
         with socket.socket() as sock:
             try:
                 sock.bind(("127.0.0.1", port))

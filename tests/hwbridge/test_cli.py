@@ -13,6 +13,7 @@ import pytest
 from hwbridge import __version__
 from hwbridge.cli import main
 from hwbridge.protocols.msgtypes import BUNDLED_MSG_DIR
+from tests.cliutil import run_hwbridge
 
 VECTORS = json.loads((BUNDLED_MSG_DIR.parent / "vectors" / "md5.json").read_text())
 
@@ -126,14 +127,7 @@ def test_msg_path_option_and_env(
 def hwbridge(*argv: str, env: dict[str, str] | None = None) -> subprocess.CompletedProcess[str]:
     """``hwbridge ARGV`` in a real process (with ``env`` over this one's environment)."""
     environ = {k: v for k, v in os.environ.items() if k != "HWBRIDGE_MSG_PATH"}
-    return subprocess.run(
-        [sys.executable, "-m", "hwbridge", *argv],
-        capture_output=True,
-        text=True,
-        timeout=60,
-        check=False,
-        env={**environ, "COLUMNS": "200", **(env or {})},
-    )
+    return run_hwbridge(*argv, timeout=60, env={**environ, "COLUMNS": "200", **(env or {})})
 
 
 def test_a_msg_path_that_is_no_folder(tmp_path: Path) -> None:

@@ -19,6 +19,7 @@ import pytest
 from hwbridge.robot import registry
 from hwbridge.robot.config import load_robot
 from hwbridge.robot.model import RobotFileError
+from tests.cliutil import run_hwbridge
 from tests.netutil import free_port, reap, wait_until
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -45,15 +46,7 @@ def _run(
     *argv: str, cwd: Path | None = None, timeout: float = 60
 ) -> subprocess.CompletedProcess[str]:
     env = {**os.environ, "HWBRIDGE_ENDPOINT": f"tcp/127.0.0.1:{free_port()}"}
-    return subprocess.run(
-        [sys.executable, "-m", "hwbridge", *argv],
-        capture_output=True,
-        text=True,
-        timeout=timeout,
-        check=False,
-        env=env,
-        cwd=cwd,
-    )
+    return run_hwbridge(*argv, timeout=timeout, env=env, cwd=cwd)
 
 
 def _errors(stderr: str) -> list[str]:

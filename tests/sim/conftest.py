@@ -6,8 +6,6 @@ from __future__ import annotations
 
 import os
 import select
-import shutil
-import subprocess
 import termios
 import time
 import tty
@@ -17,6 +15,7 @@ from pathlib import Path
 import pytest
 
 from hwbridge.firmware.sim import SimToolchainMissingError, runner_binary
+from tests.sim.avrc import build_avr_c
 
 AVR_DIR = Path(__file__).with_name("avr")
 
@@ -32,26 +31,8 @@ def runner() -> Path:
 @pytest.fixture(scope="session")
 def probe_elf(tmp_path_factory: pytest.TempPathFactory, runner: Path) -> Path:
     """tests/sim/avr/probe.c built for an ATmega328P at 16 MHz."""
-    compiler = shutil.which("avr-gcc")
-    if compiler is None:
-        pytest.skip("avr-gcc is not installed (apt-get install gcc-avr avr-libc)")
     elf = tmp_path_factory.mktemp("avr") / "probe.elf"
-    subprocess.run(
-        [
-            compiler,
-            "-mmcu=atmega328p",
-            "-DF_CPU=16000000UL",
-            "-Os",
-            "-Wall",
-            "-Wextra",
-            "-Werror",
-            "-o",
-            str(elf),
-            str(AVR_DIR / "probe.c"),
-        ],
-        check=True,
-    )
-    return elf
+    return build_avr_c(AVR_DIR / "probe.c", elf, "-DF_CPU=16000000UL")
 
 
 class Terminal:

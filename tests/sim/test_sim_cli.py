@@ -7,7 +7,6 @@ ends it with an error instead of exit status 0."""
 from __future__ import annotations
 
 import os
-import shutil
 import signal
 import subprocess
 import sys
@@ -20,6 +19,7 @@ from hwbridge.firmware.build import elf_mcu
 from hwbridge.firmware.sim.examples import build_example
 from tests.cliutil import run_hwbridge
 from tests.netutil import wait_until
+from tests.sim.avrc import build_avr_c
 
 _hwbridge = run_hwbridge
 
@@ -104,29 +104,11 @@ def test_upload_refuses_an_elf_built_for_another_mcu(tmp_path: Path) -> None:
 
 def _sleeper(tmp_path: Path) -> Path:
     """An ATmega328P program that sleeps with interrupts off at once: simavr stops it ("done")."""
-    compiler = shutil.which("avr-gcc")
-    if compiler is None:
-        pytest.skip("avr-gcc is not installed (apt-get install gcc-avr avr-libc)")
     source = tmp_path / "sleeper.c"
     source.write_text(
         'int main(void) {\n  __asm__ volatile("cli\\n\\tsleep");\n  for (;;) {\n  }\n}\n'
     )
-    elf = tmp_path / "sleeper.elf"
-    subprocess.run(
-        [
-            compiler,
-            "-mmcu=atmega328p",
-            "-Os",
-            "-Wall",
-            "-Wextra",
-            "-Werror",
-            "-o",
-            str(elf),
-            str(source),
-        ],
-        check=True,
-    )
-    return elf
+    return build_avr_c(source, tmp_path / "sleeper.elf")
 
 
 def test_an_avr_that_stops_at_once_ends_the_command(runner: Path, tmp_path: Path) -> None:

@@ -121,7 +121,9 @@ class SessionPump:
         """Ask the thread to end and wait for it (the link is left to its owner)."""
         self._stop.set()
         thread = self._thread
-        if thread is not None and thread is not threading.current_thread():
+        # (not started: a KeyboardInterrupt in start() between the Thread and its start, and
+        # join() would raise RuntimeError; a thread that runs sees _stop)
+        if thread is not None and thread is not threading.current_thread() and thread.is_alive():
             thread.join(timeout)
 
     @property
@@ -129,7 +131,7 @@ class SessionPump:
         return self._thread is not None and self._thread.is_alive()
 
     def join(self, timeout: float | None = None) -> None:
-        if self._thread is not None:
+        if self._thread is not None and self._thread.is_alive():
             self._thread.join(timeout)
 
     def call(self, action: Callable[[Any], T]) -> T:

@@ -332,3 +332,27 @@ def test_a_call_between_settled_reads_is_asked_for_its_deadline() -> None:
         pump.stop()
         link.close()
         peer.close()
+
+
+def test_a_pump_interrupted_in_start_stops_without_joining_a_thread_never_started(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A Ctrl-C that lands in ``start()`` between the Thread's creation and its start (a shard of
+    ``hwbridge up`` stopping during start-up) left a Thread that was never started; ``stop()``
+    joined it and raised "cannot join thread before it is started" (a traceback in CI)."""
+    link = open_link("memory://pump-interrupted")
+    pump = SessionPump(link, ns.HostSession(), lambda _event: None, name="pump-interrupted")
+
+    def interrupted(_self: threading.Thread) -> None:
+        raise KeyboardInterrupt
+
+    with monkeypatch.context() as patch:
+        patch.setattr(threading.Thread, "start", interrupted)
+        with pytest.raises(KeyboardInterrupt):
+            pump.start()
+    try:
+        pump.stop()
+        pump.join(0.1)
+        assert not pump.running
+    finally:
+        link.close()

@@ -28,7 +28,7 @@ from typing import TYPE_CHECKING, Any, Final
 from urllib.parse import unquote, urlsplit
 
 from hwbridge.errors import LinkError
-from hwbridge.links._io import Deadline, write_all
+from hwbridge.links._io import write_all
 from hwbridge.links.base import (
     COMMON_OPTIONS,
     Link,
@@ -154,6 +154,8 @@ class SerialLink(Link):
         self._fd: int | None = None
         self._waker: Waker | None = None
         self._poll: select.poll | None = None
+        self._drained = False
+        """The last read took less than it asked for: nothing is left (see ``_read_fd``)."""
 
     # ---------------------------------------------------------------------------------- hooks
 
@@ -191,6 +193,7 @@ class SerialLink(Link):
             self._poll = select.poll()
             self._poll.register(fd, select.POLLIN)
             self._poll.register(self._waker.fileno(), select.POLLIN)
+            self._drained = False
         if self.low_latency:
             self._set_low_latency(port)
         if self.reset:
@@ -225,36 +228,52 @@ class SerialLink(Link):
         """Read the port's descriptor: what is there now, else wait for it (POSIX).
 
         pyserial sets VMIN = VTIME = 0, so a read with nothing to read returns no bytes; no
-        bytes right after poll() reported the port readable means the device hung up.
+        bytes right after poll() reported the port readable means the device hung up. A read
+        that did not fill ``max_bytes`` drained the port, so the next one waits in poll()
+        first instead of trying a read that would fail (a failed read raises and catches an
+        exception: a reader that answers one frame at a time, a bridge's service calls, pays
+        it on every call otherwise).
         """
         waker, poll = self._waker, self._poll
         if waker is None or poll is None:
             raise LinkClosedError(f"{self.url} is not open", local=True)
-        deadline: Deadline | None = None
+        wait_first = self._drained and timeout != 0
+        end: float | None = None
         readable = False
         while True:
-            try:
-                data = os.read(fd, max_bytes)
-            except (BlockingIOError, InterruptedError):
-                data = b""
-            except OSError as exc:
-                raise self._gone(exc, "reading") from exc
-            if data:
-                return data
-            if readable:
-                raise self._gone(
-                    OSError(errno.EIO, "device reports readiness to read but returned no data"),
-                    "reading",
-                )
+            if wait_first:
+                wait_first = False
+            else:
+                try:
+                    data = os.read(fd, max_bytes)
+                except (BlockingIOError, InterruptedError):
+                    data = b""
+                except OSError as exc:
+                    raise self._gone(exc, "reading") from exc
+                if data:
+                    self._drained = len(data) < max_bytes
+                    return data
+                if readable:
+                    raise self._gone(
+                        OSError(errno.EIO, "device reports readiness to read but returned no data"),
+                        "reading",
+                    )
             if waker.woken:
                 return b""
-            if deadline is None:
-                deadline = Deadline(timeout)
-            elif deadline.expired():
-                return b""
-            remaining = deadline.remaining()
-            ready = poll.poll(None if remaining is None else remaining * 1000.0)
-            readable = any(ready_fd == fd for ready_fd, _ in ready)
+            if timeout is None:
+                wait_ms: float | None = None
+            elif end is None:
+                end = time.monotonic() + timeout
+                wait_ms = timeout * 1000.0
+            else:
+                remaining = end - time.monotonic()
+                if remaining <= 0.0:
+                    return b""
+                wait_ms = remaining * 1000.0
+            readable = False
+            for ready_fd, _ in poll.poll(wait_ms):
+                if ready_fd == fd:
+                    readable = True
 
     def _write(self, data: memoryview) -> None:
         import serial

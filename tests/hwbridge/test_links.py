@@ -438,6 +438,30 @@ def test_serial_link_sees_the_pty_master_close_as_link_closed() -> None:
         link.close()
 
 
+def test_serial_reads_after_a_full_and_a_draining_read() -> None:
+    """A read that filled its size leaves the rest to the next read; one that drained the port
+    makes the next wait for data first (poll before read): both see every byte, in order, and
+    a timeout still returns nothing."""
+    with open_link("pty://") as master:
+        assert isinstance(master, PtyLink)
+        with open_link(f"serial://{master.slave_path}") as board:
+            assert wait_until(lambda: master.connected)
+            master.write(b"0123456789")
+            got = b""
+            while len(got) < 10:
+                chunk = board.read(4, timeout=JOIN)
+                assert 1 <= len(chunk) <= 4
+                got += chunk
+            assert got == b"0123456789"
+            assert board.read(4, timeout=0.05) == b""  # drained: waits, then times out
+            assert board.read(4, timeout=0) == b""
+            master.write(b"ab")
+            assert transfer_in(board, 2) == b"ab"
+            master.write(b"xyz")  # taken by reads that do not wait
+            seen = bytearray()
+            assert wait_until(lambda: seen.extend(board.read(3, timeout=0)) or seen == b"xyz")
+
+
 def test_serial_write_blocked_by_a_board_that_does_not_read_is_unblocked_by_close() -> None:
     with open_link("pty://") as master:
         assert isinstance(master, PtyLink)

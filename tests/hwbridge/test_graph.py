@@ -307,10 +307,12 @@ def test_a_call_has_its_answer_before_the_server_lets_the_query_go(
     held: list[Any] = []
 
     def serve(query: Any) -> None:
-        query.reply(query.key_expr, answer, express=True)
         payload = query.payload
         if payload is None or payload.to_bytes() != b"ping":
-            held.append(query)  # its final message waits for drop()
+            # kept before the reply goes: the caller, answered, may look at once; its final
+            # message waits for drop()
+            held.append(query)
+        query.reply(query.key_expr, answer, express=True)
 
     def answers_ping() -> bool:
         try:

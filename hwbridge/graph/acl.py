@@ -27,7 +27,7 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from hwbridge.graph.core import GraphSnapshot
+from hwbridge.graph.snapshot import GraphSnapshot
 
 __all__ = ["RobotSurface", "access_control", "router_config", "surface_of"]
 

@@ -29,7 +29,7 @@ import threading
 import time
 import weakref
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Final
 
 from hwbridge import errors
@@ -39,6 +39,9 @@ from hwbridge.graph.guard import call_guarded
 from hwbridge.graph.header import with_seq
 from hwbridge.graph.names import decode_segment, encode_segment, resolve_name
 from hwbridge.graph.params import ParamClient
+from hwbridge.graph.snapshot import GraphEntity, GraphSnapshot
+from hwbridge.graph.wire import attachment as _attachment
+from hwbridge.graph.wire import parse_attachment as _parse_attachment
 
 if TYPE_CHECKING:
     import zenoh
@@ -63,9 +66,6 @@ log = logging.getLogger("hwbridge.graph")
 
 ANY_TYPE: Final = "*"
 """Type given to a subscriber that takes whatever type the publishers send."""
-_MD5_LEN: Final = 32
-
-
 _ZENOH_TIMEOUT: Final = "Timeout"
 """The error reply Zenoh gives a query whose time limit passed while a server was on it."""
 
@@ -82,58 +82,6 @@ class RawMessage:
     type: str
     md5: str
     data: bytes
-
-
-def _attachment(md5: str, type_name: str) -> bytes:
-    return (md5 + type_name).encode()
-
-
-@functools.lru_cache(maxsize=256)
-def _parse_attachment(raw: bytes | None) -> tuple[str, str]:
-    """(md5, type) from an attachment; cached, since a topic repeats the same few."""
-    if raw is None or len(raw) < _MD5_LEN:
-        return "", ""
-    text = raw.decode("ascii", "replace")
-    return text[:_MD5_LEN], text[_MD5_LEN:]
-
-
-@dataclass(frozen=True, slots=True)
-class GraphEntity:
-    """Something alive on the graph, as discovery reports it."""
-
-    kind: str  # node, pub, sub, srv, board
-    node: str
-    name: str = ""
-    type: str = ""
-    session: str = ""
-
-
-@dataclass
-class GraphSnapshot:
-    """What discovery saw at one moment."""
-
-    entities: list[GraphEntity] = field(default_factory=list)
-
-    def of_kind(self, kind: str) -> list[GraphEntity]:
-        return sorted((e for e in self.entities if e.kind == kind), key=lambda e: (e.name, e.node))
-
-    @property
-    def nodes(self) -> list[str]:
-        return sorted({e.node for e in self.entities if e.kind == "node"})
-
-    def topics(self) -> dict[str, set[str]]:
-        """Topic name -> types published or subscribed under that name."""
-        out: dict[str, set[str]] = {}
-        for entity in self.entities:
-            if entity.kind in ("pub", "sub"):
-                out.setdefault(entity.name, set()).add(entity.type)
-        return out
-
-    def services(self) -> dict[str, set[str]]:
-        out: dict[str, set[str]] = {}
-        for entity in self.of_kind("srv"):
-            out.setdefault(entity.name, set()).add(entity.type)
-        return out
 
 
 class Graph:

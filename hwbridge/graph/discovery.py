@@ -18,7 +18,8 @@ import time
 from collections import Counter
 from collections.abc import Callable, Iterable
 
-from hwbridge.graph.core import ANY_TYPE, Graph, GraphEntity
+from hwbridge.graph.core import ANY_TYPE, Graph
+from hwbridge.graph.snapshot import GraphEntity
 
 __all__ = ["LiveGraph", "close_names", "did_you_mean"]
 

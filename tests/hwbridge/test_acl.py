@@ -18,7 +18,7 @@ from pathlib import Path
 import pytest
 
 from hwbridge.graph.acl import RobotSurface, access_control, surface_of
-from hwbridge.graph.core import GraphEntity, GraphSnapshot
+from hwbridge.graph.snapshot import GraphEntity, GraphSnapshot
 from tests.hwbridge.test_up import DIFFBOT, Processes
 from tests.netutil import free_port, wait_until
 

@@ -111,6 +111,10 @@ def test_bridge_bench_runs_small_and_prints_the_documented_fields() -> None:
             rounds = line["rtt_over_floor_rounds"]
             assert len(rounds) == 4 and all(ratio > 0 for ratio in rounds)
             assert line["rtt_over_floor"] == pytest.approx(statistics.median(rounds), abs=1e-3)
+            # The bridge's own steps, stamped on more calls: both seen, inside the round trip.
+            path = line["bridge_path_us"]
+            assert set(path) == {"request", "answer"}
+            assert 0 < path["request"] + path["answer"] < line["rtt_p50_us"]
             # A call's request and answer are whole frames: a few bytes each, never zero.
             assert line["frame_bytes"]["request"] > 4 and line["frame_bytes"]["reply"] > 4
 

@@ -59,6 +59,18 @@ alternating with five of the commit before read a bridged p50 of 457-561 us agai
 and a Zenoh floor of 194-241 us against 241-275: the ratio stayed where it was (1.17-1.37
 against 1.04-1.33), the floor having fallen with the calls.
 
+``bridge_path_us`` says where the bridge's share goes: after the rounds, more calls run with
+four stamps in this process (see ``_bridge_path``), and ``request`` (the query callback to the
+request written to the link) and ``answer`` (the answer read to the reply handed to Zenoh) are
+their p50s. On the machine of issue 29 (a 2-core VM, quiet) they read 42-54 and 33-43 us for
+native, about as much for rosserial: most of a call's excess over its floor is this Python
+(graph, pump, session, link) run cold, each process having slept while the other two ran. The
+same stamps in finer steps put a native request's at 8-10 us in the graph's query callback, 3-4
+in the pump's call, 13-16 in the session's ``call_service``, 9-11 encoding and 3-4 in the
+link's ``write`` before the system call. A bare Zenoh queryable that writes the request to a
+raw pty echo and replies from a thread that reads it (no hwbridge code) read 0.55 to 0.92 of
+the same floor.
+
 Runs with no arguments in about a minute; prints one JSON object per line. ``--cases latency``
 runs only the service calls.
 """
@@ -103,6 +115,9 @@ link take in a bridged call, so both processes go idle between messages as they 
 LATENCY_ROUNDS = 4
 """The latency case runs in rounds: each its share of the calls, its floors and its link echo,
 one after the other, and its own ratio (see the module's docstring)."""
+PATH_CALLS = 500
+"""Calls at least of the latency case's last phase, which stamps the bridge's own steps
+(``bridge_path_us``)."""
 RAW_KEY = "bench_raw/trigger"
 """Key of the bare Zenoh queryable (outside the graph's key space)."""
 DOMAIN = "bench"
@@ -618,6 +633,7 @@ def _latency(
             zenoh_times += measured[targets[2]]
     finally:
         raw_server.undeclare()
+    path = _bridge_path(endpoint, max(PATH_CALLS, calls // count), targets[0])
     board_time = statistics.median(handling["seconds"]) if handling["seconds"] else 0.0
     host = [t - echo_rtt - board_time for t in times]
     # The same echo with each side idle between rounds as long as the board is in a bridged
@@ -657,8 +673,62 @@ def _latency(
         rtt_p50_rounds_us=[round(r.rtt * 1e6, 1) for r in rounds],
         floor_rounds_us=[round(r.floor * 1e6, 1) for r in rounds],
         rtt_over_zenoh_plus_link=round(rtt_p50 / (zenoh_p50 + link_idle), 3),
+        bridge_path_us=path,
         calls=len(times),
     )
+
+
+def _bridge_path(endpoint: str, calls: int, service: str) -> dict[str, float]:
+    """The bridge's own Python on a call's way, p50 in us over ``calls`` more calls of
+    ``service``, stamped in this process (the bridge's) while they run: ``request`` from the
+    call's ``DeferredReply`` made in the query callback to the end of the link write that takes
+    the request to the board, ``answer`` from the end of the link read that brought the board's
+    answer to the reply handed to Zenoh. The stamps wrap four methods for this phase only (the
+    rounds run without them); a wrapper adds well under a microsecond."""
+    from hwbridge.graph import DeferredReply
+    from hwbridge.links import Link
+
+    clock = time.perf_counter
+    last = {"write": 0.0, "read": 0.0}
+    made: list[float] = []
+    request: list[float] = []
+    answer: list[float] = []
+    originals = (DeferredReply.__init__, DeferredReply.ok, Link.write, Link.read)
+    init, ok, write, read = originals
+
+    def timed_init(self: Any, query: Any, server: Any) -> None:
+        made.append(clock())
+        init(self, query, server)
+
+    def timed_ok(self: Any, payload: bytes) -> None:
+        answer.append(clock() - last["read"])
+        if made and last["write"] > made[-1]:
+            request.append(last["write"] - made[-1])
+        ok(self, payload)
+
+    def timed_write(self: Any, data: Any) -> None:
+        write(self, data)
+        last["write"] = clock()
+
+    def timed_read(self: Any, *args: Any, **kwargs: Any) -> bytes:
+        data: bytes = read(self, *args, **kwargs)
+        if data:
+            last["read"] = clock()
+        return data
+
+    wrapped = (timed_init, timed_ok, timed_write, timed_read)
+    places = ((DeferredReply, "__init__"), (DeferredReply, "ok"), (Link, "write"), (Link, "read"))
+    try:
+        for (owner, name), function in zip(places, wrapped, strict=True):
+            setattr(owner, name, function)
+        _call_times(endpoint, calls, [service])
+    finally:
+        for (owner, name), function in zip(places, originals, strict=True):
+            setattr(owner, name, function)
+    return {
+        "request": round(_percentile(request, 0.5) * 1e6, 1) if request else 0.0,
+        "answer": round(_percentile(answer, 0.5) * 1e6, 1) if answer else 0.0,
+    }
 
 
 @dataclass(frozen=True)

@@ -95,10 +95,12 @@ def record(
     A named topic that nothing publishes after 2 s of discovery gets a warning naming the
     published topics spelt alike, and is still recorded if a publisher appears.
     """
+    from hwbridge.cli.livetopics import topic_argument
     from hwbridge.recorder import Recorder
 
     if topics and all_topics:
         raise typer.BadParameter("give topics or --all, not both")
+    topics = [topic_argument(topic) for topic in topics or ()]
     path = output or Path(datetime.now().strftime("hwbridge_%Y-%m-%d-%H-%M-%S.mcap"))
     interrupted = threading.Event()
     # Start-up (attaching, loading the message types) is not shielded: Ctrl-C there ends the

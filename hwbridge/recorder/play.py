@@ -115,7 +115,7 @@ class Player:
         with self._open() as stream:
             try:
                 reader = make_reader(stream)
-            except McapError as exc:
+            except (McapError, struct.error) as exc:  # struct.error: shorter than MCAP's magic
                 raise RecordingError(f"{self.path} is not an MCAP file ({exc})") from exc
             try:
                 summary = reader.get_summary()

@@ -428,6 +428,9 @@ def test_play_refuses_what_it_cannot_play(router: Graph, tmp_path: Path) -> None
     text.write_text("not a recording")
     with pytest.raises(RecordingError, match="not an MCAP file"):
         Player(router, text)
+    text.write_text("\n")  # shorter than the magic: once a struct.error and a traceback
+    with pytest.raises(RecordingError, match="not an MCAP file"):
+        Player(router, text)
     with pytest.raises(RecordingError, match="cannot open"):
         Player(router, tmp_path / "missing.mcap")
     with pytest.raises(RecordingError, match="rate"):

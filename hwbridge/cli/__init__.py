@@ -1,7 +1,8 @@
 """The ``hwbridge`` command line.
 
-Exit status: 0 on success, 2 on a usage error (bad option, missing argument), 1 on any other
-error; error messages go to stderr.
+Exit status: 0 on success, 2 on a usage error (bad option, missing argument, an input path that
+does not exist), 1 on any other error; error messages go to stderr (docs/design.md, "Errors and
+counters").
 
 Start-up matters (``hwbridge connect`` is timed from launch to a board's first message on the
 graph), so importing this package imports typer and nothing else heavy. Each command group lives

@@ -17,7 +17,10 @@ __all__ = ["acl"]
 
 def acl(
     ctx: typer.Context,
-    robot_file: Annotated[Path, typer.Argument(metavar="ROBOT.yaml", help="The robot file.")],
+    robot_file: Annotated[
+        Path,
+        typer.Argument(metavar="ROBOT.yaml", exists=True, dir_okay=False, help="The robot file."),
+    ],
     output: Annotated[
         Path | None,
         typer.Option("--output", "-o", help="Write the config here (default: standard output)."),

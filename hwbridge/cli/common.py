@@ -19,7 +19,16 @@ if TYPE_CHECKING:
     from hwbridge.graph import Graph
     from hwbridge.msg import TypeRegistry
 
-__all__ = ["Context", "emit_json", "get_registry", "json_line", "open_graph", "stderr_console"]
+__all__ = [
+    "Context",
+    "emit_json",
+    "get_registry",
+    "json_line",
+    "no_such_path",
+    "open_graph",
+    "robot_argument",
+    "stderr_console",
+]
 
 
 @functools.cache
@@ -57,6 +66,30 @@ def emit_json(data: Any) -> None:
     """Write ``data`` to stdout as one line of JSON and flush (so pipes see it at once)."""
     sys.stdout.write(json_line(data))
     sys.stdout.flush()
+
+
+def no_such_path(value: str | Path, param: str, known: str = "") -> typer.BadParameter:
+    """The usage error (exit status 2) for an input path on the command line that does not
+    exist, in the words Click uses for ``exists=True`` (``Invalid value for 'ROBOT.yaml': Path
+    'nope.yaml' does not exist.``), for the arguments that cannot use it: those that also take a
+    name (``known``: what such names are) or that are read only in some cases."""
+    return typer.BadParameter(
+        f"Path {str(value)!r} does not exist{f' (nor is it {known})' if known else ''}.",
+        param_hint=[param],
+    )
+
+
+def robot_argument(value: str, param: str) -> str:
+    """A ROBOT argument as given (a robot file's path, or a packaged robot's name without a
+    suffix: ``diffbot``); the usage error of :func:`no_such_path` if it is neither."""
+    from hwbridge.emulator.board import ready_robots
+
+    if Path(value).exists():
+        return value
+    ready = ready_robots()
+    if not Path(value).suffix and value in ready:
+        return value
+    raise no_such_path(value, param, f"a ready robot: {', '.join(ready)}")
 
 
 @dataclass(frozen=True)

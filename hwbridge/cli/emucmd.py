@@ -8,7 +8,7 @@ from typing import Annotated
 
 import typer
 
-from hwbridge.cli.common import Context
+from hwbridge.cli.common import Context, robot_argument
 from hwbridge.cli.stopping import wait_for_stop
 
 __all__ = ["demo", "emulate"]
@@ -64,7 +64,7 @@ def emulate(
     from hwbridge.emulator import VirtualBoard, load_board
     from hwbridge.links import open_link
 
-    config = load_board(board, board_name)
+    config = load_board(robot_argument(board, "ROBOT"), board_name)
     virtual = VirtualBoard(config, seed=seed, speed=speed)
     link = open_link(listen)
     url = _url_of(link)

@@ -10,6 +10,7 @@ from typing import Annotated
 
 import typer
 
+from hwbridge.cli.common import no_such_path
 from hwbridge.cli.simcmd import sim
 from hwbridge.cli.uploadcmd import upload
 
@@ -25,7 +26,10 @@ firmware_app = typer.Typer(
 @firmware_app.command("build")
 def build(
     sketch: Annotated[
-        Path, typer.Argument(metavar="SKETCH", help="A sketch folder (NAME/NAME.ino) or .ino file.")
+        Path,
+        typer.Argument(
+            metavar="SKETCH", exists=True, help="A sketch folder (NAME/NAME.ino) or .ino file."
+        ),
     ],
     board: Annotated[
         str,
@@ -93,7 +97,10 @@ def build(
 
 @firmware_app.command("size")
 def size(
-    elf: Annotated[Path, typer.Argument(metavar="ELF", help="A built AVR ELF file.")],
+    elf: Annotated[
+        Path,
+        typer.Argument(metavar="ELF", exists=True, dir_okay=False, help="A built AVR ELF file."),
+    ],
     as_json: Annotated[bool, typer.Option("--json", help="Machine-readable JSON output.")] = False,
 ) -> None:
     """Flash and static RAM of an ELF, as avr-size (or arm-none-eabi-size) counts them, and the
@@ -249,6 +256,8 @@ def generate(
             )
         _write_headers(ctx, target, types, msg_path, capacity)
         return
+    if not target.exists():  # a robot file to read (an OUTDIR is made)
+        raise no_such_path(target, "ROBOT.yaml|OUTDIR")
     if types:
         raise typer.BadParameter("message types go with an OUTDIR, not with a robot file")
     from hwbridge.firmware.build import BOARDS, build_sketch, firmware_size

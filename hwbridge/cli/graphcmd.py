@@ -33,6 +33,7 @@ from hwbridge.cli.livetopics import (
     note,
     pub_arguments,
     refuse_other_type,
+    topic_argument,
 )
 from hwbridge.errors import (
     HwBridgeError,
@@ -112,20 +113,17 @@ def topic_list(
             typer.echo(row["topic"])
 
 
-def _topic_types(graph: Graph, topic: str, wait: float) -> list[str]:
-    snapshot = _snapshot(graph, wait)
-    types = snapshot.topics().get(topic, set()) - {ANY_TYPE}
-    return sorted(types)
-
-
 @topic_app.command("type")
 def topic_type(ctx: typer.Context, topic: TopicArg, wait: WaitOpt = 1.0) -> None:
     """Print the type of a topic."""
+    topic = topic_argument(topic)
     with open_graph(ctx) as graph:
-        types = _topic_types(graph, topic, wait)
+        known = _snapshot(graph, wait).topics()
+    types = sorted(known.get(topic, set()) - {ANY_TYPE})
     if not types:
         raise HwBridgeError(
-            f"no publisher or typed subscriber on {topic} (see 'hwbridge topic list')"
+            f"no publisher or typed subscriber on {topic}{did_you_mean(topic, known)} "
+            "(see 'hwbridge topic list')"
         )
     typer.echo("\n".join(types))
 
@@ -135,6 +133,7 @@ def topic_info(
     ctx: typer.Context, topic: TopicArg, as_json: JsonOpt = False, wait: KeepWaitingOpt = False
 ) -> None:
     """Type, md5, publishers and subscribers of a topic."""
+    topic = topic_argument(topic)
     with open_graph(ctx) as graph:
         live = LiveGraph(graph)
         if not live.wait(lambda: topic in live.topics(), GRACE):
@@ -207,6 +206,7 @@ def topic_echo(
     ``{type, md5, raw}``. One whose type is defined here differently (another md5) is refused:
     decoding it would print wrong values (``--hex`` shows its bytes).
     """
+    topic = topic_argument(topic, fields=True)
     done = threading.Event()
     lock = threading.Lock()
     seen = [0]
@@ -359,6 +359,7 @@ def topic_pub(
     TYPE may be left out when the topic is on the graph (something publishes or subscribes
     it): its type there is used. A TYPE that differs from it is refused.
     """
+    topic = topic_argument(topic)
     type_name, values = pub_arguments(type_or_values, values)
     if values is not None and file is not None:
         raise typer.BadParameter("give values or --file, not both")
@@ -445,6 +446,7 @@ def _measure(
     kind: str,
     wait: bool,
 ) -> None:
+    topic = topic_argument(topic)
     meter = _RateMeter(window)
     with open_graph(ctx) as graph:
         await_publisher(LiveGraph(graph), topic, wait)

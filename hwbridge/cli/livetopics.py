@@ -1,6 +1,7 @@
-"""Topic arguments of ``hwbridge topic ...`` resolved against the live graph: waiting for a
-publisher (with did-you-mean hints when none comes), ``TOPIC/FIELD`` paths, and ``topic pub``'s
-type (inferred from the graph, or checked against it)."""
+"""Topic arguments of ``hwbridge topic ...``, ``record`` and ``play``: resolved as graph names
+(:func:`topic_argument`), then against the live graph: waiting for a publisher (with did-you-mean
+hints when none comes), ``TOPIC/FIELD`` paths, and ``topic pub``'s type (inferred from the graph,
+or checked against it)."""
 
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ import typer
 from hwbridge.errors import HwBridgeError, HwBridgeTimeoutError, MessageTypeError, UnknownTypeError
 from hwbridge.graph import Graph, GraphEntity
 from hwbridge.graph.discovery import LiveGraph, close_names, did_you_mean
+from hwbridge.graph.names import GraphNameError, resolve_name
 
 __all__ = [
     "GRACE",
@@ -27,6 +29,7 @@ __all__ = [
     "pub_arguments",
     "published_prefix",
     "refuse_other_type",
+    "topic_argument",
     "users_text",
 ]
 
@@ -39,6 +42,27 @@ def note(text: str) -> None:
     """One line on stderr, at once (the user is waiting)."""
     sys.stderr.write(text + "\n")
     sys.stderr.flush()
+
+
+def topic_argument(topic: str, *, fields: bool = False) -> str:
+    """A topic named on the command line, resolved as the graph resolves names
+    (:func:`hwbridge.graph.names.resolve_name`; a relative name in the root namespace, where
+    these tools' nodes are), before anything waits on it. A name the graph refuses is a
+    GraphNameError (status 1) with the rule it breaks; one that ends in '/' names the topic
+    meant too (``/diffbot/odom/``: ``did you mean /diffbot/odom?``). With ``fields`` (``topic
+    echo TOPIC/FIELD...``) the segments are a topic and a field path, list indexes among them,
+    so only the start and the end of the name are checked here."""
+    if topic != "/" and topic.endswith("/"):
+        try:
+            meant = f"; did you mean {topic_argument(topic.rstrip('/'), fields=fields)}?"
+        except GraphNameError:
+            meant = ""
+        raise GraphNameError(f"{topic!r}: a topic name does not end with '/'{meant}")
+    if fields and topic.startswith("/"):
+        return topic
+    if fields and topic and not topic.startswith("~"):
+        return "/" + topic  # resolved in the root namespace, as resolve_name does
+    return resolve_name(topic)
 
 
 def no_publisher(topic: str, live: LiveGraph) -> str:

@@ -18,7 +18,10 @@ __all__ = ["robot_app"]
 
 robot_app = typer.Typer(help="Robot files: check, show, devices, acl.", no_args_is_help=True)
 
-_FILE = Annotated[Path, typer.Argument(metavar="ROBOT.yaml", help="The robot file.")]
+_FILE = Annotated[
+    Path,
+    typer.Argument(metavar="ROBOT.yaml", exists=True, dir_okay=False, help="The robot file."),
+]
 
 
 @robot_app.command("check")

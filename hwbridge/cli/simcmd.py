@@ -14,6 +14,7 @@ from typing import Annotated
 
 import typer
 
+from hwbridge.cli.common import no_such_path, robot_argument
 from hwbridge.cli.shell import UsageError
 
 __all__ = ["ARM_MCUS", "AVR_MCUS", "sim"]
@@ -35,7 +36,6 @@ def _sim_arm(
     """An ARM firmware in QEMU until Ctrl-C (QEMU stopped on the way out)."""
     from hwbridge.errors import HwBridgeError
     from hwbridge.firmware.qemu import QemuBoard
-    from hwbridge.firmware.sim.examples import EXAMPLES_DIR, build_sketch_for_sim
 
     given = [
         name for name, on in (("--robot", robot is not None), ("--bootloader", bootloader)) if on
@@ -46,15 +46,9 @@ def _sim_arm(
             f"simavr only, not --mcu {mcu}"
         )
     if firmware is None:
-        raise HwBridgeError("give the firmware to run (an ELF, a sketch, an example's name)")
+        raise UsageError("give the firmware to run (an ELF, a sketch, an example's name)")
     board = ARM_MCUS[mcu]
-    path = Path(firmware)
-    if path.is_dir():
-        path = build_sketch_for_sim(path, board)
-    elif not path.exists() and (EXAMPLES_DIR / firmware).is_dir():
-        path = build_sketch_for_sim(EXAMPLES_DIR / firmware, board)
-    elif not path.exists():
-        raise HwBridgeError(f"{firmware}: no such ELF, sketch folder or example")
+    path = _firmware(firmware, board)
     _check_elf(path, "nrf51822" if mcu == "microbit" else mcu)  # elf_mcu's names
     with QemuBoard(path, board) as machine:
         url = machine.link_url
@@ -141,7 +135,6 @@ def sim(
     from hwbridge.errors import HwBridgeError
     from hwbridge.firmware.sim import SimAvr
     from hwbridge.firmware.sim.bootloader import bootloader_hex
-    from hwbridge.firmware.sim.examples import EXAMPLES_DIR, build_sketch_for_sim
 
     if mcu not in AVR_MCUS and mcu not in ARM_MCUS:
         raise typer.BadParameter(
@@ -156,14 +149,12 @@ def sim(
     if bootloader:
         boot = bootloader_hex(mcu)
     elif firmware is None:
-        raise HwBridgeError("give the firmware to run (an ELF, a sketch, an example's name)")
+        raise UsageError("give the firmware to run (an ELF, a sketch, an example's name)")
+    if robot is not None:
+        robot = robot_argument(robot, "--robot")
     path: Path | None = None
     if firmware is not None:
-        path = Path(firmware)
-        if path.is_dir():
-            path = build_sketch_for_sim(path, board_name)
-        elif not path.exists() and (EXAMPLES_DIR / firmware).is_dir():
-            path = build_sketch_for_sim(EXAMPLES_DIR / firmware, board_name)
+        path = _firmware(firmware, board_name)
         _check_elf(path, mcu)
     simulation = SimAvr(
         path, bootloader=boot, mcu=mcu, frequency=frequency, speed=speed, symlink=symlink
@@ -189,6 +180,21 @@ def sim(
         raise HwBridgeError(f"the simulator stopped ({_status(simulation.exit_code)})")
     finally:
         simulation.close()
+
+
+def _firmware(firmware: str, board: str) -> Path:
+    """The ELF to run: ``firmware`` itself, or the build for ``board`` of the sketch folder or
+    HwBridge example it names; a usage error if it is none of them."""
+    from hwbridge.firmware.sim.examples import EXAMPLES_DIR, build_sketch_for_sim
+
+    path = Path(firmware)
+    if path.is_dir():
+        return build_sketch_for_sim(path, board)
+    if path.exists():
+        return path
+    if (EXAMPLES_DIR / firmware).is_dir():
+        return build_sketch_for_sim(EXAMPLES_DIR / firmware, board)
+    raise no_such_path(firmware, "[ELF]", "a HwBridge example's name, e.g. HelloWorld")
 
 
 def _status(code: int | None) -> str:

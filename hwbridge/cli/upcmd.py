@@ -98,7 +98,13 @@ def _start_gateways(
 def up(
     ctx: typer.Context,
     robot_file: Annotated[
-        Path, typer.Argument(metavar="ROBOT.yaml", help="The robot file (see 'hwbridge robot').")
+        Path,
+        typer.Argument(
+            metavar="ROBOT.yaml",
+            exists=True,
+            dir_okay=False,
+            help="The robot file (see 'hwbridge robot').",
+        ),
     ],
     link: LinkOption = None,
     wait: Annotated[

@@ -27,6 +27,7 @@ def upload(
         Path,
         typer.Argument(
             metavar="SKETCH|ELF|HEX",
+            exists=True,
             help="A sketch folder (built first), an AVR ELF, or an Intel HEX file.",
         ),
     ],

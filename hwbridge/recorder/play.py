@@ -18,6 +18,7 @@ from mcap.records import Channel, Message, Schema
 from mcap.summary import Summary
 
 from hwbridge.errors import HwBridgeError
+from hwbridge.graph.discovery import close_names
 from hwbridge.graph.names import resolve_name
 from hwbridge.recorder.common import (
     MESSAGE_ENCODING,
@@ -58,7 +59,10 @@ class Player:
     that many seconds from the beginning, ``topics`` keeps only those topics and ``loop`` starts
     over at the end until :meth:`stop`. Before the first message, the player waits up to
     ``wait_for_subscribers`` seconds for every topic to have a subscriber. The file is checked
-    when the Player is made: RecordingError if it is not MCAP or not ROS 1 encoded.
+    when the Player is made: RecordingError if it is not MCAP or not ROS 1 encoded, or if none of
+    ``topics`` is in it (naming the recorded topics spelt alike). Those of ``topics`` that are
+    not in it are :attr:`missing` (for a caller to warn of), the file's topics :attr:`recorded`;
+    a file with no summary (not closed cleanly) tells neither before it is played.
     """
 
     def __init__(
@@ -94,6 +98,10 @@ class Player:
         self._loops = 0
         self._began: float | None = None
         self._ended: float | None = None
+        self.missing: tuple[str, ...] = ()
+        """Topics asked for that are not in the file."""
+        self.recorded: tuple[str, ...] = ()
+        """The file's topics, sorted."""
         self._info = self._inspect()
 
     # ------------------------------------------------------------------ file
@@ -107,7 +115,7 @@ class Player:
         with self._open() as stream:
             try:
                 reader = make_reader(stream)
-            except McapError as exc:
+            except (McapError, struct.error) as exc:  # struct.error: shorter than MCAP's magic
                 raise RecordingError(f"{self.path} is not an MCAP file ({exc})") from exc
             try:
                 summary = reader.get_summary()
@@ -130,15 +138,18 @@ class Player:
             info.end_ns = max(c.message_end_time for c in summary.chunk_indexes)
         wanted = set(self.topics) if self.topics is not None else None
         present = {channel.topic for channel in summary.channels.values()}
-        if wanted is not None:
-            missing = sorted(wanted - present)
-            if missing == sorted(wanted):
+        self.recorded = tuple(sorted(present))
+        if self.topics is not None:
+            self.missing = tuple(t for t in self.topics if t not in present)
+            if len(self.missing) == len(self.topics):
+                close = dict.fromkeys(c for t in self.missing for c in close_names(t, present))
+                hint = f"; did you mean {', '.join(close)}?" if close else ""
                 raise RecordingError(
-                    f"none of the topics {', '.join(missing)} is in {self.path}; "
-                    f"it has {', '.join(sorted(present)) or 'no topics'}"
+                    f"none of the topics {', '.join(self.missing)} is in {self.path}{hint} "
+                    f"(it has {', '.join(self.recorded) or 'no topics'})"
                 )
-            for topic in missing:
-                log.warning("topic %s is not in %s", topic, self.path)
+            for topic in self.missing:
+                log.info("topic %s is not in %s", topic, self.path)
         for channel in summary.channels.values():
             if wanted is None or channel.topic in wanted:
                 schema = summary.schemas.get(channel.schema_id)

@@ -100,6 +100,50 @@ def test_info_of_a_topic_unknown_to_the_graph(robot: Processes) -> None:
     assert "Type: geometry_msgs/Twist" in known.stdout
 
 
+def test_type_of_a_topic_unknown_to_the_graph_suggests(robot: Processes) -> None:
+    line = _failed(robot.cli("topic", "type", "/diffbot/odm"))
+    assert line == (
+        "error: no publisher or typed subscriber on /diffbot/odm; did you mean /diffbot/odom? "
+        "(see 'hwbridge topic list')"
+    )
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ("topic", "echo", "/diffbot/odom/", "-n", "1"),
+        ("topic", "hz", "/diffbot/odom/"),
+        ("topic", "bw", "/diffbot/odom/"),
+        ("topic", "type", "/diffbot/odom/"),
+        ("topic", "info", "/diffbot/odom/"),
+        ("topic", "pub", "-1", "/diffbot/odom/", "{}"),
+        ("record", "/diffbot/odom/", "--duration", "1", "-o", "/nonexistent/never.mcap"),
+    ],
+    ids=lambda argv: " ".join(argv[:2]),
+)
+def test_a_topic_with_a_trailing_slash_is_refused_naming_the_topic_meant(
+    robot: Processes, argv: tuple[str, ...]
+) -> None:
+    """As the graph's names are: '/diffbot/odom/' is no topic name (before, echo, hz and bw
+    said nothing published it, pub and type failed without naming the topic meant)."""
+    line = _failed(robot.cli(*argv))
+    assert line == (
+        "error: '/diffbot/odom/': a topic name does not end with '/'; did you mean /diffbot/odom?"
+    )
+
+
+def test_a_field_path_with_a_trailing_slash_is_refused_too(robot: Processes) -> None:
+    line = _failed(robot.cli("topic", "echo", "/diffbot/odom/pose/", "-n", "1"))
+    assert line.endswith("does not end with '/'; did you mean /diffbot/odom/pose?"), line
+
+
+def test_a_relative_topic_name_is_resolved_in_the_root_namespace(robot: Processes) -> None:
+    done = robot.cli("topic", "type", "diffbot/odom")
+    assert (done.returncode, done.stdout) == (0, "nav_msgs/Odometry\n"), done.stderr
+    done = robot.cli("topic", "echo", "diffbot/odom/pose/pose/position/z", "-n", "1")
+    assert (done.returncode, done.stdout) == (0, "0.0\n---\n"), done.stderr
+
+
 def test_echo_with_wait_says_so_once_then_waits_for_a_publisher(
     robot: Processes, node: Graph
 ) -> None:

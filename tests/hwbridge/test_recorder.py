@@ -348,8 +348,22 @@ def test_play_filters_topics_and_start(router: Graph, client: Graph, tmp_path: P
     assert wait_until(lambda: len(sink) >= len(want))
     assert sink.of("/b") == want
     assert sink.of("/a") == []
-    with pytest.raises(RecordingError, match="none of the topics /nope is in"):
+    with pytest.raises(
+        RecordingError, match=r"none of the topics /nope is in .* \(it has /a, /b\)"
+    ):
         Player(router, path, topics=["/nope"])
+
+
+def test_play_names_the_topics_it_cannot_play(router: Graph, tmp_path: Path) -> None:
+    path = tmp_path / "sample.mcap"
+    sample_file(path)
+    player = Player(router, path, topics=["/aa", "/b"])
+    assert (player.missing, player.recorded) == (("/aa",), ("/a", "/b"))
+    with pytest.raises(RecordingError) as info:
+        Player(router, path, topics=["/aa", "/bb"])
+    assert str(info.value) == (
+        f"none of the topics /aa, /bb is in {path}; did you mean /a, /b? (it has /a, /b)"
+    )
 
 
 def test_play_loops_until_stopped(router: Graph, client: Graph, tmp_path: Path) -> None:
@@ -412,6 +426,9 @@ def test_play_refuses_what_it_cannot_play(router: Graph, tmp_path: Path) -> None
         Player(router, cdr)
     text = tmp_path / "notes.mcap"
     text.write_text("not a recording")
+    with pytest.raises(RecordingError, match="not an MCAP file"):
+        Player(router, text)
+    text.write_text("\n")  # shorter than the magic: once a struct.error and a traceback
     with pytest.raises(RecordingError, match="not an MCAP file"):
         Player(router, text)
     with pytest.raises(RecordingError, match="cannot open"):
@@ -622,6 +639,46 @@ def test_cli_play(endpoint: str, client: Graph, tmp_path: Path) -> None:
     assert wait_until(lambda: len(sink) >= 10)
     assert sink.of("/b") == expected(messages, "/b")
     assert sink.of("/a") == []
+
+
+def test_cli_play_warns_of_a_topic_not_in_the_file(
+    endpoint: str, client: Graph, tmp_path: Path
+) -> None:
+    """Before, '--topics /bb' was dropped without a word (a log line at most); now each topic
+    not in the file gets a warning naming the recorded ones spelt alike, and if none of them is
+    there that is the error (status 1)."""
+    path = tmp_path / "sample.mcap"
+    messages = sample_file(path)
+    sink = Sink(client, ["/a", "/b"])
+    argv = ("play", str(path), "--rate", "0", "--wait", "10", "-q")
+    done = subprocess.run(
+        cli(endpoint, *argv, "--topics", "/a,/bb"),
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert done.returncode == 0, done.stderr
+    assert done.stderr.splitlines() == [
+        f"warning: /bb is not in {path}; did you mean /b? (playing the others)"
+    ]
+    assert wait_until(lambda: len(sink) >= 10)
+    assert sink.of("/a") == expected(messages, "/a")
+    for asked in (["--topics", "/aa,/bb"], ["/aa", "/bb"]):
+        done = subprocess.run(
+            cli(endpoint, *argv, *asked), capture_output=True, text=True, timeout=60, check=False
+        )
+        assert done.returncode == 1, done.stderr
+        assert done.stderr.splitlines() == [
+            f"error: none of the topics /aa, /bb is in {path}; did you mean /a, /b? (it has /a, /b)"
+        ]
+    done = subprocess.run(
+        cli(endpoint, *argv, "/a/"), capture_output=True, text=True, timeout=60, check=False
+    )
+    assert done.returncode == 1, done.stderr
+    assert done.stderr.splitlines() == [
+        "error: '/a/': a topic name does not end with '/'; did you mean /a?"
+    ]
 
 
 def test_cli_errors(endpoint: str, router: Graph, tmp_path: Path) -> None:

@@ -16,7 +16,7 @@ import pytest
 
 from hwbridge.errors import HwBridgeError
 from hwbridge.firmware.build import elf_mcu
-from hwbridge.firmware.sim.examples import build_example
+from hwbridge.firmware.sim.examples import EXAMPLES_DIR, build_example
 from tests.cliutil import run_hwbridge
 from tests.netutil import wait_until
 from tests.sim.avrc import build_avr_c
@@ -158,11 +158,19 @@ def test_a_simulator_that_dies_is_an_error(runner: Path) -> None:
     ("argv", "said"),
     [
         (
-            ("firmware", "build", "HelloWorld", "--board", "due"),
+            ("firmware", "build", str(EXAMPLES_DIR / "HelloWorld"), "--board", "due"),
             "unknown board 'due'; use one of uno, nano, mega, stm32f405, microbit, host",
         ),
         (
-            ("firmware", "upload", "HelloWorld", "--port", "/nonexistent", "--board", "due"),
+            (
+                "firmware",
+                "upload",
+                str(EXAMPLES_DIR / "HelloWorld"),
+                "--port",
+                "/nonexistent",
+                "--board",
+                "due",
+            ),
             "unknown board 'due'; use uno or mega",
         ),
         (

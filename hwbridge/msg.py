@@ -45,6 +45,7 @@ __all__ = [
     "ServiceType",
     "TypeRegistry",
     "check_field_path",
+    "child_environment",
     "decode",
     "dump_yaml",
     "encode",
@@ -92,7 +93,8 @@ SEC_LIMITS: Final = {
 @lru_cache(maxsize=16)
 def _env_path(env_value: str) -> tuple[Path, ...]:
     """The folders of ``HWBRIDGE_MSG_PATH``'s value; an entry that is none is left out with a
-    warning (once per value: like PATH, the variable tolerates it, but a typo is told)."""
+    warning (once per value: like PATH, the variable tolerates it, but a typo is told; the
+    processes a command starts get the folders only, :func:`child_environment`)."""
     found = []
     for entry in env_value.split(os.pathsep):
         if not entry:
@@ -103,6 +105,18 @@ def _env_path(env_value: str) -> tuple[Path, ...]:
             problem = "is not a folder" if Path(entry).exists() else "does not exist"
             log.warning("%s entry %s %s; skipped", ENV_VAR, entry, problem)
     return tuple(found)
+
+
+def child_environment(environ: Mapping[str, str] | None = None) -> dict[str, str]:
+    """``environ`` (default: this process's) for a hwbridge process this command starts (a
+    shard of ``hwbridge up``, a gateway): its ``HWBRIDGE_MSG_PATH`` holds only the entries that
+    are folders. This process warns about the others (once); the child, not given them, does
+    not warn again: one warning per command, not one per process."""
+    env = dict(os.environ if environ is None else environ)
+    value = env.get(ENV_VAR)
+    if value:
+        env[ENV_VAR] = os.pathsep.join(str(folder) for folder in _env_path(value))
+    return env
 
 
 @lru_cache(maxsize=16)

@@ -49,7 +49,7 @@ def _sim_arm(
         raise UsageError("give the firmware to run (an ELF, a sketch, an example's name)")
     board = ARM_MCUS[mcu]
     path = _firmware(firmware, board)
-    _check_elf(path, "nrf51822" if mcu == "microbit" else mcu)  # elf_mcu's names
+    _check_firmware(path, mcu)
     with QemuBoard(path, board) as machine:
         url = machine.link_url
         if symlink is not None:
@@ -76,8 +76,8 @@ def sim(
         str | None,
         typer.Argument(
             metavar="[ELF]",
-            help="An AVR ELF, a sketch folder, or the name of a HwBridge example (HelloWorld); "
-            "with --bootloader also an Intel HEX, or nothing (blank flash).",
+            help="An AVR ELF or Intel HEX (.hex), a sketch folder, or the name of a HwBridge "
+            "example (HelloWorld); with --bootloader also nothing (blank flash).",
         ),
     ] = None,
     mcu: Annotated[
@@ -145,17 +145,15 @@ def sim(
         _sim_arm(firmware, mcu, symlink=symlink, robot=robot, bootloader=bootloader)
         return
     board_name = "mega" if mcu == "atmega2560" else "uno"
-    boot: Path | None = None
-    if bootloader:
-        boot = bootloader_hex(mcu)
-    elif firmware is None:
+    if firmware is None and not bootloader:
         raise UsageError("give the firmware to run (an ELF, a sketch, an example's name)")
     if robot is not None:
         robot = robot_argument(robot, "--robot")
     path: Path | None = None
     if firmware is not None:
         path = _firmware(firmware, board_name)
-        _check_elf(path, mcu)
+        _check_firmware(path, mcu, bootloader=bootloader)
+    boot = bootloader_hex(mcu) if bootloader else None
     simulation = SimAvr(
         path, bootloader=boot, mcu=mcu, frequency=frequency, speed=speed, symlink=symlink
     )
@@ -205,16 +203,39 @@ def _status(code: int | None) -> str:
     return f"exit code {code}"
 
 
-def _check_elf(path: Path, mcu: str) -> None:
-    """Refuse an ELF built for another MCU than ``mcu``: in the simulator it crashes at once."""
-    from hwbridge.errors import HwBridgeError
-    from hwbridge.firmware.build import ELF_MCUS, elf_mcu
+def _check_firmware(path: Path, mcu: str, *, bootloader: bool = False) -> None:
+    """Refuse firmware built for another MCU than ``mcu`` (an --mcu value): in the simulator it
+    crashes at once. An ELF by the MCU it names; an AVR's Intel HEX by its highest address,
+    against the MCU's flash (with ``bootloader``: the flash below the bootloader's section)."""
+    import dataclasses
 
-    built_for = elf_mcu(path)
-    if built_for is None or built_for == mcu:
+    from hwbridge.firmware.build import ELF_MCUS
+    from hwbridge.firmware.checks import FirmwareTarget, check_elf, check_hex
+    from hwbridge.firmware.sim.bootloader import flash_layout
+
+    name = "nrf51822" if mcu == "microbit" else mcu  # elf_mcu's names
+    target = FirmwareTarget(
+        mcu=name,
+        name=f"the {name}",
+        verb="run",
+        option="--mcu",
+        value=mcu,
+        choices={each: each for each in ELF_MCUS},  # each one an --mcu value
+    )
+    if not path.is_file():
+        return  # SimAvr says there is none
+    if mcu not in AVR_MCUS or path.suffix.lower() != ".hex":  # (the runner's test for a HEX)
+        check_elf(path, target)
         return
-    if built_for in ELF_MCUS:  # each one an --mcu value
-        raise HwBridgeError(
-            f"{path} was built for the {built_for}, not the {mcu}: give --mcu {built_for}"
-        )
-    raise HwBridgeError(f"{path} was built for {built_for}, not the {mcu}")
+    # (boot section start, flash size) of each AVR
+    layouts = {each: flash_layout(each) for each in AVR_MCUS}
+    room = 0 if bootloader else 1
+    below = f" below its bootloader (at {layouts[mcu][0]:#x})" if bootloader else ""
+    check_hex(
+        path,
+        dataclasses.replace(
+            target,
+            space={each: layout[room] for each, layout in layouts.items()},
+            space_name=f"of the {mcu}'s flash{below}",
+        ),
+    )

@@ -254,8 +254,7 @@ class VirtualBoard:
             raise HwBridgeError("the board is not running on a link")
         url = link.url
         self.pump = None
-        pump.stop()
-        link.close()
+        _halt(pump, link)
         log.info("%s: unplugged for %.1f s", self.config.name, seconds)
         self._stop.wait(seconds)
         if not self._stop.is_set():
@@ -313,10 +312,26 @@ class VirtualBoard:
         return self._thread is not None and self._thread.is_alive()
 
     def stop(self) -> None:
+        """Stop the physics thread and the pump, and close the link. The link is closed before
+        the threads are waited for: a write blocked on it (a host that does not read, a full
+        pty or socket), in the pump thread or in a reading the physics thread publishes, then
+        returns at once instead of holding the stop until the threads' join timeouts."""
         self._stop.set()
+        pump, link = self.pump, self.link
+        if link is not None:
+            _halt(pump, link, wait=False)
         if self._thread is not None:
             self._thread.join(2)
-        if self.pump is not None:
-            self.pump.stop()
-        if self.link is not None:
-            self.link.close()
+        if pump is not None:
+            pump.stop()
+
+
+def _halt(pump: SessionPump | None, link: Link, *, wait: bool = True) -> None:
+    """End ``pump`` and close its ``link``: the pump is told to stop first (so that the link's
+    closing is no error to it), then the link is closed, which wakes a read or write blocked
+    on it; then (``wait``) the pump's thread is waited for."""
+    if pump is not None:
+        pump.stop(timeout=0)  # only tells it: its thread may be blocked on the link
+    link.close()
+    if pump is not None and wait:
+        pump.stop()

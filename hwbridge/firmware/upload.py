@@ -27,8 +27,8 @@ from typing import Final
 
 from hwbridge.errors import HwBridgeError
 from hwbridge.firmware import build
+from hwbridge.firmware.checks import HEX_SUFFIXES, FirmwareTarget, check_elf, check_hex
 from hwbridge.firmware.children import follow_parent
-from hwbridge.firmware.sim.bootloader import HexError, read_hex
 
 __all__ = [
     "AVRDUDE_PACKAGE",
@@ -94,7 +94,7 @@ def prepare_image(
         image = elf.with_suffix(".hex")
         progress(f"built {image}")
     elif suffix == ".elf":
-        _check_elf(target, board)
+        check_elf(target, _target(board))
         objcopy = shutil.which("avr-objcopy")
         if objcopy is None:
             raise UploadError("avr-objcopy is not installed (apt-get install binutils-avr)")
@@ -107,34 +107,33 @@ def prepare_image(
         )
         if done.returncode != 0:
             raise UploadError(f"cannot convert {target} to Intel HEX: {done.stderr.strip()}")
-    elif suffix in (".hex", ".ihex", ".ihx"):
+    elif suffix in HEX_SUFFIXES:
         image = target
     else:
         raise UploadError(f"{target}: give a sketch folder, an .elf or an Intel .hex file")
-    try:
-        memory = read_hex(image)
-    except HexError as exc:
-        raise UploadError(f"refusing to upload: {exc}") from exc
-    room = build.BOARDS[board].flash
-    if max(memory) >= room:
-        raise UploadError(
-            f"refusing to upload {image}: it reaches address {max(memory):#06x}, past the "
-            f"{room} bytes of flash the {board}'s bootloader leaves"
-        )
+    check_hex(image, _target(board))
     return image
 
 
-def _check_elf(elf: Path, board: str) -> None:
-    """Refuse an ELF built for another MCU than the board's: avrdude would write it, and the
-    board would run garbage."""
-    built_for = build.elf_mcu(elf)
+def _target(board: str) -> FirmwareTarget:
+    """The board ``board`` (a key of :data:`PROGRAMMERS`) as the firmware checks see it: an ELF
+    built for another MCU would be written and run as garbage, a HEX must fit the flash the
+    board's bootloader leaves."""
     part = PROGRAMMERS[board].part
-    if built_for is None or built_for == part:
-        return
-    boards = [name for name, programmer in PROGRAMMERS.items() if programmer.part == built_for]
-    hint = f": give --board {boards[0]}" if boards else ""
-    mcu = f"the {built_for}" if built_for in build.ELF_MCUS else built_for
-    raise UploadError(f"refusing to upload {elf}: built for {mcu}, not the {board}'s {part}{hint}")
+    choices: dict[str, str] = {}
+    for name, programmer in PROGRAMMERS.items():
+        choices.setdefault(programmer.part, name)
+    return FirmwareTarget(
+        mcu=part,
+        name=f"the {board}'s {part}",
+        verb="upload",
+        option="--board",
+        value=board,
+        choices=choices,
+        space={name: build.BOARDS[name].flash for name in PROGRAMMERS},
+        space_name=f"of flash the {board}'s bootloader leaves",
+        error=UploadError,
+    )
 
 
 def _port_path(port: str) -> Path:

@@ -8,7 +8,6 @@ that fails does not take the robot down with it.
 from __future__ import annotations
 
 import contextlib
-import os
 import signal
 import subprocess
 import sys
@@ -54,10 +53,12 @@ class GatewayProcess:
         extra: Sequence[str] = (),
         msg_path: Sequence[str] = (),
     ) -> None:
+        from hwbridge.msg import child_environment
+
         argv = [*child_argv(config, msg_path), kind, *extra]
         self.argv = argv
         self.kind = kind
-        self.process = subprocess.Popen(argv, env=dict(os.environ), stdin=subprocess.DEVNULL)
+        self.process = subprocess.Popen(argv, env=child_environment(), stdin=subprocess.DEVNULL)
 
     def running(self) -> bool:
         return self.process.poll() is None

@@ -174,11 +174,12 @@ class Shards:
         import dataclasses
 
         from hwbridge.gateway.launch import child_argv
+        from hwbridge.msg import child_environment
 
         if config.config_file is None or config.listen:
             config = dataclasses.replace(config, listen=(self.endpoint,))
         base = [*child_argv(config, msg_path), *_verbosity(), "up", str(robot_file)]
-        env = dict(os.environ, **{PARENT_ENV: str(os.getpid())})
+        env = {**child_environment(), PARENT_ENV: str(os.getpid())}
         try:
             for index, boards in enumerate(self.groups):
                 argv = [*base, "--shard", ",".join(boards), *options]

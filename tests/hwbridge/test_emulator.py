@@ -8,6 +8,7 @@ import os
 import re
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -21,7 +22,7 @@ from hwbridge.devices.imu.node import ImuNode
 from hwbridge.emulator import BoardConfig, VirtualBoard, World, WorldConfig, load_board
 from hwbridge.errors import HwBridgeError
 from hwbridge.graph import Graph
-from hwbridge.links import open_link
+from hwbridge.links import Link, LinkClosedError, open_link
 from hwbridge.protocols.native.control import EntryKind
 from hwbridge.robot.config import device_config
 from hwbridge.robot.plugin import HostContext
@@ -224,6 +225,70 @@ def test_a_failing_device_reading_is_logged_and_the_board_keeps_running(
         graph.close()
         board.stop()
         link.close()
+
+
+class _UnreadLink(Link):
+    """A link whose peer never reads: a write blocks until close() wakes it, as one to a full
+    pty or socket does (a host that stopped reading); reads find nothing."""
+
+    scheme = "unread"
+
+    def __init__(self) -> None:
+        super().__init__("unread://")
+        self.writing = threading.Event()
+        """Set once a write is blocked."""
+        self._woken = threading.Event()
+
+    def _open(self) -> None:
+        self._woken.clear()
+
+    def _read(self, max_bytes: int, timeout: float | None) -> bytes:
+        del max_bytes
+        self._woken.wait(timeout)
+        return b""
+
+    def _write(self, data: memoryview) -> None:
+        del data
+        self.writing.set()
+        self._woken.wait()
+        raise LinkClosedError("unread://: closed during a write")
+
+    def _close(self) -> None:
+        pass
+
+    def _wake(self) -> None:
+        self._woken.set()
+
+
+def test_stop_does_not_wait_for_a_write_the_host_does_not_read(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The board's first bytes block in a write (the host reads nothing), and its readings wait
+    behind them; stop() closes the link, which wakes the write, before it waits for its
+    threads: no wait gives up on a thread, and they have ended when it returns. (It closed the
+    link last: first each join waited out its timeout, 2 s a thread, on a thread that could not
+    end.)"""
+    gave_up: list[str] = []
+    join = threading.Thread.join
+
+    def watched_join(thread: threading.Thread, timeout: float | None = None) -> None:
+        join(thread, timeout)
+        if thread.is_alive() and timeout != 0:  # (a join(0) only looks)
+            gave_up.append(thread.name)
+
+    board = VirtualBoard(load_board("diffbot"), seed=2)
+    link = _UnreadLink()
+    link.open()
+    board.start(link)
+    pump = board.pump
+    assert pump is not None
+    assert link.writing.wait(30)
+    monkeypatch.setattr(threading.Thread, "join", watched_join)
+    board.stop()
+    assert gave_up == []
+    assert not board.running
+    assert not pump.running
+    assert not link.is_open
 
 
 def _env(endpoint: str) -> dict[str, str]:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import re
 from pathlib import Path
 from typing import Any
@@ -209,6 +210,26 @@ def test_user_package_on_search_path(tmp_path: Path, monkeypatch: pytest.MonkeyP
     assert len(reg.service("robot_msgs/Calibrate").md5) == 32
     monkeypatch.setenv(msg.ENV_VAR, str(tmp_path))
     assert "robot_msgs/Wheels" in msg.registry().message_names()
+
+
+def test_a_child_process_gets_the_msg_path_folders_only(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """The command warns about an entry that is no folder (once); its children get the folders
+    only, so their registries find the same types and warn about nothing."""
+    typo = tmp_path / "msgz"
+    value = os.pathsep.join([str(typo), str(tmp_path), ""])
+    with caplog.at_level("WARNING", logger="hwbridge.msg"):
+        env = msg.child_environment({msg.ENV_VAR: value, "OTHER": "kept"})
+        assert msg.child_environment({msg.ENV_VAR: value}) == {msg.ENV_VAR: str(tmp_path)}
+        assert env == {msg.ENV_VAR: str(tmp_path), "OTHER": "kept"}
+        warned = [r.getMessage() for r in caplog.records]
+        assert warned == [f"{msg.ENV_VAR} entry {typo} does not exist; skipped"]
+        caplog.clear()
+        assert msg.child_environment(env) == env  # the child's children alike
+    assert caplog.records == []
+    assert msg.child_environment({msg.ENV_VAR: str(typo)}) == {msg.ENV_VAR: ""}
+    assert msg.child_environment({}) == {}
 
 
 @pytest.mark.parametrize(

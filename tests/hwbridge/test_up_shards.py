@@ -18,6 +18,7 @@ from typing import Any
 import pytest
 import yaml
 
+from hwbridge.msg import ENV_VAR
 from tests.hwbridge.test_up import Processes, _echo
 from tests.netutil import free_port, wait_until
 
@@ -223,6 +224,26 @@ def test_a_shard_that_cannot_start_names_its_boards(
     errors = [line for line in done.stderr.splitlines() if line.startswith("error:")]
     assert any("board b1: link socket://" in e and "does not open" in e for e in errors), errors
     assert any("bridge process 2" in e and "board b1)" in e for e in errors), errors
+
+
+def test_a_bad_msg_path_entry_is_told_once(procs: Processes, tmp_path: Path) -> None:
+    """One warning for a HWBRIDGE_MSG_PATH entry that does not exist, from the command: its
+    shards get the folders only (each process warned, once per shard and once more)."""
+    boards = [
+        {"name": name, "link": f"socket://127.0.0.1:{free_port()}", "protocol": "native"}
+        for name in ("p", "q")
+    ]  # nothing listens there: with --wait, the shards wait for them
+    robot = tmp_path / "duo.yaml"
+    robot.write_text(yaml.safe_dump({"robot": "duo", "boards": boards}))
+    typo = tmp_path / "msgz"
+    procs.env[ENV_VAR] = os.pathsep.join([str(typo), str(tmp_path)])
+    up, log = procs.start("up", "up", str(robot), "--boards-per-process", "1", "--wait")
+    # the shards are ready (their registries built) before the parent says it is up
+    assert wait_until(lambda: "robot duo up" in log.read_text() or up.poll() is not None, 120)
+    text = log.read_text()
+    assert up.poll() is None, text
+    assert "2 boards in 2 bridge processes" in text, text
+    assert text.count(f"{ENV_VAR} entry {typo} does not exist") == 1, text
 
 
 def test_one_process_when_the_boards_fit(procs: Processes, trio: tuple[Path, list[str]]) -> None:

@@ -4,6 +4,7 @@ pins driven and watched, an HC-SR04 echo, an I2C register file, watchdog and ext
 from __future__ import annotations
 
 import itertools
+import shutil
 import subprocess
 import threading
 from collections import Counter
@@ -157,6 +158,26 @@ def test_uart_carries_a_burst_whole(probe_elf: Path, terminal_factory: type[Term
         assert uart.read_until(b"boot\n") == b"boot\n"
         uart.write(burst)
         assert uart.read_until(b"#", timeout=60) == burst
+
+
+def test_an_intel_hex_runs_without_a_bootloader(
+    probe_elf: Path, terminal_factory: type[Terminal], tmp_path: Path
+) -> None:
+    """The probe as an Intel HEX runs as its ELF does (libsimavr reads no HEX: the runner loads
+    it; the AVR ran blank flash and crashed)."""
+    objcopy = shutil.which("avr-objcopy")
+    if objcopy is None:
+        pytest.skip("avr-objcopy is not installed (apt-get install binutils-avr)")
+    image = tmp_path / "probe.hex"
+    subprocess.run([objcopy, "-O", "ihex", "-R", ".eeprom", str(probe_elf), str(image)], check=True)
+    with SimAvr(image) as sim:
+        sim.start(hold=True)
+        uart = terminal_factory(sim.path)
+        sim.go()
+        assert uart.read_until(b"boot\n") == b"boot\n"
+        uart.write(b"hello#")
+        assert uart.read_until(b"#") == b"hello#"
+        assert sim.exited is None
 
 
 def _echo_hello(

@@ -1,8 +1,8 @@
-"""``hwbridge firmware sim`` and ``upload`` given an ELF a user could mix up: one built for
-another MCU is refused at once, naming the option that runs it (a Mega's ELF on the default
-Uno crashed in simavr, an ARM ELF in simavr hung after its crash, and an upload wrote a Mega's
-ELF to an Uno); an AVR that stops at once ends the command with the reason; a simulator that dies
-ends it with an error instead of exit status 0."""
+"""``hwbridge firmware sim`` and ``upload`` given an ELF or an Intel HEX a user could mix up: one
+built for another MCU (a HEX: one past the MCU's flash) is refused at once, naming the option
+that runs it (a Mega's ELF or HEX on the default Uno crashed in simavr, an ARM ELF in simavr hung
+after its crash, and an upload wrote a Mega's ELF to an Uno); an AVR that stops at once ends the
+command with the reason; a simulator that dies ends it with an error instead of exit status 0."""
 
 from __future__ import annotations
 
@@ -83,13 +83,13 @@ def test_sim_refuses_an_elf_built_for_another_mcu(runner: Path) -> None:
     assert done.returncode == 1, done.stderr
     assert done.stdout == "", done.stdout  # no simulator started
     assert (
-        f"error: {mega} was built for the atmega2560, not the atmega328p: give --mcu atmega2560"
-        in (done.stderr)
-    ), done.stderr
+        f"error: refusing to run {mega}: built for the atmega2560, not the atmega328p: "
+        "give --mcu atmega2560"
+    ) in done.stderr, done.stderr
     uno = _example("uno")
     done = _hwbridge("firmware", "sim", str(uno), "--mcu", "stm32f405")
     assert done.returncode == 1, done.stderr
-    assert "was built for the atmega328p, not the stm32f405: give --mcu atmega328p" in done.stderr
+    assert "built for the atmega328p, not the stm32f405: give --mcu atmega328p" in done.stderr
 
 
 def test_upload_refuses_an_elf_built_for_another_mcu(tmp_path: Path) -> None:
@@ -99,6 +99,72 @@ def test_upload_refuses_an_elf_built_for_another_mcu(tmp_path: Path) -> None:
     assert (
         f"error: refusing to upload {mega}: built for the atmega2560, not the uno's atmega328p: "
         "give --board mega"
+    ) in done.stderr, done.stderr
+
+
+def _intel_hex(path: Path, chunks: dict[int, bytes]) -> Path:
+    """An Intel HEX file of ``chunks`` (bytes by address): 16 bytes a record, an extended
+    linear address record where the upper 16 bits of the addresses change."""
+
+    def record(kind: int, address: int, data: bytes) -> str:
+        body = bytes([len(data), address >> 8, address & 0xFF, kind]) + data
+        return ":" + (body + bytes([-sum(body) & 0xFF])).hex().upper()
+
+    lines: list[str] = []
+    upper = 0
+    for start, data in sorted(chunks.items()):
+        for offset in range(0, len(data), 16):
+            address = start + offset
+            if address >> 16 != upper:
+                upper = address >> 16
+                lines.append(record(4, 0, upper.to_bytes(2, "big")))
+            lines.append(record(0, address & 0xFFFF, data[offset : offset + 16]))
+    lines.append(record(1, 0, b""))
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+_LOOP = b"\xff\xcf"  # rjmp .-2
+
+
+def test_sim_refuses_a_hex_past_the_mcus_flash(tmp_path: Path) -> None:
+    """A Mega's HEX, code up to 0x9d61, is refused on the default Uno before the simulator
+    starts (the runner crashed on it, or was killed by SIGSEGV), naming the --mcu that fits; with
+    --bootloader, a HEX reaching into the Uno's bootloader section (from 0x7E00) likewise."""
+    mega = _intel_hex(tmp_path / "mega.hex", {0: _LOOP, 0x9D60: _LOOP})
+    done = _hwbridge("firmware", "sim", str(mega))
+    assert (done.returncode, done.stdout) == (1, ""), done.stderr
+    assert (
+        f"error: refusing to run {mega}: it reaches address 0x9d61 (40290 bytes), past the "
+        "32768 bytes of the atmega328p's flash: give --mcu atmega2560"
+    ) in done.stderr, done.stderr
+    full = _intel_hex(tmp_path / "full.hex", {0: _LOOP, 0x7E00: _LOOP})
+    done = _hwbridge("firmware", "sim", str(full), "--bootloader")
+    assert (done.returncode, done.stdout) == (1, ""), done.stderr
+    assert (
+        f"error: refusing to run {full}: it reaches address 0x7e01 (32258 bytes), past the "
+        "32256 bytes of the atmega328p's flash below its bootloader (at 0x7e00): give --mcu "
+        "atmega2560"
+    ) in done.stderr, done.stderr
+
+
+def test_upload_refuses_a_hex_past_the_boards_flash(tmp_path: Path) -> None:
+    """Before avrdude resets the board: a Mega's HEX on the default Uno names --board mega; one
+    past the Mega's room too names no board."""
+    port = str(tmp_path / "ttyNONE")
+    mega = _intel_hex(tmp_path / "mega.hex", {0: _LOOP, 0x9D60: _LOOP})
+    done = _hwbridge("firmware", "upload", str(mega), "--port", port)
+    assert done.returncode == 1, done.stderr
+    assert (
+        f"error: refusing to upload {mega}: it reaches address 0x9d61 (40290 bytes), past the "
+        "32256 bytes of flash the uno's bootloader leaves: give --board mega"
+    ) in done.stderr, done.stderr
+    huge = _intel_hex(tmp_path / "huge.hex", {0: _LOOP, 0x3E000: _LOOP})
+    done = _hwbridge("firmware", "upload", str(huge), "--port", port, "--board", "mega")
+    assert done.returncode == 1, done.stderr
+    assert (
+        f"error: refusing to upload {huge}: it reaches address 0x3e001 (253954 bytes), past the "
+        "253952 bytes of flash the mega's bootloader leaves; no --board has that much flash"
     ) in done.stderr, done.stderr
 
 

@@ -1,14 +1,15 @@
 """AVR firmware in simavr: the runner (a small C program against Debian's libsimavr), built on
 first use and cached, and :class:`SimAvr`, the Python side that starts it and talks to it.
 
-The runner loads an ELF for an ATmega328P or ATmega2560, puts UART0 on a pseudo-terminal (its
-URL, ``serial:///dev/pts/N``, is its first line of output), holds the simulation to the wall
-clock (or a stated speed-up), and carries the devices on the MCU's pins through a line protocol
-on its stdin and stdout (see ``runner.c``): watched output pins report their duty every report
-period together with the simulated time, input pins are driven, quadrature encoders are moved to
-a position (the edges spread over the next period), HC-SR04 triggers are answered with an echo
-of a set width, and I2C register files answer on the TWI bus (the firmware's writes are
-reported). :mod:`hwbridge.emulator.pins` puts the emulator's world on these pins.
+The runner loads an ELF (or an Intel HEX, ``.hex``) for an ATmega328P or ATmega2560, puts
+UART0 on a pseudo-terminal (its URL, ``serial:///dev/pts/N``, is its first line of output),
+holds the simulation to the wall clock (or a stated speed-up), and carries the devices on the
+MCU's pins through a line protocol on its stdin and stdout (see ``runner.c``): watched output
+pins report their duty every report period together with the simulated time, input pins are
+driven, quadrature encoders are moved to a position (the edges spread over the next period),
+HC-SR04 triggers are answered with an echo of a set width, and I2C register files answer on
+the TWI bus (the firmware's writes are reported). :mod:`hwbridge.emulator.pins` puts the
+emulator's world on these pins.
 """
 
 from __future__ import annotations

@@ -29,6 +29,7 @@ __all__ = [
     "STK500V2_HEX",
     "HexError",
     "bootloader_hex",
+    "flash_layout",
     "optiboot_hex",
     "read_hex",
 ]
@@ -41,6 +42,12 @@ MEGA_BOOT_START: Final = 0x3E000
 MEGA_FLASH_END: Final = 0x40000  # ATmega2560: 256 KiB
 BOOT_START: Final = 0x7E00
 FLASH_END: Final = 0x8000  # ATmega328P: 32 KiB
+_FLASH: Final = {
+    "atmega328p": (BOOT_START, FLASH_END),
+    "atmega2560": (MEGA_BOOT_START, MEGA_FLASH_END),
+}
+"""Each AVR's flash: where the boot section its board's fuses give the bootloader starts, and
+the flash's end (its size), in bytes."""
 _SETTINGS: Final = (
     "-mmcu=atmega328p",
     "-DF_CPU=16000000L",
@@ -66,6 +73,15 @@ _LINK: Final = (
     "-nostartfiles",
     "-nostdlib",
 )
+
+
+def flash_layout(mcu: str) -> tuple[int, int]:
+    """The flash of ``mcu`` (``atmega328p``, ``atmega2560``): where its boot section starts
+    (the bootloader's, as the board's fuses set it) and its size, in bytes."""
+    layout = _FLASH.get(mcu)
+    if layout is None:
+        raise HwBridgeError(f"no flash layout for {mcu} ({' or '.join(_FLASH)})")
+    return layout
 
 
 class HexError(HwBridgeError):

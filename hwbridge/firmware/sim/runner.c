@@ -3,7 +3,7 @@
  * pins, driven line by line from a controlling process (hwbridge.firmware.sim).
  *
  *   hwbridge-simavr --mcu atmega328p --freq 16000000 [--speed 1.0] [--report-us 5000] [--hold]
- *                   [--bootloader BOOT.hex] [--trace-uart FILE] FIRMWARE.elf
+ *                   [--bootloader BOOT.hex] [--trace-uart FILE] FIRMWARE.elf|FIRMWARE.hex
  *
  * With --bootloader (an Intel HEX at the top of flash: Optiboot's 0x7E00 on the ATmega328P, the
  * stk500v2 bootloader's 0x3E000 on the ATmega2560) the CPU starts at the bootloader, as the BOOTRST fuse makes it, and FIRMWARE (an ELF or an Intel HEX) is optional:
@@ -1035,7 +1035,7 @@ static void usage(void) {
   fprintf(stderr,
           "usage: hwbridge-simavr [--mcu atmega328p] [--freq 16000000] [--speed 1.0] "
           "[--report-us 5000] [--hold] [--bootloader BOOT.hex] [--trace-uart FILE] "
-          "[--trace-pc FILE] FIRMWARE.elf\n");
+          "[--trace-pc FILE] FIRMWARE.elf|FIRMWARE.hex\n");
   exit(2);
 }
 
@@ -1079,7 +1079,7 @@ int main(int argc, char **argv) {
       elf = argv[i];
   }
   if (!elf && !boot) usage();
-  int app_hex = elf && boot && ends_with(elf, ".hex");
+  int app_hex = elf && ends_with(elf, ".hex");  // else an ELF (libsimavr reads no HEX)
   avr_global_logger_set(quiet_logger);
 
   elf_firmware_t fw;
@@ -1099,6 +1099,11 @@ int main(int argc, char **argv) {
   fw.frequency = freq;
   if (elf && !app_hex) avr_load_firmware(avr, &fw);
   avr->frequency = freq;
+  if (app_hex && !boot) {
+    uint32_t start = 0;
+    if (load_hex(elf, &start) != 0) return 1;
+    avr->codeend = avr->flashend;
+  }
   if (boot) {
     uint32_t start = 0, boot_start = 0;
     if (app_hex && load_hex(elf, &start) != 0) return 1;

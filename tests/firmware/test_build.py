@@ -131,4 +131,6 @@ def test_the_cli_builds_and_measures(tmp_path: Path) -> None:
         timeout=60,
         check=False,
     )
-    assert missing.returncode == 1 and missing.stderr.startswith("error: ")
+    # A path on the command line that does not exist is a usage error (docs/design.md).
+    assert missing.returncode == 2 and missing.stderr.startswith("error: ")
+    assert "nope.elf' does not exist" in missing.stderr

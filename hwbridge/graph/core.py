@@ -733,10 +733,12 @@ class DeferredReply:
 
     def ok(self, payload: bytes) -> None:
         """Send the response bytes (ignored if an answer was already given)."""
-        query = self._finish()
-        if query is not None:
-            query.reply(self._server.key, payload, express=True)
-            query.drop()  # type: ignore[no-untyped-call]
+        try:  # (_finish(), without its context manager: once per answer a board gives)
+            query = self._query.pop()
+        except IndexError:
+            return
+        query.reply(self._server.key, payload, express=True)
+        query.drop()  # type: ignore[no-untyped-call]
 
     def error(self, text: str) -> None:
         """Fail the call with ``text`` (ignored if an answer was already given)."""

@@ -462,6 +462,32 @@ def test_serial_reads_after_a_full_and_a_draining_read() -> None:
             assert wait_until(lambda: seen.extend(board.read(3, timeout=0)) or seen == b"xyz")
 
 
+@settings(max_examples=25, deadline=None, derandomize=True)
+@given(chunks=chunk_lists, sizes=st.lists(st.integers(1, 64), min_size=1, max_size=8))
+def test_serial_reads_of_any_size_take_every_byte_in_order(
+    chunks: list[bytes], sizes: list[int]
+) -> None:
+    """Reads of sizes that fill (the next read reads at once) or drain (the next waits in poll
+    first) in any order: the bytes written come out whole and in order."""
+    expected = b"".join(chunks)
+    with open_link("pty://") as master:
+        assert isinstance(master, PtyLink)
+        with open_link(f"serial://{master.slave_path}") as board:
+            assert wait_until(lambda: master.connected)
+            writer = threading.Thread(target=lambda: [master.write(c) for c in chunks])
+            writer.start()
+            got = bytearray()
+            deadline = time.monotonic() + JOIN
+            for size in itertools.cycle(sizes):
+                if len(got) >= len(expected) or time.monotonic() > deadline:
+                    break
+                chunk = board.read(size, timeout=0.2)
+                assert len(chunk) <= size
+                got += chunk
+            writer.join(JOIN)
+            assert bytes(got) == expected
+
+
 def test_serial_write_blocked_by_a_board_that_does_not_read_is_unblocked_by_close() -> None:
     with open_link("pty://") as master:
         assert isinstance(master, PtyLink)

@@ -95,12 +95,12 @@ def record(
     A named topic that nothing publishes after 2 s of discovery gets a warning naming the
     published topics spelt alike, and is still recorded if a publisher appears.
     """
-    from hwbridge.cli.livetopics import topic_argument
+    from hwbridge.cli.livetopics import name_argument
     from hwbridge.recorder import Recorder
 
     if topics and all_topics:
         raise typer.BadParameter("give topics or --all, not both")
-    topics = [topic_argument(topic) for topic in topics or ()]
+    topics = [name_argument(topic) for topic in topics or ()]
     path = output or Path(datetime.now().strftime("hwbridge_%Y-%m-%d-%H-%M-%S.mcap"))
     interrupted = threading.Event()
     # Start-up (attaching, loading the message types) is not shielded: Ctrl-C there ends the
@@ -265,12 +265,12 @@ def play(
 
     A topic asked for that is not in the file gets a warning naming the recorded topics spelt
     alike; if none of them is, that is an error."""
-    from hwbridge.cli.livetopics import note, topic_argument
+    from hwbridge.cli.livetopics import name_argument, note
     from hwbridge.graph.discovery import did_you_mean
     from hwbridge.recorder import Player
 
     selected = [
-        topic_argument(t) for item in [*(topics or ()), *(topic_args or ())] for t in _split(item)
+        name_argument(t) for item in [*(topics or ()), *(topic_args or ())] for t in _split(item)
     ]
     with _open(ctx, endpoint) as graph:
         player = Player(

@@ -264,7 +264,9 @@ def play(
     """Publish the messages of an MCAP file with their recorded timing (scaled by --rate).
 
     A topic asked for that is not in the file gets a warning naming the recorded topics spelt
-    alike; if none of them is, that is an error."""
+    alike; if none of them is, that is an error. A file not closed cleanly (no index) tells
+    this only once it has been played to its end. The summary lists every topic asked for, with
+    its count, 0 or not."""
     from hwbridge.cli.livetopics import name_argument, note
     from hwbridge.graph.discovery import did_you_mean
     from hwbridge.recorder import Player
@@ -282,6 +284,7 @@ def play(
             start=start,
             wait_for_subscribers=wait,
         )
+        told = player.checked  # a file without a summary tells its topics once played
         for topic in player.missing:
             note(
                 f"warning: {topic} is not in {file}{did_you_mean(topic, player.recorded)} "
@@ -299,7 +302,13 @@ def play(
         if not player.stopped:  # played to the end: let Zenoh send what is queued
             time.sleep(0.2)  # (after a signal, stopping promptly comes first)
     if not quiet:
-        _print_summary("played", "from", stats.path, stats.elapsed, stats.channels)
+        channels = _with_named(stats.channels, player.topics or ())
+        _print_summary("played", "from", stats.path, stats.elapsed, channels)
+    for topic in () if told else player.missing:
+        note(
+            f"warning: {topic} was not in {file}{did_you_mean(topic, player.recorded)} "
+            "(played the others)"
+        )
 
 
 def _split(item: str) -> list[str]:

@@ -30,10 +30,10 @@ from hwbridge.cli.livetopics import (
     check_field,
     echo_target,
     live_type,
+    name_argument,
     note,
     pub_arguments,
     refuse_other_type,
-    topic_argument,
 )
 from hwbridge.errors import (
     HwBridgeError,
@@ -116,7 +116,7 @@ def topic_list(
 @topic_app.command("type")
 def topic_type(ctx: typer.Context, topic: TopicArg, wait: WaitOpt = 1.0) -> None:
     """Print the type of a topic."""
-    topic = topic_argument(topic)
+    topic = name_argument(topic)
     with open_graph(ctx) as graph:
         known = _snapshot(graph, wait).topics()
     types = sorted(known.get(topic, set()) - {ANY_TYPE})
@@ -133,7 +133,7 @@ def topic_info(
     ctx: typer.Context, topic: TopicArg, as_json: JsonOpt = False, wait: KeepWaitingOpt = False
 ) -> None:
     """Type, md5, publishers and subscribers of a topic."""
-    topic = topic_argument(topic)
+    topic = name_argument(topic)
     with open_graph(ctx) as graph:
         live = LiveGraph(graph)
         if not live.wait(lambda: topic in live.topics(), GRACE):
@@ -206,7 +206,7 @@ def topic_echo(
     ``{type, md5, raw}``. One whose type is defined here differently (another md5) is refused:
     decoding it would print wrong values (``--hex`` shows its bytes).
     """
-    topic = topic_argument(topic, fields=True)
+    topic = name_argument(topic, fields=True)
     done = threading.Event()
     lock = threading.Lock()
     seen = [0]
@@ -359,7 +359,7 @@ def topic_pub(
     TYPE may be left out when the topic is on the graph (something publishes or subscribes
     it): its type there is used. A TYPE that differs from it is refused.
     """
-    topic = topic_argument(topic)
+    topic = name_argument(topic)
     type_name, values = pub_arguments(type_or_values, values)
     if values is not None and file is not None:
         raise typer.BadParameter("give values or --file, not both")
@@ -446,7 +446,7 @@ def _measure(
     kind: str,
     wait: bool,
 ) -> None:
-    topic = topic_argument(topic)
+    topic = name_argument(topic)
     meter = _RateMeter(window)
     with open_graph(ctx) as graph:
         await_publisher(LiveGraph(graph), topic, wait)
@@ -557,6 +557,7 @@ def service_type(
     wait: WaitOpt = 1.0,
 ) -> None:
     """Print the type of a service."""
+    name = name_argument(name, "service")
     with open_graph(ctx) as graph:
         typer.echo(_service_type(graph, name, wait))
 
@@ -587,6 +588,7 @@ def service_call(
 
     from hwbridge import msg
 
+    name = name_argument(name, "service")
     try:
         data = yaml.safe_load(request or "{}")
     except yaml.YAMLError as exc:
@@ -617,6 +619,12 @@ def service_call(
 ParamName = Annotated[str, typer.Argument(metavar="NAME", help="Parameter name, e.g. /robot/rate")]
 
 
+def _namespace_argument(namespace: str) -> str:
+    """A parameter namespace (``param load``, ``dump``): a parameter name, also written with the
+    '/' that ends a namespace (``/robot/``, as rosparam takes it)."""
+    return name_argument(namespace.rstrip("/") or "/", "parameter")
+
+
 @param_app.command("list")
 def param_list(ctx: typer.Context, as_json: JsonOpt = False) -> None:
     """List parameter names."""
@@ -634,6 +642,7 @@ def param_get(ctx: typer.Context, name: ParamName, as_json: JsonOpt = False) -> 
     """Print a parameter (a namespace prints as a mapping)."""
     from hwbridge.graph import ParamError
 
+    name = name_argument(name, "parameter")
     with open_graph(ctx) as graph:
         try:
             value = graph.params.get(name)
@@ -662,6 +671,7 @@ def param_set(
     """Set a parameter; the value is parsed as YAML."""
     import yaml
 
+    name = name_argument(name, "parameter")
     try:
         parsed = yaml.safe_load(value)
     except yaml.YAMLError as exc:
@@ -673,6 +683,7 @@ def param_set(
 @param_app.command("delete")
 def param_delete(ctx: typer.Context, name: ParamName) -> None:
     """Delete a parameter or a whole namespace."""
+    name = name_argument(name, "parameter")
     with open_graph(ctx) as graph:
         graph.params.delete(name)
 
@@ -686,6 +697,7 @@ def param_load(
     """Set every parameter in a YAML file (under NAMESPACE), like rosparam load."""
     import yaml
 
+    namespace = _namespace_argument(namespace)
     try:
         data = yaml.safe_load(file.read_text())
     except yaml.YAMLError as exc:
@@ -704,6 +716,7 @@ def param_dump(
     namespace: Annotated[str, typer.Option("--namespace", help="Only this namespace.")] = "/",
 ) -> None:
     """Write every parameter as YAML (to FILE, or stdout), like rosparam dump."""
+    namespace = _namespace_argument(namespace)
     with open_graph(ctx) as graph:
         value = graph.params.get(namespace, {})
     from hwbridge import msg

@@ -1,14 +1,14 @@
-"""Topic arguments of ``hwbridge topic ...``, ``record`` and ``play``: resolved as graph names
-(:func:`topic_argument`), then against the live graph: waiting for a publisher (with did-you-mean
-hints when none comes), ``TOPIC/FIELD`` paths, and ``topic pub``'s type (inferred from the graph,
-or checked against it)."""
+"""Name arguments of ``hwbridge topic ...``, ``service ...``, ``param ...``, ``record`` and
+``play``: resolved as graph names (:func:`name_argument`). Then topics against the live graph:
+waiting for a publisher (with did-you-mean hints when none comes), ``TOPIC/FIELD`` paths, and
+``topic pub``'s type (inferred from the graph, or checked against it)."""
 
 from __future__ import annotations
 
 import re
 import sys
 import time
-from typing import Final
+from typing import Final, Literal
 
 import typer
 
@@ -20,16 +20,17 @@ from hwbridge.graph.names import GraphNameError, resolve_name
 __all__ = [
     "GRACE",
     "TYPE_NAME",
+    "NameKind",
     "await_publisher",
     "check_field",
     "echo_target",
     "live_type",
+    "name_argument",
     "no_publisher",
     "note",
     "pub_arguments",
     "published_prefix",
     "refuse_other_type",
-    "topic_argument",
     "users_text",
 ]
 
@@ -44,25 +45,30 @@ def note(text: str) -> None:
     sys.stderr.flush()
 
 
-def topic_argument(topic: str, *, fields: bool = False) -> str:
-    """A topic named on the command line, resolved as the graph resolves names
-    (:func:`hwbridge.graph.names.resolve_name`; a relative name in the root namespace, where
-    these tools' nodes are), before anything waits on it. A name the graph refuses is a
-    GraphNameError (status 1) with the rule it breaks; one that ends in '/' names the topic
-    meant too (``/diffbot/odom/``: ``did you mean /diffbot/odom?``). With ``fields`` (``topic
-    echo TOPIC/FIELD...``) the segments are a topic and a field path, list indexes among them,
-    so only the start and the end of the name are checked here."""
-    if topic != "/" and topic.endswith("/"):
+NameKind = Literal["topic", "service", "parameter"]
+"""What a name on the command line names (for the words of its errors)."""
+
+
+def name_argument(name: str, kind: NameKind = "topic", *, fields: bool = False) -> str:
+    """A topic, service or parameter named on the command line, resolved as the graph resolves
+    names (:func:`hwbridge.graph.names.resolve_name`; a relative name in the root namespace,
+    where these tools' nodes are), before anything waits on it or asks the graph. A name the
+    graph refuses is a GraphNameError (status 1) with the rule it breaks; one that ends in '/'
+    names the one meant too (``/diffbot/odom/``: ``a topic name does not end with '/'; did you
+    mean /diffbot/odom?``). With ``fields`` (``topic echo TOPIC/FIELD...``) the segments are a
+    topic and a field path, list indexes among them, so only the start and the end of the name
+    are checked here."""
+    if name != "/" and name.endswith("/"):
         try:
-            meant = f"; did you mean {topic_argument(topic.rstrip('/'), fields=fields)}?"
+            meant = f"; did you mean {name_argument(name.rstrip('/'), kind, fields=fields)}?"
         except GraphNameError:
             meant = ""
-        raise GraphNameError(f"{topic!r}: a topic name does not end with '/'{meant}")
-    if fields and topic.startswith("/"):
-        return topic
-    if fields and topic and not topic.startswith("~"):
-        return "/" + topic  # resolved in the root namespace, as resolve_name does
-    return resolve_name(topic)
+        raise GraphNameError(f"{name!r}: a {kind} name does not end with '/'{meant}")
+    if fields and name.startswith("/"):
+        return name
+    if fields and name and not name.startswith("~"):
+        return "/" + name  # resolved in the root namespace, as resolve_name does
+    return resolve_name(name)
 
 
 def no_publisher(topic: str, live: LiveGraph) -> str:

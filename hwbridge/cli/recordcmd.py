@@ -95,12 +95,12 @@ def record(
     A named topic that nothing publishes after 2 s of discovery gets a warning naming the
     published topics spelt alike, and is still recorded if a publisher appears.
     """
-    from hwbridge.cli.livetopics import topic_argument
+    from hwbridge.cli.livetopics import name_argument
     from hwbridge.recorder import Recorder
 
     if topics and all_topics:
         raise typer.BadParameter("give topics or --all, not both")
-    topics = [topic_argument(topic) for topic in topics or ()]
+    topics = [name_argument(topic) for topic in topics or ()]
     path = output or Path(datetime.now().strftime("hwbridge_%Y-%m-%d-%H-%M-%S.mcap"))
     interrupted = threading.Event()
     # Start-up (attaching, loading the message types) is not shielded: Ctrl-C there ends the
@@ -264,13 +264,15 @@ def play(
     """Publish the messages of an MCAP file with their recorded timing (scaled by --rate).
 
     A topic asked for that is not in the file gets a warning naming the recorded topics spelt
-    alike; if none of them is, that is an error."""
-    from hwbridge.cli.livetopics import note, topic_argument
+    alike; if none of them is, that is an error. A file not closed cleanly (no index) tells
+    this only once it has been played to its end. The summary lists every topic asked for, with
+    its count, 0 or not."""
+    from hwbridge.cli.livetopics import name_argument, note
     from hwbridge.graph.discovery import did_you_mean
     from hwbridge.recorder import Player
 
     selected = [
-        topic_argument(t) for item in [*(topics or ()), *(topic_args or ())] for t in _split(item)
+        name_argument(t) for item in [*(topics or ()), *(topic_args or ())] for t in _split(item)
     ]
     with _open(ctx, endpoint) as graph:
         player = Player(
@@ -282,6 +284,7 @@ def play(
             start=start,
             wait_for_subscribers=wait,
         )
+        told = player.checked  # a file without a summary tells its topics once played
         for topic in player.missing:
             note(
                 f"warning: {topic} is not in {file}{did_you_mean(topic, player.recorded)} "
@@ -299,7 +302,13 @@ def play(
         if not player.stopped:  # played to the end: let Zenoh send what is queued
             time.sleep(0.2)  # (after a signal, stopping promptly comes first)
     if not quiet:
-        _print_summary("played", "from", stats.path, stats.elapsed, stats.channels)
+        channels = _with_named(stats.channels, player.topics or ())
+        _print_summary("played", "from", stats.path, stats.elapsed, channels)
+    for topic in () if told else player.missing:
+        note(
+            f"warning: {topic} was not in {file}{did_you_mean(topic, player.recorded)} "
+            "(played the others)"
+        )
 
 
 def _split(item: str) -> list[str]:

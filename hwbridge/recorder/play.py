@@ -61,8 +61,10 @@ class Player:
     ``wait_for_subscribers`` seconds for every topic to have a subscriber. The file is checked
     when the Player is made: RecordingError if it is not MCAP or not ROS 1 encoded, or if none of
     ``topics`` is in it (naming the recorded topics spelt alike). Those of ``topics`` that are
-    not in it are :attr:`missing` (for a caller to warn of), the file's topics :attr:`recorded`;
-    a file with no summary (not closed cleanly) tells neither before it is played.
+    not in it are :attr:`missing` (for a caller to warn of), the file's topics :attr:`recorded`.
+    A file with no summary (not closed cleanly) tells neither before it is played: they are
+    known once :meth:`run` has read it to its end (:attr:`checked` says when), and if none of
+    ``topics`` was in it, that :meth:`run` raises the RecordingError.
     """
 
     def __init__(
@@ -103,6 +105,9 @@ class Player:
         self.recorded: tuple[str, ...] = ()
         """The file's topics, sorted."""
         self._info = self._inspect()
+        self.checked = self._info.summary is not None
+        """Whether :attr:`missing` and :attr:`recorded` are known: from the file's summary, or
+        for a file without one, once a pass has read it to its end."""
 
     # ------------------------------------------------------------------ file
     def _open(self) -> IO[bytes]:
@@ -142,12 +147,7 @@ class Player:
         if self.topics is not None:
             self.missing = tuple(t for t in self.topics if t not in present)
             if len(self.missing) == len(self.topics):
-                close = dict.fromkeys(c for t in self.missing for c in close_names(t, present))
-                hint = f"; did you mean {', '.join(close)}?" if close else ""
-                raise RecordingError(
-                    f"none of the topics {', '.join(self.missing)} is in {self.path}{hint} "
-                    f"(it has {', '.join(self.recorded) or 'no topics'})"
-                )
+                raise self._none_found()
             for topic in self.missing:
                 log.info("topic %s is not in %s", topic, self.path)
         for channel in summary.channels.values():
@@ -155,6 +155,27 @@ class Player:
                 schema = summary.schemas.get(channel.schema_id)
                 info.routes[channel.id] = self._route(channel, schema)
         return info
+
+    def _none_found(self) -> RecordingError:
+        """The error for a file that holds none of :attr:`topics` (all :attr:`missing`)."""
+        present = self.recorded
+        close = dict.fromkeys(c for t in self.missing for c in close_names(t, present))
+        hint = f"; did you mean {', '.join(close)}?" if close else ""
+        return RecordingError(
+            f"none of the topics {', '.join(self.missing)} is in {self.path}{hint} "
+            f"(it has {', '.join(present) or 'no topics'})"
+        )
+
+    def _checked(self, present: Iterable[str]) -> None:
+        """The topics of a file without a summary, once a pass has read it to its end."""
+        if self.checked:
+            return
+        self.recorded = tuple(sorted(set(present)))
+        if self.topics is not None:
+            self.missing = tuple(t for t in self.topics if t not in self.recorded)
+            for topic in self.missing:
+                log.info("topic %s is not in %s", topic, self.path)
+        self.checked = True
 
     def _route(self, channel: Channel, schema: Schema | None) -> _Route:
         if channel.message_encoding != MESSAGE_ENCODING:
@@ -194,12 +215,23 @@ class Player:
                 else:
                     yield from (item for item in source if item[2].log_time >= start)
                 return
+            present: set[str] = set()
             try:
-                yield from self._skip(
-                    NonSeekingReader(stream).iter_messages(topics=self.topics, log_time_order=False)
-                )
+                yield from self._skip(self._unindexed(stream, present))
             except (McapError, struct.error, ValueError, OSError) as exc:
                 log.warning("%s ends early (%s); played what it holds", self.path, describe(exc))
+            self._checked(present)  # read to its end (a pass stopped early never gets here)
+
+    def _unindexed(
+        self, stream: IO[bytes], present: set[str]
+    ) -> Iterator[tuple[Schema | None, Channel, Message]]:
+        """The selected messages of a file without a summary, in file order; the topics of all
+        its messages are added to ``present`` as they are read."""
+        wanted = None if self.topics is None else set(self.topics)
+        for item in NonSeekingReader(stream).iter_messages(log_time_order=False):
+            present.add(item[1].topic)
+            if wanted is None or item[1].topic in wanted:
+                yield item
 
     def _skip(
         self, source: Iterable[tuple[Schema | None, Channel, Message]]
@@ -219,7 +251,8 @@ class Player:
 
     # ------------------------------------------------------------------ playing
     def run(self) -> PlayerStats:
-        """Play the file (once, or until :meth:`stop` with ``loop``); returns the final stats."""
+        """Play the file (once, or until :meth:`stop` with ``loop``); returns the final stats.
+        RecordingError if the file, having no summary, turned out to hold none of ``topics``."""
         node = self.graph.node(self.node_name)
         publishers: dict[int, Publisher] = {}
         try:
@@ -239,6 +272,8 @@ class Player:
             self._ended = time.monotonic()
             for publisher in publishers.values():
                 publisher.close()
+        if self.topics is not None and len(self.missing) == len(self.topics):
+            raise self._none_found()  # a file without a summary, read to its end
         return self.stats
 
     def stop(self) -> None:

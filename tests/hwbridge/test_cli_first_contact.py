@@ -274,3 +274,46 @@ def test_param_get_of_a_missing_parameter_suggests(robot: Processes) -> None:
     assert robot.cli("param", "set", "/diffbot/max_speed", "0.5").returncode == 0
     line = _failed(robot.cli("param", "get", "/diffbot/max_sped"))
     assert "no parameter /diffbot/max_sped; did you mean /diffbot/max_speed?" in line, line
+
+
+@pytest.mark.parametrize(
+    ("argv", "kind", "meant"),
+    [
+        (("service", "call", "/diffbot/reset/"), "service", "/diffbot/reset"),
+        (("service", "type", "diffbot/reset/"), "service", "/diffbot/reset"),
+        (("param", "get", "/diffbot/max_speed/"), "parameter", "/diffbot/max_speed"),
+        (("param", "set", "/diffbot/max_speed/", "1"), "parameter", "/diffbot/max_speed"),
+        (("param", "delete", "/diffbot/max_speed/"), "parameter", "/diffbot/max_speed"),
+    ],
+    ids=["service call", "service type", "param get", "param set", "param delete"],
+)
+def test_a_service_or_parameter_with_a_trailing_slash_names_the_one_meant(
+    robot: Processes, argv: tuple[str, ...], kind: str, meant: str
+) -> None:
+    """As topics are (before: 'no server for service /diffbot/reset/', or the graph's bare rule
+    for a parameter, naming nothing)."""
+    line = _failed(robot.cli(*argv))
+    assert line == f"error: {argv[2]!r}: a {kind} name does not end with '/'; did you mean {meant}?"
+
+
+def test_relative_service_and_parameter_names_are_resolved_as_topics_are(
+    robot: Processes, node: Graph
+) -> None:
+    """In the root namespace (before, 'service type diffbot/reset' found no server: the name
+    was looked up as typed), and a namespace may end with '/' (before, 'param dump --namespace
+    /diffbot/' was refused)."""
+    node.node("resetter", namespace="/diffbot").service(
+        "reset", "std_srvs/Trigger", lambda _: {"success": True, "message": "reset"}
+    )
+    assert wait_until(lambda: "/diffbot/reset" in robot.cli("service", "list").stdout, 30)
+    done = robot.cli("service", "type", "diffbot/reset")
+    assert (done.returncode, done.stdout) == (0, "std_srvs/Trigger\n"), done.stderr
+    done = robot.cli("service", "call", "diffbot/reset")
+    assert (done.returncode, done.stdout) == (0, "success: true\nmessage: reset\n"), done.stderr
+    line = _failed(robot.cli("service", "call", "diffbot/rest"))
+    assert "no server for service /diffbot/rest; did you mean /diffbot/reset?" in line, line
+    assert robot.cli("param", "set", "diffbot/first/gain", "3").returncode == 0
+    done = robot.cli("param", "get", "/diffbot/first/gain")
+    assert (done.returncode, done.stdout) == (0, "3\n"), done.stderr
+    done = robot.cli("param", "dump", "--namespace", "/diffbot/first/")
+    assert (done.returncode, done.stdout) == (0, "gain: 3\n"), done.stderr

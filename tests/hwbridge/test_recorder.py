@@ -252,8 +252,10 @@ def write_mcap(
     *,
     md5_metadata: bool = True,
     encoding: str = "ros1",
+    finish: bool = True,
 ) -> None:
-    """An MCAP file made with the mcap writer alone: (topic, log time ns, bytes) messages."""
+    """An MCAP file made with the mcap writer alone: (topic, log time ns, bytes) messages;
+    without ``finish``, left as a killed recorder leaves it (the chunks written, no summary)."""
     registry = msg.registry()
     with path.open("wb") as stream:
         writer = Writer(stream, chunk_size=512, compression=CompressionType.ZSTD)
@@ -269,10 +271,13 @@ def write_mcap(
             ids[topic] = writer.register_channel(topic, encoding, schema_id, metadata)
         for sequence, (topic, log_time, data) in enumerate(messages):
             writer.add_message(ids[topic], log_time, data, log_time, sequence)
-        writer.finish()
+        if finish:
+            writer.finish()
 
 
-def sample_file(path: Path, *, md5_metadata: bool = True) -> list[tuple[str, int, bytes]]:
+def sample_file(
+    path: Path, *, md5_metadata: bool = True, finish: bool = True
+) -> list[tuple[str, int, bytes]]:
     """Strings on /a, Imu on /b, 10 ms apart; returns what the file holds."""
     start = 1_700_000_000_000_000_000
     messages: list[tuple[str, int, bytes]] = []
@@ -287,7 +292,7 @@ def sample_file(path: Path, *, md5_metadata: bool = True) -> list[tuple[str, int
         "/a": ("/a", "std_msgs/String", STRING_MD5, True),
         "/b": ("/b", "sensor_msgs/Imu", IMU_MD5, True),
     }
-    write_mcap(path, messages, channels, md5_metadata=md5_metadata)
+    write_mcap(path, messages, channels, md5_metadata=md5_metadata, finish=finish)
     return messages
 
 
@@ -679,6 +684,59 @@ def test_cli_play_warns_of_a_topic_not_in_the_file(
     assert done.stderr.splitlines() == [
         "error: '/a/': a topic name does not end with '/'; did you mean /a?"
     ]
+
+
+def test_cli_play_summary_lists_every_topic_asked_for(
+    endpoint: str, router: Graph, tmp_path: Path
+) -> None:
+    """As record's does: before, '--topics /a,/bb' gave a summary of /a alone."""
+    path = tmp_path / "sample.mcap"
+    sample_file(path)
+    done = subprocess.run(
+        cli(endpoint, "play", str(path), "--rate", "0", "--wait", "0", "--topics", "/a,/bb"),
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert done.returncode == 0, done.stderr
+    assert "played 10 messages (65 B) on 1 topic in " in done.stderr, done.stderr
+    assert re.search(r"^  /a +std_msgs/String +10 messages, 65 B$", done.stderr, re.M)
+    assert re.search(r"^  /bb +\? +0 messages, 0 B$", done.stderr, re.M), done.stderr
+
+
+def test_cli_play_of_a_file_without_a_summary_warns_after_playing(
+    endpoint: str, router: Graph, tmp_path: Path
+) -> None:
+    """A file a killed recorder left has no summary to tell its topics before playing: before,
+    '--topics /bb' played nothing and said nothing (status 0). Now each topic asked for that
+    never appeared is warned of once the file is played, naming those that did; if none did,
+    that is the error a complete file gives at once (status 1)."""
+    path = tmp_path / "cut.mcap"
+    sample_file(path, finish=False)
+    argv = ("play", str(path), "--rate", "0", "--wait", "0")
+    done = subprocess.run(
+        cli(endpoint, *argv, "--topics", "/a,/bb"),
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert done.returncode == 0, done.stderr
+    lines = done.stderr.splitlines()
+    assert lines[-1] == f"warning: /bb was not in {path}; did you mean /b? (played the others)"
+    assert re.search(r"^  /bb +\? +0 messages, 0 B$", done.stderr, re.M), done.stderr
+    done = subprocess.run(
+        cli(endpoint, *argv, "--topics", "/bb"),
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert done.returncode == 1, done.stderr
+    assert done.stderr.splitlines()[-1] == (
+        f"error: none of the topics /bb is in {path}; did you mean /b? (it has /a, /b)"
+    )
 
 
 def test_cli_errors(endpoint: str, router: Graph, tmp_path: Path) -> None:

@@ -93,7 +93,9 @@ def record(
     """Record topics to an MCAP file (ROS 1 profile) until Ctrl-C, --duration or --limit.
 
     A named topic that nothing publishes after 2 s of discovery gets a warning naming the
-    published topics spelt alike, and is still recorded if a publisher appears.
+    published topics spelt alike, and is still recorded if a publisher appears. The file is
+    written out at least every second: killed without finishing it, the recorder leaves what
+    it had until then (play reads such a file).
     """
     from hwbridge.cli.livetopics import name_argument
     from hwbridge.recorder import Recorder

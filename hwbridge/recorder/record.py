@@ -65,6 +65,11 @@ class _Pending:
 _PENDING: Final = _Pending()
 
 
+FLUSH_EVERY: Final = 1.0
+"""Seconds at most between two flushes of a recording's file while messages come: what a
+recorder killed without finishing its file loses."""
+
+
 class Recorder:
     """Records topics of a graph into an MCAP file.
 
@@ -72,7 +77,10 @@ class Recorder:
     publisher, including those that appear while recording. Recording ends by :meth:`stop`; after
     ``limit`` messages or ``duration`` seconds it stops taking messages and :meth:`wait` returns.
     Messages go from Zenoh's threads through a queue of at most ``buffer_bytes`` to one writer
-    thread; what does not fit is dropped and counted in ``stats.dropped``.
+    thread; what does not fit is dropped and counted in ``stats.dropped``. The writer ends its
+    chunk and flushes the file at least every ``flush_every`` seconds while messages come
+    (None: only when a chunk reaches ``chunk_size``), so that a recorder killed without a chance
+    to finish the file (SIGKILL, a power cut) leaves a file that plays up to that point.
     """
 
     def __init__(
@@ -86,6 +94,7 @@ class Recorder:
         limit: int | None = None,
         overwrite: bool = False,
         chunk_size: int = 1 << 20,
+        flush_every: float | None = FLUSH_EVERY,
         buffer_bytes: int = 256 << 20,
         node_name: str | None = None,
     ) -> None:
@@ -105,6 +114,7 @@ class Recorder:
         self.limit = limit
         self.overwrite = overwrite
         self.chunk_size = chunk_size
+        self.flush_every = flush_every
         self.buffer_bytes = buffer_bytes
         self.node_name = node_name or f"hwbridge_record_{graph.zid[:8]}"
         self.registry: TypeRegistry = graph.registry
@@ -301,9 +311,15 @@ class Recorder:
     def _write_loop(self) -> None:
         writer, stream = self._writer, self._stream
         assert writer is not None and stream is not None
+        every = self.flush_every
+        flushed = time.monotonic()
+        unflushed = False  # messages written since the last flush
         try:
             while True:
-                item = self._queue.get()
+                try:
+                    item = self._queue.get(timeout=every if unflushed else None)
+                except queue.Empty:  # quiet since: what is written goes to the file now
+                    item = None
                 if item is _STOP:
                     break
                 if self._error is not None:
@@ -311,10 +327,14 @@ class Recorder:
                 try:
                     if isinstance(item, _Subscribe):
                         self._subscribe_discovered(item.topic)
-                    else:
+                    elif item is not None:
                         assert isinstance(item, tuple)
                         received, message = item
                         self._write(writer, received, message)
+                        unflushed = every is not None
+                    if unflushed and every is not None and time.monotonic() - flushed >= every:
+                        writer.flush()  # type: ignore[no-untyped-call]
+                        flushed, unflushed = time.monotonic(), False
                 except Exception as exc:  # noqa: BLE001 - disk full, I/O errors: reported by stop()
                     log.error("recording to %s failed: %s", self.path, exc)
                     self._error = exc

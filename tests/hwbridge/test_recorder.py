@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import re
@@ -542,6 +543,43 @@ def test_cli_record_interrupted_leaves_a_valid_file(
     assert {c.topic for c in summary.channels.values()} == {"/talk", "/other"}
     for schema, _, message in messages:
         decode_with_schema(schema, message.data)
+
+
+def _messages_in(path: Path) -> int:
+    """Message records readable in ``path``, up to where it ends (mid-record, say)."""
+    from mcap.records import Message as McapMessage
+    from mcap.stream_reader import StreamReader
+
+    count = 0
+    with contextlib.suppress(Exception), path.open("rb") as stream:
+        for record in StreamReader(stream).records:
+            count += isinstance(record, McapMessage)
+    return count
+
+
+def test_cli_record_killed_leaves_what_it_had_recorded(
+    endpoint: str, talker: Callable[[], int], tmp_path: Path
+) -> None:
+    """A recorder killed without finishing its file (SIGKILL: no footer, no summary) has
+    flushed its messages up to about a second before: they are in the file. It used to write
+    only whole 1 MiB chunks, and a minute of a few topics left an empty file."""
+    path = tmp_path / "killed.mcap"
+    process = subprocess.Popen(
+        cli(endpoint, "record", "-o", str(path), "/talk"),
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert wait_until(lambda: process.poll() is not None or _messages_in(path) >= 20, 30)
+        assert process.poll() is None, process.communicate()[1]
+        process.kill()
+        process.communicate(timeout=30)
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.communicate()
+    assert _messages_in(path) >= 20
 
 
 def test_cli_record_warns_of_a_topic_nothing_publishes(

@@ -121,7 +121,10 @@ class Player:
             try:
                 reader = make_reader(stream)
             except (McapError, struct.error) as exc:  # struct.error: shorter than MCAP's magic
-                raise RecordingError(f"{self.path} is not an MCAP file ({exc})") from exc
+                why = str(exc) or ("it is empty" if stream.seek(0, 2) == 0 else "")
+                raise RecordingError(
+                    f"{self.path} is not an MCAP file" + (f" ({why})" if why else "")
+                ) from exc
             try:
                 summary = reader.get_summary()
             except (McapError, struct.error, ValueError, OSError) as exc:

@@ -437,6 +437,9 @@ def test_play_refuses_what_it_cannot_play(router: Graph, tmp_path: Path) -> None
     text.write_text("\n")  # shorter than the magic: once a struct.error and a traceback
     with pytest.raises(RecordingError, match="not an MCAP file"):
         Player(router, text)
+    text.write_bytes(b"")  # a recorder killed before it wrote: once "not an MCAP file ()"
+    with pytest.raises(RecordingError, match=r"not an MCAP file \(it is empty\)$"):
+        Player(router, text)
     with pytest.raises(RecordingError, match="cannot open"):
         Player(router, tmp_path / "missing.mcap")
     with pytest.raises(RecordingError, match="rate"):

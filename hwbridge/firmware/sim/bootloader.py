@@ -25,12 +25,14 @@ from hwbridge.errors import HwBridgeError
 from hwbridge.firmware.build import BOARDS, MCU_FLASH
 
 __all__ = [
+    "HEX_SUFFIXES",
     "MEGA_BOOT_START",
     "OPTIBOOT_DIR",
     "STK500V2_HEX",
     "HexError",
     "bootloader_hex",
     "flash_layout",
+    "is_intel_hex",
     "optiboot_hex",
     "read_hex",
 ]
@@ -85,6 +87,16 @@ def flash_layout(mcu: str) -> tuple[int, int]:
     if layout is None:
         raise HwBridgeError(f"no flash layout for {mcu} ({' or '.join(_FLASH)})")
     return layout
+
+
+HEX_SUFFIXES: Final = (".hex", ".ihex", ".ihx")
+"""The names of Intel HEX files (any case), for every command that takes one: ``hwbridge
+firmware sim`` (which tells the runner that it has a HEX) and ``upload``."""
+
+
+def is_intel_hex(path: Path) -> bool:
+    """Whether ``path`` is named as an Intel HEX file (:data:`HEX_SUFFIXES`)."""
+    return path.suffix.lower() in HEX_SUFFIXES
 
 
 class HexError(HwBridgeError):

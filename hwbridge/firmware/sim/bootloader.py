@@ -207,7 +207,9 @@ def optiboot_hex(*, cache: Path | None = None) -> Path:
             raise HwBridgeError(f"building Optiboot failed:\n{done.stderr.strip()}")
     elf.unlink(missing_ok=True)
     if not _fits(partial):
-        raise HwBridgeError(f"Optiboot built from {source} does not fit 0x7E00..0x7FFF either")
+        raise HwBridgeError(
+            f"Optiboot built from {source} does not fit {BOOT_START:#x}..{FLASH_END - 1:#x} either"
+        )
     partial.replace(built)
     return built
 

@@ -60,10 +60,11 @@ def _unsettled() -> bool:
 
 
 class SessionPump:
-    """Drives ``session`` over ``link`` until the link fails or :meth:`stop` is called.
+    """Drives ``session`` over ``link`` until the link fails or :meth:`stop` (or
+    :meth:`request_stop`) is called.
 
     ``on_event(event)`` runs on the pump thread, without the lock held, so it may call
-    :meth:`call`. ``on_exit(error)`` runs once when the thread ends (``None`` after stop()).
+    :meth:`call`. ``on_exit(error)`` runs once when the thread ends (``None`` after a stop).
     On a link that outlives its peers (``tcp-listen://``, ``pty://``) the session goes on with
     the next peer, unless ``end_with_peer``: then the peer's going ends the pump, with the
     :class:`LinkClosedError` that said so (for protocols whose session is one peer's).
@@ -117,9 +118,16 @@ class SessionPump:
             _KEEPER.add(self)
         return self
 
-    def stop(self, timeout: float = 2.0) -> None:
-        """Ask the thread to end and wait for it (the link is left to its owner)."""
+    def request_stop(self) -> None:
+        """Tell the thread to end, without waiting for it: it ends at its next turn, or when a
+        read or write it is blocked in returns (close the link to wake it; the closing is then
+        no error to it). :meth:`stop` also waits."""
         self._stop.set()
+
+    def stop(self, timeout: float = 2.0) -> None:
+        """Ask the thread to end (:meth:`request_stop`) and wait up to ``timeout`` seconds for
+        it (the link is left to its owner)."""
+        self.request_stop()
         thread = self._thread
         # (not started: a KeyboardInterrupt in start() between the Thread and its start, and
         # join() would raise RuntimeError; a thread that runs sees _stop)

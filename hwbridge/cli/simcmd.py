@@ -76,8 +76,8 @@ def sim(
         str | None,
         typer.Argument(
             metavar="[ELF]",
-            help="An AVR ELF or Intel HEX (.hex), a sketch folder, or the name of a HwBridge "
-            "example (HelloWorld); with --bootloader also nothing (blank flash).",
+            help="An AVR ELF or Intel HEX (.hex, .ihex, .ihx), a sketch folder, or the name of "
+            "a HwBridge example (HelloWorld); with --bootloader also nothing (blank flash).",
         ),
     ] = None,
     mcu: Annotated[
@@ -211,7 +211,7 @@ def _check_firmware(path: Path, mcu: str, *, bootloader: bool = False) -> None:
 
     from hwbridge.firmware.build import ELF_MCUS
     from hwbridge.firmware.checks import FirmwareTarget, check_elf, check_hex
-    from hwbridge.firmware.sim.bootloader import flash_layout
+    from hwbridge.firmware.sim.bootloader import flash_layout, is_intel_hex
 
     name = "nrf51822" if mcu == "microbit" else mcu  # elf_mcu's names
     target = FirmwareTarget(
@@ -224,7 +224,7 @@ def _check_firmware(path: Path, mcu: str, *, bootloader: bool = False) -> None:
     )
     if not path.is_file():
         return  # SimAvr says there is none
-    if mcu not in AVR_MCUS or path.suffix.lower() != ".hex":  # (the runner's test for a HEX)
+    if mcu not in AVR_MCUS or not is_intel_hex(path):  # (as SimAvr tells the runner)
         check_elf(path, target)
         return
     # (boot section start, flash size) of each AVR

@@ -28,7 +28,8 @@ def upload(
         typer.Argument(
             metavar="SKETCH|ELF|HEX",
             exists=True,
-            help="A sketch folder (built first), an AVR ELF, or an Intel HEX file.",
+            help="A sketch folder (built first), an AVR ELF, or an Intel HEX file (.hex, .ihex, "
+            ".ihx).",
         ),
     ],
     port: Annotated[

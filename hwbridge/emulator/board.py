@@ -331,7 +331,7 @@ def _halt(pump: SessionPump | None, link: Link, *, wait: bool = True) -> None:
     closing is no error to it), then the link is closed, which wakes a read or write blocked
     on it; then (``wait``) the pump's thread is waited for."""
     if pump is not None:
-        pump.stop(timeout=0)  # only tells it: its thread may be blocked on the link
+        pump.request_stop()  # no waiting: its thread may be blocked on the link
     link.close()
     if pump is not None and wait:
         pump.stop()

@@ -54,6 +54,7 @@ __all__ = [
     "CORE_DIR",
     "ELF_MCUS",
     "LIBRARY_DIR",
+    "MCU_FLASH",
     "ArmBoard",
     "Board",
     "FirmwareSize",
@@ -84,6 +85,11 @@ class ToolchainMissingError(HwBridgeError):
     """The AVR compiler or the Arduino core is not installed."""
 
 
+MCU_FLASH: Final = {"atmega328p": 0x8000, "atmega2560": 0x40000}
+"""Bytes of flash of each AVR of :data:`BOARDS` (32 KiB, 256 KiB): the one place of these sizes
+(the simulator's bootloaders, :mod:`hwbridge.firmware.sim.bootloader`, take them from here)."""
+
+
 @dataclass(frozen=True)
 class Board:
     """An AVR board as ``boards.txt`` describes it."""
@@ -93,15 +99,22 @@ class Board:
     f_cpu: str
     board_define: str
     variant: str
-    flash: int
-    """Bytes of flash a sketch may use (the bootloader's excluded)."""
+    boot_section: int
+    """Bytes at the top of flash that are the bootloader's: the boot section the board's high
+    fuse gives it (BOOTSZ of ``bootloader.high_fuses``)."""
     sram: int
+
+    @property
+    def flash(self) -> int:
+        """Bytes of flash a sketch may use: the MCU's flash below the bootloader's section
+        (``upload.maximum_size``), which is also the byte address the bootloader starts at."""
+        return MCU_FLASH[self.mcu] - self.boot_section
 
 
 BOARDS: Final = {
-    "uno": Board("uno", "atmega328p", "16000000L", "AVR_UNO", "standard", 32256, 2048),
-    "nano": Board("nano", "atmega328p", "16000000L", "AVR_NANO", "eightanaloginputs", 30720, 2048),
-    "mega": Board("mega", "atmega2560", "16000000L", "AVR_MEGA2560", "mega", 253952, 8192),
+    "uno": Board("uno", "atmega328p", "16000000L", "AVR_UNO", "standard", 512, 2048),
+    "nano": Board("nano", "atmega328p", "16000000L", "AVR_NANO", "eightanaloginputs", 2048, 2048),
+    "mega": Board("mega", "atmega2560", "16000000L", "AVR_MEGA2560", "mega", 8192, 8192),
 }
 
 

@@ -13,16 +13,12 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Final
 
 from hwbridge.errors import HwBridgeError
 from hwbridge.firmware.build import ELF_MCUS, elf_mcu
 from hwbridge.firmware.sim.bootloader import HexError, read_hex
 
-__all__ = ["HEX_SUFFIXES", "FirmwareTarget", "check_elf", "check_hex"]
-
-HEX_SUFFIXES: Final = (".hex", ".ihex", ".ihx")
-"""The names of Intel HEX files."""
+__all__ = ["FirmwareTarget", "check_elf", "check_hex"]
 
 
 @dataclass(frozen=True)

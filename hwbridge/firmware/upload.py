@@ -27,8 +27,9 @@ from typing import Final
 
 from hwbridge.errors import HwBridgeError
 from hwbridge.firmware import build
-from hwbridge.firmware.checks import HEX_SUFFIXES, FirmwareTarget, check_elf, check_hex
+from hwbridge.firmware.checks import FirmwareTarget, check_elf, check_hex
 from hwbridge.firmware.children import follow_parent
+from hwbridge.firmware.sim.bootloader import HEX_SUFFIXES
 
 __all__ = [
     "AVRDUDE_PACKAGE",
@@ -110,7 +111,10 @@ def prepare_image(
     elif suffix in HEX_SUFFIXES:
         image = target
     else:
-        raise UploadError(f"{target}: give a sketch folder, an .elf or an Intel .hex file")
+        raise UploadError(
+            f"{target}: give a sketch folder, an .elf or an Intel HEX file "
+            f"({', '.join(HEX_SUFFIXES)})"
+        )
     check_hex(image, _target(board))
     return image
 

@@ -356,3 +356,60 @@ def test_a_pump_interrupted_in_start_stops_without_joining_a_thread_never_starte
         assert not pump.running
     finally:
         link.close()
+
+
+class _BlockingLink:
+    """A real link whose reads wait without a timeout: the pump thread stays in one until bytes
+    come or the link is closed (:attr:`reading` is set as it goes in)."""
+
+    def __init__(self, link: Link) -> None:
+        self.link = link
+        self.reading = threading.Event()
+
+    def read(self, max_bytes: int = 4096, timeout: float | None = None) -> bytes:
+        del timeout
+        self.reading.set()
+        return self.link.read(max_bytes, None)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.link, name)
+
+
+def test_request_stop_does_not_wait_for_a_thread_blocked_on_the_link(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """``request_stop()`` only tells the thread (the emulator's boards then close the link,
+    which wakes it): it returns without joining the thread, still in its read; once the link is
+    closed the thread ends, and the closing is no error to it."""
+    link = open_link("memory://pump-request-stop")
+    blocking = _BlockingLink(link)
+    exits: list[BaseException | None] = []
+    pump = SessionPump(
+        cast(Link, blocking),
+        _SettledSession(),
+        lambda _event: None,
+        name="pump-request-stop",
+        on_exit=exits.append,
+    ).start()
+    joined: list[float | None] = []
+    join = threading.Thread.join
+
+    def spy(thread: threading.Thread, timeout: float | None = None) -> None:
+        if thread.name == "pump-request-stop":
+            joined.append(timeout)
+        join(thread, timeout)
+
+    try:
+        assert wait_for(blocking.reading.is_set, 10)
+        with monkeypatch.context() as patch:
+            patch.setattr(threading.Thread, "join", spy)
+            pump.request_stop()
+        assert joined == []
+        assert pump.running  # the read it is in has not returned: nothing came, no close
+        link.close()
+        assert wait_for(lambda: not pump.running, 10)
+        assert exits == [None] and pump.error is None
+        pump.stop()  # stop() after the thread ended: nothing to wait for
+    finally:
+        pump.stop()
+        link.close()

@@ -21,6 +21,7 @@ from hwbridge.firmware.sim import (
     read_uart_trace,
     runner_binary,
 )
+from hwbridge.firmware.sim.bootloader import HEX_SUFFIXES
 from tests.netutil import wait_until
 from tests.sim.conftest import Terminal
 
@@ -160,15 +161,16 @@ def test_uart_carries_a_burst_whole(probe_elf: Path, terminal_factory: type[Term
         assert uart.read_until(b"#", timeout=60) == burst
 
 
+@pytest.mark.parametrize("suffix", HEX_SUFFIXES)
 def test_an_intel_hex_runs_without_a_bootloader(
-    probe_elf: Path, terminal_factory: type[Terminal], tmp_path: Path
+    probe_elf: Path, terminal_factory: type[Terminal], tmp_path: Path, suffix: str
 ) -> None:
-    """The probe as an Intel HEX runs as its ELF does (libsimavr reads no HEX: the runner loads
-    it; the AVR ran blank flash and crashed)."""
+    """The probe as an Intel HEX, by each name of one, runs as its ELF does (libsimavr reads no
+    HEX: the runner, told by SimAvr, loads it; the AVR ran blank flash and crashed)."""
     objcopy = shutil.which("avr-objcopy")
     if objcopy is None:
         pytest.skip("avr-objcopy is not installed (apt-get install binutils-avr)")
-    image = tmp_path / "probe.hex"
+    image = tmp_path / f"probe{suffix}"
     subprocess.run([objcopy, "-O", "ihex", "-R", ".eeprom", str(probe_elf), str(image)], check=True)
     with SimAvr(image) as sim:
         sim.start(hold=True)

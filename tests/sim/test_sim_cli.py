@@ -10,12 +10,14 @@ import os
 import signal
 import subprocess
 import sys
+import typing
 from pathlib import Path
 
 import pytest
 
 from hwbridge.errors import HwBridgeError
 from hwbridge.firmware.build import elf_mcu
+from hwbridge.firmware.sim.bootloader import HEX_SUFFIXES
 from hwbridge.firmware.sim.examples import EXAMPLES_DIR, build_example
 from tests.cliutil import run_hwbridge
 from tests.netutil import wait_until
@@ -146,6 +148,35 @@ def test_sim_refuses_a_hex_past_the_mcus_flash(tmp_path: Path) -> None:
         "32256 bytes of the atmega328p's flash below its bootloader (at 0x7e00): give --mcu "
         "atmega2560"
     ) in done.stderr, done.stderr
+
+
+_SLEEP = b"\xf8\x94\x88\x95"  # cli; sleep: simavr stops the AVR ("done")
+
+
+@pytest.mark.parametrize("suffix", HEX_SUFFIXES)
+def test_sim_runs_an_intel_hex_by_any_of_its_names(
+    runner: Path, tmp_path: Path, suffix: str
+) -> None:
+    """``firmware sim`` takes the Intel HEX names ``firmware upload`` takes: the runner is told
+    that the file is a HEX (it read a ``.ihx`` as an ELF, and failed), loads it, and the AVR
+    runs it (here: into a sleep with interrupts off, which stops it)."""
+    del runner
+    image = _intel_hex(tmp_path / f"sleeper{suffix.upper()}", {0: _SLEEP})
+    done = _hwbridge("firmware", "sim", str(image), timeout=60)
+    assert (done.returncode, done.stdout.startswith("serial:///dev/pts/")) == (1, True), (
+        done.stdout + done.stderr
+    )
+    assert "error: the AVR stopped (done)" in done.stderr, done.stderr
+
+
+def test_sim_and_upload_say_they_take_every_hex_name() -> None:
+    """The commands' help (written out: the CLI imports lazily) names each of HEX_SUFFIXES."""
+    from hwbridge.cli.simcmd import sim
+    from hwbridge.cli.uploadcmd import upload
+
+    for command, parameter in ((sim, "firmware"), (upload, "target")):
+        argument = typing.get_type_hints(command, include_extras=True)[parameter].__metadata__[0]
+        assert all(suffix in argument.help for suffix in HEX_SUFFIXES), argument.help
 
 
 def test_upload_refuses_a_hex_past_the_boards_flash(tmp_path: Path) -> None:

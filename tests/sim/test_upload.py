@@ -14,6 +14,7 @@ import sys
 import threading
 from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Final
 
 import pytest
 
@@ -371,6 +372,35 @@ def test_avrdude_arguments_match_arduinos_boards_txt(
     assert options["-p"] == build_mcu
     assert build.BOARDS[board].flash == int(facts[f"{prefix}upload.maximum_size"])
     assert ("-x" in command) == (options["-c"] == "arduino")
+
+
+_SMALLEST_BOOT_SECTION: Final = {"atmega328p": 512, "atmega2560": 1024}
+"""Bytes of each AVR's smallest boot section (BOOTSZ 11: 256 and 512 words); each step of BOOTSZ
+down doubles it (the datasheets' boot size configuration tables)."""
+
+
+@pytest.mark.parametrize(
+    ("board", "prefix"),
+    [("uno", "uno."), ("nano", "nano.menu.cpu.atmega328."), ("mega", "mega.menu.cpu.atmega2560.")],
+)
+def test_a_boards_room_is_its_mcus_flash_less_its_bootloaders_section(
+    board: str, prefix: str
+) -> None:
+    """The flash a sketch may use is the MCU's flash less the boot section that boards.txt's
+    high fuse gives the bootloader (BOOTSZ, bits 2..1); on the boards the simulator has a
+    bootloader for, that bootloader begins where the sketch's room ends."""
+    from hwbridge.firmware import build
+    from hwbridge.firmware.sim.bootloader import flash_layout, read_hex
+
+    facts = _boards_txt()
+    spec = build.BOARDS[board]
+    bootsz = (int(facts[f"{prefix}bootloader.high_fuses"], 16) >> 1) & 3
+    section = _SMALLEST_BOOT_SECTION[spec.mcu] << (3 - bootsz)
+    assert spec.boot_section == section
+    assert spec.flash == build.MCU_FLASH[spec.mcu] - section
+    if board in ("uno", "mega"):
+        assert flash_layout(spec.mcu) == (spec.flash, build.MCU_FLASH[spec.mcu])
+        assert min(read_hex(bootloader_hex(spec.mcu))) == spec.flash
 
 
 def test_mega_upload_through_the_stk500v2_bootloader(runner: Path, tmp_path: Path) -> None:

@@ -1,10 +1,12 @@
 """AVR firmware in simavr: the runner (a small C program against Debian's libsimavr), built on
 first use and cached, and :class:`SimAvr`, the Python side that starts it and talks to it.
 
-The runner loads an ELF (or an Intel HEX, ``.hex``) for an ATmega328P or ATmega2560, puts
-UART0 on a pseudo-terminal (its URL, ``serial:///dev/pts/N``, is its first line of output),
-holds the simulation to the wall clock (or a stated speed-up), and carries the devices on the
-MCU's pins through a line protocol on its stdin and stdout (see ``runner.c``): watched output
+The runner loads an ELF (or an Intel HEX: a file named as one, ``.hex``, ``.ihex`` or ``.ihx``
+as :data:`~hwbridge.firmware.sim.bootloader.HEX_SUFFIXES` says, which :class:`SimAvr` tells the
+runner with ``--hex``) for an ATmega328P or ATmega2560, puts UART0 on a pseudo-terminal (its URL,
+``serial:///dev/pts/N``, is its first line of output), holds the simulation to the wall clock (or
+a stated speed-up), and carries the devices on the MCU's pins through a line protocol on its
+stdin and stdout (see ``runner.c``): watched output
 pins report their duty every report period together with the simulated time, input pins are
 driven, quadrature encoders are moved to a position (the edges spread over the next period),
 HC-SR04 triggers are answered with an echo of a set width, and I2C register files answer on
@@ -29,6 +31,7 @@ from pathlib import Path
 from typing import IO, Final
 
 from hwbridge.errors import HwBridgeError
+from hwbridge.firmware.sim.bootloader import is_intel_hex
 
 __all__ = [
     "DEBIAN_PACKAGES",
@@ -202,8 +205,9 @@ def read_pc_trace(path: Path | str) -> list[tuple[int, int]]:
 
 
 class SimAvr:
-    """The runner with one ELF. ``start()`` returns once the UART's pty exists (:attr:`url`);
-    with ``hold`` the AVR waits until :meth:`go` so that devices are in place before it boots.
+    """The runner with one ELF, or an Intel HEX (``elf`` named as one: ``.hex``, ``.ihex``,
+    ``.ihx``). ``start()`` returns once the UART's pty exists (:attr:`url`); with ``hold`` the
+    AVR waits until :meth:`go` so that devices are in place before it boots.
 
     With ``bootloader`` (an Intel HEX, see :func:`~hwbridge.firmware.sim.bootloader.optiboot_hex`)
     the CPU starts at the bootloader, each open of the pty resets the AVR into it (an Uno's
@@ -292,6 +296,7 @@ class SimAvr:
             *(["--bootloader", str(self.bootloader)] if self.bootloader is not None else []),
             *(["--trace-uart", str(self.trace_uart)] if self.trace_uart is not None else []),
             *(["--trace-pc", str(self.trace_pc)] if self.trace_pc is not None else []),
+            *(["--hex"] if self.elf is not None and is_intel_hex(self.elf) else []),
             *([str(self.elf)] if self.elf is not None else []),
         ]
         self._process = subprocess.Popen(

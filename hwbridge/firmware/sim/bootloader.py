@@ -22,14 +22,17 @@ from pathlib import Path
 from typing import Final
 
 from hwbridge.errors import HwBridgeError
+from hwbridge.firmware.build import BOARDS, MCU_FLASH
 
 __all__ = [
+    "HEX_SUFFIXES",
     "MEGA_BOOT_START",
     "OPTIBOOT_DIR",
     "STK500V2_HEX",
     "HexError",
     "bootloader_hex",
     "flash_layout",
+    "is_intel_hex",
     "optiboot_hex",
     "read_hex",
 ]
@@ -37,17 +40,19 @@ __all__ = [
 OPTIBOOT_DIR: Final = Path("/usr/share/arduino/hardware/arduino/avr/bootloaders/optiboot")
 STK500V2_HEX: Final = OPTIBOOT_DIR.parent / "stk500v2" / "stk500boot_v2_mega2560.hex"
 """The Mega 2560's bootloader (stk500v2, as boards.txt names it), Debian's build."""
-MEGA_BOOT_START: Final = 0x3E000
-"""Byte address of the Mega 2560's boot section: its fuses (high 0xD8) give it 4 K words."""
-MEGA_FLASH_END: Final = 0x40000  # ATmega2560: 256 KiB
-BOOT_START: Final = 0x7E00
-FLASH_END: Final = 0x8000  # ATmega328P: 32 KiB
-_FLASH: Final = {
-    "atmega328p": (BOOT_START, FLASH_END),
-    "atmega2560": (MEGA_BOOT_START, MEGA_FLASH_END),
-}
+_BOOT_BOARDS: Final = {"atmega328p": BOARDS["uno"], "atmega2560": BOARDS["mega"]}
+"""The board whose bootloader the simulator runs on each AVR: the Uno's Optiboot, the Mega's
+stk500v2 (:data:`~hwbridge.firmware.build.BOARDS` has their boot sections, ``MCU_FLASH`` the
+flash sizes: these are not repeated here)."""
+_FLASH: Final = {mcu: (board.flash, MCU_FLASH[mcu]) for mcu, board in _BOOT_BOARDS.items()}
 """Each AVR's flash: where the boot section its board's fuses give the bootloader starts, and
 the flash's end (its size), in bytes."""
+MEGA_BOOT_START: Final = _FLASH["atmega2560"][0]
+"""Byte address of the Mega 2560's boot section (0x3E000): its fuses (high 0xD8) give it 4 K
+words."""
+MEGA_FLASH_END: Final = _FLASH["atmega2560"][1]  # ATmega2560: 256 KiB
+BOOT_START: Final = _FLASH["atmega328p"][0]  # the Uno's Optiboot: 0x7E00
+FLASH_END: Final = _FLASH["atmega328p"][1]  # ATmega328P: 32 KiB
 _SETTINGS: Final = (
     "-mmcu=atmega328p",
     "-DF_CPU=16000000L",
@@ -67,7 +72,7 @@ _SIZE_OPTIONS: Final = (
 )
 _LINK: Final = (
     f"-Wl,--section-start=.text={BOOT_START:#x}",
-    "-Wl,--section-start=.version=0x7ffe",
+    f"-Wl,--section-start=.version={FLASH_END - 2:#x}",
     "-Wl,--relax",
     "-Wl,--gc-sections",
     "-nostartfiles",
@@ -82,6 +87,16 @@ def flash_layout(mcu: str) -> tuple[int, int]:
     if layout is None:
         raise HwBridgeError(f"no flash layout for {mcu} ({' or '.join(_FLASH)})")
     return layout
+
+
+HEX_SUFFIXES: Final = (".hex", ".ihex", ".ihx")
+"""The names of Intel HEX files (any case), for every command that takes one: ``hwbridge
+firmware sim`` (which tells the runner that it has a HEX) and ``upload``."""
+
+
+def is_intel_hex(path: Path) -> bool:
+    """Whether ``path`` is named as an Intel HEX file (:data:`HEX_SUFFIXES`)."""
+    return path.suffix.lower() in HEX_SUFFIXES
 
 
 class HexError(HwBridgeError):
@@ -192,7 +207,9 @@ def optiboot_hex(*, cache: Path | None = None) -> Path:
             raise HwBridgeError(f"building Optiboot failed:\n{done.stderr.strip()}")
     elf.unlink(missing_ok=True)
     if not _fits(partial):
-        raise HwBridgeError(f"Optiboot built from {source} does not fit 0x7E00..0x7FFF either")
+        raise HwBridgeError(
+            f"Optiboot built from {source} does not fit {BOOT_START:#x}..{FLASH_END - 1:#x} either"
+        )
     partial.replace(built)
     return built
 

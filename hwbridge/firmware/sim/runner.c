@@ -3,7 +3,10 @@
  * pins, driven line by line from a controlling process (hwbridge.firmware.sim).
  *
  *   hwbridge-simavr --mcu atmega328p --freq 16000000 [--speed 1.0] [--report-us 5000] [--hold]
- *                   [--bootloader BOOT.hex] [--trace-uart FILE] FIRMWARE.elf|FIRMWARE.hex
+ *                   [--bootloader BOOT.hex] [--trace-uart FILE] [--hex] FIRMWARE
+ *
+ * FIRMWARE is an ELF, or with --hex an Intel HEX (whatever its name: the controlling process,
+ * which knows the names of HEX files, says which).
  *
  * With --bootloader (an Intel HEX at the top of flash: Optiboot's 0x7E00 on the ATmega328P, the
  * stk500v2 bootloader's 0x3E000 on the ATmega2560) the CPU starts at the bootloader, as the BOOTRST fuse makes it, and FIRMWARE (an ELF or an Intel HEX) is optional:
@@ -63,7 +66,6 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <strings.h>
 #include <time.h>
 #include <poll.h>
 #include <dirent.h>
@@ -921,11 +923,6 @@ static int load_hex(const char *path, uint32_t *lowest) {
   return 0;
 }
 
-static int ends_with(const char *s, const char *tail) {
-  size_t a = strlen(s), b = strlen(tail);
-  return a >= b && strcasecmp(s + a - b, tail) == 0;
-}
-
 static void external_reset(void) {
   pty_drop_input();
   avr_reset(avr);
@@ -1035,7 +1032,7 @@ static void usage(void) {
   fprintf(stderr,
           "usage: hwbridge-simavr [--mcu atmega328p] [--freq 16000000] [--speed 1.0] "
           "[--report-us 5000] [--hold] [--bootloader BOOT.hex] [--trace-uart FILE] "
-          "[--trace-pc FILE] FIRMWARE.elf|FIRMWARE.hex\n");
+          "[--trace-pc FILE] [--hex] FIRMWARE (an ELF; with --hex an Intel HEX)\n");
   exit(2);
 }
 
@@ -1045,6 +1042,7 @@ int main(int argc, char **argv) {
   uint32_t freq = 16000000;
   int hold = 0;
   const char *boot = NULL;
+  int firmware_hex = 0;  // --hex
   for (int i = 1; i < argc; i++) {
     if (!strcmp(argv[i], "--mcu") && i + 1 < argc)
       mcu = argv[++i];
@@ -1056,6 +1054,8 @@ int main(int argc, char **argv) {
       report_us = (uint32_t)strtoul(argv[++i], NULL, 10);
     else if (!strcmp(argv[i], "--hold"))
       hold = 1;
+    else if (!strcmp(argv[i], "--hex"))
+      firmware_hex = 1;
     else if (!strcmp(argv[i], "--bootloader") && i + 1 < argc)
       boot = argv[++i];
     else if (!strcmp(argv[i], "--trace-uart") && i + 1 < argc) {
@@ -1079,7 +1079,7 @@ int main(int argc, char **argv) {
       elf = argv[i];
   }
   if (!elf && !boot) usage();
-  int app_hex = elf && ends_with(elf, ".hex");  // else an ELF (libsimavr reads no HEX)
+  int app_hex = elf && firmware_hex;  // else an ELF (libsimavr reads no HEX: load_hex() does)
   avr_global_logger_set(quiet_logger);
 
   elf_firmware_t fw;

@@ -467,6 +467,13 @@ def cli(endpoint: str, *args: str) -> list[str]:
     return [sys.executable, "-m", "hwbridge", "--domain", DOMAIN, *args, "--endpoint", endpoint]
 
 
+def run_cli(endpoint: str, *args: str) -> subprocess.CompletedProcess[str]:
+    """Run ``hwbridge ARGS`` on the test graph to its end (at most a minute), output kept."""
+    return subprocess.run(
+        cli(endpoint, *args), capture_output=True, text=True, timeout=60, check=False
+    )
+
+
 @pytest.fixture
 def talker(router: Graph) -> Iterator[Callable[[], int]]:
     """Publishes "n" strings on /talk every 5 ms until the test ends; gives the count sent."""
@@ -493,13 +500,7 @@ def talker(router: Graph) -> Iterator[Callable[[], int]]:
 
 def test_cli_record_limit(endpoint: str, talker: Callable[[], int], tmp_path: Path) -> None:
     path = tmp_path / "x.mcap"
-    done = subprocess.run(
-        cli(endpoint, "record", "-o", str(path), "/talk", "--limit", "20"),
-        capture_output=True,
-        text=True,
-        timeout=60,
-        check=False,
-    )
+    done = run_cli(endpoint, "record", "-o", str(path), "/talk", "--limit", "20")
     assert done.returncode == 0, done.stderr
     assert "recorded 20 messages" in done.stderr
     _, summary, messages = read_mcap(path)
@@ -656,13 +657,7 @@ def test_cli_record_summary_shows_a_silent_topic(
     """A recording that ends before the discovery grace still warns, and its summary lists
     the named topic that got nothing."""
     path = tmp_path / "silent.mcap"
-    done = subprocess.run(
-        cli(endpoint, "record", "-o", str(path), "/talk", "/tlak", "--limit", "20"),
-        capture_output=True,
-        text=True,
-        timeout=60,
-        check=False,
-    )
+    done = run_cli(endpoint, "record", "-o", str(path), "/talk", "/tlak", "--limit", "20")
     assert done.returncode == 0, done.stderr
     assert "warning: no publisher of /tlak yet; did you mean /talk?" in done.stderr
     assert "recorded 20 messages" in done.stderr and " on 1 topic " in done.stderr
@@ -673,13 +668,7 @@ def test_cli_play(endpoint: str, client: Graph, tmp_path: Path) -> None:
     path = tmp_path / "sample.mcap"
     messages = sample_file(path)
     sink = Sink(client, ["/a", "/b"])
-    done = subprocess.run(
-        cli(endpoint, "play", str(path), "--rate", "0", "--topics", "/b", "--wait", "10"),
-        capture_output=True,
-        text=True,
-        timeout=60,
-        check=False,
-    )
+    done = run_cli(endpoint, "play", str(path), "--rate", "0", "--topics", "/b", "--wait", "10")
     assert done.returncode == 0, done.stderr
     assert "played 10 messages" in done.stderr
     assert wait_until(lambda: len(sink) >= 10)
@@ -697,13 +686,7 @@ def test_cli_play_warns_of_a_topic_not_in_the_file(
     messages = sample_file(path)
     sink = Sink(client, ["/a", "/b"])
     argv = ("play", str(path), "--rate", "0", "--wait", "10", "-q")
-    done = subprocess.run(
-        cli(endpoint, *argv, "--topics", "/a,/bb"),
-        capture_output=True,
-        text=True,
-        timeout=60,
-        check=False,
-    )
+    done = run_cli(endpoint, *argv, "--topics", "/a,/bb")
     assert done.returncode == 0, done.stderr
     assert done.stderr.splitlines() == [
         f"warning: /bb is not in {path}; did you mean /b? (playing the others)"
@@ -711,16 +694,12 @@ def test_cli_play_warns_of_a_topic_not_in_the_file(
     assert wait_until(lambda: len(sink) >= 10)
     assert sink.of("/a") == expected(messages, "/a")
     for asked in (["--topics", "/aa,/bb"], ["/aa", "/bb"]):
-        done = subprocess.run(
-            cli(endpoint, *argv, *asked), capture_output=True, text=True, timeout=60, check=False
-        )
+        done = run_cli(endpoint, *argv, *asked)
         assert done.returncode == 1, done.stderr
         assert done.stderr.splitlines() == [
             f"error: none of the topics /aa, /bb is in {path}; did you mean /a, /b? (it has /a, /b)"
         ]
-    done = subprocess.run(
-        cli(endpoint, *argv, "/a/"), capture_output=True, text=True, timeout=60, check=False
-    )
+    done = run_cli(endpoint, *argv, "/a/")
     assert done.returncode == 1, done.stderr
     assert done.stderr.splitlines() == [
         "error: '/a/': a topic name does not end with '/'; did you mean /a?"
@@ -733,13 +712,7 @@ def test_cli_play_summary_lists_every_topic_asked_for(
     """As record's does: before, '--topics /a,/bb' gave a summary of /a alone."""
     path = tmp_path / "sample.mcap"
     sample_file(path)
-    done = subprocess.run(
-        cli(endpoint, "play", str(path), "--rate", "0", "--wait", "0", "--topics", "/a,/bb"),
-        capture_output=True,
-        text=True,
-        timeout=60,
-        check=False,
-    )
+    done = run_cli(endpoint, "play", str(path), "--rate", "0", "--wait", "0", "--topics", "/a,/bb")
     assert done.returncode == 0, done.stderr
     assert "played 10 messages (65 B) on 1 topic in " in done.stderr, done.stderr
     assert re.search(r"^  /a +std_msgs/String +10 messages, 65 B$", done.stderr, re.M)
@@ -756,24 +729,12 @@ def test_cli_play_of_a_file_without_a_summary_warns_after_playing(
     path = tmp_path / "cut.mcap"
     sample_file(path, finish=False)
     argv = ("play", str(path), "--rate", "0", "--wait", "0")
-    done = subprocess.run(
-        cli(endpoint, *argv, "--topics", "/a,/bb"),
-        capture_output=True,
-        text=True,
-        timeout=60,
-        check=False,
-    )
+    done = run_cli(endpoint, *argv, "--topics", "/a,/bb")
     assert done.returncode == 0, done.stderr
     lines = done.stderr.splitlines()
     assert lines[-1] == f"warning: /bb was not in {path}; did you mean /b? (played the others)"
     assert re.search(r"^  /bb +\? +0 messages, 0 B$", done.stderr, re.M), done.stderr
-    done = subprocess.run(
-        cli(endpoint, *argv, "--topics", "/bb"),
-        capture_output=True,
-        text=True,
-        timeout=60,
-        check=False,
-    )
+    done = run_cli(endpoint, *argv, "--topics", "/bb")
     assert done.returncode == 1, done.stderr
     assert done.stderr.splitlines()[-1] == (
         f"error: none of the topics /bb is in {path}; did you mean /b? (it has /a, /b)"
@@ -788,9 +749,7 @@ def test_cli_errors(endpoint: str, router: Graph, tmp_path: Path) -> None:
         {"/a": ("/a", "std_msgs/String", STRING_MD5, False)},
         encoding="cdr",
     )
-    done = subprocess.run(
-        cli(endpoint, "play", str(cdr)), capture_output=True, text=True, timeout=60, check=False
-    )
+    done = run_cli(endpoint, "play", str(cdr))
     assert done.returncode == 1
     assert "'cdr' messages" in done.stderr
     done = subprocess.run(

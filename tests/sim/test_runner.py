@@ -172,14 +172,7 @@ def test_an_intel_hex_runs_without_a_bootloader(
         pytest.skip("avr-objcopy is not installed (apt-get install binutils-avr)")
     image = tmp_path / f"probe{suffix}"
     subprocess.run([objcopy, "-O", "ihex", "-R", ".eeprom", str(probe_elf), str(image)], check=True)
-    with SimAvr(image) as sim:
-        sim.start(hold=True)
-        uart = terminal_factory(sim.path)
-        sim.go()
-        assert uart.read_until(b"boot\n") == b"boot\n"
-        uart.write(b"hello#")
-        assert uart.read_until(b"#") == b"hello#"
-        assert sim.exited is None
+    _echo_hello(image, terminal_factory)
 
 
 def _echo_hello(
@@ -189,7 +182,8 @@ def _echo_hello(
     trace_uart: Path | None = None,
     trace_pc: Path | None = None,
 ) -> None:
-    """The probe boots and echoes "hello#", with the runner's logs asked for."""
+    """The probe (an ELF or an Intel HEX) boots and echoes "hello#", still running after it;
+    the runner's logs asked for if given."""
     with SimAvr(probe_elf, trace_uart=trace_uart, trace_pc=trace_pc) as sim:
         sim.start(hold=True)
         uart = terminal_factory(sim.path)
@@ -197,6 +191,7 @@ def _echo_hello(
         assert uart.read_until(b"boot\n") == b"boot\n"
         uart.write(b"hello#")
         assert uart.read_until(b"#") == b"hello#"
+        assert sim.exited is None
 
 
 def test_uart_trace_stamps_every_byte_both_ways(

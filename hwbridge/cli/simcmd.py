@@ -209,9 +209,9 @@ def _check_firmware(path: Path, mcu: str, *, bootloader: bool = False) -> None:
     against the MCU's flash (with ``bootloader``: the flash below the bootloader's section)."""
     import dataclasses
 
-    from hwbridge.firmware.build import ELF_MCUS
+    from hwbridge.firmware.build import ELF_MCUS, elf_mcu
     from hwbridge.firmware.checks import FirmwareTarget, check_elf, check_hex
-    from hwbridge.firmware.sim.bootloader import flash_layout, is_intel_hex
+    from hwbridge.firmware.sim.bootloader import HEX_SUFFIXES, flash_layout, is_intel_hex
 
     name = "nrf51822" if mcu == "microbit" else mcu  # elf_mcu's names
     target = FirmwareTarget(
@@ -225,6 +225,14 @@ def _check_firmware(path: Path, mcu: str, *, bootloader: bool = False) -> None:
     if not path.is_file():
         return  # SimAvr says there is none
     if mcu not in AVR_MCUS or not is_intel_hex(path):  # (as SimAvr tells the runner)
+        if elf_mcu(path) is None:  # (the runner said "cannot read", QEMU dumped registers)
+            raise target.refuse(
+                path,
+                f"it is neither an ELF file nor named as an Intel HEX ({', '.join(HEX_SUFFIXES)})"
+                if mcu in AVR_MCUS
+                else "it is not an ELF file, and QEMU runs only ELF files: give the .elf the build "
+                "wrote",
+            )
         check_elf(path, target)
         return
     # (boot section start, flash size) of each AVR

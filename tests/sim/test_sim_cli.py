@@ -94,6 +94,33 @@ def test_sim_refuses_an_elf_built_for_another_mcu(runner: Path) -> None:
     assert "built for the atmega328p, not the stm32f405: give --mcu atmega328p" in done.stderr
 
 
+_NOT_ELF = "it is not an ELF file, and QEMU runs only ELF files: give the .elf the build wrote"
+
+
+@pytest.mark.parametrize(
+    ("name", "mcu", "why"),
+    [
+        (
+            "notes.bin",
+            "atmega328p",
+            "it is neither an ELF file nor named as an Intel HEX (.hex, .ihex, .ihx)",
+        ),
+        ("image.hex", "stm32f405", _NOT_ELF),
+        ("image.bin", "microbit", _NOT_ELF),
+    ],
+)
+def test_sim_refuses_a_file_it_cannot_run(tmp_path: Path, name: str, mcu: str, why: str) -> None:
+    """A file that is no ELF (nor, for simavr, named as an Intel HEX) is refused before the
+    simulator starts: the simavr runner said 'could not read ... Success', QEMU dumped its
+    registers after a lockup."""
+    path = tmp_path / name
+    path.write_text(":10000000000102030405060708090A0B0C0D0E0F78\n:00000001FF\n")
+    done = _hwbridge("firmware", "sim", str(path), "--mcu", mcu)
+    assert done.returncode == 1, done.stderr
+    assert done.stdout == ""
+    assert done.stderr.splitlines() == [f"error: refusing to run {path}: {why}"]
+
+
 def test_upload_refuses_an_elf_built_for_another_mcu(tmp_path: Path) -> None:
     mega = _example("mega")
     done = _hwbridge("firmware", "upload", str(mega), "--port", str(tmp_path / "ttyNONE"))

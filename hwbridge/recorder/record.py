@@ -80,7 +80,7 @@ class Recorder:
     thread; what does not fit is dropped and counted in ``stats.dropped``. The writer ends its
     chunk and flushes the file at least every ``flush_every`` seconds while messages come
     (None: only when a chunk reaches ``chunk_size``), so that a recorder killed without a chance
-    to finish the file (SIGKILL, a power cut) leaves a file that plays up to that point.
+    to finish the file (SIGKILL, a crash) leaves a file that plays up to that point.
     """
 
     def __init__(
@@ -106,6 +106,8 @@ class Recorder:
             raise RecordingError(f"duration must be positive, got {duration:g} s")
         if limit is not None and limit < 1:
             raise RecordingError(f"limit must be at least 1 message, got {limit}")
+        if flush_every is not None and not flush_every > 0:
+            raise RecordingError(f"flush_every must be positive seconds, got {flush_every:g}")
         self.graph = graph
         self.path = Path(path)
         self.topics: tuple[str, ...] = tuple(dict.fromkeys(resolve_name(t) for t in topics or ()))

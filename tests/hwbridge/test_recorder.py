@@ -236,6 +236,9 @@ def test_recorder_refuses_to_overwrite(client: Graph, tmp_path: Path) -> None:
     assert path.read_bytes() == b"precious"
     with pytest.raises(RecordingError, match="compression"):
         Recorder(client, path, compression="gzip")  # type: ignore[arg-type]
+    for every in (0.0, -1.0):  # (a negative one stopped the writer's queue.get at its start)
+        with pytest.raises(RecordingError, match="flush_every must be positive seconds"):
+            Recorder(client, path, ["/x"], flush_every=every)
     with Recorder(client, path, ["/x"], overwrite=True):
         pass
     header, summary, messages = read_mcap(path)

@@ -727,18 +727,18 @@ class DeferredReply:
         self._server = server
 
     def _finish(self) -> zenoh.Query | None:
-        with contextlib.suppress(IndexError):  # answered already
+        # (try, not contextlib.suppress: 0.16 against 1.08 us, once per answer a board gives)
+        try:
             return self._query.pop()
-        return None
+        except IndexError:  # answered already
+            return None
 
     def ok(self, payload: bytes) -> None:
         """Send the response bytes (ignored if an answer was already given)."""
-        try:  # (_finish(), without its context manager: once per answer a board gives)
-            query = self._query.pop()
-        except IndexError:
-            return
-        query.reply(self._server.key, payload, express=True)
-        query.drop()  # type: ignore[no-untyped-call]
+        query = self._finish()
+        if query is not None:
+            query.reply(self._server.key, payload, express=True)
+            query.drop()  # type: ignore[no-untyped-call]
 
     def error(self, text: str) -> None:
         """Fail the call with ``text`` (ignored if an answer was already given)."""

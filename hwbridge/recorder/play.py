@@ -104,10 +104,10 @@ class Player:
         """Topics asked for that are not in the file."""
         self.recorded: tuple[str, ...] = ()
         """The file's topics, sorted."""
-        self._info = self._inspect()
-        self.checked = self._info.summary is not None
+        self.checked = False
         """Whether :attr:`missing` and :attr:`recorded` are known: from the file's summary, or
         for a file without one, once a pass has read it to its end."""
+        self._info = self._inspect()
 
     # ------------------------------------------------------------------ file
     def _open(self) -> IO[bytes]:
@@ -145,19 +145,19 @@ class Player:
             info.start_ns = min(c.message_start_time for c in summary.chunk_indexes)
             info.end_ns = max(c.message_end_time for c in summary.chunk_indexes)
         wanted = set(self.topics) if self.topics is not None else None
-        present = {channel.topic for channel in summary.channels.values()}
-        self.recorded = tuple(sorted(present))
-        if self.topics is not None:
-            self.missing = tuple(t for t in self.topics if t not in present)
-            if len(self.missing) == len(self.topics):
-                raise self._none_found()
-            for topic in self.missing:
-                log.info("topic %s is not in %s", topic, self.path)
+        self._checked(channel.topic for channel in summary.channels.values())
+        if self._none_in_file:
+            raise self._none_found()
         for channel in summary.channels.values():
             if wanted is None or channel.topic in wanted:
                 schema = summary.schemas.get(channel.schema_id)
                 info.routes[channel.id] = self._route(channel, schema)
         return info
+
+    @property
+    def _none_in_file(self) -> bool:
+        """Topics were asked for, and the file (as far as it is known) holds none of them."""
+        return self.topics is not None and len(self.missing) == len(self.topics)
 
     def _none_found(self) -> RecordingError:
         """The error for a file that holds none of :attr:`topics` (all :attr:`missing`)."""
@@ -170,7 +170,8 @@ class Player:
         )
 
     def _checked(self, present: Iterable[str]) -> None:
-        """The topics of a file without a summary, once a pass has read it to its end."""
+        """The file's topics, once known: from its summary, or (a file without one) once a pass
+        has read it to its end."""
         if self.checked:
             return
         self.recorded = tuple(sorted(set(present)))
@@ -275,7 +276,7 @@ class Player:
             self._ended = time.monotonic()
             for publisher in publishers.values():
                 publisher.close()
-        if self.topics is not None and len(self.missing) == len(self.topics):
+        if self._none_in_file:
             raise self._none_found()  # a file without a summary, read to its end
         return self.stats
 

@@ -126,8 +126,9 @@ def _on_signal_in_main(signum: int, frame: FrameType | None) -> None:
     thread does the rest (it may run first or second: both read only plain flags).
 
     In the import system's own code (where an exception may be dropped, "Exception ignored
-    in ...", or leave its locks taken) and in a ``__del__``, the handler raises nothing: it has
-    the KeyboardInterrupt raised as the next function (or module body) outside them starts
+    in ...", or leave its locks taken) and in a ``__del__`` or a ``__set_name__``
+    (:data:`_NOT_IN`), the handler raises nothing: it has the KeyboardInterrupt raised as the
+    next function (or module body) outside them starts
     (:func:`_raise_on_next_call`), a few microseconds to milliseconds later. The watcher also
     interrupts the main thread again every 50 ms (:func:`_nudge`), for a main thread already
     traced by someone else (a debugger, coverage)."""
@@ -142,17 +143,23 @@ def _on_signal_in_main(signum: int, frame: FrameType | None) -> None:
     raise KeyboardInterrupt
 
 
+_NOT_IN: Final = frozenset({"__del__", "__set_name__"})
+"""Functions out of which a KeyboardInterrupt does not come as itself: one leaving a ``__del__``
+is printed and dropped where the ``__del__`` was called; one leaving a ``__set_name__`` (a
+class being made, as a module's import runs: numpy's ``cached_property``) is replaced by a
+RuntimeError ("Error calling __set_name__", Python 3.11), a traceback and exit status 1."""
+
+
 def _swallowing(frame: FrameType | None) -> bool:
     """Whether ``frame`` is where a KeyboardInterrupt must not be raised: the import system's
-    code, or a ``__del__`` (the frame's or a caller's: the exception would be printed and
-    dropped where the ``__del__`` was called)."""
+    code, or in a function of :data:`_NOT_IN` (the frame or a caller)."""
     if frame is None:
         return False
     if frame.f_code.co_filename.startswith("<frozen importlib"):
         return True
     caller: FrameType | None = frame
     while caller is not None:
-        if caller.f_code.co_name == "__del__":
+        if caller.f_code.co_name in _NOT_IN:
             return True
         caller = caller.f_back
     return False

@@ -9,7 +9,7 @@ import math
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
@@ -21,6 +21,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "Context",
+    "RobotFileArg",
     "emit_json",
     "get_registry",
     "json_line",
@@ -77,6 +78,14 @@ def no_such_path(value: str | Path, param: str, known: str = "") -> typer.BadPar
         f"Path {str(value)!r} does not exist{f' (nor is it {known})' if known else ''}.",
         param_hint=[param],
     )
+
+
+RobotFileArg = Annotated[
+    Path,
+    typer.Argument(metavar="ROBOT.yaml", exists=True, dir_okay=False, help="The robot file."),
+]
+"""The ROBOT.yaml argument of the commands that read a robot file (``up``, ``robot check``,
+``show`` and ``acl``): a file that exists, else the usage error Click gives."""
 
 
 def robot_argument(value: str, param: str) -> str:

@@ -19,7 +19,13 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 
-from hwbridge.cli.common import Context, get_registry, open_graph, stderr_console
+from hwbridge.cli.common import (
+    Context,
+    get_registry,
+    open_graph,
+    stderr_console,
+    warnings_as_notes,
+)
 
 if TYPE_CHECKING:
     from rich.console import RenderableType
@@ -100,6 +106,7 @@ def record(
     from hwbridge.cli.livetopics import name_argument
     from hwbridge.recorder import Recorder
 
+    warnings_as_notes()  # the recorder's, as this command's own
     if topics and all_topics:
         raise typer.BadParameter("give topics or --all, not both")
     topics = [name_argument(topic) for topic in topics or ()]
@@ -272,6 +279,7 @@ def play(
     from hwbridge.cli.livetopics import name_argument
     from hwbridge.recorder import Player
 
+    warnings_as_notes()  # the player's, as this command's own
     selected = [
         name_argument(t) for item in [*(topics or ()), *(topic_args or ())] for t in _split(item)
     ]

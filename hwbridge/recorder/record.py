@@ -340,7 +340,8 @@ class Recorder:
                         writer.flush()  # type: ignore[no-untyped-call]
                         flushed, flush_wait = time.monotonic(), None
                 except Exception as exc:  # noqa: BLE001 - disk full, I/O errors: reported by stop()
-                    log.error("recording to %s failed: %s", self.path, exc)
+                    # stop() raises it, in the same words: an error logged here was said twice
+                    log.info("recording to %s failed: %s", self.path, exc)
                     self._error = exc
                     self._done.set()
             try:

@@ -795,6 +795,41 @@ def test_cli_play_loop_of_a_file_without_a_summary_warns_after_its_first_pass(
     )
 
 
+def test_cli_play_warns_in_the_commands_own_words(
+    endpoint: str, router: Graph, tmp_path: Path
+) -> None:
+    """The player's warnings (a file with no summary, that ends early) read as the command's
+    own: 'warning: ...'. They were log lines ('WARNING hwbridge.recorder: ...') beside its
+    'warning: /bb was not in ...'. The info lines -v adds are still a log's."""
+    path = tmp_path / "cut.mcap"
+    sample_file(path, finish=False)
+    argv = ("-v", "play", str(path), "--rate", "0", "--wait", "0", "-q", "--topics", "/a,/bb")
+    done = run_cli(endpoint, *argv)
+    assert done.returncode == 0, done.stderr
+    lines = done.stderr.splitlines()
+    warnings = [line for line in lines if line.startswith("warning: ")]
+    assert len(warnings) == 3, done.stderr
+    assert warnings[0].startswith(f"warning: {path} has no readable summary ("), done.stderr
+    assert warnings[1].startswith(f"warning: {path} ends early ("), done.stderr
+    assert warnings[2] == f"warning: /bb was not in {path}; did you mean /b? (played the others)"
+    assert not [line for line in lines if line.startswith(("WARNING", "ERROR"))], done.stderr
+    assert f"INFO hwbridge.recorder: topic /bb is not in {path}" in lines, done.stderr
+
+
+@pytest.mark.skipif(not Path("/dev/full").exists(), reason="needs /dev/full")
+def test_cli_record_says_a_write_error_once(
+    endpoint: str, talker: Callable[[], int], tmp_path: Path
+) -> None:
+    """A recording that cannot be written (/dev/full: no space left) ends with status 1 and the
+    error once. The recorder's writer logged it as well, when it happened: the same line twice
+    once the library's errors read as the command's own (before, 'ERROR hwbridge.recorder:')."""
+    done = run_cli(endpoint, "record", "-f", "-o", "/dev/full", "/talk", "-q")
+    assert done.returncode == 1, done.stderr
+    assert done.stderr.splitlines() == [
+        "error: recording to /dev/full failed: [Errno 28] No space left on device"
+    ]
+
+
 def test_cli_errors(endpoint: str, router: Graph, tmp_path: Path) -> None:
     cdr = tmp_path / "cdr.mcap"
     write_mcap(

@@ -28,7 +28,7 @@ import typer
 
 from hwbridge._version import __version__
 from hwbridge.cli import stopping
-from hwbridge.cli.common import Context
+from hwbridge.cli.common import Context, show_logs
 from hwbridge.cli.shell import ClickException, Command, Group, UsageError, adopt
 from hwbridge.errors import HwBridgeError
 from hwbridge.heap import keep_the_heap_small
@@ -229,7 +229,7 @@ def build_app() -> typer.Typer:
         ] = False,
     ) -> None:
         level = logging.WARNING - 10 * min(verbose, 2)
-        logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+        show_logs(level)
         ctx.obj = Context(
             msg_path=tuple(msg_path or ()),
             endpoint=endpoint,

@@ -9,7 +9,7 @@ from typing import Annotated
 
 import typer
 
-from hwbridge.cli.common import open_graph
+from hwbridge.cli.common import RobotFileArg, open_graph
 from hwbridge.errors import HwBridgeError
 
 __all__ = ["acl"]
@@ -17,10 +17,7 @@ __all__ = ["acl"]
 
 def acl(
     ctx: typer.Context,
-    robot_file: Annotated[
-        Path,
-        typer.Argument(metavar="ROBOT.yaml", exists=True, dir_okay=False, help="The robot file."),
-    ],
+    robot_file: RobotFileArg,
     output: Annotated[
         Path | None,
         typer.Option("--output", "-o", help="Write the config here (default: standard output)."),

@@ -5,11 +5,12 @@ from __future__ import annotations
 import dataclasses
 import functools
 import json
+import logging
 import math
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
@@ -20,15 +21,23 @@ if TYPE_CHECKING:
     from hwbridge.msg import TypeRegistry
 
 __all__ = [
+    "LOG_FORMAT",
     "Context",
+    "RobotFileArg",
     "emit_json",
     "get_registry",
     "json_line",
     "no_such_path",
     "open_graph",
     "robot_argument",
+    "show_logs",
     "stderr_console",
+    "warnings_as_notes",
 ]
+
+LOG_FORMAT = "%(levelname)s %(name)s: %(message)s"
+"""How a log record reads on stderr (``WARNING hwbridge.board: ...``): the lines of a log, as
+long-running commands such as ``up`` print them."""
 
 
 @functools.cache
@@ -79,6 +88,14 @@ def no_such_path(value: str | Path, param: str, known: str = "") -> typer.BadPar
     )
 
 
+RobotFileArg = Annotated[
+    Path,
+    typer.Argument(metavar="ROBOT.yaml", exists=True, dir_okay=False, help="The robot file."),
+]
+"""The ROBOT.yaml argument of the commands that read a robot file (``up``, ``robot check``,
+``show`` and ``acl``): a file that exists, else the usage error Click gives."""
+
+
 def robot_argument(value: str, param: str) -> str:
     """A ROBOT argument as given (a robot file's path, or a packaged robot's name without a
     suffix: ``diffbot``); the usage error of :func:`no_such_path` if it is neither."""
@@ -90,6 +107,42 @@ def robot_argument(value: str, param: str) -> str:
     if not Path(value).suffix and value in ready:
         return value
     raise no_such_path(value, param, f"a ready robot: {', '.join(ready)}")
+
+
+class _LogHandler(logging.StreamHandler):  # type: ignore[type-arg]
+    """The root logger's handler that :func:`show_logs` puts on stderr."""
+
+
+class _NoteFormatter(logging.Formatter):
+    """Warnings and errors as the command's own lines read (``warning: ...``, ``error: ...``);
+    the info and debug lines that ``-v`` shows as a log's (:data:`LOG_FORMAT`)."""
+
+    def __init__(self) -> None:
+        super().__init__(LOG_FORMAT)
+
+    def formatMessage(self, record: logging.LogRecord) -> str:
+        if record.levelno >= logging.WARNING:
+            label = "error" if record.levelno >= logging.ERROR else "warning"
+            return f"{label}: {record.message}"
+        return super().formatMessage(record)
+
+
+def show_logs(level: int) -> None:
+    """Log records of ``level`` and above on stderr, as :data:`LOG_FORMAT` says; unless the
+    root logger already has handlers (a test's, in-process), as :func:`logging.basicConfig`."""
+    logging.basicConfig(level=level, handlers=[_LogHandler()])
+    for handler in logging.getLogger().handlers:
+        if isinstance(handler, _LogHandler):  # (also one an earlier run in-process made)
+            handler.setFormatter(logging.Formatter(LOG_FORMAT))
+
+
+def warnings_as_notes() -> None:
+    """For a command that prints its own ``warning: ...`` lines (``record``, ``play``): the
+    library's warnings and errors read the same (``warning: /x.mcap ends early ...``), not as a
+    log's ``WARNING hwbridge.recorder: ...``, so that one command does not warn in two styles."""
+    for handler in logging.getLogger().handlers:
+        if isinstance(handler, _LogHandler):
+            handler.setFormatter(_NoteFormatter())
 
 
 @dataclass(frozen=True)

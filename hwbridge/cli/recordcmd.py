@@ -19,13 +19,19 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 
-from hwbridge.cli.common import Context, get_registry, open_graph, stderr_console
+from hwbridge.cli.common import (
+    Context,
+    get_registry,
+    open_graph,
+    stderr_console,
+    warnings_as_notes,
+)
 
 if TYPE_CHECKING:
     from rich.console import RenderableType
 
     from hwbridge.graph import Graph
-    from hwbridge.recorder import ChannelStats, PlayerStats, Recorder, RecorderStats
+    from hwbridge.recorder import ChannelStats, Player, PlayerStats, Recorder, RecorderStats
 
 __all__ = ["CompressionChoice", "app", "play", "record"]
 
@@ -100,6 +106,7 @@ def record(
     from hwbridge.cli.livetopics import name_argument
     from hwbridge.recorder import Recorder
 
+    warnings_as_notes()  # the recorder's, as this command's own
     if topics and all_topics:
         raise typer.BadParameter("give topics or --all, not both")
     topics = [name_argument(topic) for topic in topics or ()]
@@ -267,15 +274,22 @@ def play(
 
     A topic asked for that is not in the file gets a warning naming the recorded topics spelt
     alike; if none of them is, that is an error. A file not closed cleanly (no index) tells
-    this only once it has been played to its end. The summary lists every topic asked for, with
-    its count, 0 or not."""
-    from hwbridge.cli.livetopics import name_argument, note
-    from hwbridge.graph.discovery import did_you_mean
+    this only once it has been played to its end (with --loop, once its first pass ends). The
+    summary lists every topic asked for, with its count, 0 or not."""
+    from hwbridge.cli.livetopics import name_argument
     from hwbridge.recorder import Player
 
+    warnings_as_notes()  # the player's, as this command's own
     selected = [
         name_argument(t) for item in [*(topics or ()), *(topic_args or ())] for t in _split(item)
     ]
+    told = False  # of the topics not in the file
+
+    def tell(played: bool) -> None:
+        nonlocal told
+        told = True
+        _warn_missing(player, played=played)
+
     with _open(ctx, endpoint) as graph:
         player = Player(
             graph,
@@ -285,13 +299,11 @@ def play(
             topics=selected or None,
             start=start,
             wait_for_subscribers=wait,
+            # a file without a summary tells its topics once read: a loop plays on after that
+            on_checked=(lambda: tell(played=False)) if loop else None,
         )
-        told = player.checked  # a file without a summary tells its topics once played
-        for topic in player.missing:
-            note(
-                f"warning: {topic} is not in {file}{did_you_mean(topic, player.recorded)} "
-                "(playing the others)"
-            )
+        if player.checked:  # from the file's summary
+            tell(played=False)
         with (
             _stop_on_signals(player.stop),
             _progress(
@@ -306,10 +318,21 @@ def play(
     if not quiet:
         channels = _with_named(stats.channels, player.topics or ())
         _print_summary("played", "from", stats.path, stats.elapsed, channels)
-    for topic in () if told else player.missing:
+    if not told:  # a file without a summary, played once
+        tell(played=True)
+
+
+def _warn_missing(player: Player, *, played: bool) -> None:
+    """A warning for each topic asked for that is not in the player's file, naming the recorded
+    topics spelt alike; ``played``: said once the playing has ended."""
+    from hwbridge.cli.livetopics import note
+    from hwbridge.graph.discovery import did_you_mean
+
+    verb, others = ("was", "played") if played else ("is", "playing")
+    for topic in player.missing:
         note(
-            f"warning: {topic} was not in {file}{did_you_mean(topic, player.recorded)} "
-            "(played the others)"
+            f"warning: {topic} {verb} not in {player.path}"
+            f"{did_you_mean(topic, player.recorded)} ({others} the others)"
         )
 
 

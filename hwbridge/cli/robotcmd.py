@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import sys
-from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any
+from typing import TYPE_CHECKING, Any
 
 import typer
 
 from hwbridge.cli.aclcmd import acl
+from hwbridge.cli.common import RobotFileArg
 from hwbridge.cli.upcmd import LinkOption, parse_links, show_notes
 
 if TYPE_CHECKING:
@@ -18,14 +18,9 @@ __all__ = ["robot_app"]
 
 robot_app = typer.Typer(help="Robot files: check, show, devices, acl.", no_args_is_help=True)
 
-_FILE = Annotated[
-    Path,
-    typer.Argument(metavar="ROBOT.yaml", exists=True, dir_okay=False, help="The robot file."),
-]
-
 
 @robot_app.command("check")
-def check(robot_file: _FILE, link: LinkOption = None) -> None:
+def check(robot_file: RobotFileArg, link: LinkOption = None) -> None:
     """Check a robot file: every problem as FILE:LINE: what is wrong (exit status 1).
 
     With --link, the links 'hwbridge up --link' would use, checked and noted as 'up' does."""
@@ -58,7 +53,7 @@ def _count(number: int, what: str) -> str:
 
 
 @robot_app.command("show")
-def show(robot_file: _FILE) -> None:
+def show(robot_file: RobotFileArg) -> None:
     """Print a robot file as hwbridge reads it (YAML, every default filled in; a file that
     hwbridge reads back as the same robot)."""
     import yaml

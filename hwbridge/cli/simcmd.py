@@ -223,7 +223,9 @@ def _check_firmware(path: Path, mcu: str, *, bootloader: bool = False) -> None:
         choices={each: each for each in ELF_MCUS},  # each one an --mcu value
     )
     if not path.is_file():
-        return  # SimAvr says there is none
+        # /dev/null, a pipe (<(...)), a FIFO: they exist, so no usage error; not read here (a
+        # FIFO's open waits for a writer): SimAvr or QEMU says there is no firmware
+        return
     if mcu not in AVR_MCUS or not is_intel_hex(path):  # (as SimAvr tells the runner)
         if elf_mcu(path) is None:  # (the runner said "cannot read", QEMU dumped registers)
             raise target.refuse(

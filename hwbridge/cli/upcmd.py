@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import sys
 from collections.abc import Sequence
-from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
 import typer
@@ -18,7 +17,7 @@ from hwbridge.cli.bridgecmd import (
     show_board_logs,
     wait_for_signal,
 )
-from hwbridge.cli.common import get_registry
+from hwbridge.cli.common import RobotFileArg, get_registry
 from hwbridge.cli.gatewaycmd import QOS_HELP, qos_rules
 from hwbridge.robot.shards import DEFAULT_BOARDS_PER_PROCESS, Shards, fail_with, plan_shards
 
@@ -97,15 +96,7 @@ def _start_gateways(
 
 def up(
     ctx: typer.Context,
-    robot_file: Annotated[
-        Path,
-        typer.Argument(
-            metavar="ROBOT.yaml",
-            exists=True,
-            dir_okay=False,
-            help="The robot file (see 'hwbridge robot').",
-        ),
-    ],
+    robot_file: RobotFileArg,
     link: LinkOption = None,
     wait: Annotated[
         bool,

@@ -7,7 +7,7 @@ import logging
 import struct
 import threading
 import time
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, TYPE_CHECKING
@@ -64,7 +64,9 @@ class Player:
     not in it are :attr:`missing` (for a caller to warn of), the file's topics :attr:`recorded`.
     A file with no summary (not closed cleanly) tells neither before it is played: they are
     known once :meth:`run` has read it to its end (:attr:`checked` says when), and if none of
-    ``topics`` was in it, that :meth:`run` raises the RecordingError.
+    ``topics`` was in it, that :meth:`run` raises the RecordingError. Otherwise :meth:`run` then
+    calls ``on_checked`` (in its thread, before a ``loop``'s next pass), the caller's moment to
+    warn of :attr:`missing` while a loop plays on.
     """
 
     def __init__(
@@ -78,6 +80,7 @@ class Player:
         start: float = 0.0,
         wait_for_subscribers: float = 1.0,
         node_name: str | None = None,
+        on_checked: Callable[[], object] | None = None,
     ) -> None:
         if rate < 0:
             raise RecordingError(f"rate must be 0 (as fast as possible) or positive, got {rate:g}")
@@ -93,6 +96,7 @@ class Player:
         self.start = start
         self.wait_for_subscribers = wait_for_subscribers
         self.node_name = node_name or f"hwbridge_play_{graph.zid[:8]}"
+        self.on_checked = on_checked
         self._stop = threading.Event()
         self._lock = threading.Lock()
         self._counters: dict[int, ChannelCounter] = {}
@@ -223,7 +227,10 @@ class Player:
             try:
                 yield from self._skip(self._unindexed(stream, present))
             except (McapError, struct.error, ValueError, OSError) as exc:
-                log.warning("%s ends early (%s); played what it holds", self.path, describe(exc))
+                if not self.checked:  # said on the first pass, not on each of a loop's
+                    log.warning(
+                        "%s ends early (%s); played what it holds", self.path, describe(exc)
+                    )
             self._checked(present)  # read to its end (a pass stopped early never gets here)
 
     def _unindexed(
@@ -265,11 +272,14 @@ class Player:
             self._await_subscribers(publishers.values())
             self._began = time.monotonic()
             while not self._stop.is_set():
+                known = self.checked
                 published = self._play_once(node, publishers)
                 if self._stop.is_set():
                     break
                 with self._lock:
                     self._loops += 1
+                if self.checked and not known and not self._none_in_file and self.on_checked:
+                    self.on_checked()  # a file without a summary, read to its end once
                 if not self.loop or not published:
                     break
         finally:

@@ -315,11 +315,13 @@ class Recorder:
         assert writer is not None and stream is not None
         every = self.flush_every
         flushed = time.monotonic()
-        unflushed = False  # messages written since the last flush
+        # every while messages written since the last flush wait for one, else None: how long
+        # the queue is waited on, and whether there is anything to flush
+        flush_wait: float | None = None
         try:
             while True:
                 try:
-                    item = self._queue.get(timeout=every if unflushed else None)
+                    item = self._queue.get(timeout=flush_wait)
                 except queue.Empty:  # quiet since: what is written goes to the file now
                     item = None
                 if item is _STOP:
@@ -333,12 +335,13 @@ class Recorder:
                         assert isinstance(item, tuple)
                         received, message = item
                         self._write(writer, received, message)
-                        unflushed = every is not None
-                    if unflushed and every is not None and time.monotonic() - flushed >= every:
+                        flush_wait = every
+                    if flush_wait is not None and time.monotonic() - flushed >= flush_wait:
                         writer.flush()  # type: ignore[no-untyped-call]
-                        flushed, unflushed = time.monotonic(), False
+                        flushed, flush_wait = time.monotonic(), None
                 except Exception as exc:  # noqa: BLE001 - disk full, I/O errors: reported by stop()
-                    log.error("recording to %s failed: %s", self.path, exc)
+                    # stop() raises it, in the same words: an error logged here was said twice
+                    log.info("recording to %s failed: %s", self.path, exc)
                     self._error = exc
                     self._done.set()
             try:

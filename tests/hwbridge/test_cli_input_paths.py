@@ -4,6 +4,7 @@ line and where help is (as ``exists=True`` gives): nothing is started first."""
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
@@ -58,3 +59,18 @@ def test_a_folder_given_for_a_file_is_a_usage_error(tmp_path: Path) -> None:
     done = run_hwbridge("robot", "check", str(tmp_path), timeout=60)
     assert done.returncode == 2, done.stderr
     assert done.stderr.startswith(f"error: Invalid value for 'ROBOT.yaml': File '{tmp_path}'")
+
+
+@pytest.mark.parametrize("mcu", ["atmega328p", "stm32f405"])
+def test_firmware_sim_does_not_read_a_path_that_is_no_file(tmp_path: Path, mcu: str) -> None:
+    """A FIFO (or /dev/null, a pipe from ``<(...)``) exists and is no folder, so it passes for
+    the firmware on the command line. The check of the MCU it was built for leaves it unread
+    (opening a FIFO with no writer waits for one: the command would hang), and the simulator
+    refuses it: status 1, nothing started."""
+    fifo = tmp_path / "firmware.elf"
+    os.mkfifo(fifo)
+    done = run_hwbridge("firmware", "sim", "--mcu", mcu, str(fifo), timeout=60)
+    assert done.returncode == 1, done.stderr
+    said = f"no firmware at {fifo}" if mcu == "atmega328p" else f"{fifo}: no such ELF file"
+    assert done.stderr == f"error: {said}\n"
+    assert done.stdout == ""

@@ -744,6 +744,92 @@ def test_cli_play_of_a_file_without_a_summary_warns_after_playing(
     )
 
 
+def test_cli_play_loop_of_a_file_without_a_summary_warns_after_its_first_pass(
+    endpoint: str, router: Graph, tmp_path: Path
+) -> None:
+    """'play --loop' of a file a killed recorder left: before, a topic asked for that never
+    appeared was warned of only once Ctrl-C ended the loop, and 'ends early' was said again on
+    every pass. Now both are said once, when the first pass has read the file to its end; the
+    loop plays on, and Ctrl-C ends it cleanly."""
+    path = tmp_path / "cut.mcap"
+    sample_file(path, finish=False)
+    process = subprocess.Popen(
+        cli(endpoint, "play", str(path), "--loop", "--wait", "0", "--topics", "/a,/bb"),
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    lines: list[str] = []
+    reading = threading.Thread(target=lambda: lines.extend(process.stderr or ()), daemon=True)
+    reading.start()
+    warning = f"warning: /bb is not in {path}; did you mean /b? (playing the others)\n"
+
+    def passes() -> int:
+        """The highest pass a progress line has shown (one every 2 s: stderr is no terminal)."""
+        shown = [re.search(r", pass (\d+)$", line) for line in list(lines)]
+        return max((int(found.group(1)) for found in shown if found), default=0)
+
+    try:
+        assert wait_until(lambda: warning in lines or process.poll() is not None, timeout=30)
+        assert process.poll() is None, "".join(lines)  # warned while the loop plays on
+        assert wait_until(lambda: passes() >= 3 or process.poll() is not None, timeout=30)
+        assert process.poll() is None, "".join(lines)
+        process.send_signal(signal.SIGINT)
+        process.wait(timeout=30)
+        reading.join(timeout=30)
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+    err = "".join(lines)
+    assert process.returncode == 0, err
+    assert lines.count(warning) == 1, err  # not again on later passes, nor at the end
+    assert sum("ends early" in line for line in lines) == 1, err
+    assert re.search(r"^  /bb +\? +0 messages, 0 B$", err, re.M), err
+    # none of the topics asked for in it: the error, after one pass, and no warning before it
+    done = run_cli(endpoint, "play", str(path), "--loop", "--wait", "0", "--topics", "/bb")
+    assert done.returncode == 1, done.stderr
+    assert "warning: /bb" not in done.stderr
+    assert done.stderr.splitlines()[-1] == (
+        f"error: none of the topics /bb is in {path}; did you mean /b? (it has /a, /b)"
+    )
+
+
+def test_cli_play_warns_in_the_commands_own_words(
+    endpoint: str, router: Graph, tmp_path: Path
+) -> None:
+    """The player's warnings (a file with no summary, that ends early) read as the command's
+    own: 'warning: ...'. They were log lines ('WARNING hwbridge.recorder: ...') beside its
+    'warning: /bb was not in ...'. The info lines -v adds are still a log's."""
+    path = tmp_path / "cut.mcap"
+    sample_file(path, finish=False)
+    argv = ("-v", "play", str(path), "--rate", "0", "--wait", "0", "-q", "--topics", "/a,/bb")
+    done = run_cli(endpoint, *argv)
+    assert done.returncode == 0, done.stderr
+    lines = done.stderr.splitlines()
+    warnings = [line for line in lines if line.startswith("warning: ")]
+    assert len(warnings) == 3, done.stderr
+    assert warnings[0].startswith(f"warning: {path} has no readable summary ("), done.stderr
+    assert warnings[1].startswith(f"warning: {path} ends early ("), done.stderr
+    assert warnings[2] == f"warning: /bb was not in {path}; did you mean /b? (played the others)"
+    assert not [line for line in lines if line.startswith(("WARNING", "ERROR"))], done.stderr
+    assert f"INFO hwbridge.recorder: topic /bb is not in {path}" in lines, done.stderr
+
+
+@pytest.mark.skipif(not Path("/dev/full").exists(), reason="needs /dev/full")
+def test_cli_record_says_a_write_error_once(
+    endpoint: str, talker: Callable[[], int], tmp_path: Path
+) -> None:
+    """A recording that cannot be written (/dev/full: no space left) ends with status 1 and the
+    error once. The recorder's writer logged it as well, when it happened: the same line twice
+    once the library's errors read as the command's own (before, 'ERROR hwbridge.recorder:')."""
+    done = run_cli(endpoint, "record", "-f", "-o", "/dev/full", "/talk", "-q")
+    assert done.returncode == 1, done.stderr
+    assert done.stderr.splitlines() == [
+        "error: recording to /dev/full failed: [Errno 28] No space left on device"
+    ]
+
+
 def test_cli_errors(endpoint: str, router: Graph, tmp_path: Path) -> None:
     cdr = tmp_path / "cdr.mcap"
     write_mcap(

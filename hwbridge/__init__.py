@@ -34,8 +34,5 @@ def _exit_early_on_signals() -> None:
 _exit_early_on_signals()
 
 from hwbridge._version import __version__  # noqa: E402  # after the signals are handled
-from hwbridge.compiled import install as _install_compiled  # noqa: E402
-
-_install_compiled()  # before any module it finds is imported (hwbridge/compiled)
 
 __all__ = ["__version__"]

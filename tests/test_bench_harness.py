@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import importlib.util
 import itertools
-import os
 import platform
 import random
 import shutil
@@ -116,13 +115,6 @@ def test_bridge_bench_runs_small_and_prints_the_documented_fields() -> None:
             path = line["bridge_path_us"]
             assert set(path) == {"request", "answer"}
             assert 0 < path["request"] + path["answer"] < line["rtt_p50_us"]
-            # Which path the bridge ran: compiled modules where this run's processes load them.
-            from hwbridge.compiled import MODULES, available
-
-            built = os.environ.get("HWBRIDGE_COMPILED") != "0" and bool(available())
-            assert (line["compiled_modules"] > 0) == built and line["compiled_modules"] <= len(
-                MODULES
-            )
             # A call's request and answer are whole frames: a few bytes each, never zero.
             assert line["frame_bytes"]["request"] > 4 and line["frame_bytes"]["reply"] > 4
 

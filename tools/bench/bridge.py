@@ -674,17 +674,8 @@ def _latency(
         floor_rounds_us=[round(r.floor * 1e6, 1) for r in rounds],
         rtt_over_zenoh_plus_link=round(rtt_p50 / (zenoh_p50 + link_idle), 3),
         bridge_path_us=path,
-        compiled_modules=_compiled_modules(),
         calls=len(times),
     )
-
-
-def _compiled_modules() -> int:
-    """How many of the modules on a message's path this process (the bridge's) runs compiled
-    (``hwbridge/compiled``; 0: the plain Python path)."""
-    from hwbridge.compiled import active
-
-    return len(active())
 
 
 def _bridge_path(endpoint: str, calls: int, service: str) -> dict[str, float]:

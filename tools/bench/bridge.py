@@ -69,7 +69,12 @@ same stamps in finer steps put a native request's at 8-10 us in the graph's quer
 in the pump's call, 13-16 in the session's ``call_service``, 9-11 encoding and 3-4 in the
 link's ``write`` before the system call. A bare Zenoh queryable that writes the request to a
 raw pty echo and replies from a thread that reads it (no hwbridge code) read 0.55 to 0.92 of
-the same floor.
+the same floor. Compiling that Python does not help: the 23 modules on the path built with
+Cython (Python's semantics kept, loaded only for the source they were built from) halved the
+host session's warm time (``session_call.py``), yet in six pairs alternating with the plain
+modules on one tree the native ``rtt_over_floor`` read 1.30 to 1.58 compiled against 1.13 to
+1.36 plain (rosserial 1.16 to 1.38 against 1.03 to 1.37): run cold, as each call runs it, the
+compiled code is no faster (tried, measured and taken out again).
 
 Runs with no arguments in about a minute; prints one JSON object per line. ``--cases latency``
 runs only the service calls.

@@ -343,8 +343,13 @@ def _split(item: str) -> list[str]:
 def _play_line(stats: PlayerStats, rate: float, loop: bool) -> str:
     speed = "as fast as possible" if rate == 0 else f"x{rate:g}"
     loops = f", pass {stats.loops + 1}" if loop else ""
+    where = (
+        f"{stats.position:.1f} s (no index: length known once played through)"
+        if stats.duration is None
+        else f"{stats.position:.1f} / {stats.duration:.1f} s"
+    )
     return (
-        f"playing {stats.path} ({speed}): {stats.position:.1f} / {stats.duration:.1f} s, "
+        f"playing {stats.path} ({speed}): {where}, "
         f"{stats.messages} messages, {_size(stats.bytes)}{loops}"
     )
 

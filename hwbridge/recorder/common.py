@@ -65,8 +65,9 @@ class PlayerStats(_ChannelTotals):
     """Wall-clock seconds since :meth:`Player.run` began."""
     position: float = 0.0
     """Seconds into the recording of the last message published."""
-    duration: float = 0.0
-    """Length of the recording in seconds (first to last message)."""
+    duration: float | None = 0.0
+    """Length of the recording in seconds (first to last message); None while it is not known
+    (a file without a summary, until a pass has read it to its end)."""
     loops: int = 0
     """Passes over the file completed."""
     channels: tuple[ChannelStats, ...] = ()

@@ -224,23 +224,34 @@ class Player:
                     yield from (item for item in source if item[2].log_time >= start)
                 return
             present: set[str] = set()
+            bounds: list[int] = []
             try:
-                yield from self._skip(self._unindexed(stream, present))
+                yield from self._skip(self._unindexed(stream, present, bounds))
             except (McapError, struct.error, ValueError, OSError) as exc:
                 if not self.checked:  # said on the first pass, not on each of a loop's
                     log.warning(
                         "%s ends early (%s); played what it holds", self.path, describe(exc)
                     )
-            self._checked(present)  # read to its end (a pass stopped early never gets here)
+            # read to its end (a pass stopped early never gets here): its topics and its length
+            if bounds and self._info.start_ns is None:
+                self._info.start_ns, self._info.end_ns = bounds
+            self._checked(present)
 
     def _unindexed(
-        self, stream: IO[bytes], present: set[str]
+        self, stream: IO[bytes], present: set[str], bounds: list[int]
     ) -> Iterator[tuple[Schema | None, Channel, Message]]:
         """The selected messages of a file without a summary, in file order; the topics of all
-        its messages are added to ``present`` as they are read."""
+        its messages are added to ``present`` as they are read, and ``bounds`` holds the first
+        and last log time of them (empty until one is read)."""
         wanted = None if self.topics is None else set(self.topics)
         for item in NonSeekingReader(stream).iter_messages(log_time_order=False):
             present.add(item[1].topic)
+            log_time = item[2].log_time
+            if bounds:
+                bounds[0] = min(bounds[0], log_time)
+                bounds[1] = max(bounds[1], log_time)
+            else:
+                bounds += (log_time, log_time)
             if wanted is None or item[1].topic in wanted:
                 yield item
 
@@ -311,7 +322,7 @@ class Player:
         duration = (
             (info.end_ns - info.start_ns) / 1e9
             if info.start_ns is not None and info.end_ns is not None
-            else 0.0
+            else None
         )
         return PlayerStats(self.path, elapsed, position, duration, loops, channels)
 

@@ -423,6 +423,27 @@ def test_play_a_truncated_file(
     assert sink.of("/a") == expected(messages, "/a")[: len(sink.of("/a"))]
 
 
+def test_the_length_of_a_file_without_a_summary_is_known_once_played_through(
+    router: Graph, tmp_path: Path
+) -> None:
+    """A killed recorder's file does not say how long it is: the progress line said
+    '3.1 / 0.0 s' all along. Its length is None (not 0) until a pass has read the file to its
+    end, then that pass's first to last log time; the line says which it shows."""
+    from hwbridge.cli.recordcmd import _play_line
+
+    path = tmp_path / "cut.mcap"
+    sample_file(path, finish=False)
+    player = Player(router, path, rate=0, wait_for_subscribers=0)
+    assert player.stats.duration is None
+    assert "0.0 s (no index: length known once played through)" in _play_line(
+        player.stats, 0, False
+    )
+    stats = player.run()
+    assert stats.messages > 0 and stats.position > 0
+    assert stats.duration == pytest.approx(stats.position)  # (written in log time order)
+    assert f"{stats.position:.1f} / {stats.duration:.1f} s, " in _play_line(stats, 0, False)
+
+
 def test_play_refuses_what_it_cannot_play(router: Graph, tmp_path: Path) -> None:
     cdr = tmp_path / "cdr.mcap"
     write_mcap(

@@ -31,6 +31,8 @@ from tests.bridgeproc import BridgeProcess
 from tests.netutil import free_port, wait_until
 
 SKETCH = Path(__file__).parent / "sketches" / "SessionE2E"
+FRESH = "board 'e2e' connected (native):"
+"""The bridge's line for a new session with the board (a resumed one says 'session resumed')."""
 
 pytestmark = pytest.mark.skipif(
     shutil.which("g++") is None, reason="g++ is not installed (Debian package g++)"
@@ -200,9 +202,7 @@ def test_host_sketch_through_the_bridge(
         # kill and restart the board program: the bridge reconnects on its own
         board.kill()
         board = BoardProgram(program, relay.board_path)
-        assert wait_until(lambda: bridge.output().count("board 'e2e' connected") >= 2, 20), (
-            bridge.output()
-        )
+        assert wait_until(lambda: bridge.output().count(FRESH) >= 2, 20), bridge.output()
         call = bridge.cli("service", "call", "/ping")
         assert yaml.safe_load(call.stdout) == {"success": True, "message": "pong 1"}
         assert wait_until(lambda: bridge.output().count("rate is 7") >= 2, 10)
@@ -220,6 +220,8 @@ def test_host_sketch_through_the_bridge(
         # (frames the board resent) or resent frames itself
         damage = ("crc_errors", "bad_frames", "be_frames_lost", "duplicates", "retransmits")
         assert relay.damaged > 0 and sum(host[k] for k in damage) > 0, host
-        assert bridge.output().count("board 'e2e' connected") == 2, bridge.output()
+        # no new session either (a busy machine may hold the board silent past the link's
+        # timeout: the session then resumes, '(native, session resumed)', and loses nothing)
+        assert bridge.output().count(FRESH) == 2, bridge.output()
     finally:
         board.kill()

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -53,6 +54,40 @@ class BridgeProcess:
 
     def output(self) -> str:
         return self.log.read_text()
+
+    def board_session(self) -> int | None:
+        """The board's session id (its device session, PROTOCOL.md 2.10) while the bridge has
+        the board connected, from ``hwbridge board info``; None while it has not (or when the
+        question went unanswered)."""
+        done = self.cli("board", "info", "--json")
+        if done.returncode != 0:
+            return None
+        info = json.loads(done.stdout)
+        device = (info.get("session") or {}).get("device_session")
+        return int(device) if info.get("state") == "connected" and device else None
+
+    def wait_session(self, timeout: float, *, other_than: int | None = None, since: int = 0) -> int:
+        """Wait until the bridge has the board connected in a session other than
+        ``other_than``, and return the board's session id: a board that came back after a
+        reset is told from its old session resumed by that id, which log lines do not give.
+        The bridge is asked (a CLI process each time) once its output past offset ``since``
+        shows a connection. AssertionError, with the output, after ``timeout`` seconds."""
+        found: list[int] = []
+
+        def connected() -> bool:
+            if "connected (" not in self.output()[since:]:
+                return False
+            session = self.board_session()
+            if session is None or session == other_than:
+                return False
+            found.append(session)
+            return True
+
+        other = f" other than {other_than:#010x}" if other_than is not None else ""
+        assert wait_until(connected, timeout), (
+            f"no board session{other} in {timeout:g} s:\n{self.output()}"
+        )
+        return found[-1]
 
     def stop(self) -> int:
         self.process.send_signal(signal.SIGINT)

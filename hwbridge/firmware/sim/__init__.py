@@ -205,14 +205,14 @@ def read_pc_trace(path: Path | str) -> list[tuple[int, int]]:
 
 
 class SimAvr:
-    """The runner with one ELF, or an Intel HEX (``elf`` named as one: ``.hex``, ``.ihex``,
-    ``.ihx``). ``start()`` returns once the UART's pty exists (:attr:`url`); with ``hold`` the
-    AVR waits until :meth:`go` so that devices are in place before it boots.
+    """The runner with one ``firmware``: an ELF, or an Intel HEX (a file named as one:
+    ``.hex``, ``.ihex``, ``.ihx``). ``start()`` returns once the UART's pty exists (:attr:`url`);
+    with ``hold`` the AVR waits until :meth:`go` so that devices are in place before it boots.
 
     With ``bootloader`` (an Intel HEX, see :func:`~hwbridge.firmware.sim.bootloader.optiboot_hex`)
     the CPU starts at the bootloader, each open of the pty resets the AVR into it (an Uno's
-    auto-reset), and ``elf`` (an ELF or an Intel HEX, or None) is the application already in
-    flash: upload another one through the pty with avrdude.
+    auto-reset), and ``firmware`` (an ELF or an Intel HEX, or None) is the application already
+    in flash: upload another one through the pty with avrdude.
 
     Callbacks run on the reader thread, in the order the runner reported: ``on_tick(tick)``,
     ``on_i2c_write(address, register, data)``, ``on_uart(name, packet)``, ``on_reset()`` and
@@ -220,7 +220,7 @@ class SimAvr:
 
     def __init__(
         self,
-        elf: Path | str | None,
+        firmware: Path | str | None,
         *,
         bootloader: Path | str | None = None,
         mcu: str = "atmega328p",
@@ -233,11 +233,12 @@ class SimAvr:
     ) -> None:
         if mcu not in MCUS:
             raise SimError(f"unknown MCU {mcu!r}: choose {' or '.join(MCUS)}")
-        self.elf = Path(elf) if elf is not None else None
-        if self.elf is not None and not self.elf.is_file():
-            raise SimError(f"no firmware at {self.elf}")
+        self.firmware = Path(firmware) if firmware is not None else None
+        """The application: an ELF, or an Intel HEX (the runner is told ``--hex``)."""
+        if self.firmware is not None and not self.firmware.is_file():
+            raise SimError(f"no firmware at {self.firmware}")
         self.bootloader = Path(bootloader) if bootloader is not None else None
-        if self.bootloader is None and self.elf is None:
+        if self.bootloader is None and self.firmware is None:
             raise SimError("no firmware to run")
         if self.bootloader is not None and not self.bootloader.is_file():
             raise SimError(f"no bootloader at {self.bootloader}")
@@ -296,8 +297,8 @@ class SimAvr:
             *(["--bootloader", str(self.bootloader)] if self.bootloader is not None else []),
             *(["--trace-uart", str(self.trace_uart)] if self.trace_uart is not None else []),
             *(["--trace-pc", str(self.trace_pc)] if self.trace_pc is not None else []),
-            *(["--hex"] if self.elf is not None and is_intel_hex(self.elf) else []),
-            *([str(self.elf)] if self.elf is not None else []),
+            *(["--hex"] if self.firmware is not None and is_intel_hex(self.firmware) else []),
+            *([str(self.firmware)] if self.firmware is not None else []),
         ]
         self._process = subprocess.Popen(
             command,

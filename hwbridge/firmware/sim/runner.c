@@ -1,16 +1,18 @@
 /*
- * hwbridge-simavr: run an AVR ELF in simavr with UART0 on a pseudo-terminal and devices on its
- * pins, driven line by line from a controlling process (hwbridge.firmware.sim).
+ * hwbridge-simavr: run AVR firmware (an ELF or an Intel HEX) in simavr with UART0 on a
+ * pseudo-terminal and devices on its pins, driven line by line from a controlling process
+ * (hwbridge.firmware.sim).
  *
  *   hwbridge-simavr --mcu atmega328p --freq 16000000 [--speed 1.0] [--report-us 5000] [--hold]
- *                   [--bootloader BOOT.hex] [--trace-uart FILE] [--hex] FIRMWARE
+ *                   [--bootloader BOOT.hex] [--trace-uart FILE] [--trace-pc FILE] [--hex] FIRMWARE
  *
  * FIRMWARE is an ELF, or with --hex an Intel HEX (whatever its name: the controlling process,
  * which knows the names of HEX files, says which).
  *
  * With --bootloader (an Intel HEX at the top of flash: Optiboot's 0x7E00 on the ATmega328P, the
- * stk500v2 bootloader's 0x3E000 on the ATmega2560) the CPU starts at the bootloader, as the BOOTRST fuse makes it, and FIRMWARE (an ELF or an Intel HEX) is optional:
- * the application already in flash. An open of the pty resets the AVR with EXTRF set in MCUSR,
+ * stk500v2 bootloader's 0x3E000 on the ATmega2560) the CPU starts at the bootloader, as the
+ * BOOTRST fuse makes it, and FIRMWARE (an ELF or an Intel HEX) is optional: the application
+ * already in flash. An open of the pty resets the AVR with EXTRF set in MCUSR,
  * as an Uno's auto-reset does when the host opens the port (DTR falls): a pty has no modem lines
  * avrdude could toggle, so the open is what the runner sees (inotify). Flash written by the
  * bootloader (SPM) stays for the rest of the run: resets keep it.

@@ -4,12 +4,23 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
 from pathlib import Path
 
 from tests.netutil import free_port, wait_until
+
+
+def new_sessions(output: str, board: str | None = None) -> int:
+    """How many new sessions a bridge's ``output`` shows (with ``board``: with the board of that
+    name), resumed ones not counted: a busy machine may hold a simulated board silent past the
+    link's 0.8 s timeout, and its session then resumes ('connected (native, session
+    resumed)'); a board that came back after a reset but was taken for its old session resumed
+    never adds one."""
+    named = rf"board '{re.escape(board)}' " if board is not None else ""
+    return len(re.findall(rf"{named}connected \([^,)]*\):", output))
 
 
 class BridgeProcess:

@@ -29,7 +29,7 @@ from hwbridge.errors import HwBridgeError
 from hwbridge.firmware import build
 from hwbridge.firmware.checks import FirmwareTarget, check_elf, check_hex
 from hwbridge.firmware.children import follow_parent
-from hwbridge.firmware.sim.bootloader import HEX_SUFFIXES
+from hwbridge.firmware.sim.bootloader import HEX_SUFFIXES, is_intel_hex
 
 __all__ = [
     "AVRDUDE_PACKAGE",
@@ -108,7 +108,7 @@ def prepare_image(
         )
         if done.returncode != 0:
             raise UploadError(f"cannot convert {target} to Intel HEX: {done.stderr.strip()}")
-    elif suffix in HEX_SUFFIXES:
+    elif is_intel_hex(target):
         image = target
     else:
         raise UploadError(

@@ -18,11 +18,8 @@ import pytest
 
 from hwbridge.firmware.qemu import QemuBoard
 from hwbridge.firmware.sim.examples import build_example, build_sketch_for_sim
-from tests.bridgeproc import BridgeProcess
+from tests.bridgeproc import BridgeProcess, new_sessions
 from tests.netutil import wait_until
-
-FRESH = "connected (native):"
-"""The end of the bridge's line for a new session (a resumed one says 'session resumed')."""
 
 SKETCHES = Path(__file__).with_name("sketches")
 
@@ -72,14 +69,12 @@ def test_hello_world_and_reset(run_example: Callable[..., Running]) -> None:
     bridge, board = running.bridge, running.board
     assert "data: hello world!" in _echo(bridge, "/chatter")
     assert "/chatter" in bridge.cli("topic", "list").stdout
-    # New sessions, not resumed ones ('connected (native, session resumed)'): a busy machine
-    # can hold QEMU past the link's 0.8 s timeout, and the board's session then resumes.
-    sessions = bridge.output().count(FRESH)
+    sessions = new_sessions(bridge.output())  # (QEMU held past the link's timeout resumes)
     count_at = _symbol(board.elf, "hwbridge::detail::boot_count")
     boots = board.peek(count_at, 1)[0]
     board.reset()  # the board starts again: a new session, taken by the bridge on its own
     # (taken for the old one resumed, it would never say so)
-    assert wait_until(lambda: bridge.output().count(FRESH) > sessions, 60), bridge.output()
+    assert wait_until(lambda: new_sessions(bridge.output()) > sessions, 60), bridge.output()
     assert "data: hello world!" in _echo(bridge, "/chatter")
     assert board.running
     # The boot count in .noinit RAM went through the reset (the start-up code clears .bss, not

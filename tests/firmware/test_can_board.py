@@ -23,7 +23,6 @@ the Mega by both tools in ``test_examples.py`` like every example.
 from __future__ import annotations
 
 import random
-import re
 import shutil
 import subprocess
 from collections.abc import Iterator
@@ -32,7 +31,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from tests.bridgeproc import BridgeProcess
+from tests.bridgeproc import BridgeProcess, new_sessions
 from tests.netutil import free_port, wait_until
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -160,12 +159,6 @@ def _values(out: str) -> list[int]:
 
 
 @needs_gpp
-def _sessions(output: str, board: str) -> int:
-    """New sessions the bridge had with ``board`` (not resumed ones, '(..., session resumed)':
-    a busy machine may hold a board silent past the link's timeout, and its session resumes)."""
-    return len(re.findall(rf"board '{re.escape(board)}' connected \([^,)]*\):", output))
-
-
 def test_host_sketch_on_a_can_bus_with_an_emulated_board(
     program: Path, bus: Bus, tmp_path: Path
 ) -> None:
@@ -210,8 +203,8 @@ def test_host_sketch_on_a_can_bus_with_an_emulated_board(
         count = bridge.cli("topic", "echo", f"/node{OTHER}/count", "-n", "2", "--timeout", "30")
         assert count.returncode == 0, count.stderr
         output = bridge.output()
-        assert _sessions(output, "node2") == 1, output
-        assert _sessions(output, "canboard") == 1, output
+        assert new_sessions(output, "node2") == 1, output
+        assert new_sessions(output, "canboard") == 1, output
         assert bus.relay.to_bus > 0 and bus.relay.from_bus > 0
 
         # the board restarts (new session, transfer ids from 0 again): the bridge takes it back
@@ -220,10 +213,12 @@ def test_host_sketch_on_a_can_bus_with_an_emulated_board(
         board = subprocess.Popen(
             [str(program)], env={**bridge.env, **env}, stdout=log, stderr=subprocess.STDOUT
         )
-        assert wait_until(lambda: _sessions(bridge.output(), "canboard") >= 2, 30), bridge.output()
+        assert wait_until(lambda: new_sessions(bridge.output(), "canboard") >= 2, 30), (
+            bridge.output()
+        )
         call = bridge.cli("service", "call", ping)
         assert yaml.safe_load(call.stdout) == {"success": True, "message": "pong 1"}, call.stderr
-        assert _sessions(bridge.output(), "node2") == 1, bridge.output()
+        assert new_sessions(bridge.output(), "node2") == 1, bridge.output()
     finally:
         if board is not None:
             board.kill()

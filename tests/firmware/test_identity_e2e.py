@@ -27,7 +27,7 @@ from hwbridge.bridge.identity import host_hashes, library_version
 from hwbridge.msg import registry
 from hwbridge.robot.identity import build_tag
 from tests.boards import PtyBoard, native_sketch
-from tests.bridgeproc import BridgeProcess
+from tests.bridgeproc import BridgeProcess, new_sessions
 from tests.netutil import free_port, stop_child, wait_until
 
 SKETCH = Path(__file__).parent / "sketches" / "Identity"
@@ -86,12 +86,6 @@ def bridge(tmp_path: Path) -> Iterator[BridgeProcess]:
     process.stop()
 
 
-def _connected(output: str) -> int:
-    """New sessions the bridge had with the board (not resumed ones: a busy machine may hold the
-    board silent past the link's timeout, and its session then resumes)."""
-    return output.count("board 'ident' connected (native):")
-
-
 def _info(bridge: BridgeProcess) -> dict[str, object]:
     shown = bridge.cli("board", "info", "base", "--json", timeout=CLI_TIMEOUT)
     assert shown.returncode == 0, shown.stderr + bridge.output()
@@ -104,7 +98,9 @@ def test_board_info_shows_the_firmware_identity(
 ) -> None:
     board = Program(named, tmp_path / "ttyBOARD")
     try:
-        assert wait_until(lambda: _connected(bridge.output()) >= 1, CONNECT_WAIT), bridge.output()
+        assert wait_until(lambda: new_sessions(bridge.output(), "ident") >= 1, CONNECT_WAIT), (
+            bridge.output()
+        )
         schema, messages = host_hashes(registry())
         assert _info(bridge)["firmware"] == {
             "name": "demo/base",
@@ -138,9 +134,9 @@ def test_a_stale_firmware_is_warned_about_once(
     for session in range(1, 5):
         board = Program(stale, tmp_path / "ttyBOARD")
         try:
-            assert wait_until(lambda n=session: _connected(bridge.output()) >= n, CONNECT_WAIT), (
-                bridge.output()
-            )
+            assert wait_until(
+                lambda n=session: new_sessions(bridge.output(), "ident") >= n, CONNECT_WAIT
+            ), bridge.output()
             firmware = _info(bridge)["firmware"]
             assert isinstance(firmware, dict)
             assert firmware["schema_hash"] == STALE_SCHEMA

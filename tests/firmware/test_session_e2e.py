@@ -27,12 +27,10 @@ import yaml
 from hwbridge.errors import LinkError
 from hwbridge.links import open_link
 from hwbridge.links.base import Link
-from tests.bridgeproc import BridgeProcess
+from tests.bridgeproc import BridgeProcess, new_sessions
 from tests.netutil import free_port, wait_until
 
 SKETCH = Path(__file__).parent / "sketches" / "SessionE2E"
-FRESH = "board 'e2e' connected (native):"
-"""The bridge's line for a new session with the board (a resumed one says 'session resumed')."""
 
 pytestmark = pytest.mark.skipif(
     shutil.which("g++") is None, reason="g++ is not installed (Debian package g++)"
@@ -202,7 +200,7 @@ def test_host_sketch_through_the_bridge(
         # kill and restart the board program: the bridge reconnects on its own
         board.kill()
         board = BoardProgram(program, relay.board_path)
-        assert wait_until(lambda: bridge.output().count(FRESH) >= 2, 20), bridge.output()
+        assert wait_until(lambda: new_sessions(bridge.output(), "e2e") >= 2, 20), bridge.output()
         call = bridge.cli("service", "call", "/ping")
         assert yaml.safe_load(call.stdout) == {"success": True, "message": "pong 1"}
         assert wait_until(lambda: bridge.output().count("rate is 7") >= 2, 10)
@@ -222,6 +220,6 @@ def test_host_sketch_through_the_bridge(
         assert relay.damaged > 0 and sum(host[k] for k in damage) > 0, host
         # no new session either (a busy machine may hold the board silent past the link's
         # timeout: the session then resumes, '(native, session resumed)', and loses nothing)
-        assert bridge.output().count(FRESH) == 2, bridge.output()
+        assert new_sessions(bridge.output(), "e2e") == 2, bridge.output()
     finally:
         board.kill()
